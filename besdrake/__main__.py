@@ -1,0 +1,3 @@
+from besdrake.cli import main
+
+raise SystemExit(main())

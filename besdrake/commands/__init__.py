@@ -1,0 +1,1 @@
+"""Subcommands of the ``besdrake`` CLI, one module each (see :mod:`besdrake.cli`)."""

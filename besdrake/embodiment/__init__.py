@@ -1,0 +1,1 @@
+"""Embodiment mapping: record mapping, synchronization frame, spatial and temporal scaling."""

@@ -1,0 +1,1 @@
+"""Imitation: dynamical movement primitives (joint space and Cartesian)."""

@@ -1,0 +1,1 @@
+"""Policy search: ask/tell optimizers, contextual policy search, behaviour templates."""

@@ -1,0 +1,178 @@
+"""The ask/tell interface every optimizer of :mod:`besdrake.search` implements.
+
+Conventions (shared by all optimizers, contextual or not):
+
+* Optimizers **maximise** a reward. (``cma`` minimises; its wrapper negates.)
+* ``ask()`` returns an array of shape ``(n_candidates, n_params)``; ``tell(candidates, rewards)``
+  takes the same candidates back with one reward each. Sequential methods (Bayesian optimization)
+  return one candidate per ``ask``.
+* Randomness comes only from the ``numpy.random.Generator`` given at construction.
+* A reward that is NaN or infinite is a failed episode: :func:`sanitize_rewards` replaces it by the
+  worst finite reward seen so far minus a penalty, so the search goes on and nothing is lost.
+* ``state_dict()`` returns JSON-serialisable data plus numpy arrays (saved with :func:`save_state`
+  as ``.json`` + ``.npz``, no pickle); ``from_state`` restores an optimizer that continues exactly
+  where the saved one stopped (same candidates for the same generator state).
+"""
+
+from __future__ import annotations
+
+import json
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+FAILED_EPISODE_PENALTY = 1.0
+
+
+@dataclass
+class SearchResult:
+    """Best parameters found and the history of a search."""
+
+    best_params: np.ndarray
+    best_reward: float
+    n_evaluations: int
+    rewards: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+
+def sanitize_rewards(rewards: np.ndarray, worst_seen: float | None, penalty: float = FAILED_EPISODE_PENALTY) -> tuple[np.ndarray, np.ndarray]:
+    """Replace non-finite rewards by ``worst finite reward - penalty``.
+
+    Returns the cleaned rewards and a boolean mask of the failed episodes.
+    """
+    rewards = np.asarray(rewards, dtype=float).copy()
+    failed = ~np.isfinite(rewards)
+    if failed.any():
+        finite = rewards[~failed]
+        candidates = [v for v in (worst_seen, finite.min() if finite.size else None) if v is not None]
+        worst = min(candidates) if candidates else 0.0
+        rewards[failed] = worst - penalty
+    return rewards, failed
+
+
+def rng_state(rng: np.random.Generator) -> dict[str, Any]:
+    """JSON-serialisable state of a generator."""
+    return json.loads(json.dumps(rng.bit_generator.state, default=int))
+
+
+def rng_from_state(state: dict[str, Any]) -> np.random.Generator:
+    bit_generator = getattr(np.random, state["bit_generator"])()
+    bit_generator.state = state
+    return np.random.Generator(bit_generator)
+
+
+class Optimizer(ABC):
+    """Black-box maximiser with an ask/tell interface."""
+
+    n_params: int
+
+    @abstractmethod
+    def ask(self) -> np.ndarray:
+        """Candidates to evaluate next, shape ``(n_candidates, n_params)``."""
+
+    @abstractmethod
+    def tell(self, candidates: np.ndarray, rewards: np.ndarray) -> None:
+        """Report the rewards of candidates returned by :meth:`ask`."""
+
+    @property
+    @abstractmethod
+    def best(self) -> tuple[np.ndarray, float]:
+        """Best parameters seen so far and their reward."""
+
+    def stop(self) -> bool:
+        """True when the optimizer has converged or exhausted its budget."""
+        return False
+
+    @abstractmethod
+    def state_dict(self) -> dict[str, Any]:
+        """Everything needed to resume: JSON-compatible values and numpy arrays."""
+
+    @classmethod
+    @abstractmethod
+    def from_state(cls, state: dict[str, Any]) -> "Optimizer":
+        """Rebuild an optimizer from :meth:`state_dict`."""
+
+
+class ContextualOptimizer(ABC):
+    """Contextual policy search: learns an upper-level policy ``theta = pi(s)``."""
+
+    n_params: int
+    n_context: int
+
+    @abstractmethod
+    def ask(self, context: np.ndarray) -> np.ndarray:
+        """Parameters to try in ``context``, shape ``(n_params,)``."""
+
+    @abstractmethod
+    def tell(self, context: np.ndarray, params: np.ndarray, reward: float) -> None:
+        """Report the reward of ``params`` in ``context``."""
+
+    @abstractmethod
+    def policy(self, context: np.ndarray) -> np.ndarray:
+        """Best parameters for ``context`` under the current upper-level policy (no exploration)."""
+
+    def select_context(self, bounds: np.ndarray) -> np.ndarray:
+        """Active learning: the context to explore next within ``bounds`` (shape ``(n_context, 2)``).
+
+        Optimizers without active context selection draw uniformly.
+        """
+        rng = getattr(self, "rng", np.random.default_rng())
+        return rng.uniform(bounds[:, 0], bounds[:, 1])
+
+    @abstractmethod
+    def state_dict(self) -> dict[str, Any]: ...
+
+    @classmethod
+    @abstractmethod
+    def from_state(cls, state: dict[str, Any]) -> "ContextualOptimizer": ...
+
+
+def save_state(state: dict[str, Any], path: str | Path) -> None:
+    """Write a state dict as ``path.json`` (scalars, lists, strings) + ``path.npz`` (arrays).
+
+    Writes to temporary files and renames, so a killed run never leaves a half-written state.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    arrays: dict[str, np.ndarray] = {}
+
+    def split(obj: Any, prefix: str) -> Any:
+        if isinstance(obj, np.ndarray):
+            arrays[prefix] = obj
+            return {"__array__": prefix}
+        if isinstance(obj, dict):
+            return {k: split(v, f"{prefix}.{k}") for k, v in obj.items()}
+        if isinstance(obj, (list, tuple)):
+            return [split(v, f"{prefix}.{i}") for i, v in enumerate(obj)]
+        if isinstance(obj, np.generic):
+            return obj.item()
+        return obj
+
+    meta = split(state, "state")
+    tmp_json = path.with_suffix(".json.tmp")
+    tmp_npz = path.with_suffix(".tmp.npz")
+    tmp_json.write_text(json.dumps(meta, indent=1))
+    np.savez(tmp_npz, **arrays)
+    tmp_npz.replace(path.with_suffix(".npz"))
+    tmp_json.replace(path.with_suffix(".json"))
+
+
+def load_state(path: str | Path) -> dict[str, Any]:
+    """Inverse of :func:`save_state`."""
+    path = Path(path)
+    meta = json.loads(path.with_suffix(".json").read_text())
+    with np.load(path.with_suffix(".npz"), allow_pickle=False) as data:
+        arrays = {k: data[k] for k in data.files}
+
+    def join(obj: Any) -> Any:
+        if isinstance(obj, dict):
+            if set(obj) == {"__array__"}:
+                return arrays[obj["__array__"]]
+            return {k: join(v) for k, v in obj.items()}
+        if isinstance(obj, list):
+            return [join(v) for v in obj]
+        return obj
+
+    return join(meta)

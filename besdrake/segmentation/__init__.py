@@ -1,0 +1,1 @@
+"""Behaviour segmentation (vMCI and baselines) and 1-NN movement classification."""

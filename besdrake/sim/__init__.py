@@ -1,0 +1,1 @@
+"""Simulation: COMPI with scoop as a Drake Diagram, physical effects, rollouts and executors."""

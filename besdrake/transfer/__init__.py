@@ -1,0 +1,1 @@
+"""Sim-to-real: the lab interface, measured-data logs, the Transferability Approach."""
