@@ -1,0 +1,348 @@
+"""Dynamical movement primitive with a goal velocity (Muelling et al. 2011/2013) in a vector space.
+
+Transformation system (``tau`` execution time, ``z`` phase, see :mod:`.basis`)::
+
+    ydd = (alpha_y (beta_y (g(t) - y) + tau (gd(t) - yd)) + f(z)) / tau**2 + gdd(t)
+
+``g(t)`` is a moving goal: the quintic polynomial from (start, start velocity, start acceleration)
+at ``t = 0`` to (goal, goal velocity, goal acceleration) at ``t = tau``; after ``tau`` it stays at the
+goal with zero velocity. With ``f = 0`` the DMP follows ``g`` exactly, so it arrives at the goal
+with the goal velocity at ``t = tau``; changing ``tau`` rescales the movement in time and keeps
+the final velocity. Integration is semi-implicit Euler (velocity first, then position) with
+uniform sub-steps of at most ``int_dt``; the acceleration of a sub-step is evaluated at its end
+time. This is the formulation of ``movement_primitives.dmp.DMPWithFinalVelocity`` (our test
+oracle). Where we deliberately differ (tested as properties, not against the oracle):
+
+* a step ``dt`` that is not a multiple of ``int_dt`` is split into equal sub-steps
+  (``dt / ceil(dt / int_dt)``) instead of ``int_dt`` steps plus a remainder, so that the
+  integration is uniform and the open-loop rollout can run as a linear recursive filter;
+* imitation measures time from the first sample, so demonstrations need not start at t = 0;
+* the moving goal switches to rest after ``tau`` with a tolerance of 1e-9 s (the oracle's
+  switch depends on floating-point rounding of its accumulated time at the last step).
+
+The open-loop rollout is vectorised: the forcing term and moving goal are evaluated for all
+sub-steps at once and the linear recursion runs in :func:`scipy.signal.lfilter`.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy.signal import lfilter
+
+from besdrake.imitation._validation import (
+    DMPParameterError,
+    demonstration,
+    finite_array,
+    positive_float,
+)
+from besdrake.imitation.basis import ALPHA_Z, RadialBasis, phase
+
+#: Default gains (critically damped: beta_y = alpha_y / 4).
+DEFAULT_ALPHA_Y = 25.0
+DEFAULT_BETA_Y = 6.25
+#: Default largest integration sub-step in s.
+DEFAULT_INT_DT = 0.001
+#: Tolerance (s) when deciding whether a time lies after the execution time.
+TIME_TOLERANCE = 1e-9
+
+
+@dataclass
+class DMPTrajectory:
+    """A DMP rollout: times (N,) in s, positions (N, n_dims) and velocities (N, n_dims)."""
+
+    t: np.ndarray
+    y: np.ndarray
+    yd: np.ndarray
+
+
+def quintic_coefficients(
+    duration: float,
+    y0: np.ndarray,
+    yd0: np.ndarray,
+    ydd0: np.ndarray,
+    y1: np.ndarray,
+    yd1: np.ndarray,
+    ydd1: np.ndarray,
+) -> np.ndarray:
+    """Coefficients ``(6, n_dims)`` of ``p(t) = sum_k c_k t**k`` matching both boundary states."""
+    T = duration
+    M = np.array(
+        [
+            [1.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0, 0.0, 0.0, 0.0],
+            [0.0, 0.0, 2.0, 0.0, 0.0, 0.0],
+            [1.0, T, T**2, T**3, T**4, T**5],
+            [0.0, 1.0, 2 * T, 3 * T**2, 4 * T**3, 5 * T**4],
+            [0.0, 0.0, 2.0, 6 * T, 12 * T**2, 20 * T**3],
+        ]
+    )
+    return np.linalg.solve(M, np.vstack((y0, yd0, ydd0, y1, yd1, ydd1)))
+
+
+def moving_goal(
+    t: np.ndarray, coefficients: np.ndarray, goal: np.ndarray, execution_time: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Moving goal position, velocity, acceleration ``(len(t), n_dims)``; at rest on the goal after ``tau``."""
+    t = np.atleast_1d(np.asarray(t, dtype=float))
+    powers = t[:, None] ** np.arange(6)
+    k = np.arange(6)
+    g = powers @ coefficients
+    gd = (powers[:, :5] * k[1:]) @ coefficients[1:]
+    gdd = (powers[:, :4] * (k[2:] * k[1:5])) @ coefficients[2:]
+    after = t > execution_time + TIME_TOLERANCE
+    if np.any(after):
+        g[after] = goal
+        gd[after] = 0.0
+        gdd[after] = 0.0
+    return g, gd, gdd
+
+
+def substeps(dt: float, int_dt: float) -> int:
+    """Number of equal integration sub-steps (each <= ``int_dt``) in one step of ``dt``."""
+    return max(1, math.ceil(dt / int_dt - 1e-9))
+
+
+class DMP:
+    """Joint-space (or any vector-space) DMP with start, goal, goal velocity and execution time.
+
+    Meta-parameters are attributes (validated on assignment): ``start``, ``goal``,
+    ``goal_velocity``, ``start_velocity``, ``start_acceleration``, ``goal_acceleration`` (units of
+    the positions: rad, rad/s, rad/s^2 for joints), ``execution_time`` (s) and ``weights``
+    ``(n_dims, n_weights_per_dim)``. ``fit`` imitates a demonstration.
+    """
+
+    def __init__(
+        self,
+        n_dims: int,
+        n_weights_per_dim: int = 10,
+        execution_time: float = 1.0,
+        alpha_y: float | np.ndarray = DEFAULT_ALPHA_Y,
+        beta_y: float | np.ndarray = DEFAULT_BETA_Y,
+        int_dt: float = DEFAULT_INT_DT,
+    ) -> None:
+        if int(n_dims) != n_dims or n_dims < 1:
+            raise DMPParameterError(f"n_dims must be a positive integer, got {n_dims}")
+        self.n_dims = int(n_dims)
+        self.basis = RadialBasis.with_count(int(n_weights_per_dim))
+        self.alpha_y = finite_array("alpha_y", alpha_y, (self.n_dims,))
+        self.beta_y = finite_array("beta_y", beta_y, (self.n_dims,))
+        if np.any(self.alpha_y <= 0) or np.any(self.beta_y <= 0):
+            raise DMPParameterError("alpha_y and beta_y must be > 0")
+        self.int_dt = positive_float("int_dt", int_dt)
+        self.execution_time = execution_time
+        zeros = np.zeros(self.n_dims)
+        self.start = zeros
+        self.goal = zeros
+        self.start_velocity = zeros
+        self.start_acceleration = zeros
+        self.goal_velocity = zeros
+        self.goal_acceleration = zeros
+        self.weights = np.zeros((self.n_dims, self.n_weights_per_dim))
+
+    # -- validated meta-parameters ------------------------------------------------------------
+    def __setattr__(self, name: str, value: Any) -> None:
+        if name == "execution_time":
+            value = positive_float("execution_time", value)
+        elif name in _VECTOR_FIELDS:
+            value = finite_array(name, value, (self.n_dims,))
+        elif name == "weights":
+            value = finite_array("weights", value, (self.n_dims, self.n_weights_per_dim))
+        object.__setattr__(self, name, value)
+
+    @property
+    def n_weights_per_dim(self) -> int:
+        return self.basis.n_weights
+
+    @property
+    def n_weights(self) -> int:
+        """Total number of forcing-term weights."""
+        return self.n_dims * self.n_weights_per_dim
+
+    def get_weights(self) -> np.ndarray:
+        """Flat copy of the weights, dimension-major (all weights of dim 0 first)."""
+        return self.weights.ravel().copy()
+
+    def set_weights(self, weights: np.ndarray) -> None:
+        """Set the weights from a flat vector of length ``n_weights``."""
+        flat = finite_array("weights", weights, (self.n_weights,))
+        self.weights = flat.reshape(self.n_dims, self.n_weights_per_dim)
+
+    def copy(self) -> "DMP":
+        """Independent copy."""
+        return DMP.from_dict(self.to_dict())
+
+    # -- imitation ----------------------------------------------------------------------------
+    def fit(self, t: np.ndarray, y: np.ndarray, regularization: float = 0.0) -> "DMP":
+        """Imitate a demonstration: times ``(N,)`` in s, positions ``(N, n_dims)``.
+
+        Sets start and goal to the first and last sample, the goal velocity and acceleration to
+        backward differences at the last sample (start velocity and acceleration to zero), the
+        execution time to the demonstration's duration, and the weights by (ridge) regression of
+        the forcing term that reproduces the demonstrated accelerations.
+        """
+        t, y = demonstration(t, y, self.n_dims)
+        if not (np.isfinite(regularization) and regularization >= 0.0):
+            raise DMPParameterError(f"regularization must be finite and >= 0, got {regularization}")
+        t = t - t[0]
+        tau = float(t[-1])
+        dts = np.diff(t)[:, None]
+        yd = np.zeros_like(y)
+        yd[1:] = np.diff(y, axis=0) / dts
+        ydd = np.zeros_like(y)
+        ydd[1:] = np.diff(yd, axis=0) / dts
+        zeros = np.zeros(self.n_dims)
+        coefficients = quintic_coefficients(tau, y[0], zeros, zeros, y[-1], yd[-1], ydd[-1])
+        g, gd, gdd = moving_goal(t, coefficients, y[-1], tau)
+        a, b = self.alpha_y, self.beta_y
+        forces = tau**2 * ydd - a * (b * (g - y) + tau * (gd - yd)) - tau**2 * gdd
+        X = self.basis.features(phase(t, tau))
+        if regularization > 0.0:
+            X = np.vstack((X, math.sqrt(regularization) * np.eye(self.n_weights_per_dim)))
+            forces = np.vstack((forces, np.zeros((self.n_weights_per_dim, self.n_dims))))
+        weights = np.linalg.lstsq(X, forces, rcond=None)[0].T
+        self.execution_time = tau
+        self.start, self.goal = y[0], y[-1]
+        self.start_velocity = self.start_acceleration = zeros
+        self.goal_velocity, self.goal_acceleration = yd[-1], ydd[-1]
+        self.weights = weights
+        return self
+
+    # -- integration --------------------------------------------------------------------------
+    def _coefficients(self) -> np.ndarray:
+        return quintic_coefficients(
+            self.execution_time,
+            self.start,
+            self.start_velocity,
+            self.start_acceleration,
+            self.goal,
+            self.goal_velocity,
+            self.goal_acceleration,
+        )
+
+    def _drive(self, t: np.ndarray, coefficients: np.ndarray) -> np.ndarray:
+        """State-independent part ``u(t)`` of the acceleration, ``(len(t), n_dims)``."""
+        tau = self.execution_time
+        g, gd, gdd = moving_goal(t, coefficients, self.goal, tau)
+        f = self.basis.features(phase(t, tau)) @ self.weights.T
+        return (self.alpha_y * (self.beta_y * g + tau * gd) + f) / tau**2 + gdd
+
+    def open_loop(self, dt: float = 0.01, run_time: float | None = None) -> DMPTrajectory:
+        """Roll the DMP out from its start state, sampled every ``dt`` s up to ``run_time``
+        (default: the execution time; it may be shorter or longer)."""
+        dt = positive_float("dt", dt)
+        run_time = self.execution_time if run_time is None else positive_float("run_time", run_time)
+        n_sub = substeps(dt, self.int_dt)
+        h = dt / n_sub
+        n_out = int(math.floor(run_time / dt + 1e-9)) + 1
+        n_int = (n_out - 1) * n_sub
+        tau = self.execution_time
+        t_int = np.arange(1, n_int + 1) * h
+        u = self._drive(t_int, self._coefficients())
+        # Semi-implicit Euler as the linear recursion y[j] = c1 y[j-1] - c2 y[j-2] + h^2 u[j].
+        damping = self.alpha_y / tau
+        stiffness = self.alpha_y * self.beta_y / tau**2
+        c1 = 2.0 - h * damping - h * h * stiffness
+        c2 = 1.0 - h * damping
+        y0 = self.start
+        y_prev = y0 - h * self.start_velocity
+        zi = np.vstack((c1 * y0 - c2 * y_prev, -c2 * y0))
+        y = np.empty((n_int + 1, self.n_dims))
+        y[0] = y0
+        if n_int:
+            if np.all(c1 == c1[0]) and np.all(c2 == c2[0]):
+                y[1:] = lfilter([h * h], [1.0, -c1[0], c2[0]], u, axis=0, zi=zi)[0]
+            else:
+                for d in range(self.n_dims):
+                    y[1:, d] = lfilter([h * h], [1.0, -c1[d], c2[d]], u[:, d], zi=zi[:, d])[0]
+        yd = np.empty_like(y)
+        yd[0] = self.start_velocity
+        yd[1:] = np.diff(y, axis=0) / h
+        return DMPTrajectory(np.arange(n_out) * dt, y[::n_sub].copy(), yd[::n_sub].copy())
+
+    def step(self, t: float, y: np.ndarray, yd: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """Integrate one step of ``dt`` s from state ``(y, yd)`` at DMP time ``t`` (s since the start).
+
+        Closed-loop use: pass the measured (or last commanded) state. Returns new ``(y, yd)``.
+        """
+        dt = positive_float("dt", dt)
+        y = finite_array("y", y, (self.n_dims,)).copy()
+        yd = finite_array("yd", yd, (self.n_dims,)).copy()
+        n_sub = substeps(dt, self.int_dt)
+        h = dt / n_sub
+        u = self._drive(float(t) + np.arange(1, n_sub + 1) * h, self._coefficients())
+        tau = self.execution_time
+        damping = self.alpha_y / tau
+        stiffness = self.alpha_y * self.beta_y / tau**2
+        for j in range(n_sub):
+            yd += h * (u[j] - stiffness * y - damping * yd)
+            y += h * yd
+        return y, yd
+
+    # -- persistence --------------------------------------------------------------------------
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-serialisable description (SI units)."""
+        return {
+            "type": "DMP",
+            "n_dims": self.n_dims,
+            "n_weights_per_dim": self.n_weights_per_dim,
+            "alpha_y": self.alpha_y.tolist(),
+            "beta_y": self.beta_y.tolist(),
+            "int_dt": self.int_dt,
+            "execution_time": self.execution_time,
+            **{name: getattr(self, name).tolist() for name in _VECTOR_FIELDS},
+            "weights": self.weights.tolist(),
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> "DMP":
+        """Inverse of :meth:`to_dict`; raises :class:`DMPParameterError` on missing or bad fields."""
+        try:
+            if data.get("type", "DMP") != "DMP":
+                raise DMPParameterError(f"expected a DMP description, got type {data.get('type')!r}")
+            dmp = cls(
+                data["n_dims"],
+                data["n_weights_per_dim"],
+                data["execution_time"],
+                data["alpha_y"],
+                data["beta_y"],
+                data.get("int_dt", DEFAULT_INT_DT),
+            )
+            for name in _VECTOR_FIELDS:
+                setattr(dmp, name, data[name])
+            dmp.weights = data["weights"]
+        except KeyError as err:
+            raise DMPParameterError(f"DMP description lacks the field {err.args[0]!r}") from err
+        return dmp
+
+    def save(self, path: str | Path) -> None:
+        """Write the DMP as JSON."""
+        Path(path).write_text(json.dumps(self.to_dict(), indent=1))
+
+    @classmethod
+    def load(cls, path: str | Path) -> "DMP":
+        """Read a DMP written by :meth:`save`."""
+        try:
+            data = json.loads(Path(path).read_text())
+        except json.JSONDecodeError as err:
+            raise DMPParameterError(f"{path} is not valid JSON: {err}") from err
+        if not isinstance(data, dict):
+            raise DMPParameterError(f"{path} does not hold a DMP description")
+        return cls.from_dict(data)
+
+
+_VECTOR_FIELDS = (
+    "start",
+    "goal",
+    "start_velocity",
+    "start_acceleration",
+    "goal_velocity",
+    "goal_acceleration",
+)
+
+__all__ = ["ALPHA_Z", "DMP", "DMPParameterError", "DMPTrajectory"]
