@@ -41,7 +41,7 @@ from besdrake.imitation._validation import (
     finite_array,
     positive_float,
 )
-from besdrake.imitation.basis import ALPHA_Z, RadialBasis, phase
+from besdrake.imitation.basis import RadialBasis, phase
 
 #: Default gains (critically damped: beta_y = alpha_y / 4).
 DEFAULT_ALPHA_Y = 25.0
@@ -345,4 +345,4 @@ _VECTOR_FIELDS = (
     "goal_acceleration",
 )
 
-__all__ = ["ALPHA_Z", "DMP", "DMPParameterError", "DMPTrajectory"]
+__all__ = ["DMP", "DMPTrajectory", "moving_goal", "quintic_coefficients", "substeps"]

@@ -1,0 +1,88 @@
+"""Flat parameter vector <-> joint-space DMP, for policy search.
+
+For COMPI the vector has 49 entries, in this order: start (6 joint positions, rad), goal (6, rad),
+forcing-term weights (6 per joint, joint-major, 36) and the execution time (1, s). The goal
+velocity, gains and basis are fixed by the template DMP (from imitation).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from besdrake import robot
+from besdrake.imitation._validation import DMPParameterError, positive_float
+from besdrake.imitation.dmp import DMP
+
+#: Minimum execution time (s) the paper imposes on imitated throws (applied by the embodiment stage;
+#: a DMP itself accepts any positive time).
+MIN_THROW_EXECUTION_TIME = 0.95
+#: Forcing-term weights per joint of COMPI's throwing DMP (6 joints x 6 = 36 weights).
+THROW_WEIGHTS_PER_JOINT = 6
+
+
+class DMPParameterization:
+    """Maps ``theta`` (start, goal, weights, execution time) to copies of a template :class:`DMP`."""
+
+    def __init__(self, template: DMP) -> None:
+        if not isinstance(template, DMP):
+            raise TypeError(f"template must be a besdrake.imitation.DMP, got {type(template).__name__}")
+        self.template = template.copy()
+        n, k = template.n_dims, template.n_weights_per_dim
+        joints = list(robot.JOINT_NAMES) if n == len(robot.JOINT_NAMES) else [f"dim{i}" for i in range(n)]
+        self.names: tuple[str, ...] = tuple(
+            [f"start.{j}" for j in joints]
+            + [f"goal.{j}" for j in joints]
+            + [f"weight.{j}.{i}" for j in joints for i in range(k)]
+            + ["execution_time"]
+        )
+        self._slices = {
+            "start": slice(0, n),
+            "goal": slice(n, 2 * n),
+            "weights": slice(2 * n, 2 * n + n * k),
+            "execution_time": 2 * n + n * k,
+        }
+
+    @property
+    def n_params(self) -> int:
+        """Length of ``theta`` (49 for COMPI's throw)."""
+        return len(self.names)
+
+    def to_vector(self, dmp: DMP | None = None) -> np.ndarray:
+        """``theta`` of ``dmp`` (default: the template)."""
+        dmp = self.template if dmp is None else dmp
+        if dmp.n_dims != self.template.n_dims or dmp.n_weights_per_dim != self.template.n_weights_per_dim:
+            raise DMPParameterError("the DMP's dimensions differ from the template's")
+        return np.concatenate((dmp.start, dmp.goal, dmp.get_weights(), [dmp.execution_time]))
+
+    def from_vector(self, theta: np.ndarray) -> DMP:
+        """A copy of the template with ``theta`` applied; :class:`DMPParameterError` names any bad entry."""
+        theta = np.asarray(theta, dtype=float)
+        if theta.shape != (self.n_params,):
+            raise DMPParameterError(f"theta must have shape ({self.n_params},), got {theta.shape}")
+        bad = np.flatnonzero(~np.isfinite(theta))
+        if bad.size:
+            listed = ", ".join(f"{self.names[i]}={theta[i]}" for i in bad[:5])
+            raise DMPParameterError(f"theta has {bad.size} NaN or infinite entries: {listed}")
+        s = self._slices
+        tau = theta[s["execution_time"]]
+        if tau <= 0.0:
+            raise DMPParameterError(f"theta entry execution_time must be > 0 s, got {tau}")
+        dmp = self.template.copy()
+        dmp.start = theta[s["start"]]
+        dmp.goal = theta[s["goal"]]
+        dmp.set_weights(theta[s["weights"]])
+        dmp.execution_time = tau
+        return dmp
+
+    def motion_plan(self, theta: np.ndarray, dt: float = 0.002, run_time: float | None = None):
+        """Roll the DMP of ``theta`` out every ``dt`` s as a :class:`besdrake.plan.MotionPlan`
+        (positions and the DMP's velocities; duration: the execution time unless ``run_time``)."""
+        from besdrake.plan import MotionPlan
+
+        dmp = self.from_vector(theta)
+        if run_time is not None:
+            run_time = positive_float("run_time", run_time)
+        traj = dmp.open_loop(positive_float("dt", dt), run_time)
+        return MotionPlan(
+            t=traj.t, q=traj.y, qd=traj.yd, meta={"source": "dmp", "execution_time": dmp.execution_time}
+        )
