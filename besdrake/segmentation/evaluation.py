@@ -1,0 +1,121 @@
+"""Scoring segmentations against manual ones, and loading labelled recording folders.
+
+Interior borders of a manual segmentation (the definition used for scoring): the start and
+end frames of every labelled segment (``*_part`` sub-segments and ``idle`` included, so the
+ends of an unlabelled pause are two borders), without the recording's first and last frame;
+borders closer than ``merge_s`` (0.1 s, e.g. a part ending one frame before its parent) are
+merged into their mean. Predicted and manual borders are matched one-to-one (a maximum
+matching, ties broken by smallest total distance) within a tolerance.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from besdrake.mocap.qualisys import read_segmentation, read_tsv
+from besdrake.mocap.recording import MocapRecording
+from besdrake.mocap.segments_io import Segment, segmentation_path
+
+BORDER_DEFINITION = (
+    "interior borders = start and end frames of every manual segment (parts and idle included), "
+    "excluding the recording's first and last frame, borders closer than 0.1 s merged; "
+    "one-to-one matching within the tolerance"
+)
+
+
+def manual_borders(segments: list[Segment], first_frame: int, last_frame: int, frequency: float,
+                   merge_s: float = 0.1, include_parts: bool = True) -> np.ndarray:
+    """Interior border frame numbers of a manual segmentation (see the module docstring)."""
+    b = []
+    for s in segments:
+        if not include_parts and s.label.endswith("_part"):
+            continue
+        b += [s.start_frame, s.end_frame]
+    b = np.array(sorted(b), dtype=float)
+    merge = merge_s * frequency
+    margin = 0.5 * merge
+    b = b[(b > first_frame + margin) & (b < last_frame - margin)]
+    out: list[list[float]] = []
+    for x in b:
+        if out and x - out[-1][-1] <= merge:
+            out[-1].append(x)
+        else:
+            out.append([x])
+    return np.array([round(float(np.mean(g))) for g in out], dtype=int)
+
+
+@dataclass
+class BorderScore:
+    """Counts and scores of one border matching."""
+
+    tolerance_s: float
+    n_true: int
+    n_pred: int
+    n_matched: int
+
+    @property
+    def precision(self) -> float:
+        return self.n_matched / self.n_pred if self.n_pred else 0.0
+
+    @property
+    def recall(self) -> float:
+        return self.n_matched / self.n_true if self.n_true else 0.0
+
+    @property
+    def f1(self) -> float:
+        p, r = self.precision, self.recall
+        return 2 * p * r / (p + r) if p + r > 0 else 0.0
+
+    def __add__(self, other: "BorderScore") -> "BorderScore":
+        return BorderScore(self.tolerance_s, self.n_true + other.n_true, self.n_pred + other.n_pred,
+                           self.n_matched + other.n_matched)
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d.update(precision=self.precision, recall=self.recall, f1=self.f1)
+        return d
+
+
+def match_borders(pred, true, tolerance: float) -> int:
+    """Number of one-to-one matches between ``pred`` and ``true`` (same units) within ``tolerance``."""
+    pred, true = np.asarray(pred, float), np.asarray(true, float)
+    if len(pred) == 0 or len(true) == 0:
+        return 0
+    dist = np.abs(pred[:, None] - true[None, :])
+    big = 1e6 * (1 + dist.max())
+    cost = np.where(dist <= tolerance + 1e-9, dist - big, 0.0)
+    r, c = linear_sum_assignment(cost)
+    return int(np.sum(dist[r, c] <= tolerance + 1e-9))
+
+
+def score_borders(pred_frames, true_frames, frequency: float, tolerance_s: float) -> BorderScore:
+    m = match_borders(pred_frames, true_frames, tolerance_s * frequency)
+    return BorderScore(tolerance_s, len(true_frames), len(pred_frames), m)
+
+
+@dataclass
+class LabelledRecording:
+    """A recording and its manual segmentation."""
+
+    path: Path
+    recording: MocapRecording
+    segments: list[Segment]
+
+
+def labelled_recordings(directory: str | Path) -> list[LabelledRecording]:
+    """All ``*.tsv`` recordings in ``directory`` that have a ``*_manually_segmented.json`` beside them."""
+    directory = Path(directory)
+    if not directory.is_dir():
+        raise FileNotFoundError(f"{directory} is not a directory")
+    out = []
+    for tsv in sorted(directory.glob("*.tsv")):
+        seg = segmentation_path(tsv)
+        if seg.exists():
+            out.append(LabelledRecording(tsv, read_tsv(tsv), read_segmentation(seg)))
+    if not out:
+        raise FileNotFoundError(f"{directory} holds no *.tsv recording with a *_manually_segmented.json beside it")
+    return out
