@@ -27,6 +27,11 @@ from sklearn.neighbors import KNeighborsClassifier
 from besdrake.mocap.preprocess import HAND_MARKERS, Preprocessed, velocity
 
 PART_SUFFIX = "_part"
+#: Markers of manipulated objects that ``markers="auto"`` adds to the hand (box of the
+#: pick-and-place data, ball of the throwing data).
+OBJECT_MARKERS = ("Box back", "Ball")
+#: Feature settings chosen on the pick-and-place data (hand + object, normalised velocity).
+DEFAULT_VELOCITY_WEIGHT = 0.3
 
 
 class ClassificationError(ValueError):
@@ -164,11 +169,11 @@ class SegmentClassifier(ClassifierMixin, BaseEstimator):
 
     def __init__(
         self,
-        markers=("hand",),
+        markers="auto",
         n_points: int = 20,
         position_weight: float = 1.0,
         relative_weight: float = 0.0,
-        velocity_weight: float = 0.0,
+        velocity_weight: float = DEFAULT_VELOCITY_WEIGHT,
         duration_weight: float = 0.0,
         velocity_normalisation: str = "peak",
         path_length_weight: float = 0.0,
@@ -184,10 +189,19 @@ class SegmentClassifier(ClassifierMixin, BaseEstimator):
         self.path_length_weight = path_length_weight
         self.part_policy = part_policy
 
+    def _resolve_markers(self, segments) -> tuple[str, ...]:
+        if self.markers != "auto":
+            return tuple(self.markers)
+        common = set(segments[0].marker_names)
+        for s in segments[1:]:
+            common &= set(s.marker_names)
+        return ("hand", *[m for m in OBJECT_MARKERS if m in common])
+
     @property
     def features(self) -> SegmentFeatures:
+        markers = getattr(self, "markers_", None) or tuple(self.markers)
         return SegmentFeatures(
-            tuple(self.markers), int(self.n_points), self.position_weight, self.relative_weight,
+            tuple(markers), int(self.n_points), self.position_weight, self.relative_weight,
             self.velocity_weight, self.duration_weight, self.velocity_normalisation,
             self.path_length_weight,
         )
@@ -198,11 +212,46 @@ class SegmentClassifier(ClassifierMixin, BaseEstimator):
             raise ClassificationError(f"{len(segments)} segments but {len(labels)} labels")
         if self.part_policy not in ("parent", "own"):
             raise ValueError(f"part_policy must be 'parent' or 'own', got {self.part_policy!r}")
+        if not segments:
+            raise ClassificationError("no training segments given")
+        self.markers_ = self._resolve_markers(segments)
         X = self.features.transform(segments)
         y = np.array([normalise_label(str(l), self.part_policy) for l in labels])
+        self._fit_features(X, y)
+        return self
+
+    def _fit_features(self, X: np.ndarray, y: np.ndarray) -> None:
+        self.X_train_, self.y_train_ = X, y
         self.knn_ = KNeighborsClassifier(n_neighbors=1).fit(X, y)
         self.classes_ = self.knn_.classes_
-        return self
+
+    def to_json(self) -> dict:
+        """Parameters and training features as JSON-serialisable data (see :meth:`from_json`)."""
+        if not hasattr(self, "knn_"):
+            raise ClassificationError("the classifier is not fitted")
+        params = self.get_params()
+        params["markers"] = list(self.markers_)
+        return {
+            "format": "besdrake.segment_classifier/1",
+            "params": params,
+            "X": self.X_train_.tolist(),
+            "y": [str(v) for v in self.y_train_],
+        }
+
+    @classmethod
+    def from_json(cls, data: dict) -> "SegmentClassifier":
+        if not isinstance(data, dict) or data.get("format") != "besdrake.segment_classifier/1":
+            raise ClassificationError("not a besdrake segment classifier file (format besdrake.segment_classifier/1)")
+        params = dict(data["params"])
+        params["markers"] = tuple(params["markers"])
+        clf = cls(**params)
+        clf.markers_ = tuple(params["markers"])
+        X = np.asarray(data["X"], dtype=float)
+        y = np.asarray(data["y"])
+        if X.ndim != 2 or len(X) != len(y) or not np.isfinite(X).all():
+            raise ClassificationError("classifier file: X must be a finite 2-D array with one label per row")
+        clf._fit_features(X, y)
+        return clf
 
     def predict(self, segments) -> np.ndarray:
         if not hasattr(self, "knn_"):

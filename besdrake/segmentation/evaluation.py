@@ -119,3 +119,107 @@ def labelled_recordings(directory: str | Path) -> list[LabelledRecording]:
     if not out:
         raise FileNotFoundError(f"{directory} holds no *.tsv recording with a *_manually_segmented.json beside it")
     return out
+
+
+PART_POLICY = (
+    "*_part sub-segments overlap their labelled parent: they are left out of training and testing "
+    "(the parent segment is used); labels are the parent classes"
+)
+
+
+def labelled_segments(recordings: list[LabelledRecording], include_parts: bool = False):
+    """``(segments, labels)`` of the manual segments of labelled recordings (parts left out by default)."""
+    from besdrake.mocap.preprocess import preprocess
+    from besdrake.segmentation.classification import extract_segment
+
+    segments, labels = [], []
+    for rec in recordings:
+        pre = preprocess(rec.recording)
+        for s in rec.segments:
+            if s.label.endswith("_part") and not include_parts:
+                continue
+            try:
+                a, b = pre_index(pre.frames, s.start_frame), pre_index(pre.frames, s.end_frame)
+            except IndexError as err:
+                raise ValueError(f"{rec.path}: segment {s}: {err}") from None
+            segments.append(extract_segment(pre, a, b, s.label))
+            labels.append(s.label)
+    return segments, labels
+
+
+def pre_index(frames: np.ndarray, frame: int) -> int:
+    """Row of ``frame`` in a frame-number array (nearest row, clipped, for labels on dropped frames)."""
+    i = int(np.searchsorted(frames, frame))
+    if frame < frames[0] - 1 or frame > frames[-1] + 1:
+        raise IndexError(f"frame {frame} is outside the recording (frames {frames[0]}..{frames[-1]})")
+    return int(np.clip(i, 0, len(frames) - 1))
+
+
+@dataclass
+class SegmentationEvaluation:
+    """Border scores of a segmenter over labelled recordings, with its CPU time."""
+
+    method: str
+    params: dict
+    scores: dict  # tolerance (s) -> BorderScore
+    cpu_s: float
+    data_s: float
+
+    def to_dict(self) -> dict:
+        return {
+            "method": self.method,
+            "params": self.params,
+            "border_definition": BORDER_DEFINITION,
+            "scores": {str(t): s.to_dict() for t, s in self.scores.items()},
+            "cpu_s": self.cpu_s,
+            "data_s": self.data_s,
+            "times_faster_than_real_time": self.data_s / self.cpu_s if self.cpu_s > 0 else None,
+        }
+
+
+def evaluate_segmenter(segmenter, recordings: list[LabelledRecording], tolerances=(0.1, 0.2),
+                       preprocessed: dict | None = None) -> SegmentationEvaluation:
+    """Fit ``segmenter`` on every recording and score its interior borders (CPU time of ``fit`` only)."""
+    import time
+
+    from besdrake.mocap.preprocess import preprocess
+
+    scores = {float(t): BorderScore(float(t), 0, 0, 0) for t in tolerances}
+    cpu = data = 0.0
+    for rec in recordings:
+        pre = preprocessed[str(rec.path)] if preprocessed else preprocess(rec.recording)
+        t0 = time.process_time()
+        segmenter.fit(pre)
+        cpu += time.process_time() - t0
+        data += pre.n_frames / pre.frequency
+        pred = pre.frames[segmenter.borders_]
+        true = manual_borders(rec.segments, int(pre.frames[0]), int(pre.frames[-1]), pre.frequency)
+        for t in scores:
+            scores[t] = scores[t] + score_borders(pred, true, pre.frequency, t)
+    return SegmentationEvaluation(type(segmenter).__name__, segmenter.get_params(), scores, cpu, data)
+
+
+def evaluate_classifier(classifier, train: list[LabelledRecording], test: list[LabelledRecording]) -> dict:
+    """Fit on the manual segments of ``train``, score on those of ``test``: accuracy, per class, confusions."""
+    Xtr, ytr = labelled_segments(train)
+    Xte, yte = labelled_segments(test)
+    classifier.fit(Xtr, ytr)
+    pred = classifier.predict(Xte)
+    yte = np.array(yte)
+    classes = sorted(set(yte))
+    per_class = {c: float(np.mean(pred[yte == c] == c)) for c in classes}
+    confusions: dict[str, int] = {}
+    for t, p in zip(yte, pred):
+        if t != p:
+            confusions[f"{t} -> {p}"] = confusions.get(f"{t} -> {p}", 0) + 1
+    return {
+        "accuracy": float(np.mean(pred == yte)),
+        "per_class_accuracy": per_class,
+        "per_class_count": {c: int(np.sum(yte == c)) for c in classes},
+        "n_train": len(ytr),
+        "n_test": len(yte),
+        "confusions": confusions,
+        "k": 1,
+        "features": {k: (list(v) if isinstance(v, tuple) else v) for k, v in vars(classifier.features).items()},
+        "part_policy": PART_POLICY,
+    }

@@ -1,0 +1,48 @@
+"""``besdrake eval segmentation --data DIR``: border precision/recall/F1 against manual segmentations."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+COMMAND = ("eval", "segmentation")
+HELP = "score vMCI (and the zero-velocity baseline) against the manual segmentations in a folder"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--data", type=Path, required=True,
+                        help="folder of *.tsv recordings with *_manually_segmented.json beside them")
+    parser.add_argument("--json", action="store_true", help="print the metrics as one JSON object")
+    parser.add_argument("--tolerances", type=float, nargs="+", default=[0.1, 0.2], help="seconds")
+    parser.add_argument("--no-baseline", action="store_true", help="skip the zero-velocity baseline")
+
+
+def run(args: argparse.Namespace) -> int:
+    from besdrake.cli import UserError
+    from besdrake.segmentation import VMCI, ZeroVelocitySegmenter
+    from besdrake.segmentation.evaluation import evaluate_segmenter, labelled_recordings
+
+    try:
+        recs = labelled_recordings(args.data)
+    except (OSError, ValueError) as err:
+        raise UserError(str(err)) from None
+    if any(t <= 0 for t in args.tolerances):
+        raise UserError("tolerances must be positive seconds")
+    methods = {"vmci": VMCI()}
+    if not args.no_baseline:
+        methods["zero_velocity"] = ZeroVelocitySegmenter()
+    try:
+        report = {"data": str(args.data), "n_recordings": len(recs)}
+        for name, seg in methods.items():
+            report[name] = evaluate_segmenter(seg, recs, args.tolerances).to_dict()
+    except ValueError as err:
+        raise UserError(str(err)) from None
+    if args.json:
+        print(json.dumps(report))
+    else:
+        for name in methods:
+            r = report[name]
+            for tol, s in r["scores"].items():
+                print(f"{name:14s} +-{tol} s  P {s['precision']:.3f}  R {s['recall']:.3f}  F1 {s['f1']:.3f}")
+    return 0

@@ -1,0 +1,88 @@
+"""``besdrake segment FILE``: vMCI segmentation of one recording (optionally labelled by a 1-NN classifier)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+COMMAND = ("segment",)
+HELP = "segment a recording (Qualisys TSV) into movement building blocks with vMCI"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("file", type=Path, help="recording (.tsv)")
+    parser.add_argument("--json", action="store_true", help="print the segments as one JSON object")
+    parser.add_argument("--method", choices=("vmci", "zvc"), default="vmci",
+                        help="vmci (default) or the zero-velocity-crossing baseline")
+    parser.add_argument("--classifier", type=Path, default=None,
+                        help="classifier JSON written by 'besdrake eval classification --save-classifier'")
+    parser.add_argument("--train", type=Path, default=None,
+                        help="folder of labelled recordings to train a 1-NN classifier on (instead of --classifier)")
+    parser.add_argument("--max-gap", type=float, default=0.25, help="interpolate marker gaps up to this many seconds")
+
+
+def run(args: argparse.Namespace) -> int:
+    from besdrake.cli import UserError
+    from besdrake.mocap.preprocess import PreprocessError, preprocess
+    from besdrake.mocap.qualisys import read_tsv
+    from besdrake.mocap.recording import MocapFormatError
+    from besdrake.segmentation import VMCI, SegmentationError, ZeroVelocitySegmenter
+    from besdrake.segmentation.classification import ClassificationError, SegmentClassifier, extract_segment
+
+    if not args.file.is_file():
+        raise UserError(f"{args.file}: no such file")
+    if args.classifier and args.train:
+        raise UserError("give either --classifier or --train, not both")
+    try:
+        rec = read_tsv(args.file)
+        pre = preprocess(rec, max_gap_s=args.max_gap)
+        seg = VMCI() if args.method == "vmci" else ZeroVelocitySegmenter()
+        seg.fit(pre)
+    except (MocapFormatError, PreprocessError, SegmentationError) as err:
+        raise UserError(f"{args.file}: {err}") from None
+    clf = None
+    try:
+        if args.classifier:
+            clf = SegmentClassifier.from_json(json.loads(args.classifier.read_text()))
+        elif args.train:
+            from besdrake.segmentation.evaluation import labelled_recordings, labelled_segments
+
+            clf = SegmentClassifier().fit(*labelled_segments(labelled_recordings(args.train)))
+    except (OSError, ValueError) as err:
+        raise UserError(f"classifier: {err}") from None
+    out = []
+    for a, b in seg.segments_:
+        item = {
+            "start_frame": int(pre.frames[a]),
+            "end_frame": int(pre.frames[b]),
+            "start_time": float(pre.time[a]),
+            "end_time": float(pre.time[b]),
+        }
+        if clf is not None:
+            try:
+                item["label"] = str(clf.predict([extract_segment(pre, a, b)])[0])
+            except ClassificationError as err:
+                item["label"] = None
+                item["label_error"] = str(err)
+        out.append(item)
+    report = {
+        "file": str(args.file),
+        "frequency_hz": pre.frequency,
+        "n_frames": pre.n_frames,
+        "method": args.method,
+        "segmenter": seg.get_params(),
+        "frame_numbering": "the file's own Frame column; adjacent segments share the border frame",
+        "segments": out,
+        "warnings": pre.warnings,
+    }
+    if args.json:
+        print(json.dumps(report))
+    else:
+        for w in pre.warnings:
+            print(f"warning: {w}")
+        for i, item in enumerate(out):
+            label = f"  {item['label']}" if "label" in item else ""
+            print(f"{i:3d}  frames {item['start_frame']:6d}-{item['end_frame']:6d}  "
+                  f"{item['start_time']:8.3f}-{item['end_time']:8.3f} s{label}")
+    return 0
