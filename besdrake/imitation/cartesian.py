@@ -84,6 +84,10 @@ class CartesianDMP:
     def n_weights(self) -> int:
         return self.position.n_weights + self.orientation.n_weights
 
+    def copy(self) -> "CartesianDMP":
+        """Independent copy."""
+        return CartesianDMP.from_dict(self.to_dict())
+
     def get_weights(self) -> np.ndarray:
         """Position weights then orientation weights, flat."""
         return np.concatenate((self.position.get_weights(), self.orientation.get_weights()))

@@ -14,6 +14,12 @@ goal's sign encodes the direction the demonstration turned, and rotations larger
 start and goal are reproduced instead of being taken the short way round. For rotations below pi
 the two agree.
 
+Limitation (of the formulation, not of the integration): while the remaining rotation exceeds pi
+the attractor is unstable across the geodesic (all long-way geodesics meet at the antipode), so
+deviations from the demonstration grow there. Measured on a 1.2 s demonstration that starts at
+rest: largest deviation 0.01 rad for a 1.5 pi turn, 0.13-0.3 rad for a 1.8 pi turn. The DMP starts
+at rest; a demonstration that starts moving cannot be matched at its start.
+
 Double cover: assigning ``start`` or ``goal`` keeps the sign nearest to the previous value (``q``
 and ``-q`` are the same orientation; the choice is made continuous so that moving a goal never
 flips the turning direction).
@@ -103,6 +109,10 @@ class QuaternionDMP:
     @property
     def n_weights(self) -> int:
         return 3 * self.n_weights_per_dim
+
+    def copy(self) -> "QuaternionDMP":
+        """Independent copy."""
+        return QuaternionDMP.from_dict(self.to_dict())
 
     def get_weights(self) -> np.ndarray:
         return self.weights.ravel().copy()
