@@ -1,0 +1,204 @@
+"""Joint-space motion plans: the currency between the learning stages and the simulation.
+
+A :class:`MotionPlan` is a sampled joint trajectory of COMPI: times ``t`` (N,) in s starting
+at 0, positions ``q`` (N, 6) in rad and optionally velocities ``qd`` (N, 6) in rad/s. DMPs
+and inverse kinematics produce plans; :class:`besdrake.sim.Rollout` executes them.
+
+Between samples the plan is a cubic: Hermite through ``(q, qd)`` when ``qd`` is given, otherwise
+a not-a-knot cubic spline through ``q``. :meth:`MotionPlan.sample` and the simulation use the
+same interpolation, so limit checks see what the robot is commanded.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from besdrake import robot
+
+
+class PlanError(ValueError):
+    """A motion plan is malformed (shape, NaN/inf, time) or violates the joint limits."""
+
+
+@dataclass
+class LimitReport:
+    """Largest violation per joint (0 where within the limit), in the limit's units.
+
+    ``position`` in rad, ``velocity`` in rad/s, ``acceleration`` in rad/s^2; each has shape (6,).
+    """
+
+    position: np.ndarray
+    velocity: np.ndarray
+    acceleration: np.ndarray
+
+    @property
+    def ok(self) -> bool:
+        """True when no joint exceeds any limit."""
+        return not (np.any(self.position > 0) or np.any(self.velocity > 0) or np.any(self.acceleration > 0))
+
+    def violations(self) -> list[str]:
+        """Human-readable list of the violated limits, e.g. ``['joint2 position +0.120 rad']``."""
+        out = []
+        for kind, values, unit in (
+            ("position", self.position, "rad"),
+            ("velocity", self.velocity, "rad/s"),
+            ("acceleration", self.acceleration, "rad/s^2"),
+        ):
+            for name, v in zip(robot.JOINT_NAMES, values):
+                if v > 0:
+                    out.append(f"{name} {kind} +{v:.3f} {unit}")
+        return out
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "ok": self.ok,
+            "position": self.position.tolist(),
+            "velocity": self.velocity.tolist(),
+            "acceleration": self.acceleration.tolist(),
+        }
+
+
+@dataclass
+class MotionPlan:
+    """A joint trajectory: ``t`` (N,) s from 0, ``q`` (N, 6) rad, optional ``qd`` (N, 6) rad/s."""
+
+    t: np.ndarray
+    q: np.ndarray
+    qd: np.ndarray | None = None
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.t = np.asarray(self.t, dtype=float)
+        self.q = np.asarray(self.q, dtype=float)
+        if self.qd is not None:
+            self.qd = np.asarray(self.qd, dtype=float)
+
+    # ------------------------------------------------------------------ checks
+    @property
+    def duration(self) -> float:
+        """Length of the plan in s (last time stamp)."""
+        return float(self.t[-1]) if self.t.size else 0.0
+
+    def validate(self) -> "MotionPlan":
+        """Raise :class:`PlanError` naming the problem if the plan is malformed; return self."""
+        n_joints = len(robot.JOINT_NAMES)
+        if self.t.ndim != 1:
+            raise PlanError(f"plan time must be a 1-D array, got shape {self.t.shape}")
+        if self.t.size < 2:
+            raise PlanError(f"plan needs at least 2 samples, got {self.t.size}")
+        if self.q.shape != (self.t.size, n_joints):
+            raise PlanError(f"plan q must have shape ({self.t.size}, {n_joints}), got {self.q.shape}")
+        if self.qd is not None and self.qd.shape != self.q.shape:
+            raise PlanError(f"plan qd must have the shape of q {self.q.shape}, got {self.qd.shape}")
+        for name, arr in (("t", self.t), ("q", self.q), ("qd", self.qd)):
+            if arr is not None and not np.all(np.isfinite(arr)):
+                bad = np.argwhere(~np.isfinite(arr))[0]
+                raise PlanError(f"plan {name} contains NaN or inf (first at index {tuple(int(i) for i in bad)})")
+        if abs(self.t[0]) > 1e-9:
+            raise PlanError(f"plan time must start at 0 s, starts at {self.t[0]:g} s")
+        dt = np.diff(self.t)
+        if np.any(dt <= 0):
+            i = int(np.argmax(dt <= 0))
+            raise PlanError(f"plan time must increase strictly; t[{i + 1}]={self.t[i + 1]:g} <= t[{i}]={self.t[i]:g}")
+        return self
+
+    def trajectory(self):
+        """The plan as a Drake ``PiecewisePolynomial`` (6 rows), the interpolation the sim uses."""
+        from pydrake.trajectories import PiecewisePolynomial
+
+        self.validate()
+        if self.qd is not None:
+            return PiecewisePolynomial.CubicHermite(self.t, self.q.T, self.qd.T)
+        if self.t.size < 4:
+            return PiecewisePolynomial.FirstOrderHold(self.t, self.q.T)
+        return PiecewisePolynomial.CubicWithContinuousSecondDerivatives(self.t, self.q.T, periodic_end_condition=False)
+
+    def sample(self, times: np.ndarray, derivative: int = 0) -> np.ndarray:
+        """Interpolated positions (or a derivative) at ``times``: shape (len(times), 6). Clamped at the ends."""
+        traj = self.trajectory()
+        times = np.clip(np.asarray(times, dtype=float), 0.0, self.duration)
+        d = traj if derivative == 0 else traj.derivative(derivative)
+        return np.array([d.value(float(ti)).ravel() for ti in times])
+
+    def check_limits(
+        self,
+        position_limits: np.ndarray | None = None,
+        velocity_limits: np.ndarray | None = None,
+        acceleration_limits: np.ndarray | None = None,
+        resolution: float = 0.002,
+    ) -> LimitReport:
+        """Largest violation per joint of the interpolated plan (sampled every ``resolution`` s). Never raises
+        for limit violations (it does raise :class:`PlanError` for a malformed plan)."""
+        pos = robot.POSITION_LIMITS if position_limits is None else np.asarray(position_limits, float)
+        vel = robot.VELOCITY_LIMITS if velocity_limits is None else np.asarray(velocity_limits, float)
+        acc = robot.ACCELERATION_LIMITS if acceleration_limits is None else np.asarray(acceleration_limits, float)
+        traj = self.trajectory()
+        n = max(2, int(np.ceil(self.duration / resolution)) + 1)
+        ts = np.unique(np.concatenate([np.linspace(0.0, self.duration, n), self.t]))
+        q = traj.vector_values(ts).T
+        qd = traj.derivative(1).vector_values(ts).T
+        qdd = traj.derivative(2).vector_values(ts).T
+        p_viol = np.maximum(np.max(pos[:, 0] - q, axis=0), np.max(q - pos[:, 1], axis=0))
+        v_viol = np.max(np.abs(qd) - vel, axis=0)
+        a_viol = np.max(np.abs(qdd) - acc, axis=0)
+        return LimitReport(
+            position=np.maximum(p_viol, 0.0),
+            velocity=np.maximum(v_viol, 0.0),
+            acceleration=np.maximum(a_viol, 0.0),
+        )
+
+    # ------------------------------------------------------------------ I/O
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready dict (units: s, rad, rad/s)."""
+        d: dict[str, Any] = {"t": self.t.tolist(), "q": self.q.tolist(), "joint_names": list(robot.JOINT_NAMES)}
+        if self.qd is not None:
+            d["qd"] = self.qd.tolist()
+        if self.meta:
+            d["meta"] = self.meta
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "MotionPlan":
+        """Inverse of :meth:`to_dict`; raises :class:`PlanError` for missing keys or a malformed plan."""
+        if not isinstance(d, dict):
+            raise PlanError(f"a motion plan must be a JSON object, got {type(d).__name__}")
+        missing = [k for k in ("t", "q") if k not in d]
+        if missing:
+            raise PlanError(f"motion plan is missing key(s) {missing}")
+        names = d.get("joint_names")
+        if names is not None and list(names) != list(robot.JOINT_NAMES):
+            raise PlanError(f"motion plan joint_names {names} differ from COMPI's {list(robot.JOINT_NAMES)}")
+        try:
+            plan = cls(
+                t=np.asarray(d["t"], dtype=float),
+                q=np.asarray(d["q"], dtype=float),
+                qd=None if d.get("qd") is None else np.asarray(d["qd"], dtype=float),
+                meta=dict(d.get("meta") or {}),
+            )
+        except (TypeError, ValueError) as err:
+            raise PlanError(f"motion plan arrays are not numeric or ragged: {err}") from err
+        return plan.validate()
+
+    def save(self, path: str | Path) -> Path:
+        """Write the plan as JSON."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(self.to_dict()))
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path) -> "MotionPlan":
+        """Read a plan written by :meth:`save`; :class:`PlanError` for a missing or corrupt file."""
+        path = Path(path)
+        if not path.is_file():
+            raise PlanError(f"motion plan file not found: {path}")
+        try:
+            d = json.loads(path.read_text())
+        except (json.JSONDecodeError, UnicodeDecodeError) as err:
+            raise PlanError(f"motion plan file {path} is not valid JSON: {err}") from err
+        return cls.from_dict(d)

@@ -1,0 +1,172 @@
+"""Build the throwing Diagram from a :class:`~besdrake.sim.scenario.Scenario`.
+
+Wiring (render it with ``scripts/render_diagrams.py``)::
+
+    TrajectorySource (motion plan q, qd) --> plant.compi_desired_state
+    MultibodyPlant <--> SceneGraph
+    plant.state --> VectorLogSink (joint + ball states, every time step)
+    SceneGraph --> MeshcatVisualizer (optional)
+
+Design choices:
+
+* **Controller: the plant's built-in joint PD servos** (``JointActuator`` PD gains, driven by the plant's
+  desired-state port). COMPI's drives are position-controlled servos, which this models directly; the
+  SAP/lagged/similar solvers integrate the PD terms implicitly, so the stiff gains are stable at the
+  5 ms step and cost no extra system per step (an InverseDynamicsController would need a second plant and
+  a per-step inverse dynamics evaluation, and with explicit coupling would limit the step). Effort limits
+  from the URDF saturate the servos. Gains live in the Context (the ``gain_scale`` effect).
+* **Base pose in the Context**: the arm's ``linkmount`` is welded to a ``FixedOffsetFrame`` ("compi_base")
+  on the world, whose pose is a Context parameter (the ``base_offset`` effect).
+* **Motion plan swap without rebuild**: ``TrajectorySource.UpdateTrajectory`` (see :class:`~besdrake.sim.rollout.Rollout`).
+* **Contact**: point contact, discrete solver from the scenario (``lagged`` by default: like SAP it handles
+  the implicit PD gains, and it is the cheapest of the convex solvers for our few contacts).
+* A grey pedestal (visual only) marks the designed base height.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from besdrake import robot
+from besdrake.sim.scenario import Scenario, ScenarioError, load_scenario, resolve_model_uri
+
+
+@dataclass
+class SimHandles:
+    """The built Diagram and the handles a rollout needs (systems, bodies, frames, geometry ids)."""
+
+    scenario: Scenario
+    diagram: Any
+    plant: Any
+    scene_graph: Any
+    plan_source: Any
+    state_logger: Any
+    arm: Any
+    ball_instance: Any
+    base_frame: Any
+    scoop_frame: Any
+    ball_body: Any
+    actuators: list
+    ball_collision_id: Any
+    ball_geometry_ids: list
+    scoop_collision_ids: list
+    nominal_ball_radius: float
+    visualizer: Any = None
+    arm_q_slice: slice = field(default_factory=lambda: slice(0, 6))
+
+    def plant_context(self, context):
+        return self.plant.GetMyMutableContextFromRoot(context)
+
+    def scene_graph_context(self, context):
+        return self.scene_graph.GetMyMutableContextFromRoot(context)
+
+
+def _parse(parser, scenario: Scenario, key: str):
+    path = resolve_model_uri(scenario.models[key])
+    if not path.is_file():
+        raise ScenarioError(f"model file for {key!r} not found: {path}")
+    try:
+        return parser.AddModels(str(path))
+    except RuntimeError as err:
+        raise ScenarioError(f"model file for {key!r} ({path}) could not be parsed: {err}") from err
+
+
+def base_transform(scenario: Scenario):
+    """World pose of the base frame from the scenario's base pose."""
+    from pydrake.math import RigidTransform, RollPitchYaw
+
+    b = scenario.base
+    return RigidTransform(RollPitchYaw(0.0, 0.0, b.yaw), [b.x, b.y, b.z])
+
+
+def build_diagram(scenario: Scenario | str = "nominal", meshcat=None) -> SimHandles:
+    """Build the Diagram for ``scenario`` (a Scenario or a name/path); optionally visualise in ``meshcat``."""
+    from pydrake.geometry import Box, MeshcatVisualizer, MeshcatVisualizerParams, Role, Sphere
+    from pydrake.math import RigidTransform
+    from pydrake.multibody.parsing import Parser
+    from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
+    from pydrake.multibody.tree import PdControllerGains
+    from pydrake.multibody.tree import FixedOffsetFrame
+    from pydrake.systems.framework import DiagramBuilder
+    from pydrake.systems.primitives import LogVectorOutput, TrajectorySource
+    from pydrake.trajectories import PiecewisePolynomial
+
+    scenario = load_scenario(scenario) if not isinstance(scenario, Scenario) else scenario
+    builder = DiagramBuilder()
+    config = MultibodyPlantConfig(
+        time_step=scenario.time_step,
+        discrete_contact_approximation=scenario.contact_approximation,
+        contact_model="point",
+    )
+    plant, scene_graph = AddMultibodyPlant(config, builder)
+    plant.set_name("plant")
+    parser = Parser(plant)
+    robot.add_package(parser.package_map())
+
+    arm = _parse(parser, scenario, "arm")[0]
+    base_frame = plant.AddFrame(FixedOffsetFrame("compi_base", plant.world_frame(), base_transform(scenario)))
+    plant.WeldFrames(base_frame, plant.GetFrameByName(robot.BASE_LINK, arm))
+    ball_instance = _parse(parser, scenario, "ball")[0]
+    _parse(parser, scenario, "ground")  # a <static> model: welded to the world by the parser
+    z = scenario.base.z
+    if z > 0.02:
+        plant.RegisterVisualGeometry(
+            plant.world_body(),
+            RigidTransform([scenario.base.x, scenario.base.y, z / 2 - 0.06]),
+            Box(0.25, 0.25, max(z - 0.12, 0.01)),
+            "pedestal",
+            np.array([0.45, 0.45, 0.45, 1.0]),
+        )
+
+    actuators = []
+    for i, name in enumerate(robot.JOINT_NAMES):
+        joint = plant.GetJointByName(name, arm)
+
+        act = plant.GetJointActuatorByName(f"{name}_motor", arm)
+        act.set_controller_gains(PdControllerGains(p=scenario.controller.kp[i], d=scenario.controller.kd[i]))
+        actuators.append(act)
+    plant.Finalize()
+
+    # Plan source; the actual plan is swapped in per rollout.
+    hold = PiecewisePolynomial.FirstOrderHold([0.0, 1.0], np.zeros((6, 2)))
+    source = builder.AddSystem(TrajectorySource(hold, output_derivative_order=1))
+    source.set_name("motion_plan")
+    builder.Connect(source.get_output_port(), plant.get_desired_state_input_port(arm))
+    logger = LogVectorOutput(plant.get_state_output_port(), builder, scenario.time_step)
+    logger.set_name("state_logger")
+
+    visualizer = None
+    if meshcat is not None:
+        visualizer = MeshcatVisualizer.AddToBuilder(builder, scene_graph, meshcat, MeshcatVisualizerParams(role=Role.kIllustration))
+    diagram = builder.Build()
+    diagram.set_name(f"besdrake_{scenario.name}")
+
+    inspector = scene_graph.model_inspector()
+    ball_body = plant.GetBodyByName(robot.BALL_BODY, ball_instance)
+    ball_coll = list(plant.GetCollisionGeometriesForBody(ball_body))
+    if len(ball_coll) != 1 or not isinstance(inspector.GetShape(ball_coll[0]), Sphere):
+        raise ScenarioError("the ball model must have exactly one sphere collision geometry")
+    ball_ids = [g for g in inspector.GetGeometries(plant.GetBodyFrameIdOrThrow(ball_body.index())) if isinstance(inspector.GetShape(g), Sphere)]
+    scoop_body = plant.GetBodyByName(robot.SCOOP_BODY, arm)
+    return SimHandles(
+        scenario=scenario,
+        diagram=diagram,
+        plant=plant,
+        scene_graph=scene_graph,
+        plan_source=source,
+        state_logger=logger,
+        arm=arm,
+        ball_instance=ball_instance,
+        base_frame=base_frame,
+        scoop_frame=scoop_body.body_frame(),
+        ball_body=ball_body,
+        actuators=actuators,
+        ball_collision_id=ball_coll[0],
+        ball_geometry_ids=ball_ids,
+        scoop_collision_ids=list(plant.GetCollisionGeometriesForBody(scoop_body)),
+        nominal_ball_radius=float(inspector.GetShape(ball_coll[0]).radius()),
+        visualizer=visualizer,
+    )

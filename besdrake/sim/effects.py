@@ -1,0 +1,393 @@
+"""Physical effects: named, parameterised deviations from the simulation as designed.
+
+An effect is what the virtual lab hides and what the diagnosis searches over, so each one
+
+* declares its parameters (:class:`Param`: nominal no-effect value, realistic bounds, unit),
+* documents the physics it models and how it is applied (Context, motion plan, or flight model),
+* is deterministic and applied per rollout, after the Context has been reset, without rebuilding
+  the Diagram.
+
+Use ``effects={"base_offset": {"z": -0.03}}`` with :meth:`besdrake.sim.Rollout.rollout`. Missing
+parameters take their nominal values. A user registers a new effect from their own module::
+
+    from besdrake.sim.effects import Effect, Param, register_effect
+
+    @register_effect
+    class Wind(Effect):
+        '''Constant horizontal wind on the ball in flight (m/s).'''
+        name = "wind"
+        params = {"vx": Param(0.0, -5.0, 5.0, "m/s")}
+        def apply(self, setup, values):
+            setup.wind[0] += values["vx"]
+
+Application order is the registration order, so results do not depend on dict order.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, ClassVar
+
+import numpy as np
+
+from besdrake import robot
+from besdrake.plan import MotionPlan
+
+if TYPE_CHECKING:  # pragma: no cover
+    from besdrake.sim.diagram import SimHandles
+
+
+class EffectError(ValueError):
+    """Unknown effect, unknown parameter, or a parameter value that is not a finite number in bounds."""
+
+
+@dataclass(frozen=True)
+class Param:
+    """One effect parameter: ``nominal`` (no effect), realistic ``low``/``high`` bounds, SI ``unit``."""
+
+    nominal: float
+    low: float
+    high: float
+    unit: str
+    doc: str = ""
+
+
+@dataclass
+class RolloutSetup:
+    """What effects may change for one rollout (all SI units).
+
+    ``plan``: the commanded motion plan; ``context``/``plant_context``/``scene_graph_context``: the
+    freshly reset Contexts; ``ball_radius``/``ball_mass``: used to place the ball and in flight;
+    ``drag_coefficient``/``air_density``: quadratic drag in flight; ``wind``: air velocity (m/s);
+    ``measurement_offset``: subtracted from the true joint angles to give the encoder readings.
+    """
+
+    plan: MotionPlan
+    handles: "SimHandles"
+    context: Any
+    plant_context: Any
+    scene_graph_context: Any
+    ball_radius: float
+    ball_mass: float
+    drag_coefficient: float = 0.0
+    air_density: float = 1.2
+    wind: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    measurement_offset: np.ndarray = field(default_factory=lambda: np.zeros(6))
+
+
+class Effect:
+    """Base class of an effect. Subclasses set ``name``, ``params`` and implement :meth:`apply`."""
+
+    name: ClassVar[str] = ""
+    params: ClassVar[dict[str, Param]] = {}
+    #: How the effect is applied: "context", "plan", "flight" (documentation and reports).
+    applied_via: ClassVar[str] = "context"
+    #: True when the effect changes Diagram structure (none of the built-in ones does).
+    needs_rebuild: ClassVar[bool] = False
+
+    def nominal(self) -> dict[str, float]:
+        return {k: p.nominal for k, p in self.params.items()}
+
+    def bounds(self) -> dict[str, tuple[float, float]]:
+        return {k: (p.low, p.high) for k, p in self.params.items()}
+
+    def complete(self, values: dict[str, Any] | None) -> dict[str, float]:
+        """Nominal values updated by ``values``; :class:`EffectError` for unknown keys or bad numbers."""
+        values = dict(values or {})
+        unknown = set(values) - set(self.params)
+        if unknown:
+            raise EffectError(f"effect {self.name!r} has no parameter(s) {sorted(unknown)}; it has {sorted(self.params)}")
+        out = self.nominal()
+        for key, v in values.items():
+            if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)):
+                raise EffectError(f"effect {self.name!r} parameter {key!r} must be a number, got {v!r}")
+            v = float(v)
+            p = self.params[key]
+            if not np.isfinite(v):
+                raise EffectError(f"effect {self.name!r} parameter {key!r} is not finite: {v}")
+            if not (p.low <= v <= p.high):
+                raise EffectError(f"effect {self.name!r} parameter {key!r}={v:g} {p.unit} is outside its bounds [{p.low:g}, {p.high:g}]")
+            out[key] = v
+        return out
+
+    def describe(self) -> dict[str, Any]:
+        """JSON-ready description: name, doc, how applied, parameters with nominal/bounds/unit."""
+        return {
+            "name": self.name,
+            "doc": (type(self).__doc__ or "").strip(),
+            "applied_via": self.applied_via,
+            "needs_rebuild": self.needs_rebuild,
+            "params": {k: {"nominal": p.nominal, "low": p.low, "high": p.high, "unit": p.unit, "doc": p.doc} for k, p in self.params.items()},
+        }
+
+    def apply(self, setup: RolloutSetup, values: dict[str, float]) -> None:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+
+_REGISTRY: dict[str, Effect] = {}
+
+
+def register_effect(effect: type[Effect] | Effect, *, replace: bool = False):
+    """Register an effect class (usable as a decorator) or instance under its ``name``."""
+    inst = effect() if isinstance(effect, type) else effect
+    if not isinstance(inst, Effect):
+        raise TypeError(f"register_effect needs an Effect subclass or instance, got {effect!r}")
+    if not inst.name or not isinstance(inst.name, str):
+        raise EffectError(f"effect {effect!r} needs a non-empty string name")
+    for key, p in inst.params.items():
+        if not (p.low <= p.nominal <= p.high):
+            raise EffectError(f"effect {inst.name!r} parameter {key!r}: nominal {p.nominal} outside [{p.low}, {p.high}]")
+    if inst.name in _REGISTRY and not replace:
+        raise EffectError(f"an effect named {inst.name!r} is already registered (pass replace=True)")
+    _REGISTRY[inst.name] = inst
+    return effect
+
+
+def unregister_effect(name: str) -> None:
+    """Remove a registered effect (mainly for tests of user effects)."""
+    _REGISTRY.pop(name, None)
+
+
+def get_effect(name: str) -> Effect:
+    """The registered effect ``name``; :class:`EffectError` listing the known names otherwise."""
+    try:
+        return _REGISTRY[name]
+    except KeyError:
+        raise EffectError(f"unknown effect {name!r}; known effects: {list_effects()}") from None
+
+
+def list_effects() -> list[str]:
+    """Names of the registered effects, in application order."""
+    return list(_REGISTRY)
+
+
+def normalize_effects(effects: dict[str, dict[str, Any]] | None) -> dict[str, dict[str, float]]:
+    """Validate ``{name: {param: value}}`` and complete it with nominal values."""
+    if effects is None:
+        return {}
+    if not isinstance(effects, dict):
+        raise EffectError(f"effects must be a mapping {{name: {{param: value}}}}, got {type(effects).__name__}")
+    out = {}
+    for name, values in effects.items():
+        eff = get_effect(str(name))
+        if values is not None and not isinstance(values, dict):
+            raise EffectError(f"effect {name!r} parameters must be a mapping, got {values!r}")
+        out[str(name)] = eff.complete(values)
+    return out
+
+
+def merge_effects(base: dict[str, dict[str, float]], extra: dict[str, dict[str, Any]] | None) -> dict[str, dict[str, float]]:
+    """Scenario effects updated by per-rollout ones (per parameter), validated and completed."""
+    merged = {k: dict(v) for k, v in base.items()}
+    for name, values in (extra or {}).items():
+        if not isinstance(values, dict) and values is not None:
+            raise EffectError(f"effect {name!r} parameters must be a mapping, got {values!r}")
+        merged.setdefault(str(name), {}).update(values or {})
+    return normalize_effects(merged)
+
+
+def apply_effects(setup: RolloutSetup, effects: dict[str, dict[str, float]]) -> None:
+    """Apply completed effects to ``setup`` in registration order."""
+    for name in list_effects():
+        if name in effects:
+            _REGISTRY[name].apply(setup, effects[name])
+
+
+# ---------------------------------------------------------------------------------------- built-ins
+
+
+@register_effect
+class BaseOffset(Effect):
+    """Base pose offset: the arm stands somewhere other than designed (pedestal height, placement, yaw).
+
+    The arm is welded to a FixedOffsetFrame whose pose is a Context parameter; the offset is composed
+    with the scenario's base pose (translation added in the world frame, yaw added about world z).
+    A higher base gives a longer throw. Applied via the Context, no rebuild.
+    """
+
+    name = "base_offset"
+    params = {
+        "x": Param(0.0, -0.2, 0.2, "m", "forward offset of the base"),
+        "y": Param(0.0, -0.2, 0.2, "m", "lateral offset of the base"),
+        "z": Param(0.0, -0.2, 0.2, "m", "height offset of the base"),
+        "yaw": Param(0.0, -0.2, 0.2, "rad", "rotation of the base about the vertical"),
+    }
+
+    def apply(self, setup, values):
+        from pydrake.math import RigidTransform, RollPitchYaw
+
+        h = setup.handles
+        b = h.scenario.base
+        X = RigidTransform(
+            RollPitchYaw(0.0, 0.0, b.yaw + values["yaw"]),
+            [b.x + values["x"], b.y + values["y"], b.z + values["z"]],
+        )
+        h.base_frame.SetPoseInParentFrame(setup.plant_context, X)
+
+
+@register_effect
+class JointOffset(Effect):
+    """Joint calibration offsets: each encoder's zero is off by ``jointK`` rad.
+
+    The servo drives the *encoder* reading to the command, so the true angle is command + offset:
+    the commanded plan is shifted by the offsets, and the reported measured joint trajectory is the
+    encoder reading (true - offset), as on the real robot. Applied via the motion plan, no rebuild.
+    """
+
+    name = "joint_offset"
+    applied_via = "plan"
+    params = {n: Param(0.0, -0.1, 0.1, "rad", f"encoder zero offset of {n}") for n in robot.JOINT_NAMES}
+
+    def apply(self, setup, values):
+        off = np.array([values[n] for n in robot.JOINT_NAMES])
+        if not np.any(off):
+            return
+        p = setup.plan
+        setup.plan = MotionPlan(t=p.t.copy(), q=p.q + off, qd=None if p.qd is None else p.qd.copy(), meta=dict(p.meta))
+        setup.measurement_offset = setup.measurement_offset + off
+
+
+@register_effect
+class ActuatorLag(Effect):
+    """Actuator delay and lag: the command reaches the joints ``delay`` s late and through a first-order
+    low-pass with time constant ``tau`` s (drive bandwidth), the same for all joints.
+
+    Applied to the commanded trajectory: q_cmd(t) = LowPass_tau[q_plan(t - delay)], computed exactly on a
+    1 ms grid (zero-order-hold discretisation of 1/(tau s + 1)), held at the plan's start before the delay.
+    The plan is extended by the delay so the motion completes. No rebuild. A lag slows the effective swing,
+    delays the release and changes the throw.
+    """
+
+    name = "actuator_lag"
+    applied_via = "plan"
+    params = {
+        "delay": Param(0.0, 0.0, 0.1, "s", "pure transport delay of the command"),
+        "tau": Param(0.0, 0.0, 0.1, "s", "first-order lag time constant of the drives"),
+    }
+
+    def apply(self, setup, values):
+        delay, tau = values["delay"], values["tau"]
+        if delay == 0.0 and tau == 0.0:
+            return
+        p = setup.plan
+        dt = 0.001
+        T = p.duration + delay + 5.0 * tau
+        t = np.arange(0.0, T + dt / 2, dt)
+        q = p.sample(np.clip(t - delay, 0.0, p.duration))
+        if tau > 0.0:
+            a = np.exp(-dt / tau)
+            y = np.empty_like(q)
+            y[0] = q[0]
+            for k in range(1, len(t)):  # exact ZOH step of the first-order lag
+                y[k] = a * y[k - 1] + (1.0 - a) * q[k - 1]
+            q = y
+        qd = np.gradient(q, t, axis=0)
+        setup.plan = MotionPlan(t=t, q=q, qd=qd, meta=dict(p.meta))
+
+
+@register_effect
+class GainScale(Effect):
+    """Servo gain scale: the joint PD gains are ``kp_scale``/``kd_scale`` times the scenario's (a weaker or
+    stiffer drive tuning). Lower gains track the throw less tightly, so the ball leaves slower.
+    Applied via the Context (``JointActuator.set_controller_gains``), no rebuild.
+    """
+
+    name = "gain_scale"
+    params = {
+        "kp_scale": Param(1.0, 0.2, 2.0, "1", "factor on the proportional gains"),
+        "kd_scale": Param(1.0, 0.2, 2.0, "1", "factor on the damping gains"),
+    }
+
+    def apply(self, setup, values):
+        from pydrake.multibody.tree import PdControllerGains
+
+        h = setup.handles
+        c = h.scenario.controller
+        for i, act in enumerate(h.actuators):
+            act.set_controller_gains(setup.plant_context, PdControllerGains(p=c.kp[i] * values["kp_scale"], d=c.kd[i] * values["kd_scale"]))
+
+
+@register_effect
+class AirDrag(Effect):
+    """Quadratic air drag on the ball in flight: F = -1/2 rho c_d A |v| v, A = pi r^2.
+
+    A smooth sphere has c_d ~ 0.47; a foam ball ~0.5. Nominal 0 (vacuum), as in the designed simulation.
+    Applied in the flight model (ODE after release); while the ball sits in the scoop drag is negligible
+    against the contact forces and is ignored. A nonzero drag shortens the throw. No rebuild.
+    """
+
+    name = "air_drag"
+    applied_via = "flight"
+    params = {
+        "cd": Param(0.0, 0.0, 1.0, "1", "drag coefficient"),
+        "rho": Param(1.2, 1.0, 1.3, "kg/m^3", "air density"),
+    }
+
+    def apply(self, setup, values):
+        setup.drag_coefficient = values["cd"]
+        setup.air_density = values["rho"]
+
+
+@register_effect
+class BallProperties(Effect):
+    """Ball mass and radius (a different ball). The mass and the solid-sphere inertia 2/5 m r^2 are set in the
+    plant Context; the radius is changed in the SceneGraph Context (``SceneGraph.ChangeShape`` on the
+    collision and visual spheres), which the contact solver reads every step. The ball is placed in the
+    scoop according to its radius. A heavier ball is thrown a little shorter (the servos are stiff, so the
+    effect is small); a larger ball sits higher in the funnel and leaves it differently. No rebuild.
+    """
+
+    name = "ball"
+    params = {
+        "mass": Param(0.05, 0.02, 0.2, "kg", "ball mass"),
+        "radius": Param(0.035, 0.028, 0.045, "m", "ball radius"),
+    }
+
+    def apply(self, setup, values):
+        from pydrake.geometry import Sphere
+        from pydrake.multibody.tree import SpatialInertia
+
+        h = setup.handles
+        m, r = values["mass"], values["radius"]
+        h.ball_body.SetSpatialInertiaInBodyFrame(setup.plant_context, SpatialInertia.SolidSphereWithMass(m, r))
+        if r != h.nominal_ball_radius:
+            for gid in h.ball_geometry_ids:
+                h.scene_graph.ChangeShape(setup.scene_graph_context, h.plant.get_source_id(), gid, Sphere(r))
+        setup.ball_mass, setup.ball_radius = m, r
+
+
+@register_effect
+class ScoopFriction(Effect):
+    """Ball-scoop Coulomb friction (static ``mu_static``, dynamic ``mu_dynamic``): a worn, dusty or wet
+    scoop. Friction decides how the ball rolls or slides up the funnel wall as it leaves, and so the
+    release direction and speed. The proximity properties of the ball and of every scoop geometry are
+    replaced in the SceneGraph Context (``SceneGraph.AssignRole(..., RoleAssign.kReplace)``) with the
+    same coefficients, so the combined ball-scoop friction equals the given values. No rebuild.
+    """
+
+    name = "scoop_friction"
+    params = {
+        "mu_static": Param(0.6, 0.05, 1.5, "1", "static friction coefficient"),
+        "mu_dynamic": Param(0.5, 0.05, 1.5, "1", "dynamic friction coefficient"),
+    }
+
+    def complete(self, values):
+        out = super().complete(values)
+        if out["mu_dynamic"] > out["mu_static"]:
+            if values and "mu_static" not in values:
+                out["mu_static"] = out["mu_dynamic"]
+            else:
+                raise EffectError(f"effect 'scoop_friction': mu_dynamic={out['mu_dynamic']:g} exceeds mu_static={out['mu_static']:g}")
+        return out
+
+    def apply(self, setup, values):
+        from pydrake.geometry import ProximityProperties, Role, RoleAssign
+        from pydrake.multibody.plant import CoulombFriction
+
+        h = setup.handles
+        friction = CoulombFriction(values["mu_static"], values["mu_dynamic"])
+        inspector = h.scene_graph.model_inspector()
+        for gid in [h.ball_collision_id, *h.scoop_collision_ids]:
+            props = ProximityProperties(inspector.GetProximityProperties(gid))
+            props.UpdateProperty("material", "coulomb_friction", friction)
+            h.scene_graph.AssignRole(setup.scene_graph_context, h.plant.get_source_id(), gid, props, RoleAssign.kReplace)

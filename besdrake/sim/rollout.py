@@ -1,0 +1,220 @@
+"""The black box that learning loops call: :class:`Rollout` executes a :class:`~besdrake.plan.MotionPlan`
+and returns an :class:`~besdrake.sim.outcome.Outcome`.
+
+Built once per process (about 0.3 s), then every call
+
+1. resets the Context to the default one (``SetTimeStateAndParametersFrom``, ~0.1 ms; this also resets
+   the SceneGraph's geometry state, so effects from an earlier rollout never leak),
+2. applies the scenario's and the caller's effects (:mod:`besdrake.sim.effects`),
+3. swaps the plan in with ``TrajectorySource.UpdateTrajectory`` and places the ball at rest in the scoop,
+4. advances the simulator in chunks of ``release.check_interval`` and, between chunks, checks whether the
+   ball has left the scoop's hull by ``release.margin`` (no per-step Python),
+5. finds the release instant in the per-step state log (the last step in which the ball's velocity change
+   differs from gravity's) and computes the flight from the state there (:mod:`besdrake.sim.flight`).
+
+Stopping the simulation at release is exact for the ball as long as the arm does not touch the ball again
+after it left the scoop (the arm decelerates after the throw; arm-ball contact after release is not
+modelled). The joint trajectories in the Outcome therefore end at that point.
+
+A solver error or a diverging state gives an Outcome with ``flags["sim_failed"]``; a malformed plan or a
+plan beyond the position limits raises :class:`~besdrake.plan.PlanError` (``limits="raise"``, the default)
+or is simulated and flagged (``limits="flag"``, for learning loops exploring freely).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from besdrake import robot
+from besdrake.plan import MotionPlan, PlanError
+from besdrake.sim.diagram import SimHandles, build_diagram
+from besdrake.sim.effects import RolloutSetup, apply_effects, merge_effects
+from besdrake.sim.flight import fly
+from besdrake.sim.outcome import FLAG_NAMES, Outcome
+from besdrake.sim.scenario import Scenario, load_scenario
+
+#: Measured joint angles may overshoot a position limit by this much (rad) before the flag is raised.
+LIMIT_TOLERANCE = 0.01
+#: Ball speeds above this (m/s) in the simulation mean divergence.
+DIVERGENCE_SPEED = 50.0
+
+
+class PlanLimitError(PlanError):
+    """A motion plan commands joint positions or velocities beyond COMPI's limits."""
+
+
+class Rollout:
+    """One Diagram, reused for many rollouts: ``Rollout("nominal").rollout(plan, effects)``."""
+
+    def __init__(self, scenario: Scenario | str = "nominal", meshcat=None) -> None:
+        from pydrake.systems.analysis import Simulator
+
+        self.scenario = load_scenario(scenario) if not isinstance(scenario, Scenario) else scenario
+        self.handles: SimHandles = build_diagram(self.scenario, meshcat=meshcat)
+        h = self.handles
+        self.simulator = Simulator(h.diagram)
+        self.context = self.simulator.get_mutable_context()
+        self.default_context = h.diagram.CreateDefaultContext()
+        self.plant_context = h.plant.GetMyMutableContextFromRoot(self.context)
+        self.scene_graph_context = h.scene_graph.GetMyMutableContextFromRoot(self.context)
+        self.logger_log = h.state_logger.FindMutableLog(self.context)
+        self._nq = h.plant.num_positions()
+        # Indices of the arm and ball in the plant's state vector.
+        plant = h.plant
+        self._arm_q_idx = np.array([plant.GetJointByName(n, h.arm).position_start() for n in robot.JOINT_NAMES])
+        self._arm_v_idx = np.array([plant.GetJointByName(n, h.arm).velocity_start() for n in robot.JOINT_NAMES])
+        ball = h.ball_body
+        self._ball_q0 = ball.floating_positions_start()  # quaternion (4) then position (3)
+        self._ball_v0 = self._nq + ball.floating_velocities_start_in_v()  # angular (3) then linear (3)
+        self._gravity = plant.gravity_field().gravity_vector()
+
+    # ------------------------------------------------------------------ helpers
+    def _check_plan(self, plan: MotionPlan, limits: str):
+        if not isinstance(plan, MotionPlan):
+            raise PlanError(f"rollout needs a MotionPlan, got {type(plan).__name__}")
+        plan.validate()
+        report = plan.check_limits()
+        if limits not in ("raise", "flag"):
+            raise ValueError(f"limits must be 'raise' or 'flag', got {limits!r}")
+        exceeded = bool(np.any(report.position > 0) or np.any(report.velocity > 0))
+        if limits == "raise" and np.any(report.position > 0):
+            raise PlanLimitError("motion plan exceeds COMPI's position limits: " + ", ".join(v for v in report.violations() if "position" in v))
+        return exceeded
+
+    def _scoop_pose(self):
+        h = self.handles
+        return h.plant.CalcRelativeTransform(self.plant_context, h.plant.world_frame(), h.scoop_frame)
+
+    def _place_ball(self, q0: np.ndarray, v0: np.ndarray, radius: float) -> None:
+        h = self.handles
+        plant = h.plant
+        plant.SetPositions(self.plant_context, h.arm, q0)
+        plant.SetVelocities(self.plant_context, h.arm, v0)
+        from pydrake.math import RigidTransform
+
+        X_WS = self._scoop_pose()
+        p = X_WS.multiply(np.array([0.0, 0.0, robot.ball_rest_height(radius) + 1e-4]))
+        plant.SetFreeBodyPose(self.plant_context, h.ball_body, RigidTransform(X_WS.rotation(), p))
+        plant.SetVelocities(self.plant_context, h.ball_instance, np.zeros(6))
+
+    def _ball_outside(self, radius: float) -> tuple[bool, bool, bool]:
+        """(left the scoop's hull, touching the floor, diverged) for the current state."""
+        h = self.handles
+        x = h.plant.GetPositionsAndVelocities(self.plant_context)
+        if not np.all(np.isfinite(x)):
+            return False, False, True
+        p = x[self._ball_q0 + 4 : self._ball_q0 + 7]
+        v = x[self._ball_v0 + 3 : self._ball_v0 + 6]
+        if np.linalg.norm(v) > DIVERGENCE_SPEED:
+            return False, False, True
+        p_S = self._scoop_pose().inverse().multiply(p)
+        m = self.scenario.release.margin
+        half = robot.SCOOP_TOP_HALF_WIDTH + radius + m
+        outside = abs(p_S[0]) > half or abs(p_S[1]) > half or p_S[2] > robot.SCOOP_LIP_HEIGHT + radius + m or p_S[2] < robot.SCOOP_FLOOR_Z - radius - m
+        return bool(outside), bool(p[2] <= radius + 1e-3), False
+
+    # ------------------------------------------------------------------ main
+    def rollout(self, plan: MotionPlan, effects: dict | None = None, limits: str = "raise") -> Outcome:
+        """Simulate ``plan`` with ``effects`` ``{name: {param: value}}``; never raises for simulation trouble."""
+        plan_limit_exceeded = self._check_plan(plan, limits)
+        effects_done = merge_effects(self.scenario.effects, effects)
+        h = self.handles
+        plant = h.plant
+        self.context.SetTimeStateAndParametersFrom(self.default_context)
+        setup = RolloutSetup(
+            plan=plan,
+            handles=h,
+            context=self.context,
+            plant_context=self.plant_context,
+            scene_graph_context=self.scene_graph_context,
+            ball_radius=h.nominal_ball_radius,
+            ball_mass=float(h.ball_body.get_mass(self.plant_context)),
+        )
+        apply_effects(setup, effects_done)
+        cmd = setup.plan
+        traj = cmd.trajectory()
+        # The discrete plant's implicit PD acts on the state at the end of each step, but the source is
+        # sampled at its start: lead the reference by one step so tracking does not depend on the step size.
+        traj.shiftRight(-self.scenario.time_step)
+        h.plan_source.UpdateTrajectory(traj)
+        q0 = cmd.q[0]
+        v0 = cmd.qd[0] if cmd.qd is not None else np.asarray(cmd.trajectory().derivative(1).value(0.0)).ravel()
+        self._place_ball(q0, v0, setup.ball_radius)
+        self.logger_log.Clear()
+
+        out = Outcome(effects=effects_done, scenario=self.scenario.name)
+        flags = {k: False for k in FLAG_NAMES}
+        rel = self.scenario.release
+        t_end = cmd.duration + rel.tail
+        separated = on_floor = diverged = False
+        try:
+            self.simulator.Initialize()
+            t = 0.0
+            while t < t_end - 1e-12:
+                t = min(t + rel.check_interval, t_end)
+                self.simulator.AdvanceTo(t)
+                separated, on_floor, diverged = self._ball_outside(setup.ball_radius)
+                if separated or on_floor or diverged:
+                    break
+        except RuntimeError as err:
+            flags["sim_failed"] = True
+            out.message = f"simulation failed at t={self.context.get_time():.3f} s: {err}"
+        if diverged:
+            flags["sim_failed"] = True
+            out.message = f"simulation diverged at t={self.context.get_time():.3f} s"
+        out.sim_time = float(self.context.get_time())
+
+        log = self.logger_log
+        ts = np.asarray(log.sample_times()).copy()
+        xs = np.asarray(log.data()).T.copy()
+        if ts.size == 0 or ts[-1] < out.sim_time - 1e-9:  # make sure the final state is included
+            ts = np.append(ts, out.sim_time)
+            xs = np.vstack([xs.reshape(-1, plant.num_multibody_states()), plant.GetPositionsAndVelocities(self.plant_context)])
+        finite = np.all(np.isfinite(xs), axis=1)
+        ts, xs = ts[finite], xs[finite]
+        q_arm = xs[:, self._arm_q_idx]
+        out.joint_t = ts
+        out.q_measured = q_arm - setup.measurement_offset
+        out.q_commanded = plan.sample(ts)
+        ball_p = xs[:, self._ball_q0 + 4 : self._ball_q0 + 7]
+        ball_v = xs[:, self._ball_v0 + 3 : self._ball_v0 + 6]
+        measured_over = np.any(robot.POSITION_LIMITS[:, 0] - LIMIT_TOLERANCE > q_arm) or np.any(q_arm > robot.POSITION_LIMITS[:, 1] + LIMIT_TOLERANCE)
+        flags["joint_limit_exceeded"] = bool(plan_limit_exceeded or measured_over)
+
+        if flags["sim_failed"] or not (separated or on_floor):
+            if not flags["sim_failed"]:
+                flags["never_released"] = True
+                out.message = out.message or f"ball still in the scoop {rel.tail:g} s after the plan ended"
+            out.ball_t, out.ball_path = ts, ball_p
+            out.flags = flags
+            return out
+
+        # Release: the last sample whose velocity change is not gravity alone, before any floor contact.
+        airborne = ball_p[:, 2] > setup.ball_radius + 2e-3
+        n = int(np.argmin(airborne)) if not np.all(airborne) else len(ts)
+        dv = np.diff(ball_v[:n], axis=0) - self._gravity * np.diff(ts[:n])[:, None]
+        pushed = np.nonzero(np.linalg.norm(dv, axis=1) > 1e-6)[0]
+        k = int(pushed[-1]) + 1 if pushed.size else 0
+        k = min(k, max(n - 1, 0))
+        out.release_time = float(ts[k])
+        out.release_position = ball_p[k].copy()
+        out.release_velocity = ball_v[k].copy()
+        flight = fly(
+            ball_p[k],
+            ball_v[k],
+            setup.ball_radius,
+            mass=setup.ball_mass,
+            drag_coefficient=setup.drag_coefficient,
+            air_density=setup.air_density,
+            wind=setup.wind,
+            gravity=float(-self._gravity[2]),
+        )
+        out.touchdown = flight.touchdown_position[:2].copy()
+        out.touchdown_time = float(ts[k] + flight.duration)
+        out.ball_t = np.concatenate([ts[: k + 1], ts[k] + flight.t[1:]])
+        out.ball_path = np.vstack([ball_p[: k + 1], flight.path[1:]])
+        if np.linalg.norm(out.release_velocity) < rel.min_speed:
+            flags["dropped_early"] = True
+            out.message = f"ball fell out of the scoop at t={out.release_time:.3f} s with {np.linalg.norm(out.release_velocity):.2f} m/s"
+        out.flags = flags
+        return out

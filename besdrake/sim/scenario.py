@@ -1,0 +1,244 @@
+"""Scenarios as data: which models, base pose, time step, contact model, controller and effects a
+simulation has. A scenario is a YAML file in ``diagrams/``; ``load_scenario("nominal")`` resolves to
+``diagrams/nominal.yaml``. Every field is validated here so that a mistake in a file is reported
+by name (:class:`ScenarioError`) before Drake sees it.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from besdrake import robot
+
+DIAGRAMS_DIR: Path = Path(__file__).resolve().parents[2] / "diagrams"
+
+CONTACT_APPROXIMATIONS = ("sap", "lagged", "similar")
+CONTROLLERS = ("joint_pd",)
+
+
+class ScenarioError(ValueError):
+    """A scenario file is missing, unreadable or has an invalid field."""
+
+
+@dataclass
+class BasePose:
+    """Pose of COMPI's base frame (linkmount) in the world: position in m, yaw in rad."""
+
+    x: float = 0.0
+    y: float = 0.0
+    z: float = 0.5
+    yaw: float = 0.0
+
+
+@dataclass
+class ControllerConfig:
+    """Joint PD servo: proportional gains ``kp`` (N m/rad) and damping ``kd`` (N m s/rad), one per joint."""
+
+    type: str = "joint_pd"
+    kp: list[float] = field(default_factory=lambda: [800.0] * 6)
+    kd: list[float] = field(default_factory=lambda: [40.0] * 6)
+
+
+@dataclass
+class ReleaseConfig:
+    """How the simulation decides that the ball has left the scoop for good.
+
+    ``check_interval``: the simulator advances in chunks of this length (s) and checks the ball between
+    chunks; ``margin``: the ball must be this far (m) outside the scoop's hull; ``min_speed``: a ball
+    that leaves with less speed (m/s) fell out rather than being thrown (flag ``dropped_early``);
+    ``tail``: time (s) simulated after the end of the plan before ``never_released`` is declared.
+    """
+
+    check_interval: float = 0.02
+    margin: float = 0.01
+    min_speed: float = 1.0
+    tail: float = 0.3
+
+
+@dataclass
+class Scenario:
+    """A validated simulation scenario (see ``diagrams/nominal.yaml`` for the meaning of each field)."""
+
+    name: str
+    time_step: float
+    contact_approximation: str
+    models: dict[str, str]
+    base: BasePose
+    controller: ControllerConfig
+    release: ReleaseConfig
+    effects: dict[str, dict[str, float]] = field(default_factory=dict)
+    description: str = ""
+    path: Path | None = None
+
+    def with_overrides(self, **changes: Any) -> "Scenario":
+        """A copy with some top-level fields replaced (e.g. ``time_step=0.001`` for a reference run)."""
+        new = copy.deepcopy(self)
+        for key, value in changes.items():
+            if not hasattr(new, key):
+                raise ScenarioError(f"scenario has no field {key!r}")
+            setattr(new, key, value)
+        return new
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "name": self.name,
+            "description": self.description,
+            "time_step": self.time_step,
+            "contact": {"approximation": self.contact_approximation},
+            "models": dict(self.models),
+            "base": vars(self.base).copy(),
+            "controller": {"type": self.controller.type, "kp": list(self.controller.kp), "kd": list(self.controller.kd)},
+            "release": vars(self.release).copy(),
+            "effects": copy.deepcopy(self.effects),
+        }
+
+
+def _resolve(path_or_name: str | Path) -> Path:
+    p = Path(path_or_name)
+    if p.suffix in (".yaml", ".yml") or p.exists() or "/" in str(path_or_name):
+        return p
+    return DIAGRAMS_DIR / f"{path_or_name}.yaml"
+
+
+def _number(section: str, key: str, value: Any, low: float | None = None, high: float | None = None) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ScenarioError(f"scenario field {section}.{key} must be a number, got {value!r}")
+    v = float(value)
+    if not np.isfinite(v):
+        raise ScenarioError(f"scenario field {section}.{key} must be finite, got {value!r}")
+    if (low is not None and v < low) or (high is not None and v > high):
+        raise ScenarioError(f"scenario field {section}.{key}={v:g} is outside [{low}, {high}]")
+    return v
+
+
+def _section(data: dict, key: str, required: bool = True) -> dict:
+    if key not in data:
+        if required:
+            raise ScenarioError(f"scenario is missing the section {key!r}")
+        return {}
+    sec = data[key]
+    if sec is None:
+        return {}
+    if not isinstance(sec, dict):
+        raise ScenarioError(f"scenario section {key!r} must be a mapping, got {type(sec).__name__}")
+    return sec
+
+
+def _check_keys(section: str, sec: dict, allowed: set[str]) -> None:
+    unknown = set(sec) - allowed
+    if unknown:
+        raise ScenarioError(f"scenario section {section!r} has unknown key(s) {sorted(unknown)}; allowed: {sorted(allowed)}")
+
+
+def resolve_model_uri(uri: str) -> Path:
+    """Path of a model given as ``package://besdrake_models/...`` or a path relative to ``models/``."""
+    prefix = f"package://{robot.PACKAGE_NAME}/"
+    if uri.startswith(prefix):
+        return robot.MODELS_DIR / uri[len(prefix):]
+    if uri.startswith("package://"):
+        raise ScenarioError(f"model {uri!r} is in an unknown package (only {robot.PACKAGE_NAME} is known)")
+    p = Path(uri)
+    return p if p.is_absolute() else robot.MODELS_DIR / p
+
+
+def scenario_from_dict(data: Any, path: Path | None = None) -> Scenario:
+    """Validate a parsed YAML mapping into a :class:`Scenario` (:class:`ScenarioError` naming the field)."""
+    where = f" ({path})" if path else ""
+    if not isinstance(data, dict):
+        raise ScenarioError(f"scenario{where} must be a YAML mapping, got {type(data).__name__}")
+    _check_keys("<top>", data, {"name", "description", "time_step", "contact", "models", "base", "controller", "release", "effects"})
+    name = str(data.get("name") or (path.stem if path else "unnamed"))
+    if "time_step" not in data:
+        raise ScenarioError(f"scenario{where} is missing time_step")
+    time_step = _number("<top>", "time_step", data["time_step"], 1e-5, 0.02)
+
+    contact = _section(data, "contact", required=False)
+    _check_keys("contact", contact, {"approximation"})
+    approx = str(contact.get("approximation", "lagged"))
+    if approx not in CONTACT_APPROXIMATIONS:
+        extra = " (TAMSI ignores the joint PD gains: the arm falls)" if approx == "tamsi" else ""
+        raise ScenarioError(f"contact.approximation {approx!r} is not one of {CONTACT_APPROXIMATIONS}{extra}")
+
+    models = _section(data, "models")
+    _check_keys("models", models, {"arm", "ball", "ground"})
+    for key in ("arm", "ball", "ground"):
+        if key not in models:
+            raise ScenarioError(f"scenario models section is missing {key!r}")
+        file = resolve_model_uri(str(models[key]))
+        if not file.is_file():
+            raise ScenarioError(f"model file for {key!r} not found: {models[key]} -> {file}")
+
+    base_sec = _section(data, "base", required=False)
+    _check_keys("base", base_sec, {"x", "y", "z", "yaw"})
+    base = BasePose(
+        x=_number("base", "x", base_sec.get("x", 0.0), -5, 5),
+        y=_number("base", "y", base_sec.get("y", 0.0), -5, 5),
+        z=_number("base", "z", base_sec.get("z", 0.5), 0.0, 3.0),
+        yaw=_number("base", "yaw", base_sec.get("yaw", 0.0), -np.pi, np.pi),
+    )
+
+    ctrl_sec = _section(data, "controller", required=False)
+    _check_keys("controller", ctrl_sec, {"type", "kp", "kd"})
+    ctype = str(ctrl_sec.get("type", "joint_pd"))
+    if ctype not in CONTROLLERS:
+        raise ScenarioError(f"controller.type {ctype!r} is not one of {CONTROLLERS}")
+    gains = {}
+    for key, default in (("kp", 800.0), ("kd", 40.0)):
+        v = ctrl_sec.get(key, default)
+        if isinstance(v, (int, float)) and not isinstance(v, bool):
+            v = [v] * 6
+        if not isinstance(v, list) or len(v) != 6:
+            raise ScenarioError(f"controller.{key} must be a number or a list of 6 numbers, got {v!r}")
+        gains[key] = [_number("controller", f"{key}[{i}]", x, 0.0, 1e6) for i, x in enumerate(v)]
+    controller = ControllerConfig(type=ctype, kp=gains["kp"], kd=gains["kd"])
+
+    rel_sec = _section(data, "release", required=False)
+    _check_keys("release", rel_sec, {"check_interval", "margin", "min_speed", "tail"})
+    d = ReleaseConfig()
+    release = ReleaseConfig(
+        check_interval=_number("release", "check_interval", rel_sec.get("check_interval", d.check_interval), time_step, 1.0),
+        margin=_number("release", "margin", rel_sec.get("margin", d.margin), 0.0, 0.5),
+        min_speed=_number("release", "min_speed", rel_sec.get("min_speed", d.min_speed), 0.0, 20.0),
+        tail=_number("release", "tail", rel_sec.get("tail", d.tail), 0.0, 5.0),
+    )
+
+    effects = _section(data, "effects", required=False)
+    from besdrake.sim.effects import normalize_effects  # late import: effects may be user-registered
+
+    try:
+        effects = normalize_effects(effects)
+    except ValueError as err:
+        raise ScenarioError(f"scenario{where} effects: {err}") from err
+    return Scenario(
+        name=name,
+        description=str(data.get("description", "")),
+        time_step=time_step,
+        contact_approximation=approx,
+        models={k: str(models[k]) for k in ("arm", "ball", "ground")},
+        base=base,
+        controller=controller,
+        release=release,
+        effects=effects,
+        path=path,
+    )
+
+
+def load_scenario(path_or_name: str | Path = "nominal") -> Scenario:
+    """Load and validate a scenario: a YAML path, or a name in ``diagrams/`` (``"nominal"``)."""
+    if isinstance(path_or_name, Scenario):
+        return path_or_name
+    path = _resolve(path_or_name)
+    if not path.is_file():
+        known = sorted(p.stem for p in DIAGRAMS_DIR.glob("*.yaml"))
+        raise ScenarioError(f"scenario file not found: {path} (known scenarios: {known})")
+    try:
+        data = yaml.safe_load(path.read_text())
+    except (yaml.YAMLError, UnicodeDecodeError) as err:
+        raise ScenarioError(f"scenario file {path} is not valid YAML: {err}") from err
+    return scenario_from_dict(data, path)
