@@ -158,7 +158,8 @@ def test_weights_get_set_roundtrip() -> None:
 @pytest.mark.parametrize(
     ("name", "value"),
     [("start", [np.nan] * 6), ("goal", np.ones(5)), ("goal_velocity", [np.inf] * 6),
-     ("execution_time", 0.0), ("execution_time", -1.0), ("execution_time", np.nan), ("weights", np.full((6, 6), np.nan))],
+     ("execution_time", 0.0), ("execution_time", -1.0), ("execution_time", np.nan), ("weights", np.full((6, 6), np.nan)),
+     ("int_dt", 0.0), ("alpha_y", -25.0), ("beta_y", [1.0, 2.0])],
 )
 def test_invalid_meta_parameters_raise(name: str, value: object) -> None:
     dmp = DMP(6, 6)

@@ -69,3 +69,22 @@ def test_dmp_source_copies_the_dmp(dmp: DMP) -> None:
     system = DmpSource(mine, dt=0.01)
     mine.goal = mine.goal + 1.0
     np.testing.assert_array_equal(system.dmp.goal, dmp.goal)
+
+
+def test_dmp_source_goal_input_adapts_online(dmp: DMP) -> None:
+    from pydrake.systems.primitives import ConstantVectorSource
+
+    new_goal = dmp.goal + np.linspace(-0.3, 0.3, 6)
+    builder = DiagramBuilder()
+    source = builder.AddSystem(DmpSource(dmp, dt=0.01))
+    goal = builder.AddSystem(ConstantVectorSource(new_goal))
+    builder.Connect(goal.get_output_port(), source.GetInputPort("goal"))
+    diagram = builder.Build()
+    simulator = Simulator(diagram)
+    simulator.AdvanceTo(dmp.execution_time + 0.005)
+    adapted = dmp.copy()
+    adapted.goal = new_goal
+    expected = adapted.open_loop(0.01).y[-1]
+    context = source.GetMyContextFromRoot(simulator.get_context())
+    np.testing.assert_allclose(source.GetOutputPort("position").Eval(context), expected, atol=1e-9)
+    assert np.max(np.abs(expected - new_goal)) < 0.02

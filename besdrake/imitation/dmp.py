@@ -130,11 +130,9 @@ class DMP:
             raise DMPParameterError(f"n_dims must be a positive integer, got {n_dims}")
         self.n_dims = int(n_dims)
         self.basis = RadialBasis.with_count(int(n_weights_per_dim))
-        self.alpha_y = finite_array("alpha_y", alpha_y, (self.n_dims,))
-        self.beta_y = finite_array("beta_y", beta_y, (self.n_dims,))
-        if np.any(self.alpha_y <= 0) or np.any(self.beta_y <= 0):
-            raise DMPParameterError("alpha_y and beta_y must be > 0")
-        self.int_dt = positive_float("int_dt", int_dt)
+        self.alpha_y = alpha_y
+        self.beta_y = beta_y
+        self.int_dt = int_dt
         self.execution_time = execution_time
         zeros = np.zeros(self.n_dims)
         self.start = zeros
@@ -147,8 +145,12 @@ class DMP:
 
     # -- validated meta-parameters ------------------------------------------------------------
     def __setattr__(self, name: str, value: Any) -> None:
-        if name == "execution_time":
-            value = positive_float("execution_time", value)
+        if name in ("execution_time", "int_dt"):
+            value = positive_float(name, value)
+        elif name in ("alpha_y", "beta_y"):
+            value = finite_array(name, value, (self.n_dims,))
+            if np.any(value <= 0.0):
+                raise DMPParameterError(f"{name} must be > 0, got {value}")
         elif name in _VECTOR_FIELDS:
             value = finite_array(name, value, (self.n_dims,))
         elif name == "weights":
@@ -175,7 +177,10 @@ class DMP:
 
     def copy(self) -> "DMP":
         """Independent copy."""
-        return DMP.from_dict(self.to_dict())
+        new = object.__new__(DMP)
+        for name, value in self.__dict__.items():
+            object.__setattr__(new, name, value.copy() if isinstance(value, np.ndarray) else value)
+        return new
 
     # -- imitation ----------------------------------------------------------------------------
     def fit(self, t: np.ndarray, y: np.ndarray, regularization: float = 0.0) -> "DMP":
@@ -214,21 +219,21 @@ class DMP:
         return self
 
     # -- integration --------------------------------------------------------------------------
-    def _coefficients(self) -> np.ndarray:
+    def _coefficients(self, goal: np.ndarray) -> np.ndarray:
         return quintic_coefficients(
             self.execution_time,
             self.start,
             self.start_velocity,
             self.start_acceleration,
-            self.goal,
+            goal,
             self.goal_velocity,
             self.goal_acceleration,
         )
 
-    def _drive(self, t: np.ndarray, coefficients: np.ndarray) -> np.ndarray:
+    def _drive(self, t: np.ndarray, coefficients: np.ndarray, goal: np.ndarray) -> np.ndarray:
         """State-independent part ``u(t)`` of the acceleration, ``(len(t), n_dims)``."""
         tau = self.execution_time
-        g, gd, gdd = moving_goal(t, coefficients, self.goal, tau)
+        g, gd, gdd = moving_goal(t, coefficients, goal, tau)
         f = self.basis.features(phase(t, tau)) @ self.weights.T
         return (self.alpha_y * (self.beta_y * g + tau * gd) + f) / tau**2 + gdd
 
@@ -243,7 +248,7 @@ class DMP:
         n_int = (n_out - 1) * n_sub
         tau = self.execution_time
         t_int = np.arange(1, n_int + 1) * h
-        u = self._drive(t_int, self._coefficients())
+        u = self._drive(t_int, self._coefficients(self.goal), self.goal)
         # Semi-implicit Euler as the linear recursion y[j] = c1 y[j-1] - c2 y[j-2] + h^2 u[j].
         damping = self.alpha_y / tau
         stiffness = self.alpha_y * self.beta_y / tau**2
@@ -265,17 +270,21 @@ class DMP:
         yd[1:] = np.diff(y, axis=0) / h
         return DMPTrajectory(np.arange(n_out) * dt, y[::n_sub].copy(), yd[::n_sub].copy())
 
-    def step(self, t: float, y: np.ndarray, yd: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    def step(
+        self, t: float, y: np.ndarray, yd: np.ndarray, dt: float, goal: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Integrate one step of ``dt`` s from state ``(y, yd)`` at DMP time ``t`` (s since the start).
 
-        Closed-loop use: pass the measured (or last commanded) state. Returns new ``(y, yd)``.
+        Closed-loop use: pass the measured (or last commanded) state. ``goal`` replaces the goal for
+        this step only (online adaptation; the moving goal is recomputed). Returns new ``(y, yd)``.
         """
+        goal = self.goal if goal is None else finite_array("goal", goal, (self.n_dims,))
         dt = positive_float("dt", dt)
         y = finite_array("y", y, (self.n_dims,)).copy()
         yd = finite_array("yd", yd, (self.n_dims,)).copy()
         n_sub = substeps(dt, self.int_dt)
         h = dt / n_sub
-        u = self._drive(float(t) + np.arange(1, n_sub + 1) * h, self._coefficients())
+        u = self._drive(float(t) + np.arange(1, n_sub + 1) * h, self._coefficients(goal), goal)
         tau = self.execution_time
         damping = self.alpha_y / tau
         stiffness = self.alpha_y * self.beta_y / tau**2

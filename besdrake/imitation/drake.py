@@ -28,6 +28,9 @@ class DmpSource(LeafSystem):
     controller's desired state). Before ``start_time`` it holds the start state. Over
     ``[start_time + k dt, start_time + (k + 1) dt)`` the outputs are the DMP's state at ``k dt``
     (zero-order hold; equal to :meth:`DMP.open_loop` sampled every ``dt``).
+
+    Optional input port ``goal`` (n): when connected, it replaces the DMP's goal at every update
+    (online adaptation of the meta-parameter; the moving goal is recomputed each step).
     """
 
     def __init__(self, dmp: DMP, dt: float = 0.001, start_time: float = 0.0) -> None:
@@ -39,6 +42,7 @@ class DmpSource(LeafSystem):
         self._n = n
         initial = np.concatenate((self._dmp.start, self._dmp.start_velocity))
         self._state_index = self.DeclareDiscreteState(initial)
+        self._goal_port = self.DeclareVectorInputPort("goal", n)
         self.DeclarePeriodicDiscreteUpdateEvent(self._dt, 0.0, self._update)
         self.DeclareVectorOutputPort("position", n, self._output_position, {self.xd_ticket()})
         self.DeclareVectorOutputPort("velocity", n, self._output_velocity, {self.xd_ticket()})
@@ -56,7 +60,8 @@ class DmpSource(LeafSystem):
         t_from = context.get_time() - self._start_time - self._dt
         if t_from < -1e-9:
             return EventStatus.DidNothing()
-        y, yd = self._dmp.step(t_from, x[: self._n], x[self._n :], self._dt)
+        goal = self._goal_port.Eval(context) if self._goal_port.HasValue(context) else None
+        y, yd = self._dmp.step(t_from, x[: self._n], x[self._n :], self._dt, goal=goal)
         discrete_state.get_mutable_vector(self._state_index).SetFromVector(np.concatenate((y, yd)))
         return EventStatus.Succeeded()
 
