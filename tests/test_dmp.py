@@ -199,3 +199,18 @@ def test_json_roundtrip_and_corrupt_file(tmp_path) -> None:
     path.write_text(json.dumps(data))
     with pytest.raises(DMPParameterError, match="goal"):
         DMP.load(path)
+
+
+def test_rollout_ends_exactly_at_an_arbitrary_execution_time() -> None:
+    t, q = throw_demo()
+    dmp = DMP(6, 6).fit(t, q)
+    dmp.execution_time = 1.2345  # policy search varies it continuously; not a multiple of dt
+    traj = dmp.open_loop(0.002)
+    assert traj.t[-1] == 1.2345
+    assert np.all(np.diff(traj.t) > 0) and np.max(np.diff(traj.t)) == pytest.approx(0.002)
+    assert np.max(np.abs(traj.yd[-1] - dmp.goal_velocity)) < 0.05 * np.max(np.abs(dmp.goal_velocity))
+    y, yd = dmp.step(traj.t[-2], traj.y[-2], traj.yd[-2], traj.t[-1] - traj.t[-2])
+    np.testing.assert_allclose(y, traj.y[-1], atol=1e-12)
+    # Same path as a fine rollout at the shared sample times.
+    fine = dmp.open_loop(0.0005)
+    np.testing.assert_allclose(traj.y[:-1], fine.y[:-1:4], atol=2e-3)

@@ -18,7 +18,10 @@ oracle). Where we deliberately differ (tested as properties, not against the ora
   integration is uniform and the open-loop rollout can run as a linear recursive filter;
 * imitation measures time from the first sample, so demonstrations need not start at t = 0;
 * the moving goal switches to rest after ``tau`` with a tolerance of 1e-9 s (the oracle's
-  switch depends on floating-point rounding of its accumulated time at the last step).
+  switch depends on floating-point rounding of its accumulated time at the last step);
+* a rollout ends exactly at its run time (default: ``tau``, where the goal velocity is reached):
+  when that is not a multiple of ``dt`` the last sample interval is shorter (the oracle samples
+  ``numpy.arange(0, run_time + dt, dt)``, which may end before or after it).
 
 The open-loop rollout is vectorised: the forcing term and moving goal are evaluated for all
 sub-steps at once and the linear recursion runs in :func:`scipy.signal.lfilter`.
@@ -50,6 +53,9 @@ DEFAULT_BETA_Y = 6.25
 DEFAULT_INT_DT = 0.001
 #: Tolerance (s) when deciding whether a time lies after the execution time.
 TIME_TOLERANCE = 1e-9
+#: A rollout whose run time exceeds its last multiple of ``dt`` by more than this (s) gets a final,
+#: shorter step so that it ends exactly at the run time.
+END_TOLERANCE = 1e-7
 
 
 @dataclass
@@ -239,7 +245,8 @@ class DMP:
 
     def open_loop(self, dt: float = 0.01, run_time: float | None = None) -> DMPTrajectory:
         """Roll the DMP out from its start state, sampled every ``dt`` s up to ``run_time``
-        (default: the execution time; it may be shorter or longer)."""
+        (default: the execution time; it may be shorter or longer). The last sample is at
+        ``run_time`` exactly (a shorter last interval if ``run_time`` is not a multiple of ``dt``)."""
         dt = positive_float("dt", dt)
         run_time = self.execution_time if run_time is None else positive_float("run_time", run_time)
         n_sub = substeps(dt, self.int_dt)
@@ -268,7 +275,13 @@ class DMP:
         yd = np.empty_like(y)
         yd[0] = self.start_velocity
         yd[1:] = np.diff(y, axis=0) / h
-        return DMPTrajectory(np.arange(n_out) * dt, y[::n_sub].copy(), yd[::n_sub].copy())
+        t_out, y_out, yd_out = np.arange(n_out) * dt, y[::n_sub], yd[::n_sub]
+        remainder = run_time - t_out[-1]
+        if remainder > END_TOLERANCE:  # end exactly at run_time with one shorter step
+            y_end, yd_end = self.step(t_out[-1], y_out[-1], yd_out[-1], remainder)
+            t_out = np.append(t_out, run_time)
+            y_out, yd_out = np.vstack((y_out, y_end)), np.vstack((yd_out, yd_end))
+        return DMPTrajectory(t_out, y_out.copy(), yd_out.copy())
 
     def step(
         self, t: float, y: np.ndarray, yd: np.ndarray, dt: float, goal: np.ndarray | None = None

@@ -36,7 +36,7 @@ import numpy as np
 from besdrake.imitation import quaternion as quat
 from besdrake.imitation._validation import DMPParameterError, demonstration, finite_array, positive_float
 from besdrake.imitation.basis import RadialBasis, phase
-from besdrake.imitation.dmp import DEFAULT_ALPHA_Y, DEFAULT_BETA_Y, DEFAULT_INT_DT, substeps
+from besdrake.imitation.dmp import DEFAULT_ALPHA_Y, DEFAULT_BETA_Y, DEFAULT_INT_DT, END_TOLERANCE, substeps
 
 
 @dataclass
@@ -197,15 +197,20 @@ class QuaternionDMP:
         return np.array(out_q).reshape(-1, 4), np.array(out_w).reshape(-1, 3)
 
     def open_loop(self, dt: float = 0.01, run_time: float | None = None) -> OrientationTrajectory:
-        """Roll out from ``start`` at rest, sampled every ``dt`` s until ``run_time`` (default: execution time)."""
+        """Roll out from ``start`` at rest, sampled every ``dt`` s until ``run_time`` (default: execution
+        time); the last sample is at ``run_time`` exactly (see :meth:`DMP.open_loop`)."""
         dt = positive_float("dt", dt)
         run_time = self.execution_time if run_time is None else positive_float("run_time", run_time)
         n_sub = substeps(dt, self.int_dt)
         n_out = int(math.floor(run_time / dt + 1e-9)) + 1
         q, w = self._integrate(0.0, self._start, np.zeros(3), dt / n_sub, (n_out - 1) * n_sub, n_sub)
-        return OrientationTrajectory(
-            np.arange(n_out) * dt, np.vstack((self._start, q)), np.vstack((np.zeros(3), w))
-        )
+        t_out, q_out, w_out = np.arange(n_out) * dt, np.vstack((self._start, q)), np.vstack((np.zeros(3), w))
+        remainder = run_time - t_out[-1]
+        if remainder > END_TOLERANCE:  # end exactly at run_time with one shorter step
+            q_end, w_end = self.step(t_out[-1], q_out[-1], w_out[-1], remainder)
+            t_out = np.append(t_out, run_time)
+            q_out, w_out = np.vstack((q_out, q_end)), np.vstack((w_out, w_end))
+        return OrientationTrajectory(t_out, q_out, w_out)
 
     def step(self, t: float, q: np.ndarray, omega: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """One step of ``dt`` s from orientation ``q`` and angular velocity ``omega`` at DMP time ``t``."""
