@@ -8,7 +8,7 @@ from scipy.spatial.transform import Rotation
 
 from besdrake.imitation import DMPParameterError, QuaternionDMP
 from besdrake.imitation import quaternion as quat
-from test_dmp_helpers import has_pytransform3d, oracle
+from test_dmp_helpers import oracle
 
 
 def _angle_between(p: np.ndarray, q: np.ndarray) -> np.ndarray:
@@ -85,16 +85,20 @@ def test_rollout_agrees_with_oracle_below_pi(dt: float) -> None:
     np.testing.assert_allclose(ours, theirs, rtol=0, atol=1e-8)
 
 
-@pytest.mark.skipif(not has_pytransform3d(), reason="oracle imitation needs pytransform3d (optional dependency of movement_primitives)")
 def test_imitation_agrees_with_oracle_below_pi() -> None:
+    """Oracle: movement_primitives' CartesianDMP (pytransform3d, or its scipy stand-in, see helpers)."""
     mp = oracle()
     t, q = _demo(0.6 * np.pi)
     o = mp.CartesianDMP(execution_time=t[-1], dt=0.01, n_weights_per_dim=8)
     poses = np.hstack((np.zeros((t.size, 3)), q))
     o.imitate(t, poses)
+    _, oracle_poses = o.open_loop()
     dmp = QuaternionDMP(8).fit(t, q)
     w = o.forcing_term_rot.weights_
     assert np.max(np.abs(dmp.weights - w)) <= 1e-8 * max(1.0, np.max(np.abs(w)))
+    ours = dmp.open_loop(0.01).q
+    assert ours.shape == oracle_poses[:, 3:].shape
+    np.testing.assert_allclose(ours, oracle_poses[:, 3:], rtol=0, atol=1e-8)
 
 
 def test_imitation_reproduces_demonstration_and_reaches_goal() -> None:

@@ -60,19 +60,21 @@ class QuaternionDMP:
         int_dt: float = DEFAULT_INT_DT,
     ) -> None:
         self.basis = RadialBasis.with_count(int(n_weights_per_dim))
-        self.alpha_y = finite_array("alpha_y", alpha_y, (3,))
-        self.beta_y = finite_array("beta_y", beta_y, (3,))
-        if np.any(self.alpha_y <= 0) or np.any(self.beta_y <= 0):
-            raise DMPParameterError("alpha_y and beta_y must be > 0")
-        self.int_dt = positive_float("int_dt", int_dt)
+        self.alpha_y = alpha_y
+        self.beta_y = beta_y
+        self.int_dt = int_dt
         self.execution_time = execution_time
         self._start = np.array([1.0, 0.0, 0.0, 0.0])
         self._goal = np.array([1.0, 0.0, 0.0, 0.0])
         self.weights = np.zeros((3, self.n_weights_per_dim))
 
     def __setattr__(self, name: str, value: Any) -> None:
-        if name == "execution_time":
-            value = positive_float("execution_time", value)
+        if name in ("execution_time", "int_dt"):
+            value = positive_float(name, value)
+        elif name in ("alpha_y", "beta_y"):
+            value = finite_array(name, value, (3,))
+            if np.any(value <= 0.0):
+                raise DMPParameterError(f"{name} must be > 0, got {value}")
         elif name == "weights":
             value = finite_array("weights", value, (3, self.n_weights_per_dim))
         object.__setattr__(self, name, value)
