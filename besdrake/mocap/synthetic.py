@@ -27,6 +27,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from scipy.spatial.transform import Rotation
+
 from besdrake.mocap import arm_model as am
 from besdrake.mocap.qualisys import write_tsv
 from besdrake.mocap.recording import MocapRecording
@@ -166,12 +168,12 @@ class _Sub:
 
 
 # Pose channels: wrist (3, in arm lengths, trunk frame rel. to shoulder), elbow hint (3),
-# pronation, trunk yaw, trunk pitch.
-_NCH = 9
+# pronation, trunk yaw, trunk pitch, wrist flexion (rad).
+_NCH = 10
 
 
-def _pose_vector(wrist, hint, pron, yaw, pitch) -> np.ndarray:
-    return np.concatenate([wrist, hint, [pron, yaw, pitch]])
+def _pose_vector(wrist, hint, pron, yaw, pitch, flex=0.0) -> np.ndarray:
+    return np.concatenate([wrist, hint, [pron, yaw, pitch, flex]])
 
 
 class SyntheticSubject:
@@ -185,13 +187,14 @@ class SyntheticSubject:
     def _key_poses(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         st = self.style
         j = lambda scale: rng.normal(0.0, scale)  # noqa: E731 (per-throw variation)
-        rest = _pose_vector([0.08 + j(0.02), 0.03 + j(0.02), -0.92], [-0.5, -0.8, 0.0], 0.0, 0.0, 0.0)
+        rest = _pose_vector([0.08 + j(0.02), 0.03 + j(0.02), -0.92], [-0.5, -0.8, 0.0], 0.0, 0.0, 0.0, j(0.1))
         cock = _pose_vector(
             [-st.strike_depth + j(0.03), 0.0 + j(0.02), st.cock_height + j(0.03)],
             [-0.1, -1.0, -0.4],
             0.5 + j(0.05),
             -st.trunk_yaw_back + j(0.03),
             -0.03,
+            -0.5 + j(0.1),  # wrist cocked back
         )
         front = _pose_vector(
             [st.front_reach + j(0.03), 0.10 + j(0.02), st.front_height + j(0.03)],
@@ -199,6 +202,7 @@ class SyntheticSubject:
             -0.3 + j(0.05),
             st.trunk_yaw_forward + j(0.03),
             st.trunk_lean + j(0.02),
+            0.5 + j(0.1),  # wrist snap
         )
         arc_strike = np.array([-0.2, -0.2, 0.0]) * rng.uniform(0.7, 1.3)
         arc_swing = np.array([0.12, 0.15, -0.05]) * rng.uniform(0.7, 1.3)
@@ -249,13 +253,17 @@ class SyntheticSubject:
         hint = np.einsum("nij,nj->ni", rot, q[:, 3:6])
         elbow = am.two_link_elbow(shoulder_joint, wrist, st.upper_arm, st.forearm, hint)
         hand_rot = am.hand_frame(elbow, wrist, shoulder_joint, q[:, 6])
+        hand_rot = np.einsum("nij,njk->nik", hand_rot, Rotation.from_euler("y", q[:, 9:10]).as_matrix())
         hand_centre = wrist + 0.05 * s * hand_rot[:, :, 0]
         # Shoulder marker on the acromion, rising a little as the arm is raised.
         elevation = np.clip((wrist_rel[:, 2] / reach + 0.6) / 1.1, 0.0, 1.0)
         shoulder_marker = shoulder_joint + np.einsum("nij,nj->ni", rot, np.stack(
             [np.zeros_like(elevation), -0.012 * np.ones_like(elevation), 0.035 + 0.03 * elevation], axis=1))
-        elbow_out = am._unit(hint - np.sum(hint * am._unit(elbow - shoulder_joint), axis=1, keepdims=True) * am._unit(elbow - shoulder_joint))
-        elbow_marker = elbow + 0.025 * elbow_out
+        # Elbow marker on the epicondyle: offset the way the elbow points (away from the
+        # shoulder-wrist line), which is continuous while the elbow is flexed.
+        sw = am._unit(wrist - shoulder_joint)
+        foot = shoulder_joint + np.sum((elbow - shoulder_joint) * sw, axis=1, keepdims=True) * sw
+        elbow_marker = elbow + 0.025 * am._unit(elbow - foot)
         back_origin = to_world(np.array([-0.12 * s, 0.0, 0.45 * s]))
         markers = {"Shoulder": shoulder_marker, "Elbow": elbow_marker}
         markers.update(am.plate_points(back_origin, rot, am.BACK_PLATE))

@@ -1,0 +1,479 @@
+"""Automatic marker labelling from relative distances, learned from one labelled recording.
+
+The paper's labeller needs "neighbouring markers, initial pose". Here :class:`MarkerLabeler`
+learns from one labelled reference recording of the same marker set:
+
+* for every pair of markers, the distribution of their distance (a smoothed histogram, so rigid
+  pairs get a sharp peak and loose pairs a broad one);
+* the rigid plates: groups of three markers whose pairwise distances vary by less than
+  ``rigid_tol`` (the back and hand plates);
+* how well the true marker fits its neighbours (a per-label cost threshold).
+
+:meth:`MarkerLabeler.predict` then labels a recording of unnamed trajectories:
+
+1. *Tracking*: points are linked frame to frame (constant-velocity prediction, Hungarian
+   assignment, gate ``track_gate`` metres) into tracklets; a tracklet ends at a gap or a jump.
+   Slot numbers play no role, so identities shuffled per gap or per frame are the same problem.
+2. *Identification*, in order of tracklet start: a new tracklet gets the free label whose learned
+   distances to the labelled markers visible at the same time fit best, or whose motion it
+   continues (prediction from previous frames over a gap), if that fit passes the label's
+   threshold; otherwise it is a ghost. Tracklets that start together (e.g. the first frame) are
+   resolved rigid plates first (best triple by distances), then singles, greedily.
+3. *Gap filling* (:mod:`besdrake.mocap.gaps`): rigid fits for plate markers, splines otherwise;
+   long gaps are flagged.
+"""
+
+from __future__ import annotations
+
+import itertools
+import time as _time
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.ndimage import gaussian_filter1d
+from scipy.optimize import linear_sum_assignment
+
+from besdrake.mocap.gaps import GapFillResult, GapInfo, fill_gaps
+from besdrake.mocap.recording import MocapRecording
+
+GHOST = -1
+EMPTY = -2
+
+
+class LabelingError(ValueError):
+    """A reference or input recording that cannot be used for labelling."""
+
+
+@dataclass
+class LabelingResult:
+    """Output of :meth:`MarkerLabeler.predict`.
+
+    ``slot_labels`` is ``(n_frames, n_slots)``: the label index (into ``marker_names``) given to
+    each input trajectory slot per frame, :data:`GHOST` (-1) for a rejected point and
+    :data:`EMPTY` (-2) where the slot holds nothing. ``recording`` has the reference's marker
+    names, gaps filled; ``raw_recording`` the same before gap filling.
+    """
+
+    marker_names: list[str]
+    slot_labels: np.ndarray
+    recording: MocapRecording
+    raw_recording: MocapRecording
+    gaps: list[GapInfo]
+    n_tracklets: int
+    n_ghost_tracklets: int
+    never_seen: list[str]
+    seconds: float
+    warnings: list[str] = field(default_factory=list)
+    tracklet_ids: np.ndarray | None = None  # (n_frames, n_slots) tracklet of each point, -1 where empty
+    tracklet_labels: np.ndarray | None = None  # label index per tracklet, GHOST if rejected
+
+    def summary(self) -> dict:
+        flagged = [g for g in self.gaps if not g.filled]
+        return {
+            "markers": self.marker_names,
+            "frames": int(self.slot_labels.shape[0]),
+            "tracklets": self.n_tracklets,
+            "ghost_tracklets": self.n_ghost_tracklets,
+            "ghost_samples": int((self.slot_labels == GHOST).sum()),
+            "gaps_filled": sum(g.filled for g in self.gaps),
+            "gaps_flagged": len(flagged),
+            "flagged_gaps": [
+                {"marker": g.marker, "start_frame": g.start_frame, "end_frame": g.end_frame, "reason": g.reason}
+                for g in flagged
+            ],
+            "never_seen": self.never_seen,
+            "seconds": round(self.seconds, 3),
+            "warnings": self.warnings,
+        }
+
+
+def labeling_accuracy(slot_labels: np.ndarray, truth: np.ndarray) -> dict:
+    """Share of correctly labelled samples against ground truth (same layout as ``slot_labels``).
+
+    A sample is one visible point in one frame (``truth != EMPTY``); it is correct when the label
+    matches, ghosts counting as correct when rejected. Also reported: the share over real-marker
+    samples only and the share of ghost samples rejected.
+    """
+    if slot_labels.shape != truth.shape:
+        raise ValueError(f"shapes differ: {slot_labels.shape} vs {truth.shape}")
+    seen = truth != EMPTY
+    correct = (slot_labels == truth) & seen
+    real = truth >= 0
+    ghosts = truth == GHOST
+    return {
+        "samples": int(seen.sum()),
+        "correct_share": float(correct.sum() / max(seen.sum(), 1)),
+        "marker_samples": int(real.sum()),
+        "marker_correct_share": float((correct & real).sum() / max(real.sum(), 1)),
+        "ghost_samples": int(ghosts.sum()),
+        "ghost_rejected_share": float((correct & ghosts).sum() / max(ghosts.sum(), 1)),
+    }
+
+
+class MarkerLabeler:
+    """Label unnamed marker trajectories (scikit-learn style: ``fit(reference)``, ``predict(recording)``).
+
+    Parameters: ``track_gate`` (m) for frame-to-frame linking, ``max_gap_s`` for continuing a
+    label's motion across a gap and for gap filling, ``rigid_tol`` (m) to detect plates,
+    ``window`` frames of a new tracklet used to identify it, ``bin_m`` and ``smooth_m`` for the
+    distance histograms.
+    """
+
+    def __init__(
+        self,
+        track_gate: float = 0.05,
+        max_gap_s: float = 0.25,
+        rigid_tol: float = 0.003,
+        window: int = 10,
+        bin_m: float = 0.002,
+        smooth_m: float = 0.004,
+        max_distance: float = 6.0,
+        threshold_quantile: float = 0.99,
+        threshold_margin: float = 1.5,
+        refine_passes: int = 3,
+        max_speed: float = 10.0,
+        min_length_s: float = 0.3,
+        strict_quantile: float = 0.9,
+    ):
+        self.min_length_s = min_length_s
+        self.strict_quantile = strict_quantile
+        self.refine_passes = refine_passes
+        self.max_speed = max_speed
+        self.track_gate = track_gate
+        self.max_gap_s = max_gap_s
+        self.rigid_tol = rigid_tol
+        self.window = window
+        self.bin_m = bin_m
+        self.smooth_m = smooth_m
+        self.max_distance = max_distance
+        self.threshold_quantile = threshold_quantile
+        self.threshold_margin = threshold_margin
+
+    # ------------------------------------------------------------------ fit
+    def fit(self, reference: MocapRecording) -> "MarkerLabeler":
+        """Learn distances, plates and thresholds from a labelled recording."""
+        pos = reference.positions
+        n, m, _ = pos.shape
+        if n < 2:
+            raise LabelingError(f"the reference recording is too short ({n} frame(s)); it needs at least 2")
+        missing = reference.missing_markers()
+        if missing:
+            raise LabelingError(f"reference markers never visible, cannot learn them: {missing}")
+        self.marker_names_ = list(reference.marker_names)
+        n_bins = int(np.ceil(self.max_distance / self.bin_m)) + 1
+        d = np.linalg.norm(pos[:, :, None, :] - pos[:, None, :, :], axis=3)  # (n, m, m)
+        cost = np.zeros((m, m, n_bins))
+        informative = np.zeros((m, m), dtype=bool)
+        spread = np.full((m, m), np.inf)
+        for i in range(m):
+            for j in range(m):
+                if i == j:
+                    continue
+                dij = d[:, i, j]
+                dij = dij[~np.isnan(dij)]
+                if len(dij) < 2:
+                    continue
+                informative[i, j] = True
+                med = np.median(dij)
+                spread[i, j] = 1.4826 * np.median(np.abs(dij - med))
+                hist = np.bincount(np.minimum((dij / self.bin_m).astype(int), n_bins - 1), minlength=n_bins).astype(float)
+                dens = gaussian_filter1d(hist, self.smooth_m / self.bin_m, mode="constant")
+                dens /= dens.max()
+                cost[i, j] = np.minimum(-np.log(dens + 1e-6), 12.0)
+        self.pair_cost_ = cost
+        self.informative_ = informative
+        self.spread_ = spread
+        # Rigid plates: triples whose pairwise distances barely vary.
+        rigid = (spread < self.rigid_tol) & informative
+        triples = [
+            tri for tri in itertools.combinations(range(m), 3)
+            if all(rigid[a, b] for a, b in itertools.combinations(tri, 2))
+        ]
+        triples.sort(key=lambda tri: max(spread[a, b] for a, b in itertools.combinations(tri, 2)))
+        plates: list[list[int]] = []
+        for tri in triples:  # most rigid first, disjoint
+            if not any(set(tri) & set(p) for p in plates):
+                plates.append(list(tri))
+        self.plates_ = plates
+        # Per-label thresholds: how well the true markers fit their neighbours in the reference.
+        frame_cost = self._frame_costs(pos, d)
+        thresholds, typical, strict = np.zeros(m), np.zeros(m), np.zeros(m)
+        for i in range(m):
+            c = frame_cost[:, i]
+            c = c[~np.isnan(c)]
+            thresholds[i] = (np.quantile(c, self.threshold_quantile) if len(c) else 3.0) + self.threshold_margin
+            typical[i] = np.median(c) if len(c) else 0.0
+            strict[i] = np.quantile(c, self.strict_quantile) if len(c) else 2.0
+        self.thresholds_ = thresholds
+        self.strict_thresholds_ = strict
+        self.typical_ = typical
+        self.frequency_ = reference.frequency
+        return self
+
+    def _frame_costs(self, pos: np.ndarray, d: np.ndarray) -> np.ndarray:
+        """Mean pair cost of each visible marker against the other visible markers, per frame."""
+        n, m, _ = pos.shape
+        vis = ~np.isnan(pos).any(axis=2)
+        bins = np.minimum(np.nan_to_num(d / self.bin_m).astype(int), self.pair_cost_.shape[2] - 1)
+        ii, jj = np.meshgrid(np.arange(m), np.arange(m), indexing="ij")
+        c = self.pair_cost_[ii[None], jj[None], bins]  # (n, m, m)
+        w = vis[:, :, None] & vis[:, None, :] & self.informative_[None]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out = (c * w).sum(axis=2) / w.sum(axis=2)
+        out[~vis] = np.nan
+        return out
+
+    # ------------------------------------------------------------------ tracking
+    def _track(self, pos: np.ndarray) -> tuple[np.ndarray, list[tuple[int, int]]]:
+        """Tracklet id per (frame, slot) (-1 where empty) and each tracklet's (start, end) rows."""
+        n, k, _ = pos.shape
+        vis = ~np.isnan(pos).any(axis=2)
+        tid = np.full((n, k), -1, dtype=int)
+        spans: list[list[int]] = []
+        last_pos: dict[int, np.ndarray] = {}
+        prev_pos: dict[int, np.ndarray] = {}
+        active: list[int] = []
+        for f in range(n):
+            slots = np.nonzero(vis[f])[0]
+            pts = pos[f, slots]
+            matched_slots = set()
+            new_active = []
+            if active and len(slots):
+                pred = np.array([2 * last_pos[t] - prev_pos[t] if t in prev_pos else last_pos[t] for t in active])
+                # Without a velocity yet, allow for up to max_speed of motion.
+                gate = np.array([self.track_gate if t in prev_pos else max(self.track_gate, self.max_speed / self.frequency_) for t in active])
+                dist = np.linalg.norm(pred[:, None, :] - pts[None, :, :], axis=2)
+                big = 1e6
+                r, c = linear_sum_assignment(np.where(dist < gate[:, None], dist, big))
+                for a, b in zip(r, c):
+                    if dist[a, b] < gate[a]:
+                        t = active[a]
+                        tid[f, slots[b]] = t
+                        prev_pos[t] = last_pos[t]
+                        last_pos[t] = pts[b]
+                        spans[t][1] = f + 1
+                        matched_slots.add(b)
+                        new_active.append(t)
+            for b in range(len(slots)):
+                if b not in matched_slots:
+                    t = len(spans)
+                    spans.append([f, f + 1])
+                    tid[f, slots[b]] = t
+                    last_pos[t] = pts[b]
+                    new_active.append(t)
+            for t in active:
+                if t not in new_active:
+                    last_pos.pop(t, None)
+                    prev_pos.pop(t, None)
+            active = new_active
+        return tid, [tuple(s) for s in spans]
+
+    # ------------------------------------------------------------------ identification
+    def _geometry_cost(self, xs: np.ndarray, frames: np.ndarray, label_pos: np.ndarray) -> np.ndarray:
+        """Per-label cost of a tracklet's points ``xs`` (w,3) at ``frames``: per frame the mean pair
+        cost against the labelled markers visible then, median over frames (inf: no partners)."""
+        m = label_pos.shape[1]
+        partners = label_pos[frames]  # (w, m, 3)
+        d = np.linalg.norm(partners - xs[:, None, :], axis=2)  # (w, m)
+        ok = ~np.isnan(d)
+        bins = np.minimum(np.nan_to_num(d / self.bin_m).astype(int), self.pair_cost_.shape[2] - 1)
+        c = self.pair_cost_[:, np.arange(m)[None, :], bins]  # (L, w, m)
+        w = ok[None] & self.informative_[:, None, :]
+        w &= ~np.eye(m, dtype=bool)[:, None, :]
+        num = (c * w).sum(axis=2)
+        den = w.sum(axis=2)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            per_frame = np.where(den > 0, num / np.maximum(den, 1), np.nan)  # (L, w)
+        out = np.full(m, np.inf)
+        has = (den > 0).any(axis=1)
+        out[has] = np.nanmedian(per_frame[has], axis=1)
+        return out
+
+    def _continuity_cost(self, label: int, rows: np.ndarray, pts: np.ndarray, label_pos: np.ndarray, dt: float) -> float:
+        """How well the tracklet continues the label's motion before its start or after its end
+        (squared prediction error over tolerance; inf if the label is not seen within max_gap)."""
+        max_gap = int(round(self.max_gap_s / dt))
+        n = len(label_pos)
+        best = np.inf
+        for direction in (1, -1):
+            f0, x0 = (int(rows[0]), pts[0]) if direction == 1 else (int(rows[-1]), pts[-1])
+            if direction == 1:
+                lo = max(0, f0 - max_gap - 1)
+                seen = np.nonzero(~np.isnan(label_pos[lo:f0, label, 0]))[0]
+                if len(seen) == 0:
+                    continue
+                last = lo + int(seen[-1])
+                step = -1
+            else:
+                hi = min(n, f0 + max_gap + 2)
+                seen = np.nonzero(~np.isnan(label_pos[f0 + 1 : hi, label, 0]))[0]
+                if len(seen) == 0:
+                    continue
+                last = f0 + 1 + int(seen[0])
+                step = 1
+            gap_t = abs(f0 - last) * dt
+            p1 = label_pos[last, label]
+            v = np.zeros(3)
+            nb = last + step
+            if 0 <= nb < n and not np.isnan(label_pos[nb, label, 0]):
+                v = (p1 - label_pos[nb, label]) / dt  # velocity pointing towards the gap
+            pred = p1 + v * gap_t
+            tol = 0.01 + 0.5 * 9.81 * gap_t**2 + 0.2 * np.linalg.norm(v) * gap_t
+            best = min(best, float((np.linalg.norm(x0 - pred) / tol) ** 2))
+        return best
+
+    def predict(self, rec: MocapRecording, fill: bool = True) -> LabelingResult:
+        """Label the unnamed trajectories of ``rec`` (any marker names; slots may be shuffled)."""
+        if not hasattr(self, "pair_cost_"):
+            raise LabelingError("the labeler is not fitted: call fit(reference) first")
+        t_start = _time.process_time()
+        pos = rec.positions
+        n, k, _ = pos.shape
+        m = len(self.marker_names_)
+        if n < 2:
+            raise LabelingError(f"the recording is too short to label ({n} frame(s))")
+        warnings: list[str] = []
+        if abs(rec.frequency - self.frequency_) > 1e-6:
+            warnings.append(f"frequency {rec.frequency:g} Hz differs from the reference's {self.frequency_:g} Hz")
+        dt = 1.0 / rec.frequency
+        tid, spans = self._track(pos)
+        n_t = len(spans)
+        # Per-tracklet points (rows and positions).
+        rows_of: list[np.ndarray] = [None] * n_t  # type: ignore[list-item]
+        pts_of: list[np.ndarray] = [None] * n_t  # type: ignore[list-item]
+        f_idx, s_idx = np.nonzero(tid >= 0)
+        order = np.argsort(tid[f_idx, s_idx], kind="stable")
+        f_idx, s_idx = f_idx[order], s_idx[order]
+        bounds = np.searchsorted(tid[f_idx, s_idx], np.arange(n_t + 1))
+        for t in range(n_t):
+            fr, sl = f_idx[bounds[t] : bounds[t + 1]], s_idx[bounds[t] : bounds[t + 1]]
+            rows_of[t], pts_of[t] = fr, pos[fr, sl]
+        label_pos = np.full((n, m, 3), np.nan)
+        occupied = np.zeros((n, m), dtype=bool)
+        label_of = np.full(n_t, GHOST, dtype=int)
+        lengths = np.array([len(r) for r in rows_of])
+        min_len = int(round(self.min_length_s * rec.frequency))
+
+        def assign(t: int, lab: int) -> None:
+            label_of[t] = lab
+            label_pos[rows_of[t], lab] = pts_of[t]
+            occupied[rows_of[t], lab] = True
+
+        def unassign(t: int) -> None:
+            lab = label_of[t]
+            if lab >= 0:
+                label_pos[rows_of[t], lab] = np.nan
+                occupied[rows_of[t], lab] = False
+                label_of[t] = GHOST
+
+        def cost_row(t: int) -> np.ndarray:
+            """Cost above the label's typical cost, inf where it fails the label's threshold;
+            NaN everywhere when there is nothing to compare with."""
+            rows = rows_of[t]
+            sample = np.unique(np.linspace(0, len(rows) - 1, min(self.window, len(rows))).round().astype(int))
+            geo = self._geometry_cost(pts_of[t][sample], rows[sample], label_pos)
+            free = ~occupied[rows].any(axis=0)
+            short = len(rows) < min_len
+            out = np.full(m, np.inf)
+            any_evidence = False
+            for lab in np.nonzero(free)[0]:
+                cont = self._continuity_cost(lab, rows, pts_of[t], label_pos, dt)
+                g = geo[lab]
+                any_evidence |= bool(np.isfinite(g) or np.isfinite(cont))
+                limit = self.strict_thresholds_[lab] if short else self.thresholds_[lab]
+                if cont <= 4.0:  # continues the label's motion across a gap
+                    out[lab] = min(g, self.typical_[lab])
+                elif g <= limit:
+                    out[lab] = g
+            if not any_evidence and free.any():
+                out[:] = np.nan
+            return out
+
+        # 1. Seed: at the frame where most long tracklets coexist, whole plates, then singles.
+        long_ts = np.nonzero(lengths >= min(self.window, lengths.max()))[0]
+        active = np.zeros(n, dtype=int)
+        for t in long_ts:
+            active[rows_of[t][0] : rows_of[t][-1] + 1] += 1
+        f_seed = int(np.argmax(active))
+        seed_group = [int(t) for t in long_ts if rows_of[t][0] <= f_seed <= rows_of[t][-1]]
+        self._seed_plates(seed_group, f_seed, rows_of, pts_of, occupied, assign)
+        # 2. All tracklets, longest first (ghosts are short); several passes for those that had
+        #    no labelled neighbours yet.
+        pending = [int(t) for t in np.argsort(-lengths, kind="stable") if label_of[t] == GHOST]
+        for _pass in range(3):
+            deferred = []
+            for t in pending:
+                if label_of[t] != GHOST:
+                    continue
+                costs = cost_row(t)
+                if np.isnan(costs).all():
+                    deferred.append(t)
+                    continue
+                if np.isfinite(costs).any():
+                    assign(t, int(np.argmin(costs)))
+            if not deferred or len(deferred) == len(pending):
+                break
+            pending = deferred
+        # 3. Refinement: re-decide every tracklet with all the others labelled.
+        for _pass in range(self.refine_passes):
+            changed = 0
+            for t in np.argsort(-lengths, kind="stable"):
+                before = label_of[t]
+                unassign(t)
+                costs = cost_row(t)
+                if np.isfinite(costs).any():
+                    assign(t, int(np.nanargmin(np.where(np.isnan(costs), np.inf, costs))))
+                changed += int(label_of[t] != before)
+            if changed == 0:
+                break
+        # Outputs.
+        slot_labels = np.full((n, k), EMPTY, dtype=int)
+        has = tid >= 0
+        slot_labels[has] = label_of[tid[has]]
+        names = list(self.marker_names_)
+        raw = MocapRecording(names, label_pos, rec.frequency, rec.frames.copy(), rec.time.copy(), dict(rec.metadata))
+        never = raw.missing_markers()
+        if never:
+            warnings.append(f"markers never found: {never}")
+        plates = [[names[i] for i in p] for p in self.plates_]
+        if fill:
+            filled: GapFillResult = fill_gaps(raw, self.max_gap_s, plates)
+            out_rec, gaps = filled.recording, filled.gaps
+        else:
+            out_rec, gaps = raw, []
+        return LabelingResult(
+            names, slot_labels, out_rec, raw, gaps, n_t, int((label_of == GHOST).sum()), never,
+            _time.process_time() - t_start, warnings, tid, label_of,
+        )
+
+    def _seed_plates(self, group, frame, rows_of, pts_of, occupied, assign) -> None:
+        """Assign whole plates among ``group`` (tracklets active at ``frame``), best-fitting
+        triples by learned distances around that frame; plates first, most rigid first."""
+        def window(t):
+            rows = rows_of[t]
+            i = int(np.searchsorted(rows, frame))
+            return rows[i : i + self.window], pts_of[t][i : i + self.window]
+
+        win = {t: window(t) for t in group}
+        for plate in self.plates_:
+            cands = [t for t in group if not occupied[win[t][0]][:, plate].any()]
+            best, best_cost = None, np.inf
+            for tri in itertools.permutations(cands, 3):
+                cost = 0.0
+                for (ia, ta), (ib, tb) in itertools.combinations(zip(plate, tri), 2):
+                    (ra, xa), (rb, xb) = win[ta], win[tb]
+                    common = np.intersect1d(ra, rb)
+                    if len(common) == 0:
+                        cost = np.inf
+                        break
+                    dd = np.linalg.norm(xa[np.searchsorted(ra, common)] - xb[np.searchsorted(rb, common)], axis=1)
+                    bins = np.minimum((dd / self.bin_m).astype(int), self.pair_cost_.shape[2] - 1)
+                    cost += float(self.pair_cost_[ia, ib, bins].mean())
+                    if cost >= best_cost:
+                        break
+                if cost < best_cost:
+                    best, best_cost = tri, cost
+            if best is not None and best_cost / 3 <= max(self.thresholds_[plate]):
+                for lab, t in zip(plate, best):
+                    assign(t, lab)
+                group = [t for t in group if t not in best]
