@@ -182,6 +182,16 @@ def test_invalid_demonstrations_raise() -> None:
         DMP(6).open_loop(dt=0.0)
     with pytest.raises(ValueError, match="weights per dimension"):
         DMP(6, n_weights_per_dim=1)
+    with pytest.raises(DMPParameterError, match="sub-steps"):
+        DMP(6).open_loop(dt=0.01, run_time=1e9)
+
+
+def test_many_narrow_basis_functions_stay_finite() -> None:
+    dmp = DMP(2, n_weights_per_dim=600)
+    dmp.goal = [1.0, -1.0]
+    dmp.set_weights(np.ones(dmp.n_weights))
+    traj = dmp.open_loop(0.01, run_time=3.0)
+    assert np.all(np.isfinite(traj.y))
 
 
 def test_json_roundtrip_and_corrupt_file(tmp_path) -> None:

@@ -52,4 +52,7 @@ class RadialBasis:
         """``(len(z), n_weights)``: ``z`` times the normalised activations, so ``f = features @ w``."""
         z = np.atleast_1d(np.asarray(z, dtype=float))
         act = np.exp(-self.widths * (z[:, None] - self.centers) ** 2)
-        return act * (z / act.sum(axis=1))[:, None]
+        # Far from every centre (only with hundreds of narrow Gaussians) all activations underflow;
+        # the forcing term is then zero instead of NaN.
+        total = np.maximum(act.sum(axis=1), np.finfo(float).tiny)
+        return act * (z / total)[:, None]

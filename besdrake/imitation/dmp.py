@@ -56,6 +56,8 @@ TIME_TOLERANCE = 1e-9
 #: A rollout whose run time exceeds its last multiple of ``dt`` by more than this (s) gets a final,
 #: shorter step so that it ends exactly at the run time.
 END_TOLERANCE = 1e-7
+#: Largest number of integration sub-steps of one rollout (a guard against absurd run times).
+MAX_SUBSTEPS = 20_000_000
 
 
 @dataclass
@@ -253,6 +255,10 @@ class DMP:
         h = dt / n_sub
         n_out = int(math.floor(run_time / dt + 1e-9)) + 1
         n_int = (n_out - 1) * n_sub
+        if n_int > MAX_SUBSTEPS:
+            raise DMPParameterError(
+                f"rollout of {run_time:g} s at int_dt {self.int_dt:g} s needs {n_int} sub-steps (limit {MAX_SUBSTEPS})"
+            )
         tau = self.execution_time
         t_int = np.arange(1, n_int + 1) * h
         u = self._drive(t_int, self._coefficients(self.goal), self.goal)

@@ -36,7 +36,7 @@ import numpy as np
 from besdrake.imitation import quaternion as quat
 from besdrake.imitation._validation import DMPParameterError, demonstration, finite_array, positive_float
 from besdrake.imitation.basis import RadialBasis, phase
-from besdrake.imitation.dmp import DEFAULT_ALPHA_Y, DEFAULT_BETA_Y, DEFAULT_INT_DT, END_TOLERANCE, substeps
+from besdrake.imitation.dmp import DEFAULT_ALPHA_Y, DEFAULT_BETA_Y, DEFAULT_INT_DT, END_TOLERANCE, MAX_SUBSTEPS, substeps
 
 
 @dataclass
@@ -205,6 +205,8 @@ class QuaternionDMP:
         run_time = self.execution_time if run_time is None else positive_float("run_time", run_time)
         n_sub = substeps(dt, self.int_dt)
         n_out = int(math.floor(run_time / dt + 1e-9)) + 1
+        if (n_out - 1) * n_sub > MAX_SUBSTEPS:
+            raise DMPParameterError(f"rollout of {run_time:g} s needs more than {MAX_SUBSTEPS} sub-steps")
         q, w = self._integrate(0.0, self._start, np.zeros(3), dt / n_sub, (n_out - 1) * n_sub, n_sub)
         t_out, q_out, w_out = np.arange(n_out) * dt, np.vstack((self._start, q)), np.vstack((np.zeros(3), w))
         remainder = run_time - t_out[-1]
