@@ -4,9 +4,10 @@ A :class:`MotionPlan` is a sampled joint trajectory of COMPI: times ``t`` (N,) i
 at 0, positions ``q`` (N, 6) in rad and optionally velocities ``qd`` (N, 6) in rad/s. DMPs
 and inverse kinematics produce plans; :class:`besdrake.sim.Rollout` executes them.
 
-Between samples the plan is a cubic: Hermite through ``(q, qd)`` when ``qd`` is given, otherwise
-a not-a-knot cubic spline through ``q``. :meth:`MotionPlan.sample` and the simulation use the
-same interpolation, so limit checks see what the robot is commanded.
+Between samples the plan is a cubic Hermite through ``(q, qd)``; when ``qd`` is not given it is taken
+from the not-a-knot cubic spline through ``q`` (so the plan is that spline). :meth:`MotionPlan.sample`,
+:meth:`MotionPlan.check_limits` (vectorised numpy) and the simulation (Drake ``PiecewisePolynomial``)
+use the same interpolation, so limit checks see what the robot is commanded.
 """
 
 from __future__ import annotations
@@ -107,23 +108,42 @@ class MotionPlan:
             raise PlanError(f"plan time must increase strictly; t[{i + 1}]={self.t[i + 1]:g} <= t[{i}]={self.t[i]:g}")
         return self
 
-    def trajectory(self):
-        """The plan as a Drake ``PiecewisePolynomial`` (6 rows), the interpolation the sim uses."""
+    def knot_velocities(self) -> np.ndarray:
+        """Velocities (N, 6) at the samples: ``qd`` if given, else those of the not-a-knot spline through q."""
+        if self.qd is not None:
+            return self.qd
+        from scipy.interpolate import CubicSpline
+
+        return CubicSpline(self.t, self.q, axis=0, bc_type="not-a-knot")(self.t, 1)
+
+    def trajectory(self, time_shift: float = 0.0):
+        """The plan as a Drake ``PiecewisePolynomial`` (cubic Hermite, 6 rows), optionally shifted by ``time_shift`` s."""
         from pydrake.trajectories import PiecewisePolynomial
 
         self.validate()
-        if self.qd is not None:
-            return PiecewisePolynomial.CubicHermite(self.t, self.q.T, self.qd.T)
-        if self.t.size < 4:
-            return PiecewisePolynomial.FirstOrderHold(self.t, self.q.T)
-        return PiecewisePolynomial.CubicWithContinuousSecondDerivatives(self.t, self.q.T, periodic_end_condition=False)
+        return PiecewisePolynomial.CubicHermite(self.t + time_shift, self.q.T, self.knot_velocities().T)
+
+    def _hermite(self, times: np.ndarray, qd: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Positions, velocities, accelerations (len(times), 6) of the Hermite interpolation (clamped at the ends)."""
+        qd = self.knot_velocities() if qd is None else qd
+        times = np.clip(np.asarray(times, dtype=float), 0.0, self.duration)
+        i = np.clip(np.searchsorted(self.t, times, side="right") - 1, 0, self.t.size - 2)
+        h = (self.t[i + 1] - self.t[i])[:, None]
+        s = ((times - self.t[i])[:, None]) / h
+        p0, p1, m0, m1 = self.q[i], self.q[i + 1], qd[i] * h, qd[i + 1] * h
+        s2, s3 = s * s, s * s * s
+        pos = (2 * s3 - 3 * s2 + 1) * p0 + (s3 - 2 * s2 + s) * m0 + (-2 * s3 + 3 * s2) * p1 + (s3 - s2) * m1
+        vel = ((6 * s2 - 6 * s) * p0 + (3 * s2 - 4 * s + 1) * m0 + (-6 * s2 + 6 * s) * p1 + (3 * s2 - 2 * s) * m1) / h
+        acc = ((12 * s - 6) * p0 + (6 * s - 4) * m0 + (-12 * s + 6) * p1 + (6 * s - 2) * m1) / (h * h)
+        return pos, vel, acc
 
     def sample(self, times: np.ndarray, derivative: int = 0) -> np.ndarray:
-        """Interpolated positions (or a derivative) at ``times``: shape (len(times), 6). Clamped at the ends."""
-        traj = self.trajectory()
-        times = np.clip(np.asarray(times, dtype=float), 0.0, self.duration)
-        d = traj if derivative == 0 else traj.derivative(derivative)
-        return np.array([d.value(float(ti)).ravel() for ti in times])
+        """Interpolated positions (derivative 0), velocities (1) or accelerations (2) at ``times``: (len(times), 6).
+        Times outside [0, duration] are clamped (the plan holds its end points)."""
+        self.validate()
+        if derivative not in (0, 1, 2):
+            raise ValueError(f"derivative must be 0, 1 or 2, got {derivative}")
+        return self._hermite(np.atleast_1d(times))[derivative]
 
     def check_limits(
         self,
@@ -132,17 +152,18 @@ class MotionPlan:
         acceleration_limits: np.ndarray | None = None,
         resolution: float = 0.002,
     ) -> LimitReport:
-        """Largest violation per joint of the interpolated plan (sampled every ``resolution`` s). Never raises
-        for limit violations (it does raise :class:`PlanError` for a malformed plan)."""
+        """Largest violation per joint of the interpolated plan (sampled at the knots and at least every
+        ``resolution`` s). Never raises for limit violations (it raises :class:`PlanError` for a malformed plan)."""
+        self.validate()
         pos = robot.POSITION_LIMITS if position_limits is None else np.asarray(position_limits, float)
         vel = robot.VELOCITY_LIMITS if velocity_limits is None else np.asarray(velocity_limits, float)
         acc = robot.ACCELERATION_LIMITS if acceleration_limits is None else np.asarray(acceleration_limits, float)
-        traj = self.trajectory()
         n = max(2, int(np.ceil(self.duration / resolution)) + 1)
         ts = np.unique(np.concatenate([np.linspace(0.0, self.duration, n), self.t]))
-        q = traj.vector_values(ts).T
-        qd = traj.derivative(1).vector_values(ts).T
-        qdd = traj.derivative(2).vector_values(ts).T
+        q, qd, qdd = self._hermite(ts)
+        # Accelerations jump at knots: evaluate both one-sided values there.
+        _, _, qdd_left = self._hermite(self.t[1:] - 1e-12)
+        qdd = np.vstack([qdd, qdd_left])
         p_viol = np.maximum(np.max(pos[:, 0] - q, axis=0), np.max(q - pos[:, 1], axis=0))
         v_viol = np.max(np.abs(qd) - vel, axis=0)
         a_viol = np.max(np.abs(qdd) - acc, axis=0)

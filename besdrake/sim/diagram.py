@@ -55,6 +55,8 @@ class SimHandles:
     scoop_collision_ids: list
     nominal_ball_radius: float
     visualizer: Any = None
+    #: True while the actuators carry scaled gains (effect gain_scale); Rollout restores them on reset.
+    gains_scaled: bool = False
     arm_q_slice: slice = field(default_factory=lambda: slice(0, 6))
 
     def plant_context(self, context):

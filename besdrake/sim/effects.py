@@ -288,8 +288,11 @@ class ActuatorLag(Effect):
 @register_effect
 class GainScale(Effect):
     """Servo gain scale: the joint PD gains are ``kp_scale``/``kd_scale`` times the scenario's (a weaker or
-    stiffer drive tuning). Lower gains track the throw less tightly, so the ball leaves slower.
-    Applied via the Context (``JointActuator.set_controller_gains``), no rebuild.
+    stiffer drive tuning). Lower gains track the swing less tightly: the arm lags and overshoots, and the
+    throw changes. In pydrake 1.51 the PD gains are not Context parameters (``JointActuator.set_controller_gains``
+    has no Context overload) but are read from the actuator at every step, so the effect sets them on the
+    actuators of this process's Diagram and :class:`~besdrake.sim.Rollout` restores the scenario's gains at
+    the next reset. No rebuild.
     """
 
     name = "gain_scale"
@@ -299,12 +302,19 @@ class GainScale(Effect):
     }
 
     def apply(self, setup, values):
-        from pydrake.multibody.tree import PdControllerGains
+        if values["kp_scale"] == 1.0 and values["kd_scale"] == 1.0:
+            return
+        set_gains(setup.handles, values["kp_scale"], values["kd_scale"])
 
-        h = setup.handles
-        c = h.scenario.controller
-        for i, act in enumerate(h.actuators):
-            act.set_controller_gains(setup.plant_context, PdControllerGains(p=c.kp[i] * values["kp_scale"], d=c.kd[i] * values["kd_scale"]))
+
+def set_gains(handles: "SimHandles", kp_scale: float = 1.0, kd_scale: float = 1.0) -> None:
+    """Set the joint PD gains to the scenario's times the scales (1, 1 restores them)."""
+    from pydrake.multibody.tree import PdControllerGains
+
+    c = handles.scenario.controller
+    for i, act in enumerate(handles.actuators):
+        act.set_controller_gains(PdControllerGains(p=c.kp[i] * kp_scale, d=c.kd[i] * kd_scale))
+    handles.gains_scaled = (kp_scale, kd_scale) != (1.0, 1.0)
 
 
 @register_effect
@@ -333,8 +343,10 @@ class BallProperties(Effect):
     """Ball mass and radius (a different ball). The mass and the solid-sphere inertia 2/5 m r^2 are set in the
     plant Context; the radius is changed in the SceneGraph Context (``SceneGraph.ChangeShape`` on the
     collision and visual spheres), which the contact solver reads every step. The ball is placed in the
-    scoop according to its radius. A heavier ball is thrown a little shorter (the servos are stiff, so the
-    effect is small); a larger ball sits higher in the funnel and leaves it differently. No rebuild.
+    scoop according to its radius. The stiff servos hardly notice the ball's weight; a heavier foam ball
+    is squeezed more into the funnel while the arm accelerates and springs out a little faster (it lands
+    further); a larger ball sits higher in the funnel, leaves a little earlier and faster (further), and has
+    more drag in flight when ``air_drag`` is on. No rebuild.
     """
 
     name = "ball"

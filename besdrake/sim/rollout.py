@@ -28,7 +28,7 @@ import numpy as np
 from besdrake import robot
 from besdrake.plan import MotionPlan, PlanError
 from besdrake.sim.diagram import SimHandles, build_diagram
-from besdrake.sim.effects import RolloutSetup, apply_effects, merge_effects
+from besdrake.sim.effects import RolloutSetup, apply_effects, merge_effects, set_gains
 from besdrake.sim.flight import fly
 from besdrake.sim.outcome import FLAG_NAMES, Outcome
 from besdrake.sim.scenario import Scenario, load_scenario
@@ -67,6 +67,8 @@ class Rollout:
         self._ball_q0 = ball.floating_positions_start()  # quaternion (4) then position (3)
         self._ball_v0 = self._nq + ball.floating_velocities_start_in_v()  # angular (3) then linear (3)
         self._gravity = plant.gravity_field().gravity_vector()
+        #: Time (s) by which the reference leads the plan (see rollout()); one time step.
+        self.reference_lead = self.scenario.time_step
 
     # ------------------------------------------------------------------ helpers
     def _check_plan(self, plan: MotionPlan, limits: str):
@@ -121,6 +123,8 @@ class Rollout:
         h = self.handles
         plant = h.plant
         self.context.SetTimeStateAndParametersFrom(self.default_context)
+        if h.gains_scaled:
+            set_gains(h)
         setup = RolloutSetup(
             plan=plan,
             handles=h,
@@ -132,13 +136,12 @@ class Rollout:
         )
         apply_effects(setup, effects_done)
         cmd = setup.plan
-        traj = cmd.trajectory()
         # The discrete plant's implicit PD acts on the state at the end of each step, but the source is
-        # sampled at its start: lead the reference by one step so tracking does not depend on the step size.
-        traj.shiftRight(-self.scenario.time_step)
-        h.plan_source.UpdateTrajectory(traj)
+        # sampled at its start: lead the reference by one step so that the logged joint angles at time t
+        # track the plan at t for every step size (a pure time shift: it does not change where the ball lands).
+        h.plan_source.UpdateTrajectory(cmd.trajectory(time_shift=-self.reference_lead))
         q0 = cmd.q[0]
-        v0 = cmd.qd[0] if cmd.qd is not None else np.asarray(cmd.trajectory().derivative(1).value(0.0)).ravel()
+        v0 = cmd.knot_velocities()[0]
         self._place_ball(q0, v0, setup.ball_radius)
         self.logger_log.Clear()
 
