@@ -133,9 +133,11 @@ class MarkerLabeler:
         refine_passes: int = 3,
         max_speed: float = 10.0,
         min_length_s: float = 0.3,
+        min_gate: float = 0.012,
         strict_quantile: float = 0.9,
     ):
         self.min_length_s = min_length_s
+        self.min_gate = min_gate
         self.strict_quantile = strict_quantile
         self.refine_passes = refine_passes
         self.max_speed = max_speed
@@ -233,6 +235,7 @@ class MarkerLabeler:
         last_pos: dict[int, np.ndarray] = {}
         prev_pos: dict[int, np.ndarray] = {}
         active: list[int] = []
+        err2: dict[int, float] = {}
         for f in range(n):
             slots = np.nonzero(vis[f])[0]
             pts = pos[f, slots]
@@ -240,14 +243,22 @@ class MarkerLabeler:
             new_active = []
             if active and len(slots):
                 pred = np.array([2 * last_pos[t] - prev_pos[t] if t in prev_pos else last_pos[t] for t in active])
-                # Without a velocity yet, allow for up to max_speed of motion.
-                gate = np.array([self.track_gate if t in prev_pos else max(self.track_gate, self.max_speed / self.frequency_) for t in active])
+                # Adaptive gate: a few times the tracklet's recent prediction error (so a
+                # neighbouring plate marker is not taken over when a marker vanishes); without
+                # a velocity yet, allow for up to max_speed of motion.
+                gate = np.array([
+                    min(self.track_gate, max(self.min_gate, 4.0 * np.sqrt(err2[t]))) if t in prev_pos
+                    else max(self.track_gate, self.max_speed / self.frequency_)
+                    for t in active
+                ])
                 dist = np.linalg.norm(pred[:, None, :] - pts[None, :, :], axis=2)
                 big = 1e6
                 r, c = linear_sum_assignment(np.where(dist < gate[:, None], dist, big))
                 for a, b in zip(r, c):
                     if dist[a, b] < gate[a]:
                         t = active[a]
+                        if t in prev_pos:
+                            err2[t] = 0.7 * err2[t] + 0.3 * dist[a, b] ** 2
                         tid[f, slots[b]] = t
                         prev_pos[t] = last_pos[t]
                         last_pos[t] = pts[b]
@@ -258,6 +269,7 @@ class MarkerLabeler:
                 if b not in matched_slots:
                     t = len(spans)
                     spans.append([f, f + 1])
+                    err2[t] = (self.min_gate / 2) ** 2
                     tid[f, slots[b]] = t
                     last_pos[t] = pts[b]
                     new_active.append(t)
@@ -397,23 +409,36 @@ class MarkerLabeler:
         f_seed = int(np.argmax(active))
         seed_group = [int(t) for t in long_ts if rows_of[t][0] <= f_seed <= rows_of[t][-1]]
         self._seed_plates(seed_group, f_seed, rows_of, pts_of, occupied, assign)
-        # 2. All tracklets, longest first (ghosts are short); several passes for those that had
-        #    no labelled neighbours yet.
-        pending = [int(t) for t in np.argsort(-lengths, kind="stable") if label_of[t] == GHOST]
-        for _pass in range(3):
-            deferred = []
-            for t in pending:
-                if label_of[t] != GHOST:
-                    continue
-                costs = cost_row(t)
-                if np.isnan(costs).all():
-                    deferred.append(t)
-                    continue
-                if np.isfinite(costs).any():
-                    assign(t, int(np.argmin(costs)))
-            if not deferred or len(deferred) == len(pending):
+        # 2. The most certain decision first: repeatedly assign the pending tracklet whose best
+        #    label beats its runner-up (or its threshold) by the widest margin; decisions
+        #    change the neighbours' costs, so tracklets overlapping in time are re-scored.
+        max_gap = int(round(self.max_gap_s * rec.frequency))
+        starts = np.array([r[0] for r in rows_of])
+        ends = np.array([r[-1] for r in rows_of])
+        pending = {int(t) for t in range(n_t) if label_of[t] == GHOST}
+        rows_cache = {t: cost_row(t) for t in pending}
+
+        def margin(t: int) -> float:
+            c = rows_cache[t]
+            finite = np.sort(c[np.isfinite(c)])
+            if len(finite) == 0:
+                return -np.inf
+            lab = int(np.nanargmin(np.where(np.isfinite(c), c, np.inf)))
+            second = finite[1] if len(finite) > 1 else self.thresholds_[lab]
+            return float(second - finite[0]) + 1e-3 * min(lengths[t], 1000)
+
+        margins = {t: margin(t) for t in pending}
+        while pending:
+            t = max(pending, key=margins.__getitem__)
+            if not np.isfinite(margins[t]):
                 break
-            pending = deferred
+            c = rows_cache[t]
+            assign(t, int(np.nanargmin(np.where(np.isfinite(c), c, np.inf))))
+            pending.discard(t)
+            near = [u for u in pending if starts[u] <= ends[t] + max_gap and ends[u] >= starts[t] - max_gap]
+            for u in near:
+                rows_cache[u] = cost_row(u)
+                margins[u] = margin(u)
         # 3. Refinement: re-decide every tracklet with all the others labelled.
         for _pass in range(self.refine_passes):
             changed = 0
