@@ -1,0 +1,106 @@
+"""Joint trajectory of a demonstrated segment by inverse kinematics in COMPI's base frame.
+
+With the synchronization frame fixed, every demonstrated hand pose (at the recording's full
+rate) is solved with Drake's :class:`~pydrake.multibody.inverse_kinematics.InverseKinematics`:
+the scoop origin within ``position_tolerance`` of the hand centre (a constraint), the scoop
+opening towards the palm normal (a cost: a scoop cannot turn like a wrist, so the angle is
+matched as well as the arm allows and reported), and a cost on the distance to the previous
+solution so that consecutive configurations stay close (no jumps between IK branches). A pose
+whose position constraint cannot be met is solved again with the position as a cost and
+reported as unreachable with its residual.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from pydrake.math import RigidTransform
+from pydrake.multibody.inverse_kinematics import InverseKinematics
+from pydrake.solvers import SnoptSolver
+
+from besdrake import robot
+from besdrake.embodiment.kinematics import KinematicModel
+from besdrake.embodiment.sync_frame import SCOOP_AXIS
+
+
+@dataclass
+class IKTrajectory:
+    """Joint positions for every demonstrated pose and how well they reproduce it."""
+
+    t: np.ndarray  # (n,) s
+    q: np.ndarray  # (n, 6) rad
+    position_residual: np.ndarray  # (n,) m
+    angle_residual: np.ndarray  # (n,) rad
+    reachable: np.ndarray  # (n,) bool: position constraint met
+
+    @property
+    def max_joint_step(self) -> float:
+        """Largest change of any joint between consecutive samples (rad): a jump detector."""
+        return float(np.abs(np.diff(self.q, axis=0)).max()) if len(self.q) > 1 else 0.0
+
+    def unreachable_report(self) -> list[dict]:
+        """One entry per pose that could not be reached: index, time and residual."""
+        return [
+            {"index": int(i), "t": float(self.t[i]), "position_residual_m": float(self.position_residual[i])}
+            for i in np.flatnonzero(~self.reachable)
+        ]
+
+
+def ik_trajectory(
+    model: KinematicModel,
+    t: np.ndarray,
+    positions: np.ndarray,
+    axes: np.ndarray,
+    q_guess: np.ndarray,
+    position_tolerance: float = 0.0005,
+    angle_weight: float = 10.0,
+    continuity_weight: float = 1.0,
+    joint_margin: float = 0.05,
+) -> IKTrajectory:
+    """Solve every pose (positions ``(n, 3)`` and opening axes ``(n, 3)`` in the base frame).
+
+    ``q_guess`` ``(n, 6)`` seeds each solve (e.g. the synchronization program's solution
+    interpolated to ``t``); each solve is pulled towards the previous solution.
+    """
+    if model.n_mount:
+        raise ValueError("ik_trajectory needs the welded COMPI plant (compi_plant())")
+    plant = model.plant
+    n = len(t)
+    lower = robot.POSITION_LIMITS[:, 0] + joint_margin
+    upper = robot.POSITION_LIMITS[:, 1] - joint_margin
+    solver = SnoptSolver()
+    q_out = np.empty((n, 6))
+    reachable = np.ones(n, dtype=bool)
+    prev = np.clip(q_guess[0], lower, upper)
+    for i in range(n):
+        for hard in (True, False):
+            ik = InverseKinematics(plant, with_joint_limits=False)
+            q = ik.q()
+            prog = ik.get_mutable_prog()
+            prog.AddBoundingBoxConstraint(lower, upper, q)
+            if hard:
+                ik.AddPositionConstraint(
+                    model.tcp, np.zeros(3), plant.world_frame(),
+                    positions[i] - position_tolerance, positions[i] + position_tolerance,
+                )
+            else:
+                ik.AddPositionCost(plant.world_frame(), positions[i], model.tcp, np.zeros(3), 1.0e4 * np.eye(3))
+            ik.AddAngleBetweenVectorsCost(plant.world_frame(), axes[i], model.tcp, SCOOP_AXIS, angle_weight)
+            anchor = prev if i > 0 else np.clip(q_guess[0], lower, upper)
+            prog.AddQuadraticErrorCost(continuity_weight * np.eye(6), anchor, q)
+            prog.SetInitialGuess(q, np.clip(q_guess[i], lower, upper) if i == 0 else prev)
+            result = solver.Solve(prog)
+            if result.is_success() or not hard:
+                q_out[i] = result.GetSolution(q)
+                reachable[i] = hard and result.is_success()
+                break
+        prev = q_out[i]
+    pos_res = np.empty(n)
+    ang_res = np.empty(n)
+    for i in range(n):
+        X: RigidTransform = model.tcp_pose(q_out[i])
+        pos_res[i] = np.linalg.norm(X.translation() - positions[i])
+        axis = X.rotation().matrix() @ SCOOP_AXIS
+        ang_res[i] = np.arccos(np.clip(axis @ axes[i], -1.0, 1.0))
+    return IKTrajectory(t=np.asarray(t, float), q=q_out, position_residual=pos_res, angle_residual=ang_res, reachable=reachable)

@@ -1,0 +1,183 @@
+"""The embodiment mapping of one demonstrated throw: hand poses -> a joint-space DMP for COMPI.
+
+Steps (paper sections 2.3.2 and 3.1.4), each in its own module:
+
+1. synchronization frame (:mod:`~besdrake.embodiment.sync_frame`), one joint program;
+2. inverse kinematics at the recording's rate in COMPI's base frame (:mod:`~besdrake.embodiment.ik`);
+3. temporal scaling to the joint limits and the 0.95 s minimum (:mod:`~besdrake.embodiment.scaling`);
+4. a joint-space DMP (:class:`besdrake.imitation.DMP`, 6 weights per joint) imitating the scaled
+   trajectory; its rollout is checked against the limits and, if it still exceeds them, refitted
+   with a longer execution time.
+
+The result holds the 49 parameters policy search refines (start, goal, weights, execution time)
+and everything a report needs: residuals per pose, unreachable poses, peak joint velocities and
+accelerations against the limits, timings.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from besdrake import robot
+from besdrake.embodiment.ik import IKTrajectory, ik_trajectory
+from besdrake.embodiment.kinematics import KinematicModel, compi_plant, mount_to_transform, mounted_compi_plant
+from besdrake.embodiment.record_mapping import HandTrajectory
+from besdrake.embodiment.scaling import TemporalScaling, ease_in, temporal_scaling, toppra_duration
+from besdrake.embodiment.sync_frame import SyncFrameOptions, SyncFrameResult, solve_sync_frame
+from besdrake.imitation import DMP, THROW_WEIGHTS_PER_JOINT, DMPParameterization
+from besdrake.plan import LimitReport, MotionPlan
+
+#: A joint moving more than this between consecutive samples at 100 Hz (rad) is a jump.
+JUMP_THRESHOLD = 0.25
+
+
+class ImitationError(ValueError):
+    """A demonstrated segment that cannot be turned into an executable plan."""
+
+
+@dataclass
+class ImitationOptions:
+    """Choices of the embodiment mapping."""
+
+    sync: SyncFrameOptions = field(default_factory=SyncFrameOptions)
+    smooth_window_s: float = 0.07  # low-pass of the hand poses before IK (0: off)
+    ease_in_s: float = 0.05  # run-up from rest prepended at the demonstrated speed (0: off)
+    n_weights_per_dim: int = THROW_WEIGHTS_PER_JOINT
+    plan_dt: float = 0.002  # s between motion-plan samples
+    velocity_safety: float = 0.9  # fraction of the limits the scaled trajectory may use
+    max_refits: int = 8
+    refit_stretch: float = 1.1
+
+
+@dataclass
+class ImitatedThrow:
+    """One demonstrated throw mapped to COMPI."""
+
+    dmp: DMP
+    plan: MotionPlan
+    sync: SyncFrameResult
+    ik: IKTrajectory
+    scaling: TemporalScaling
+    limits: LimitReport
+    timings: dict[str, float]
+    name: str = "throw"
+
+    @property
+    def parameterization(self) -> DMPParameterization:
+        return DMPParameterization(self.dmp)
+
+    @property
+    def theta(self) -> np.ndarray:
+        """The 49 parameters: start (6), goal (6), weights (36), execution time (1)."""
+        return self.parameterization.to_vector()
+
+    @property
+    def executable(self) -> bool:
+        """All poses reached, no jump, and the plan within every joint limit."""
+        return bool(self.ik.reachable.all() and self.ik.max_joint_step <= JUMP_THRESHOLD and self.limits.ok)
+
+    def summary(self) -> dict[str, Any]:
+        """JSON-ready report of the mapping."""
+        peak_v = np.abs(self.plan.qd).max(axis=0) if self.plan.qd is not None else None
+        return {
+            "name": self.name,
+            "executable": self.executable,
+            "execution_time_s": float(self.dmp.execution_time),
+            "demo_duration_s": float(self.scaling.demo_duration),
+            "time_scaling_factor": float(self.scaling.factor),
+            "time_scaling_limited_by": self.scaling.limiting,
+            "toppra_duration_s": self.scaling.toppra_duration,
+            "sync_frame_base_in_back": {"xyz_m": self.sync.mount[:3].tolist(), "yaw_pitch_roll_rad": self.sync.mount[3:].tolist()},
+            "ik_max_position_residual_m": float(self.ik.position_residual.max()),
+            "ik_max_angle_residual_deg": float(np.degrees(self.ik.angle_residual.max())),
+            "unreachable_poses": self.ik.unreachable_report(),
+            "max_joint_step_rad": self.ik.max_joint_step,
+            "peak_joint_velocity_rad_s": None if peak_v is None else peak_v.tolist(),
+            "velocity_limit_rad_s": robot.VELOCITY_LIMITS.tolist(),
+            "limit_violations": self.limits.violations(),
+            "timings_s": self.timings,
+        }
+
+    def save(self, folder: str | Path) -> Path:
+        """Write ``<name>.plan.json`` (the motion plan), ``<name>.dmp.json`` and ``<name>.json`` (summary + theta)."""
+        folder = Path(folder)
+        folder.mkdir(parents=True, exist_ok=True)
+        self.plan.save(folder / f"{self.name}.plan.json")
+        self.dmp.save(folder / f"{self.name}.dmp.json")
+        data = self.summary() | {"theta": self.theta.tolist(), "theta_names": list(self.parameterization.names)}
+        path = folder / f"{self.name}.json"
+        path.write_text(json.dumps(data, indent=1))
+        return path
+
+
+class EmbodimentMapping:
+    """Maps demonstrated hand trajectories to COMPI; builds its kinematic models once."""
+
+    def __init__(self, options: ImitationOptions | None = None) -> None:
+        self.options = options or ImitationOptions()
+        self._mounted: KinematicModel | None = None
+        self._welded: KinematicModel | None = None
+
+    @property
+    def mounted(self) -> KinematicModel:
+        if self._mounted is None:
+            self._mounted = mounted_compi_plant()
+        return self._mounted
+
+    @property
+    def welded(self) -> KinematicModel:
+        if self._welded is None:
+            self._welded = compi_plant()
+        return self._welded
+
+    def imitate(self, hand: HandTrajectory, name: str = "throw") -> ImitatedThrow:
+        """Synchronization frame, IK, temporal scaling and DMP imitation of one segment."""
+        opts = self.options
+        timings: dict[str, float] = {}
+        t0 = time.perf_counter()
+        if opts.smooth_window_s > 0:
+            hand = hand.smoothed(opts.smooth_window_s)
+        sync = solve_sync_frame(hand, opts.sync, self.mounted)
+        timings["sync_frame"] = time.perf_counter() - t0
+
+        t1 = time.perf_counter()
+        X_SB = mount_to_transform(sync.mount)
+        X_BS = X_SB.inverse()
+        R = X_BS.rotation().matrix()
+        p_B = hand.position @ R.T + X_BS.translation()
+        axes_B = hand.palm_axis @ R.T
+        q_guess = np.stack([np.interp(hand.t, sync.t, sync.q[:, j]) for j in range(6)], axis=1)
+        ik = ik_trajectory(self.welded, hand.t, p_B, axes_B, q_guess, position_tolerance=opts.sync.position_tolerance)
+        timings["inverse_kinematics"] = time.perf_counter() - t1
+
+        t2 = time.perf_counter()
+        # Peak velocities and accelerations of the DMP fitted at the demonstrated speed: the DMP
+        # is what will be executed, and its derivatives are free of the IK's sample noise.
+        t_demo, q_demo = ease_in(hand.t, ik.q, opts.ease_in_s)
+        demo = DMP(6, n_weights_per_dim=opts.n_weights_per_dim).fit(t_demo, q_demo).open_loop(0.001)
+        scaling = temporal_scaling(demo.t, demo.y, safety=opts.velocity_safety, toppra=False)
+        scaling.toppra_duration = toppra_duration(hand.t, ik.q, robot.VELOCITY_LIMITS, robot.ACCELERATION_LIMITS)
+        timings["temporal_scaling"] = time.perf_counter() - t2
+
+        t3 = time.perf_counter()
+        stretch = scaling.factor
+        for _ in range(opts.max_refits):
+            dmp = DMP(6, n_weights_per_dim=opts.n_weights_per_dim).fit(t_demo * stretch, q_demo)
+            plan = DMPParameterization(dmp).motion_plan(DMPParameterization(dmp).to_vector(), dt=opts.plan_dt)
+            limits = plan.check_limits()
+            if limits.ok:
+                break
+            if np.any(limits.position > 0) and not (np.any(limits.velocity > 0) or np.any(limits.acceleration > 0)):
+                break  # slower is no cure for a position overshoot: report it
+            stretch *= opts.refit_stretch
+        timings["dmp_fit"] = time.perf_counter() - t3
+        timings["total"] = time.perf_counter() - t0
+        scaling.factor = float(stretch)
+        scaling.duration = float(dmp.execution_time)
+        return ImitatedThrow(dmp=dmp, plan=plan, sync=sync, ik=ik, scaling=scaling, limits=limits, timings=timings, name=name)

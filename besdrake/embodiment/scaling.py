@@ -1,0 +1,136 @@
+"""Spatial and temporal scaling of a joint trajectory to COMPI's capabilities.
+
+Temporal scaling (paper sections 2.3.2 and 3.1.4): a human throw is faster than COMPI's motors
+allow, so the movement is slowed down uniformly. Stretching time by ``k`` divides joint velocities
+by ``k`` and accelerations by ``k**2``; the smallest admissible ``k`` is
+
+    k = max(1, max|qd| / v_max, sqrt(max|qdd| / a_max), T_min / T)
+
+with ``v_max`` = 3.14 rad/s and ``a_max`` from :mod:`besdrake.robot` (times a safety factor) and
+the paper's minimum execution time ``T_min`` = 0.95 s. A uniform stretch keeps the path and the
+relative timing of the demonstration, which a DMP's execution time expresses exactly.
+
+The time-optimal bound along the same joint path comes from Drake's ``Toppra`` (velocity and
+acceleration limits per joint): it says how much faster a non-uniform retiming could be, and is
+reported beside the uniform scaling.
+
+Spatial scaling: the DMP's start and goal are meta-parameters; :func:`clip_to_limits` keeps them
+inside the joint limits with a margin.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from besdrake import robot
+from besdrake.imitation.policy import MIN_THROW_EXECUTION_TIME
+
+
+@dataclass
+class TemporalScaling:
+    """Result of temporal scaling."""
+
+    factor: float  # k >= 1: new duration = k * demonstrated duration (before T_min)
+    duration: float  # s, the scaled execution time
+    demo_duration: float  # s
+    peak_velocity_demo: np.ndarray  # (6,) rad/s at the demonstrated speed
+    peak_acceleration_demo: np.ndarray  # (6,) rad/s^2
+    limiting: str  # "velocity", "acceleration", "minimum execution time" or "none"
+    toppra_duration: float | None  # s, time-optimal duration along the path (None if Toppra failed)
+
+
+def derivatives(t: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Velocities and accelerations of samples ``q`` (n, d) by second-order finite differences.
+
+    Interpolating splines ring at a DMP's start-up transient and would overstate the peak
+    acceleration; differences of dense samples do not.
+    """
+    if len(t) < 3:
+        raise ValueError(f"need at least 3 samples for derivatives, got {len(t)}")
+    qd = np.gradient(q, t, axis=0)
+    return qd, np.gradient(qd, t, axis=0)
+
+
+def temporal_scaling(
+    t: np.ndarray,
+    q: np.ndarray,
+    velocity_limits: np.ndarray = robot.VELOCITY_LIMITS,
+    acceleration_limits: np.ndarray = robot.ACCELERATION_LIMITS,
+    safety: float = 0.9,
+    min_duration: float = MIN_THROW_EXECUTION_TIME,
+    toppra: bool = True,
+) -> TemporalScaling:
+    """Smallest uniform time stretch that keeps ``safety`` x the limits (see module docstring)."""
+    qd, qdd = derivatives(t, q)
+    v = np.abs(qd).max(axis=0)
+    a = np.abs(qdd).max(axis=0)
+    T = float(t[-1] - t[0])
+    candidates = {
+        "none": 1.0,
+        "velocity": float(np.max(v / (safety * velocity_limits))),
+        "acceleration": float(np.sqrt(np.max(a / (safety * acceleration_limits)))),
+        "minimum execution time": min_duration / T if T > 0 else np.inf,
+    }
+    limiting = max(candidates, key=candidates.get)
+    k = max(candidates.values())
+    bound = toppra_duration(t, q, velocity_limits, acceleration_limits) if toppra else None
+    return TemporalScaling(
+        factor=float(k), duration=float(k * T), demo_duration=T, peak_velocity_demo=v,
+        peak_acceleration_demo=a, limiting=limiting, toppra_duration=bound,
+    )
+
+
+def toppra_duration(
+    t: np.ndarray, q: np.ndarray, velocity_limits: np.ndarray, acceleration_limits: np.ndarray, gridpoints: int = 200
+) -> float | None:
+    """Time-optimal duration of the joint path ``q(t)`` under per-joint limits (Drake's Toppra)."""
+    from pydrake.multibody.optimization import Toppra
+    from pydrake.trajectories import PiecewisePolynomial
+
+    from besdrake.embodiment.kinematics import compi_plant
+
+    s = (t - t[0]) / (t[-1] - t[0])
+    path = PiecewisePolynomial.CubicWithContinuousSecondDerivatives(s, q.T, np.zeros(6), np.zeros(6))
+    plant = compi_plant().plant
+    grid = Toppra.CalcGridPoints(path, _GridOptions(gridpoints))
+    top = Toppra(path, plant, grid)
+    top.AddJointVelocityLimit(-velocity_limits, velocity_limits)
+    top.AddJointAccelerationLimit(-acceleration_limits, acceleration_limits)
+    result = top.SolvePathParameterization()
+    if result is None:
+        return None
+    return float(result.end_time() - result.start_time())
+
+
+def _GridOptions(n: int):
+    from pydrake.multibody.optimization import CalcGridPointsOptions
+
+    opts = CalcGridPointsOptions()
+    opts.min_points = n
+    return opts
+
+
+def ease_in(t: np.ndarray, q: np.ndarray, duration: float) -> tuple[np.ndarray, np.ndarray]:
+    """Prepend a constant-acceleration run-up so the trajectory starts at rest.
+
+    A demonstrated segment starts where the previous sub-movement fades out, so the hand is
+    still moving; a DMP (and the robot, holding a ball) starts at rest, and the velocity jump
+    would show up as a large acceleration in the first milliseconds. The run-up of ``duration``
+    seconds reaches the segment's initial velocity ``v0`` with acceleration ``v0 / duration``
+    and starts ``v0 * duration / 2`` behind the first sample. Returns times starting at 0.
+    """
+    if duration <= 0:
+        return t - t[0], q
+    dt = float(np.median(np.diff(t)))
+    v0 = (q[1] - q[0]) / (t[1] - t[0])
+    n = max(2, int(round(duration / dt)))
+    tau = np.linspace(0.0, duration, n + 1)[:-1]
+    run_up = q[0] - v0 * duration / 2.0 + 0.5 * (v0 / duration) * tau[:, None] ** 2
+    return np.concatenate([tau, t - t[0] + duration]), np.vstack([run_up, q])
+
+
+def clip_to_limits(q: np.ndarray, margin: float = 0.05) -> np.ndarray:
+    """Joint positions clipped into the position limits shrunk by ``margin`` rad."""
+    return np.clip(q, robot.POSITION_LIMITS[:, 0] + margin, robot.POSITION_LIMITS[:, 1] - margin)

@@ -1,0 +1,188 @@
+"""Synchronization frame: where to put the demonstration relative to COMPI's base.
+
+Paper section 2.3.2: the frame in which the demonstration is replayed is free; choose it so that
+every demonstrated hand pose has an inverse-kinematics solution and the joint trajectory is
+smooth (small velocity, acceleration and jerk, no jumps).
+
+We solve this as **one** nonlinear program (SNOPT through Drake's MathematicalProgram) on the
+:func:`~besdrake.embodiment.kinematics.mounted_compi_plant`, whose six mount coordinates are the
+pose of COMPI's base in the demonstrator's back frame. Decision variables: the mount ``m`` (6)
+and one joint configuration ``q_i`` (6) per sampled pose. Costs:
+
+* pose: Drake ``PositionCost`` (scoop origin to hand centre, weight ``position_weight`` per m^2)
+  and ``AngleBetweenVectorsCost`` (scoop opening to palm normal, weight ``angle_weight`` on
+  ``1 - cos``), both evaluated on ``[m, q_i]``;
+* smoothness: squared first, second and third finite differences of every joint (rad), a convex
+  quadratic in ``Q``;
+* bounds: joint limits shrunk by a margin; the mount within a box around the nominal placement
+  (COMPI's z up, its x towards the demonstrator's front, so the demonstrated throw points to
+  the targets in front of the robot).
+
+Pose terms are costs, not constraints, so an unreachable demonstration still gives the best frame
+and the residuals say which poses miss by how much. A few starting guesses are tried (the program
+is non-convex) and the lowest cost wins.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from pydrake.solvers import MathematicalProgram, SnoptSolver, SolverOptions
+from pydrake.multibody.inverse_kinematics import AngleBetweenVectorsCost, PositionConstraint, PositionCost
+
+from besdrake import robot
+from besdrake.embodiment.kinematics import KinematicModel, mount_to_transform, mounted_compi_plant
+from besdrake.embodiment.record_mapping import HandTrajectory
+
+#: The scoop's opening axis in the tcp frame.
+SCOOP_AXIS = np.array([0.0, 0.0, 1.0])
+
+
+@dataclass
+class SyncFrameOptions:
+    """Weights and bounds of the synchronization-frame program."""
+
+    n_poses: int = 20
+    position_weight: float = 1.0e4  # per m^2
+    angle_weight: float = 10.0  # on (1 - cos angle)
+    velocity_weight: float = 1.0
+    acceleration_weight: float = 1.0
+    jerk_weight: float = 1.0
+    joint_margin: float = 0.05  # rad kept from every position limit
+    mount_lower: tuple[float, ...] = (-1.5, -1.5, -1.5, -0.6, -0.35, -0.35)
+    mount_upper: tuple[float, ...] = (1.5, 1.5, 1.5, 0.6, 0.35, 0.35)
+    position_tolerance: float = 0.0005  # m, half-width of the position box when reachable
+    major_iterations: int = 400
+
+
+@dataclass
+class SyncFrameResult:
+    """The synchronization frame and the joint configurations at the sampled poses."""
+
+    mount: np.ndarray  # (6,) x, y, z, yaw, pitch, roll of COMPI's base in the back frame
+    q: np.ndarray  # (n, 6) joint positions at the sampled poses
+    t: np.ndarray  # (n,) times of the sampled poses
+    position_residual: np.ndarray  # (n,) m
+    angle_residual: np.ndarray  # (n,) rad
+    cost: float
+    solve_time_s: float
+    n_starts: int
+    info: dict = field(default_factory=dict)
+
+    @property
+    def base_in_back(self) -> np.ndarray:
+        """4x4 pose of COMPI's base in the demonstrator's back frame."""
+        return mount_to_transform(self.mount).GetAsMatrix4()
+
+    @property
+    def back_in_base(self) -> np.ndarray:
+        """4x4 pose of the demonstrator's back frame in COMPI's base frame: the synchronization frame."""
+        return mount_to_transform(self.mount).inverse().GetAsMatrix4()
+
+
+def _difference_hessian(n: int, opts: SyncFrameOptions) -> np.ndarray:
+    h = np.zeros((n, n))
+    for order, w in ((1, opts.velocity_weight), (2, opts.acceleration_weight), (3, opts.jerk_weight)):
+        if w > 0 and n > order:
+            d = np.diff(np.eye(n), order, axis=0)
+            h += w * d.T @ d
+    return h
+
+
+def _initial_guesses(hand: HandTrajectory) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Mount and joint guesses: the base about 0.6-0.9 m below the hand path's centre."""
+    centre = hand.position.mean(axis=0)
+    q_up = np.array([0.0, 0.6, 0.9, 0.0, 0.6, 0.0])
+    guesses = []
+    for dx, dz in ((-0.3, -0.7), (0.0, -0.9), (-0.5, -0.5)):
+        mount = np.array([centre[0] + dx, centre[1], centre[2] + dz, 0.0, 0.0, 0.0])
+        guesses.append((mount, q_up))
+    return guesses
+
+
+def solve_sync_frame(
+    hand: HandTrajectory,
+    options: SyncFrameOptions | None = None,
+    model: KinematicModel | None = None,
+    hard: bool = True,
+) -> SyncFrameResult:
+    """Optimise the synchronization frame for one demonstrated segment (see module docstring)."""
+    opts = options or SyncFrameOptions()
+    model = model or mounted_compi_plant()
+    plant = model.plant
+    poses = hand.resample(opts.n_poses) if len(hand.t) != opts.n_poses else hand
+    n = len(poses.t)
+    tcp = model.tcp
+    prog = MathematicalProgram()
+    m = prog.NewContinuousVariables(6, "mount")
+    Q = prog.NewContinuousVariables(n, 6, "q")
+    contexts = [plant.CreateDefaultContext() for _ in range(n)]
+    for i in range(n):
+        xi = np.concatenate([m, Q[i]])
+        if hard:
+            tol = opts.position_tolerance
+            prog.AddConstraint(
+                PositionConstraint(plant, plant.world_frame(), poses.position[i] - tol, poses.position[i] + tol, tcp, np.zeros(3), contexts[i]),
+                xi,
+            )
+        else:
+            prog.AddCost(
+                PositionCost(plant, plant.world_frame(), poses.position[i], tcp, np.zeros(3), opts.position_weight * np.eye(3), contexts[i]),
+                xi,
+            )
+        if opts.angle_weight > 0:
+            prog.AddCost(
+                AngleBetweenVectorsCost(plant, plant.world_frame(), poses.palm_axis[i], tcp, SCOOP_AXIS, opts.angle_weight, contexts[i]),
+                xi,
+            )
+        prog.AddBoundingBoxConstraint(robot.POSITION_LIMITS[:, 0] + opts.joint_margin, robot.POSITION_LIMITS[:, 1] - opts.joint_margin, Q[i])
+    hess = _difference_hessian(n, opts)
+    for j in range(6):
+        prog.AddQuadraticCost(2.0 * hess, np.zeros(n), Q[:, j], is_convex=True)
+    prog.AddBoundingBoxConstraint(np.array(opts.mount_lower), np.array(opts.mount_upper), m)
+
+    solver = SnoptSolver()
+    if not solver.available():  # pragma: no cover - SNOPT ships with the drake wheel
+        raise RuntimeError("SNOPT is not available in this Drake build")
+    solver_options = SolverOptions()
+    solver_options.SetOption(solver.solver_id(), "Major iterations limit", opts.major_iterations)
+    best = None
+    t0 = time.perf_counter()
+    guesses = _initial_guesses(poses)
+    for mount0, q0 in guesses:
+        mount0 = np.clip(mount0, opts.mount_lower, opts.mount_upper)
+        prog.SetInitialGuess(m, mount0)
+        prog.SetInitialGuess(Q, np.tile(q0, (n, 1)))
+        result = solver.Solve(prog, None, solver_options)
+        cost = result.get_optimal_cost()
+        if np.isfinite(cost) and (best is None or cost < best[0]):
+            best = (cost, result.GetSolution(m), result.GetSolution(Q), result.get_solver_details().info)
+    elapsed = time.perf_counter() - t0
+    if best is None:
+        raise RuntimeError("the synchronization-frame program failed from every starting guess")
+    cost, mount, q, info = best
+    pos_res, ang_res = pose_residuals(model, mount, q, poses)
+    return SyncFrameResult(
+        mount=mount,
+        q=q,
+        t=poses.t,
+        position_residual=pos_res,
+        angle_residual=ang_res,
+        cost=float(cost),
+        solve_time_s=elapsed,
+        n_starts=len(guesses),
+        info={"snopt_info": int(info)},
+    )
+
+
+def pose_residuals(model: KinematicModel, mount: np.ndarray, q: np.ndarray, hand: HandTrajectory) -> tuple[np.ndarray, np.ndarray]:
+    """Position (m) and opening-axis angle (rad) errors of the scoop against the demonstrated poses."""
+    pos, ang = np.empty(len(q)), np.empty(len(q))
+    for i, qi in enumerate(q):
+        X = model.tcp_pose(qi, mount)
+        pos[i] = np.linalg.norm(X.translation() - hand.position[i])
+        axis = X.rotation().matrix() @ SCOOP_AXIS
+        ang[i] = np.arccos(np.clip(axis @ hand.palm_axis[i], -1.0, 1.0))
+    return pos, ang
