@@ -100,7 +100,9 @@ def test_single_steps_equal_open_loop(dt: float, int_dt: float) -> None:
     t, q = throw_demo()
     dmp = DMP(6, 6, int_dt=int_dt).fit(t, q)
     traj = dmp.open_loop(dt, run_time=dmp.execution_time + 0.2)
-    y, yd = dmp.start, dmp.start_velocity
+    y, yd = dmp.start_state(dt)
+    np.testing.assert_array_equal(y, traj.y[0])
+    np.testing.assert_array_equal(yd, traj.yd[0])
     for k in range(1, traj.t.size):
         y, yd = dmp.step(traj.t[k - 1], y, yd, dt)
         np.testing.assert_allclose(y, traj.y[k], rtol=0, atol=1e-9)

@@ -59,8 +59,10 @@ def test_meta_parameters_weights_and_roundtrip() -> None:
     assert dmp.position.execution_time == dmp.orientation.execution_time == 2.0
     copy = CartesianDMP.from_dict(dmp.to_dict())
     np.testing.assert_array_equal(copy.open_loop(0.01).pose, dmp.open_loop(0.01).pose)
-    pose, vel = dmp.step(0.0, dmp.start, np.zeros(6), 0.01)
-    np.testing.assert_allclose(pose, dmp.open_loop(0.01).pose[1], atol=1e-9)
+    rollout = dmp.open_loop(0.01)
+    pose, vel = dmp.step(0.0, rollout.pose[0], rollout.velocity[0], 0.01)
+    np.testing.assert_allclose(pose, rollout.pose[1], atol=1e-9)
+    np.testing.assert_allclose(vel, rollout.velocity[1], atol=1e-7)
     with pytest.raises(DMPParameterError, match="7 columns"):
         CartesianDMP().fit(t, poses[:, :6])
     with pytest.raises(DMPParameterError, match="execution_time"):

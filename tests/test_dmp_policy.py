@@ -76,3 +76,23 @@ def test_bad_parameters_raise_naming_the_entry(param: DMPParameterization, index
 def test_wrong_length_raises(param: DMPParameterization) -> None:
     with pytest.raises(DMPParameterError, match="49"):
         param.from_vector(np.zeros(48))
+
+
+def test_interpolated_plan_has_the_dmps_accelerations() -> None:
+    """Sample velocities are consistent with the positions: the plan's cubic Hermite interpolation
+    (what the simulation and its limit checks use) has the DMP's accelerations, not 2.5x them."""
+    t = np.linspace(0.0, 1.2, 241)
+    s = t / t[-1]
+    q = np.column_stack([0.3 * s**2, 0.2 * np.sin(np.pi * s / 2), -0.3 * s**3, 0 * s, 0.4 * s**2, 0 * s])
+    param = DMPParameterization(DMP(6, THROW_WEIGHTS_PER_JOINT).fit(t, q))
+    plan = param.motion_plan(param.to_vector(), dt=0.002)
+    fine_dmp = param.from_vector(param.to_vector())
+    fine_dmp.int_dt = 1e-4
+    fine = fine_dmp.open_loop(1e-4)
+    true_acc = np.gradient(fine.yd, 1e-4, axis=0)
+    times = np.arange(0.0, 1.2, 0.0005)
+    plan_acc = plan.trajectory().derivative(2).vector_values(times).T
+    ref = np.column_stack([np.interp(times, fine.t, true_acc[:, i]) for i in range(6)])
+    peak = np.max(np.abs(ref))
+    assert np.max(np.abs(plan_acc)) < 1.05 * peak
+    assert np.max(np.abs(plan_acc - ref)) < 0.05 * peak

@@ -18,7 +18,10 @@ from besdrake.imitation.orientation import QuaternionDMP
 
 @dataclass
 class CartesianTrajectory:
-    """Rollout: times (N,) s, poses (N, 7) (m, quaternion w-first), velocities (N, 6) (m/s, rad/s)."""
+    """Rollout: times (N,) s, poses (N, 7) (m, quaternion w-first), velocities (N, 6) (m/s, rad/s).
+
+    Linear velocities are at the sample times (:class:`.dmp.DMPTrajectory`); angular velocities
+    are the orientation integrator's (:class:`.orientation.OrientationTrajectory`)."""
 
     t: np.ndarray
     pose: np.ndarray

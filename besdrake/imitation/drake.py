@@ -40,7 +40,7 @@ class DmpSource(LeafSystem):
         self._start_time = float(start_time)
         n = self._dmp.n_dims
         self._n = n
-        initial = np.concatenate((self._dmp.start, self._dmp.start_velocity))
+        initial = np.concatenate(self._dmp.start_state(self._dt))
         self._state_index = self.DeclareDiscreteState(initial)
         self._goal_port = self.DeclareVectorInputPort("goal", n)
         self.DeclarePeriodicDiscreteUpdateEvent(self._dt, 0.0, self._update)

@@ -41,7 +41,13 @@ from besdrake.imitation.dmp import DEFAULT_ALPHA_Y, DEFAULT_BETA_Y, DEFAULT_INT_
 
 @dataclass
 class OrientationTrajectory:
-    """Orientation rollout: times (N,) s, quaternions (N, 4) (w, x, y, z), angular velocity (N, 3) rad/s."""
+    """Orientation rollout: times (N,) s, quaternions (N, 4) (w, x, y, z), angular velocity (N, 3) rad/s.
+
+    ``omega`` is the integrator's angular velocity (world frame) over the sub-step that ended at
+    the sample, i.e. half a sub-step behind the orientation (unlike :class:`DMPTrajectory`, whose
+    velocities are at the sample time; the nonlinear orientation update makes that conversion
+    inexact, so it is not done here).
+    """
 
     t: np.ndarray
     q: np.ndarray
