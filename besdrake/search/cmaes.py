@@ -165,6 +165,10 @@ class CMAES(Optimizer):
         self.evaluations_small = 0
         self.n_evaluations = 0
         self.run = _Run(self.popsize0, self.sigma0, "large")
+        # one entry per finished run: popsize, sigma0, regime, evaluations, best reward of the run
+        self.restart_history: list[dict[str, Any]] = []
+        self._run_evaluations = 0
+        self._run_best = -np.inf
         self._best_params = x0.copy()
         self._best_reward = -np.inf
         self._worst_reward: float | None = None
@@ -228,6 +232,8 @@ class CMAES(Optimizer):
         self._pending = None
         self._rng_before_ask = None
         self.n_evaluations += rewards.size
+        self._run_evaluations += rewards.size
+        self._run_best = max(self._run_best, float(rewards.max()))
         if self.run.regime == "large":
             self.evaluations_large += rewards.size
         else:
@@ -236,6 +242,18 @@ class CMAES(Optimizer):
             self._restart_or_finish()
 
     def _restart_or_finish(self) -> None:
+        self.restart_history.append(
+            {
+                "popsize": self.run.popsize,
+                "sigma0": self.run.sigma0,
+                "regime": self.run.regime,
+                "evaluations": self._run_evaluations,
+                "best_reward": self._run_best,
+                "stop": {k: (float(v) if isinstance(v, (int, float, np.generic)) else str(v)) for k, v in self.es.stop().items()},
+            }
+        )
+        self._run_evaluations = 0
+        self._run_best = -np.inf
         if self.n_restarts_done >= self.restarts:
             self._finished = True
             return
@@ -293,7 +311,10 @@ class CMAES(Optimizer):
                 "evaluations_small": self.evaluations_small,
                 "n_evaluations": self.n_evaluations,
                 "finished": self._finished,
+                "run_evaluations": self._run_evaluations,
+                "run_best": float(self._run_best),
             },
+            "restart_history": self.restart_history,
             "best_params": self._best_params,
             "best_reward": float(self._best_reward),
             "worst_reward": self._worst_reward,
@@ -328,6 +349,9 @@ class CMAES(Optimizer):
         opt.evaluations_small = int(counters["evaluations_small"])
         opt.n_evaluations = int(counters["n_evaluations"])
         opt._finished = bool(counters["finished"])
+        opt._run_evaluations = int(counters["run_evaluations"])
+        opt._run_best = float(counters["run_best"])
+        opt.restart_history = [dict(entry) for entry in state["restart_history"]]
         run = state["run"]
         opt.run = _Run(int(run["popsize"]), float(run["sigma0"]), str(run["regime"]))
         opt.es = opt._new_strategy(opt.run)

@@ -1,0 +1,463 @@
+"""The search-loop driver: ask -> evaluate -> record -> tell, resumable, tolerant to failed episodes.
+
+:func:`run_search` drives an :class:`~besdrake.search.base.Optimizer`,
+:func:`run_contextual_search` a :class:`~besdrake.search.base.ContextualOptimizer`.
+
+With an ``out_dir`` both keep two things on disk:
+
+* ``episodes.csv``: one row per evaluated episode (generation, index in the batch, reward, failed
+  flag, error message, context for contextual searches, parameters), appended, flushed and fsynced
+  as soon as the episode is evaluated, *before* the optimizer is told;
+* ``optimizer.json`` + ``optimizer.npz``: the optimizer's :meth:`state_dict` and the loop counters,
+  written atomically after every generation (every episode for contextual searches).
+
+Calling the driver again with the same ``out_dir`` (and an optimizer of the same type) resumes: the
+optimizer is restored from the saved state, and because a restored optimizer asks exactly the
+candidates it asked before the interruption, episodes that were evaluated but not yet told are
+taken from ``episodes.csv`` instead of being evaluated again. Nothing is repeated or lost; a log
+that does not match the optimizer's candidates (another run's folder) is an error.
+
+Failed episodes: a NaN or infinite reward, a reward that is not a number, or an evaluation that
+raises an ``Exception`` (a rollout that fails, a worker process that dies) is recorded with
+``failed=1`` and its error message, and the optimizer is told the worst finite reward seen so far
+minus :data:`~besdrake.search.base.FAILED_EPISODE_PENALTY`. ``KeyboardInterrupt`` is not caught: it
+stops the run, and what was recorded stays on disk for the resume.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import csv
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from besdrake.search.base import (
+    FAILED_EPISODE_PENALTY,
+    ContextualOptimizer,
+    Optimizer,
+    SearchResult,
+    load_state,
+    sanitize_rewards,
+    save_state,
+)
+
+EPISODES_FILE = "episodes.csv"
+STATE_FILE = "optimizer"  # .json + .npz
+_MATCH_RTOL = 1e-12
+
+
+class ResumeError(ValueError):
+    """The run folder does not belong to this search (other optimizer, other seed, other problem)."""
+
+
+@dataclass
+class LoopResult(SearchResult):
+    """:class:`SearchResult` plus the full episode record of the run (resumed parts included).
+
+    ``rewards`` are the raw rewards (NaN for failed episodes); ``failed`` flags them.
+    """
+
+    params: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    contexts: np.ndarray | None = None
+    failed: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    generations: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
+    errors: list[str] = field(default_factory=list)
+    n_failed: int = 0
+    resumed: bool = False
+    stop_reason: str = "budget"  # "budget" | "optimizer" | "callback"
+    optimizer: Any = field(default=None, repr=False)
+
+
+@dataclass
+class GenerationInfo:
+    """What a callback sees after each generation (after each episode for contextual searches)."""
+
+    generation: int
+    candidates: np.ndarray
+    rewards: np.ndarray  # raw, NaN where failed
+    failed: np.ndarray
+    n_evaluations: int
+    optimizer: Any
+    contexts: np.ndarray | None = None
+
+
+# ---------------------------------------------------------------------------------------------
+# episode log
+# ---------------------------------------------------------------------------------------------
+@dataclass
+class _Row:
+    generation: int
+    index: int
+    reward: float
+    failed: bool
+    error: str
+    context: np.ndarray
+    params: np.ndarray
+
+
+class _EpisodeLog:
+    """Append-only CSV of episodes, flushed and fsynced row by row."""
+
+    def __init__(self, path: Path | None, n_params: int, n_context: int) -> None:
+        self.path = path
+        self.n_params = n_params
+        self.n_context = n_context
+        self.rows: list[_Row] = []
+        self.header = (
+            ["generation", "index", "reward", "failed", "error"]
+            + [f"c{i}" for i in range(n_context)]
+            + [f"p{i}" for i in range(n_params)]
+        )
+        if path is not None and path.exists():
+            self._read()
+
+    def _read(self) -> None:
+        assert self.path is not None
+        text = self.path.read_text()
+        if text and not text.endswith("\n"):
+            # killed while writing the last row: drop the partial row
+            text = text[: text.rfind("\n") + 1]
+            self.path.write_text(text)
+        reader = csv.reader(text.splitlines())
+        header = next(reader, None)
+        if header is None:
+            return
+        if header != self.header:
+            raise ResumeError(
+                f"{self.path}: columns {header[:7]}... do not match this search "
+                f"({self.n_params} parameters, {self.n_context} context dimensions)"
+            )
+        for line_no, fields in enumerate(reader, start=2):
+            try:
+                values = [float(v) for v in fields[5:]]
+                row = _Row(
+                    int(fields[0]),
+                    int(fields[1]),
+                    float(fields[2]),
+                    fields[3] == "1",
+                    fields[4],
+                    np.array(values[: self.n_context]),
+                    np.array(values[self.n_context :]),
+                )
+            except (ValueError, IndexError) as err:
+                raise ResumeError(f"{self.path}, line {line_no}: corrupt episode row ({err})") from err
+            if row.params.size != self.n_params:
+                raise ResumeError(f"{self.path}, line {line_no}: expected {self.n_params} parameters")
+            self.rows.append(row)
+
+    def append(self, row: _Row) -> None:
+        self.rows.append(row)
+        if self.path is None:
+            return
+        new = not self.path.exists() or self.path.stat().st_size == 0
+        with open(self.path, "a", newline="") as handle:
+            writer = csv.writer(handle)
+            if new:
+                writer.writerow(self.header)
+            writer.writerow(
+                [row.generation, row.index, repr(float(row.reward)), int(row.failed), row.error]
+                + [repr(float(v)) for v in row.context]
+                + [repr(float(v)) for v in row.params]
+            )
+            handle.flush()
+            os.fsync(handle.fileno())
+
+    def pending(self, generation: int) -> dict[int, _Row]:
+        """Rows of ``generation`` (evaluated, maybe not yet told), by index."""
+        return {row.index: row for row in self.rows if row.generation == generation}
+
+    def result(self, optimizer: Any, resumed: bool, stop_reason: str, contextual: bool) -> LoopResult:
+        rewards = np.array([row.reward for row in self.rows], dtype=float)
+        params = np.array([row.params for row in self.rows]).reshape(-1, self.n_params)
+        failed = np.array([row.failed for row in self.rows], dtype=bool)
+        ok = np.flatnonzero(~failed & np.isfinite(rewards))
+        if ok.size:
+            best = ok[np.argmax(rewards[ok])]
+            best_params, best_reward = params[best].copy(), float(rewards[best])
+        else:
+            best_params, best_reward = np.full(self.n_params, np.nan), -np.inf
+        return LoopResult(
+            best_params=best_params,
+            best_reward=best_reward,
+            n_evaluations=len(self.rows),
+            rewards=rewards,
+            params=params,
+            contexts=np.array([row.context for row in self.rows]).reshape(-1, self.n_context) if contextual else None,
+            failed=failed,
+            generations=np.array([row.generation for row in self.rows], dtype=int),
+            errors=[row.error for row in self.rows],
+            n_failed=int(failed.sum()),
+            resumed=resumed,
+            stop_reason=stop_reason,
+            optimizer=optimizer,
+        )
+
+
+def _as_reward(value: Any) -> tuple[float, str]:
+    """A float reward and an error message ('' when the reward is usable)."""
+    try:
+        reward = float(value)
+    except (TypeError, ValueError):
+        return np.nan, f"reward is not a number: {value!r}"
+    if not np.isfinite(reward):
+        return np.nan, f"non-finite reward {reward!r}"
+    return reward, ""
+
+
+def _error_text(err: BaseException) -> str:
+    return f"{type(err).__name__}: {err}".replace("\n", " ")[:500]
+
+
+def _restore(optimizer: Any, out_dir: Path | None) -> tuple[Any, dict[str, Any] | None]:
+    if out_dir is None or not (out_dir / f"{STATE_FILE}.json").exists():
+        return optimizer, None
+    saved = load_state(out_dir / STATE_FILE)
+    loop = saved.get("loop", {})
+    if loop.get("optimizer_type") != type(optimizer).__name__:
+        raise ResumeError(
+            f"{out_dir} holds the state of a {loop.get('optimizer_type')!r} search, not of {type(optimizer).__name__!r}; "
+            "use another out_dir or the same optimizer"
+        )
+    return type(optimizer).from_state(saved["optimizer"]), loop
+
+
+def _save(optimizer: Any, out_dir: Path | None, loop: dict[str, Any]) -> None:
+    if out_dir is not None:
+        save_state({"optimizer": optimizer.state_dict(), "loop": {**loop, "optimizer_type": type(optimizer).__name__}}, out_dir / STATE_FILE)
+
+
+def _check_match(row: _Row, params: np.ndarray, context: np.ndarray | None, where: Path | None) -> None:
+    same = np.allclose(row.params, params, rtol=_MATCH_RTOL, atol=1e-300)
+    if context is not None:
+        same = same and np.allclose(row.context, context, rtol=_MATCH_RTOL, atol=1e-300)
+    if not same:
+        raise ResumeError(
+            f"{where}: episode {row.generation}/{row.index} in the log differs from what the restored optimizer asks; "
+            "the folder belongs to another run (different seed, optimizer settings or problem)"
+        )
+
+
+# ---------------------------------------------------------------------------------------------
+# evaluation of one batch
+# ---------------------------------------------------------------------------------------------
+ExecutorLike = cf.Executor | Callable[[], cf.Executor]
+
+
+class _Evaluator:
+    """Evaluates the missing episodes of a batch and records each as soon as it is known."""
+
+    def __init__(
+        self,
+        evaluate_batch: Callable[[np.ndarray], Sequence[float]] | None,
+        evaluate_episode: Callable[[np.ndarray], float] | None,
+        executor: ExecutorLike | None,
+    ) -> None:
+        if (evaluate_batch is None) == (evaluate_episode is None):
+            raise ValueError("give exactly one of evaluate_batch or evaluate_episode")
+        if executor is not None and evaluate_episode is None:
+            raise ValueError("an executor needs evaluate_episode (a function of one parameter vector)")
+        self.evaluate_batch = evaluate_batch
+        self.evaluate_episode = evaluate_episode
+        self._factory = executor if executor is not None and not isinstance(executor, cf.Executor) else None
+        self._executor = executor if isinstance(executor, cf.Executor) else None
+
+    def close(self) -> None:
+        if self._factory is not None and self._executor is not None:
+            self._executor.shutdown(wait=True, cancel_futures=True)
+            self._executor = None
+
+    def _get_executor(self) -> cf.Executor | None:
+        if self._executor is None and self._factory is not None:
+            self._executor = self._factory()
+        return self._executor
+
+    def run(self, candidates: np.ndarray, todo: list[int], record: Callable[[int, float, str], None]) -> None:
+        if not todo:
+            return
+        if self.evaluate_batch is not None:
+            try:
+                values = list(self.evaluate_batch(candidates[todo]))
+            except Exception as err:  # a failing batch: every episode of it failed
+                for i in todo:
+                    record(i, np.nan, _error_text(err))
+                return
+            if len(values) != len(todo):
+                raise ValueError(f"evaluate_batch returned {len(values)} rewards for {len(todo)} candidates")
+            for i, value in zip(todo, values):
+                record(i, *_as_reward(value))
+            return
+        assert self.evaluate_episode is not None
+        executor = self._get_executor()
+        if executor is None:
+            for i in todo:
+                try:
+                    value = self.evaluate_episode(candidates[i])
+                except Exception as err:
+                    record(i, np.nan, _error_text(err))
+                else:
+                    record(i, *_as_reward(value))
+            return
+        futures: dict[cf.Future, int] = {}
+        try:
+            for i in todo:
+                futures[executor.submit(self.evaluate_episode, candidates[i])] = i
+        except Exception as err:  # broken pool or shut-down executor: the remaining episodes fail
+            submitted = set(futures.values())
+            for i in todo:
+                if i not in submitted:
+                    record(i, np.nan, _error_text(err))
+        broken = False
+        try:
+            for future in cf.as_completed(futures):
+                i = futures[future]
+                try:
+                    value = future.result()
+                except cf.BrokenExecutor as err:
+                    broken = True
+                    record(i, np.nan, _error_text(err))
+                except Exception as err:
+                    record(i, np.nan, _error_text(err))
+                else:
+                    record(i, *_as_reward(value))
+        except BaseException:
+            for future in futures:
+                future.cancel()
+            raise
+        if broken and self._factory is not None:  # a worker died: start a fresh pool next time
+            self._executor.shutdown(wait=False, cancel_futures=True)
+            self._executor = None
+
+
+# ---------------------------------------------------------------------------------------------
+# drivers
+# ---------------------------------------------------------------------------------------------
+def run_search(
+    optimizer: Optimizer,
+    evaluate_batch: Callable[[np.ndarray], Sequence[float]] | None = None,
+    n_evaluations: int = 1000,
+    out_dir: str | Path | None = None,
+    callback: Callable[[GenerationInfo], bool | None] | None = None,
+    *,
+    evaluate_episode: Callable[[np.ndarray], float] | None = None,
+    executor: ExecutorLike | None = None,
+    penalty: float = FAILED_EPISODE_PENALTY,
+) -> LoopResult:
+    """Maximise with ``optimizer`` until ``n_evaluations`` episodes are told or it stops.
+
+    Evaluation is either ``evaluate_batch(candidates) -> rewards`` (one call per generation, e.g.
+    a rollout executor's batch evaluation; if it raises, the whole batch is failed) or
+    ``evaluate_episode(params) -> reward`` (per episode, serially or through ``executor``: a
+    :class:`concurrent.futures.Executor`, or a zero-argument factory of one, which the loop then
+    owns and recreates when a worker dies). The last generation is always completed, so the count
+    may exceed ``n_evaluations`` by less than one population. ``callback(info)`` runs after every
+    generation; returning ``True`` stops the search. See the module docstring for ``out_dir``.
+    """
+    if n_evaluations < 1:
+        raise ValueError(f"n_evaluations must be >= 1, got {n_evaluations}")
+    evaluator = _Evaluator(evaluate_batch, evaluate_episode, executor)
+    out = None if out_dir is None else Path(out_dir)
+    if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
+    optimizer, loop = _restore(optimizer, out)
+    resumed = loop is not None
+    generation = int(loop["generation"]) if loop else 0
+    told = int(loop["n_evaluations"]) if loop else 0
+    worst: float | None = loop.get("worst_reward") if loop else None
+    log = _EpisodeLog(None if out is None else out / EPISODES_FILE, optimizer.n_params, 0)
+    resumed = resumed or bool(log.rows)
+    stop_reason = "budget"
+    empty = np.zeros(0)
+    try:
+        while told < n_evaluations:
+            if optimizer.stop():
+                stop_reason = "optimizer"
+                break
+            candidates = np.atleast_2d(np.asarray(optimizer.ask(), dtype=float))
+            n = candidates.shape[0]
+            raw = np.full(n, np.nan)
+            failed = np.zeros(n, dtype=bool)
+            done = np.zeros(n, dtype=bool)
+            for index, row in log.pending(generation).items():
+                if index >= n:
+                    raise ResumeError(f"{out}: episode {generation}/{index} does not exist in the optimizer's batch of {n}")
+                _check_match(row, candidates[index], None, out)
+                raw[index], failed[index], done[index] = row.reward, row.failed, True
+
+            def record(i: int, reward: float, error: str) -> None:
+                raw[i], failed[i], done[i] = reward, bool(error), True
+                log.append(_Row(generation, i, reward, bool(error), error, empty, candidates[i]))
+
+            evaluator.run(candidates, [i for i in range(n) if not done[i]], record)
+            clean, _ = sanitize_rewards(np.where(failed, np.nan, raw), worst, penalty)
+            optimizer.tell(candidates, clean)
+            worst = float(clean.min()) if worst is None else min(worst, float(clean.min()))
+            generation += 1
+            told += n
+            _save(optimizer, out, {"generation": generation, "n_evaluations": told, "worst_reward": worst})
+            if callback is not None and callback(GenerationInfo(generation, candidates, raw, failed, told, optimizer)):
+                stop_reason = "callback"
+                break
+    finally:
+        evaluator.close()
+    return log.result(optimizer, resumed, stop_reason, contextual=False)
+
+
+def run_contextual_search(
+    optimizer: ContextualOptimizer,
+    evaluate: Callable[[np.ndarray, np.ndarray], float],
+    n_episodes: int,
+    context_bounds: np.ndarray,
+    out_dir: str | Path | None = None,
+    callback: Callable[[GenerationInfo], bool | None] | None = None,
+    *,
+    penalty: float = FAILED_EPISODE_PENALTY,
+) -> LoopResult:
+    """Contextual policy search: per episode, ``s = optimizer.select_context(context_bounds)``,
+    ``theta = optimizer.ask(s)``, ``reward = evaluate(s, theta)``, ``optimizer.tell(s, theta, reward)``.
+
+    Episodes are recorded (with their context) and the state saved after each one; the episode
+    number is the ``generation`` column. Failures and resume as in :func:`run_search`.
+    """
+    if n_episodes < 1:
+        raise ValueError(f"n_episodes must be >= 1, got {n_episodes}")
+    bounds = np.asarray(context_bounds, dtype=float)
+    if bounds.shape != (optimizer.n_context, 2) or not np.isfinite(bounds).all() or (bounds[:, 0] >= bounds[:, 1]).any():
+        raise ValueError(f"context_bounds must be a finite ({optimizer.n_context}, 2) array with lower < upper")
+    out = None if out_dir is None else Path(out_dir)
+    if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
+    optimizer, loop = _restore(optimizer, out)
+    episode = int(loop["generation"]) if loop else 0
+    worst: float | None = loop.get("worst_reward") if loop else None
+    log = _EpisodeLog(None if out is None else out / EPISODES_FILE, optimizer.n_params, optimizer.n_context)
+    resumed = loop is not None or bool(log.rows)
+    stop_reason = "budget"
+    while episode < n_episodes:
+        context = np.asarray(optimizer.select_context(bounds), dtype=float).ravel()
+        params = np.asarray(optimizer.ask(context), dtype=float).ravel()
+        pending = log.pending(episode)
+        if 0 in pending:
+            row = pending[0]
+            _check_match(row, params, context, out)
+            reward, error = row.reward, row.error if row.failed else ""
+        else:
+            try:
+                reward, error = _as_reward(evaluate(context, params))
+            except Exception as err:
+                reward, error = np.nan, _error_text(err)
+            log.append(_Row(episode, 0, reward, bool(error), error, context, params))
+        clean, _ = sanitize_rewards(np.array([np.nan if error else reward]), worst, penalty)
+        optimizer.tell(context, params, float(clean[0]))
+        worst = float(clean[0]) if worst is None else min(worst, float(clean[0]))
+        episode += 1
+        _save(optimizer, out, {"generation": episode, "n_evaluations": episode, "worst_reward": worst})
+        if callback is not None and callback(
+            GenerationInfo(episode, params[None], np.array([reward]), np.array([bool(error)]), episode, optimizer, context[None])
+        ):
+            stop_reason = "callback"
+            break
+    return log.result(optimizer, resumed, stop_reason, contextual=True)
