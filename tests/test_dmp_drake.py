@@ -56,6 +56,7 @@ def test_dmp_source_equals_open_loop(dmp: DMP, start_time: float) -> None:
     if start_time > 0:
         simulator.AdvanceTo(start_time / 2)
         np.testing.assert_array_equal(system.GetOutputPort("position").Eval(context), dmp.start)
+        np.testing.assert_array_equal(system.GetOutputPort("velocity").Eval(context), dmp.start_velocity)
     for k in range(0, ref.t.size, 7):
         simulator.AdvanceTo(start_time + ref.t[k] + dt / 2)  # inside the hold interval of sample k
         np.testing.assert_allclose(system.GetOutputPort("position").Eval(context), ref.y[k], atol=1e-9)

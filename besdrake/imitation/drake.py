@@ -25,9 +25,11 @@ class DmpSource(LeafSystem):
     """Integrates a :class:`DMP` online: state ``[y, yd]``, updated every ``dt`` s from ``start_time``.
 
     Output ports: ``position`` (n), ``velocity`` (n) and ``state`` (2n, ``[y, yd]``, e.g. a
-    controller's desired state). Before ``start_time`` it holds the start state. Over
-    ``[start_time + k dt, start_time + (k + 1) dt)`` the outputs are the DMP's state at ``k dt``
-    (zero-order hold; equal to :meth:`DMP.open_loop` sampled every ``dt``).
+    controller's desired state; the same layout as a ``TrajectorySource`` with
+    ``output_derivative_order=1``). Before ``start_time`` it outputs the start position and start
+    velocity. Over ``[start_time + k dt, start_time + (k + 1) dt)`` the outputs are the DMP's
+    position and sample-time velocity at ``k dt`` (zero-order hold; equal to
+    :meth:`DMP.open_loop` sampled every ``dt``).
 
     Optional input port ``goal`` (n): when connected, it replaces the DMP's goal at every update
     (online adaptation of the meta-parameter; the moving goal is recomputed each step).
@@ -44,9 +46,11 @@ class DmpSource(LeafSystem):
         self._state_index = self.DeclareDiscreteState(initial)
         self._goal_port = self.DeclareVectorInputPort("goal", n)
         self.DeclarePeriodicDiscreteUpdateEvent(self._dt, 0.0, self._update)
-        self.DeclareVectorOutputPort("position", n, self._output_position, {self.xd_ticket()})
-        self.DeclareVectorOutputPort("velocity", n, self._output_velocity, {self.xd_ticket()})
-        self.DeclareVectorOutputPort("state", 2 * n, self._output_state, {self.xd_ticket()})
+        self._before_start = np.concatenate((self._dmp.start, self._dmp.start_velocity))
+        depends = {self.xd_ticket(), self.time_ticket()}
+        self.DeclareVectorOutputPort("position", n, self._output_position, depends)
+        self.DeclareVectorOutputPort("velocity", n, self._output_velocity, depends)
+        self.DeclareVectorOutputPort("state", 2 * n, self._output_state, depends)
 
     @property
     def dmp(self) -> DMP:
@@ -66,6 +70,8 @@ class DmpSource(LeafSystem):
         return EventStatus.Succeeded()
 
     def _state(self, context: Context) -> np.ndarray:
+        if context.get_time() < self._start_time - 1e-12:
+            return self._before_start
         return context.get_discrete_state(self._state_index).get_value()
 
     def _output_position(self, context: Context, output: BasicVector) -> None:
