@@ -67,3 +67,19 @@ def test_meta_parameters_weights_and_roundtrip() -> None:
         CartesianDMP().fit(t, poses[:, :6])
     with pytest.raises(DMPParameterError, match="execution_time"):
         dmp.execution_time = -1.0
+
+
+def test_save_and_load_any_dmp(tmp_path) -> None:
+    from besdrake.imitation import load_dmp, save_dmp
+
+    t, poses = _poses()
+    for dmp in (CartesianDMP(6).fit(t, poses), DMP(3, 6).fit(t, poses[:, :3]), QuaternionDMP(6).fit(t, poses[:, 3:])):
+        path = save_dmp(dmp, tmp_path / f"{type(dmp).__name__}.json")
+        loaded = load_dmp(path)
+        assert type(loaded) is type(dmp)
+        np.testing.assert_array_equal(loaded.get_weights(), dmp.get_weights())
+    (tmp_path / "bad.json").write_text('{"type": "Spline"}')
+    with pytest.raises(DMPParameterError, match="does not describe a DMP"):
+        load_dmp(tmp_path / "bad.json")
+    with pytest.raises(DMPParameterError, match="not found"):
+        load_dmp(tmp_path / "missing.json")

@@ -165,3 +165,15 @@ def test_invalid_orientations_raise() -> None:
     q[3] = 0.0
     with pytest.raises(DMPParameterError, match="unit quaternion"):
         dmp.fit(t, q)
+
+
+def test_zero_weights_turn_beyond_pi_the_long_way_to_the_goal() -> None:
+    dmp = QuaternionDMP(6, execution_time=1.0)
+    axis = np.array([0.0, 0.6, 0.8])
+    dmp.set_start_and_goal([1.0, 0.0, 0.0, 0.0], quat.from_rotation_vector(1.6 * np.pi * axis))
+    traj = dmp.open_loop(0.01, run_time=2.0)
+    turned = quat.rotation_vector(quat.multiply(traj.q, quat.conjugate(dmp.start)))
+    progress = turned @ axis  # angle turned about the axis, rad
+    np.testing.assert_allclose(np.cross(turned, axis), 0.0, atol=1e-9)  # stays on the geodesic
+    assert np.all(np.diff(progress) >= -1e-12)  # monotonic, no overshoot (critically damped)
+    assert progress[-1] == pytest.approx(1.6 * np.pi, abs=0.02)

@@ -6,6 +6,7 @@
 * :class:`QuaternionDMP` (Ude et al. 2014) and :class:`CartesianDMP` (position + orientation).
 * :class:`DMPParameterization` -- the 49-parameter vector policy search refines, and
   ``motion_plan(theta, dt)`` -> :class:`besdrake.plan.MotionPlan`.
+* :func:`save_dmp` / :func:`load_dmp` -- JSON persistence of any of them.
 * :mod:`besdrake.imitation.drake` -- ``PiecewisePolynomial`` adapter and the ``DmpSource`` LeafSystem
   (imported on demand, so this package does not load pydrake).
 """
@@ -13,6 +14,7 @@
 from besdrake.imitation._validation import DMPParameterError
 from besdrake.imitation.cartesian import CartesianDMP, CartesianTrajectory
 from besdrake.imitation.dmp import DMP, DMPTrajectory
+from besdrake.imitation.io import load_dmp, save_dmp
 from besdrake.imitation.orientation import OrientationTrajectory, QuaternionDMP
 from besdrake.imitation.policy import MIN_THROW_EXECUTION_TIME, THROW_WEIGHTS_PER_JOINT, DMPParameterization
 
@@ -27,4 +29,6 @@ __all__ = [
     "OrientationTrajectory",
     "QuaternionDMP",
     "THROW_WEIGHTS_PER_JOINT",
+    "load_dmp",
+    "save_dmp",
 ]
