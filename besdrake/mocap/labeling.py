@@ -134,10 +134,12 @@ class MarkerLabeler:
         max_speed: float = 10.0,
         min_length_s: float = 0.3,
         min_gate: float = 0.012,
+        trim: int = 0,
         strict_quantile: float = 0.9,
     ):
         self.min_length_s = min_length_s
         self.min_gate = min_gate
+        self.trim = trim
         self.strict_quantile = strict_quantile
         self.refine_passes = refine_passes
         self.max_speed = max_speed
@@ -220,10 +222,24 @@ class MarkerLabeler:
         ii, jj = np.meshgrid(np.arange(m), np.arange(m), indexing="ij")
         c = self.pair_cost_[ii[None], jj[None], bins]  # (n, m, m)
         w = vis[:, :, None] & vis[:, None, :] & self.informative_[None]
-        with np.errstate(invalid="ignore", divide="ignore"):
-            out = (c * w).sum(axis=2) / w.sum(axis=2)
+        out = self._trimmed_mean(c, w)
         out[~vis] = np.nan
         return out
+
+    def _trimmed_mean(self, c: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """Mean of ``c`` over the last axis where ``w``, dropping the ``trim`` worst terms when at
+        least ``trim + 4`` partners are present (one odd partner, e.g. a marker on a moved
+        object, does not veto a label), NaN where nothing is present."""
+        cw = np.where(w, c, 0.0)
+        num = cw.sum(axis=-1)
+        den = w.sum(axis=-1)
+        if self.trim > 0:
+            worst = -np.sort(-cw, axis=-1)[..., : self.trim].sum(axis=-1)
+            drop = den >= self.trim + 4
+            num = np.where(drop, num - worst, num)
+            den = np.where(drop, den - self.trim, den)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(den > 0, num / np.maximum(den, 1), np.nan)
 
     # ------------------------------------------------------------------ tracking
     def _track(self, pos: np.ndarray) -> tuple[np.ndarray, list[tuple[int, int]]]:
@@ -292,10 +308,8 @@ class MarkerLabeler:
         c = self.pair_cost_[:, np.arange(m)[None, :], bins]  # (L, w, m)
         w = ok[None] & self.informative_[:, None, :]
         w &= ~np.eye(m, dtype=bool)[:, None, :]
-        num = (c * w).sum(axis=2)
+        per_frame = self._trimmed_mean(c, w)  # (L, w)
         den = w.sum(axis=2)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            per_frame = np.where(den > 0, num / np.maximum(den, 1), np.nan)  # (L, w)
         out = np.full(m, np.inf)
         has = (den > 0).any(axis=1)
         out[has] = np.nanmedian(per_frame[has], axis=1)
