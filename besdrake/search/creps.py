@@ -284,8 +284,11 @@ class CREPS(ContextualOptimizer):
 
     def select_context(self, bounds: np.ndarray) -> np.ndarray:
         """Bandit choice over the grid when ``active``; otherwise uniform within ``bounds``."""
+        bounds = np.asarray(bounds, dtype=float)
         if self.bandit is None:
-            return super().select_context(np.asarray(bounds, dtype=float))
+            return super().select_context(bounds)
+        if bounds.shape != self.bandit.bounds.shape or not np.allclose(bounds, self.bandit.bounds):
+            raise ValueError(f"bounds {bounds.tolist()} differ from the bandit's context_bounds {self.bandit.bounds.tolist()}")
         return self.bandit.arms[self.bandit.select(self.rng)].copy()
 
     def tell(self, context: np.ndarray, params: np.ndarray, reward: float) -> None:

@@ -149,20 +149,22 @@ class _EpisodeLog:
                 raise ResumeError(f"{self.path}, line {line_no}: expected {self.n_params} parameters")
             self.rows.append(row)
 
-    def append(self, row: _Row) -> None:
-        self.rows.append(row)
-        if self.path is None:
+    def append(self, *rows: _Row) -> None:
+        """Append rows and make them durable (one flush + fsync for all of them)."""
+        self.rows.extend(rows)
+        if self.path is None or not rows:
             return
         new = not self.path.exists() or self.path.stat().st_size == 0
         with open(self.path, "a", newline="") as handle:
             writer = csv.writer(handle)
             if new:
                 writer.writerow(self.header)
-            writer.writerow(
-                [row.generation, row.index, repr(float(row.reward)), int(row.failed), row.error]
-                + [repr(float(v)) for v in row.context]
-                + [repr(float(v)) for v in row.params]
-            )
+            for row in rows:
+                writer.writerow(
+                    [row.generation, row.index, repr(float(row.reward)), int(row.failed), row.error]
+                    + [repr(float(v)) for v in row.context]
+                    + [repr(float(v)) for v in row.params]
+                )
             handle.flush()
             os.fsync(handle.fileno())
 
@@ -275,20 +277,19 @@ class _Evaluator:
             self._executor = self._factory()
         return self._executor
 
-    def run(self, candidates: np.ndarray, todo: list[int], record: Callable[[int, float, str], None]) -> None:
+    def run(self, candidates: np.ndarray, todo: list[int], record: Callable[[list[tuple[int, float, str]]], None]) -> None:
+        """Evaluate ``candidates[todo]``; ``record`` gets ``[(index, reward, error), ...]`` as results arrive."""
         if not todo:
             return
         if self.evaluate_batch is not None:
             try:
                 values = list(self.evaluate_batch(candidates[todo]))
             except Exception as err:  # a failing batch: every episode of it failed
-                for i in todo:
-                    record(i, np.nan, _error_text(err))
+                record([(i, np.nan, _error_text(err)) for i in todo])
                 return
             if len(values) != len(todo):
                 raise ValueError(f"evaluate_batch returned {len(values)} rewards for {len(todo)} candidates")
-            for i, value in zip(todo, values):
-                record(i, *_as_reward(value))
+            record([(i, *_as_reward(value)) for i, value in zip(todo, values)])
             return
         assert self.evaluate_episode is not None
         executor = self._get_executor()
@@ -297,9 +298,9 @@ class _Evaluator:
                 try:
                     value = self.evaluate_episode(candidates[i])
                 except Exception as err:
-                    record(i, np.nan, _error_text(err))
+                    record([(i, np.nan, _error_text(err))])
                 else:
-                    record(i, *_as_reward(value))
+                    record([(i, *_as_reward(value))])
             return
         futures: dict[cf.Future, int] = {}
         try:
@@ -307,9 +308,7 @@ class _Evaluator:
                 futures[executor.submit(self.evaluate_episode, candidates[i])] = i
         except Exception as err:  # broken pool or shut-down executor: the remaining episodes fail
             submitted = set(futures.values())
-            for i in todo:
-                if i not in submitted:
-                    record(i, np.nan, _error_text(err))
+            record([(i, np.nan, _error_text(err)) for i in todo if i not in submitted])
         broken = False
         try:
             for future in cf.as_completed(futures):
@@ -318,11 +317,11 @@ class _Evaluator:
                     value = future.result()
                 except cf.BrokenExecutor as err:
                     broken = True
-                    record(i, np.nan, _error_text(err))
+                    record([(i, np.nan, _error_text(err))])
                 except Exception as err:
-                    record(i, np.nan, _error_text(err))
+                    record([(i, np.nan, _error_text(err))])
                 else:
-                    record(i, *_as_reward(value))
+                    record([(i, *_as_reward(value))])
         except BaseException:
             for future in futures:
                 future.cancel()
@@ -387,9 +386,10 @@ def run_search(
                 _check_match(row, candidates[index], None, out)
                 raw[index], failed[index], done[index] = row.reward, row.failed, True
 
-            def record(i: int, reward: float, error: str) -> None:
-                raw[i], failed[i], done[i] = reward, bool(error), True
-                log.append(_Row(generation, i, reward, bool(error), error, empty, candidates[i]))
+            def record(results: list[tuple[int, float, str]]) -> None:
+                for i, reward, error in results:
+                    raw[i], failed[i], done[i] = reward, bool(error), True
+                log.append(*(_Row(generation, i, reward, bool(error), error, empty, candidates[i]) for i, reward, error in results))
 
             evaluator.run(candidates, [i for i in range(n) if not done[i]], record)
             clean, _ = sanitize_rewards(np.where(failed, np.nan, raw), worst, penalty)
