@@ -340,3 +340,16 @@ def test_contextual_quadratic_problem():
     assert rosenbrock(np.ones(4)) == 0.0 and sphere(np.zeros(3)) == 0.0 and rastrigin(np.zeros(2)) == 0.0
     with pytest.raises(ValueError):
         ContextualQuadratic(A=np.ones((2, 2)), b=np.ones(3), h=np.ones(3))
+
+
+@pytest.mark.parametrize("make", [lambda: CMAES(np.ones(3), 0.5, np.random.default_rng(0)), lambda: REPS(np.ones(3), 0.5, np.random.default_rng(0))], ids=["cmaes", "reps"])
+def test_a_failed_episode_is_never_reported_as_best(make):
+    opt = make()
+    candidates = opt.ask()
+    opt.tell(candidates, np.full(len(candidates), np.nan))  # everything failed: penalised, no best yet
+    assert opt.best[1] == -np.inf
+    candidates = opt.ask()
+    rewards = -sphere(candidates)
+    rewards[0] = np.nan
+    opt.tell(candidates, rewards)
+    assert opt.best[1] == rewards[1:].max()

@@ -220,12 +220,12 @@ class CMAES(Optimizer):
         candidates = np.asarray(candidates, dtype=float)
         if self._pending is None or candidates.shape != self._pending.shape:
             raise ValueError("tell() needs the candidates returned by the last ask()")
-        rewards, _ = sanitize_rewards(np.asarray(rewards, dtype=float).ravel(), self._worst_reward)
+        rewards, failed = sanitize_rewards(np.asarray(rewards, dtype=float).ravel(), self._worst_reward)
         if rewards.size != candidates.shape[0]:
             raise ValueError(f"got {rewards.size} rewards for {candidates.shape[0]} candidates")
         self._worst_reward = float(rewards.min()) if self._worst_reward is None else min(self._worst_reward, float(rewards.min()))
-        best = int(np.argmax(rewards))
-        if rewards[best] > self._best_reward:
+        best = int(np.argmax(np.where(failed, -np.inf, rewards)))  # a failed episode is never the best
+        if not failed[best] and rewards[best] > self._best_reward:
             self._best_reward = float(rewards[best])
             self._best_params = candidates[best].copy()
         self.es.tell(list(candidates), list(-rewards))

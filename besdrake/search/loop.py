@@ -107,6 +107,7 @@ class _EpisodeLog:
         self.n_params = n_params
         self.n_context = n_context
         self.rows: list[_Row] = []
+        self._logged: dict[int, dict[int, _Row]] = {}  # rows read from disk, by generation and index
         self.header = (
             ["generation", "index", "reward", "failed", "error"]
             + [f"c{i}" for i in range(n_context)]
@@ -148,6 +149,7 @@ class _EpisodeLog:
             if row.params.size != self.n_params:
                 raise ResumeError(f"{self.path}, line {line_no}: expected {self.n_params} parameters")
             self.rows.append(row)
+            self._logged.setdefault(row.generation, {})[row.index] = row
 
     def append(self, *rows: _Row) -> None:
         """Append rows and make them durable (one flush + fsync for all of them)."""
@@ -169,8 +171,8 @@ class _EpisodeLog:
             os.fsync(handle.fileno())
 
     def pending(self, generation: int) -> dict[int, _Row]:
-        """Rows of ``generation`` (evaluated, maybe not yet told), by index."""
-        return {row.index: row for row in self.rows if row.generation == generation}
+        """Rows of ``generation`` read from disk (evaluated before a restart, maybe never told), by index."""
+        return self._logged.pop(generation, {})
 
     def result(self, optimizer: Any, resumed: bool, stop_reason: str, contextual: bool) -> LoopResult:
         rewards = np.array([row.reward for row in self.rows], dtype=float)

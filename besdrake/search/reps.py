@@ -134,13 +134,13 @@ class GaussianSearch(Optimizer):
             raise ValueError(f"candidates must have shape (n >= 2, {self.n_params}), got {candidates.shape}")
         if not np.isfinite(candidates).all():
             raise ValueError("candidates contain NaN or infinite values")
-        rewards, _ = sanitize_rewards(np.asarray(rewards, dtype=float).ravel(), self._worst_reward)
+        rewards, failed = sanitize_rewards(np.asarray(rewards, dtype=float).ravel(), self._worst_reward)
         if rewards.size != candidates.shape[0]:
             raise ValueError(f"got {rewards.size} rewards for {candidates.shape[0]} candidates")
         low = float(rewards.min())
         self._worst_reward = low if self._worst_reward is None else min(self._worst_reward, low)
-        best = int(np.argmax(rewards))
-        if rewards[best] > self._best_reward:
+        best = int(np.argmax(np.where(failed, -np.inf, rewards)))  # a failed episode is never the best
+        if not failed[best] and rewards[best] > self._best_reward:
             self._best_reward = float(rewards[best])
             self._best_params = candidates[best].copy()
         mean, cov = self._update(candidates, rewards)
