@@ -135,11 +135,17 @@ class MarkerLabeler:
         min_length_s: float = 0.3,
         min_gate: float = 0.012,
         trim: int = 0,
+        weighted: bool = True,
+        elimination_factor: float = 2.0,
+        weight_scale: float = 0.02,
         strict_quantile: float = 0.9,
     ):
         self.min_length_s = min_length_s
         self.min_gate = min_gate
         self.trim = trim
+        self.weighted = weighted
+        self.elimination_factor = elimination_factor
+        self.weight_scale = weight_scale
         self.strict_quantile = strict_quantile
         self.refine_passes = refine_passes
         self.max_speed = max_speed
@@ -185,6 +191,7 @@ class MarkerLabeler:
                 dens /= dens.max()
                 cost[i, j] = np.minimum(-np.log(dens + 1e-6), 12.0)
         self.pair_cost_ = cost
+        self.pair_weight_ = np.where(informative, 1.0 / (np.minimum(spread, 1.0) + self.weight_scale), 0.0)
         self.informative_ = informative
         self.spread_ = spread
         # Rigid plates: triples whose pairwise distances barely vary.
@@ -222,17 +229,25 @@ class MarkerLabeler:
         ii, jj = np.meshgrid(np.arange(m), np.arange(m), indexing="ij")
         c = self.pair_cost_[ii[None], jj[None], bins]  # (n, m, m)
         w = vis[:, :, None] & vis[:, None, :] & self.informative_[None]
-        out = self._trimmed_mean(c, w)
+        out = self._trimmed_mean(c, w, self.pair_weight_[None])
         out[~vis] = np.nan
         return out
 
-    def _trimmed_mean(self, c: np.ndarray, w: np.ndarray) -> np.ndarray:
+    def _trimmed_mean(self, c: np.ndarray, w: np.ndarray, pw: np.ndarray) -> np.ndarray:
         """Mean of ``c`` over the last axis where ``w``, dropping the ``trim`` worst terms when at
         least ``trim + 4`` partners are present (one odd partner, e.g. a marker on a moved
         object, does not veto a label), NaN where nothing is present."""
         cw = np.where(w, c, 0.0)
         num = cw.sum(axis=-1)
-        den = w.sum(axis=-1)
+        den = w.sum(axis=-1).astype(float)
+        if self.weighted:
+            # Sharp (nearly rigid) neighbours count more than loose ones.
+            ww = np.where(w, np.broadcast_to(pw, w.shape), 0.0)
+            has = den > 0
+            num = (cw * ww).sum(axis=-1)
+            den = np.where(has, ww.sum(axis=-1), 0.0)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                return np.where(has, num / np.where(den > 0, den, 1.0), np.nan)
         if self.trim > 0:
             worst = -np.sort(-cw, axis=-1)[..., : self.trim].sum(axis=-1)
             drop = den >= self.trim + 4
@@ -308,7 +323,7 @@ class MarkerLabeler:
         c = self.pair_cost_[:, np.arange(m)[None, :], bins]  # (L, w, m)
         w = ok[None] & self.informative_[:, None, :]
         w &= ~np.eye(m, dtype=bool)[:, None, :]
-        per_frame = self._trimmed_mean(c, w)  # (L, w)
+        per_frame = self._trimmed_mean(c, w, self.pair_weight_[:, None, :])  # (L, w)
         den = w.sum(axis=2)
         out = np.full(m, np.inf)
         has = (den > 0).any(axis=1)
@@ -379,6 +394,9 @@ class MarkerLabeler:
         label_of = np.full(n_t, GHOST, dtype=int)
         lengths = np.array([len(r) for r in rows_of])
         min_len = int(round(self.min_length_s * rec.frequency))
+        in_plate = np.zeros(m, dtype=bool)
+        for p in self.plates_:
+            in_plate[p] = True
 
         def assign(t: int, lab: int) -> None:
             label_of[t] = lab
@@ -409,7 +427,9 @@ class MarkerLabeler:
                 limit = self.strict_thresholds_[lab] if short else self.thresholds_[lab]
                 if cont <= 4.0:  # continues the label's motion across a gap
                     out[lab] = min(g, self.typical_[lab])
-                elif g <= limit:
+                elif g <= limit and not (short and not in_plate[lab]):
+                    # A short trajectory of a single (non-plate) marker must continue the
+                    # marker's motion: alone, such pieces are mostly ghosts.
                     out[lab] = g
             if not any_evidence and free.any():
                 out[:] = np.nan
@@ -465,6 +485,28 @@ class MarkerLabeler:
                 changed += int(label_of[t] != before)
             if changed == 0:
                 break
+        # 4. Elimination: a long trajectory that fits no label within its threshold (e.g. a
+        #    marker re-attached since the reference was recorded) takes the free label it fits
+        #    best if that is within ``elimination_factor`` times the threshold; reported.
+        eliminated = 0
+        if self.elimination_factor > 1.0:
+            for t in np.argsort(-lengths, kind="stable"):
+                if label_of[t] != GHOST or lengths[t] < max(min_len, 2 * self.window):
+                    continue
+                rows = rows_of[t]
+                sample = np.unique(np.linspace(0, len(rows) - 1, min(self.window, len(rows))).round().astype(int))
+                geo = self._geometry_cost(pts_of[t][sample], rows[sample], label_pos)
+                free = ~occupied[rows].any(axis=0)
+                ratio = np.where(free, geo / self.thresholds_, np.inf)
+                lab = int(np.argmin(ratio))
+                if ratio[lab] <= self.elimination_factor:
+                    assign(t, lab)
+                    eliminated += 1
+        if eliminated:
+            warnings.append(
+                f"{eliminated} long trajectories fitted no label within its threshold and were labelled by "
+                "elimination (markers moved since the reference recording?)"
+            )
         # Outputs.
         slot_labels = np.full((n, k), EMPTY, dtype=int)
         has = tid >= 0
