@@ -19,9 +19,12 @@ that does not match the optimizer's candidates (another run's folder) is an erro
 
 Failed episodes: a NaN or infinite reward, a reward that is not a number, or an evaluation that
 raises an ``Exception`` (a rollout that fails, a worker process that dies) is recorded with
-``failed=1`` and its error message, and the optimizer is told the worst finite reward seen so far
-minus :data:`~besdrake.search.base.FAILED_EPISODE_PENALTY`. ``KeyboardInterrupt`` is not caught: it
-stops the run, and what was recorded stays on disk for the resume.
+``failed=1`` and its error message, and the optimizer is told a NaN reward for it: by the
+convention of :mod:`besdrake.search.base` every optimizer treats NaN as a failed episode (the local
+optimizers replace it by the worst finite reward seen minus
+:data:`~besdrake.search.base.FAILED_EPISODE_PENALTY`; a model-based one may leave it out of its
+model). ``KeyboardInterrupt`` is not caught: it stops the run, and what was recorded stays on disk
+for the resume.
 """
 
 from __future__ import annotations
@@ -36,12 +39,10 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from besdrake.search.base import (
-    FAILED_EPISODE_PENALTY,
     ContextualOptimizer,
     Optimizer,
     SearchResult,
     load_state,
-    sanitize_rewards,
     save_state,
 )
 
@@ -345,7 +346,6 @@ def run_search(
     *,
     evaluate_episode: Callable[[np.ndarray], float] | None = None,
     executor: ExecutorLike | None = None,
-    penalty: float = FAILED_EPISODE_PENALTY,
 ) -> LoopResult:
     """Maximise with ``optimizer`` until ``n_evaluations`` episodes are told or it stops.
 
@@ -367,7 +367,6 @@ def run_search(
     resumed = loop is not None
     generation = int(loop["generation"]) if loop else 0
     told = int(loop["n_evaluations"]) if loop else 0
-    worst: float | None = loop.get("worst_reward") if loop else None
     log = _EpisodeLog(None if out is None else out / EPISODES_FILE, optimizer.n_params, 0)
     resumed = resumed or bool(log.rows)
     stop_reason = "budget"
@@ -394,12 +393,10 @@ def run_search(
                 log.append(*(_Row(generation, i, reward, bool(error), error, empty, candidates[i]) for i, reward, error in results))
 
             evaluator.run(candidates, [i for i in range(n) if not done[i]], record)
-            clean, _ = sanitize_rewards(np.where(failed, np.nan, raw), worst, penalty)
-            optimizer.tell(candidates, clean)
-            worst = float(clean.min()) if worst is None else min(worst, float(clean.min()))
+            optimizer.tell(candidates, np.where(failed, np.nan, raw))
             generation += 1
             told += n
-            _save(optimizer, out, {"generation": generation, "n_evaluations": told, "worst_reward": worst})
+            _save(optimizer, out, {"generation": generation, "n_evaluations": told})
             if callback is not None and callback(GenerationInfo(generation, candidates, raw, failed, told, optimizer)):
                 stop_reason = "callback"
                 break
@@ -415,8 +412,6 @@ def run_contextual_search(
     context_bounds: np.ndarray,
     out_dir: str | Path | None = None,
     callback: Callable[[GenerationInfo], bool | None] | None = None,
-    *,
-    penalty: float = FAILED_EPISODE_PENALTY,
 ) -> LoopResult:
     """Contextual policy search: per episode, ``s = optimizer.select_context(context_bounds)``,
     ``theta = optimizer.ask(s)``, ``reward = evaluate(s, theta)``, ``optimizer.tell(s, theta, reward)``.
@@ -434,7 +429,6 @@ def run_contextual_search(
         out.mkdir(parents=True, exist_ok=True)
     optimizer, loop = _restore(optimizer, out)
     episode = int(loop["generation"]) if loop else 0
-    worst: float | None = loop.get("worst_reward") if loop else None
     log = _EpisodeLog(None if out is None else out / EPISODES_FILE, optimizer.n_params, optimizer.n_context)
     resumed = loop is not None or bool(log.rows)
     stop_reason = "budget"
@@ -452,11 +446,9 @@ def run_contextual_search(
             except Exception as err:
                 reward, error = np.nan, _error_text(err)
             log.append(_Row(episode, 0, reward, bool(error), error, context, params))
-        clean, _ = sanitize_rewards(np.array([np.nan if error else reward]), worst, penalty)
-        optimizer.tell(context, params, float(clean[0]))
-        worst = float(clean[0]) if worst is None else min(worst, float(clean[0]))
+        optimizer.tell(context, params, np.nan if error else float(reward))
         episode += 1
-        _save(optimizer, out, {"generation": episode, "n_evaluations": episode, "worst_reward": worst})
+        _save(optimizer, out, {"generation": episode, "n_evaluations": episode})
         if callback is not None and callback(
             GenerationInfo(episode, params[None], np.array([reward]), np.array([bool(error)]), episode, optimizer, context[None])
         ):
