@@ -91,6 +91,9 @@ def test_bocps_rejects_bad_input():
         opt.policy(np.array([np.inf, 0.0]))
     with pytest.raises(ValueError, match="params"):
         opt.tell(np.zeros(2), np.zeros(1), 0.0)
+    with pytest.raises(ValueError, match="reward"):
+        opt.tell(np.zeros(2), np.zeros(2), np.array([1.0, 2.0]))
+    assert opt.y.size == 0  # nothing half-recorded
 
 
 @pytest.mark.parametrize("cls, kwargs", [(BOCPS, {"acquisition": "es"}), (ACES, {})])

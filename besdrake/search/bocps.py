@@ -172,7 +172,10 @@ class BOCPS(ContextualOptimizer):
             raise ValueError(f"params must have {self.n_params} values, got shape {params.shape}")
         if not np.isfinite(params).all():
             raise ValueError(f"params must be finite, got {params.tolist()}")
-        clean, failed = sanitize_rewards(np.array([reward], dtype=float), float(self.y.min()) if self.y.size else None)
+        reward_arr = np.asarray(reward, dtype=float).ravel()
+        if reward_arr.size != 1:
+            raise ValueError(f"reward must be one number, got shape {np.shape(reward)}")
+        clean, failed = sanitize_rewards(reward_arr, float(self.y.min()) if self.y.size else None)
         self.X = np.vstack([self.X, np.concatenate([context, params])])
         self.y = np.append(self.y, clean[0])
         self.failed = np.append(self.failed, failed[0])
