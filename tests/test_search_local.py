@@ -173,6 +173,27 @@ def test_plain_weighted_ml_covariance_collapses_which_is_why_the_default_blends(
     assert np.linalg.norm(plain.mean) > 0.1 > 1e-2 > np.linalg.norm(blended.mean)
 
 
+@pytest.mark.parametrize(
+    "make",
+    [lambda rng: REPS(np.zeros(5), 0.25, rng), lambda rng: PI2(np.zeros(5), 0.25, rng)],
+    ids=["reps", "pi2"],
+)
+@pytest.mark.parametrize("seed", [0, 1])
+def test_episodic_search_follows_the_rosenbrock_valley_5d_within_4000_evaluations(make, seed):
+    opt = make(np.random.default_rng(seed))
+    reward = reward_of(rosenbrock)
+    while opt.n_evaluations < 4000 and np.linalg.norm(opt.mean - 1.0) >= 1e-2:
+        candidates = opt.ask()
+        opt.tell(candidates, reward(candidates))
+    assert np.linalg.norm(opt.mean - 1.0) < 1e-2
+
+
+def test_reps_covariance_around_the_new_mean_stalls_on_rosenbrock():
+    """Documents the default covariance_center='previous': the papers' 'new' shrinks too early."""
+    new = optimize(REPS(np.zeros(5), 0.25, np.random.default_rng(0), covariance_center="new"), reward_of(rosenbrock), 4000)
+    assert np.linalg.norm(new.mean - 1.0) > 0.3
+
+
 def test_pi2_with_fixed_decaying_covariance_converges():
     opt = PI2(np.full(5, 2.0), 1.0, np.random.default_rng(0), covariance_update=False, covariance_decay=0.95)
     optimize(opt, reward_of(sphere), 2500)

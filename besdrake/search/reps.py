@@ -8,7 +8,15 @@ of episodes, REPS finds the new distribution that maximises the expected reward 
     g(eta) = eta * epsilon + eta * log(mean_i exp(R_i / eta)),
 
 which is minimised here with :func:`scipy.optimize.minimize_scalar` on ``log(eta)``. The new mean
-and covariance are the weighted maximum-likelihood estimates of the samples.
+is the weighted maximum-likelihood estimate of the samples. The covariance is the weighted
+covariance of the samples around ``covariance_center``:
+
+* ``"previous"`` (default): the mean the samples were drawn from, as in CMA-ES's rank-mu update and
+  PI2-CMA. It keeps exploring along a direction in which the search makes progress;
+* ``"new"``: the new mean, the plain weighted ML estimate of Peters et al. It shrinks the
+  distribution while it is still travelling and, measured here, stalls on the 5-D Rosenbrock
+  function for every seed (mean 0.7 to 2 from the optimum after 20,000 evaluations), while
+  ``"previous"`` gets within 1e-2 after 1,500 to 2,500 evaluations.
 
 :class:`GaussianSearch` is the shared machinery of the episodic Gaussian methods (REPS and PI2,
 :mod:`besdrake.search.pi2`): sampling, ask/tell bookkeeping, failed-episode penalties, and save/resume.
@@ -233,7 +241,8 @@ def reps_weights(rewards: np.ndarray, epsilon: float) -> tuple[np.ndarray, float
 class REPS(GaussianSearch):
     """Episodic REPS with a Gaussian search distribution (see module docstring).
 
-    ``epsilon`` is the KL bound per update (larger: greedier). Other parameters: :class:`GaussianSearch`.
+    ``epsilon`` is the KL bound per update (larger: greedier); ``covariance_center`` is explained in
+    the module docstring. Other parameters: :class:`GaussianSearch`.
     """
 
     def __init__(
@@ -243,6 +252,7 @@ class REPS(GaussianSearch):
         rng: np.random.Generator,
         *,
         epsilon: float = 1.0,
+        covariance_center: str = "previous",
         n_samples_per_update: int | None = None,
         covariance_learning_rate: float = 0.2,
         min_variance: float = 0.0,
@@ -250,7 +260,10 @@ class REPS(GaussianSearch):
     ) -> None:
         if not (np.isfinite(epsilon) and epsilon > 0):
             raise ValueError(f"epsilon (KL bound) must be positive, got {epsilon!r}")
+        if covariance_center not in ("previous", "new"):
+            raise ValueError(f"covariance_center must be 'previous' or 'new', got {covariance_center!r}")
         self.epsilon = float(epsilon)
+        self.covariance_center = covariance_center
         self.last_eta = np.nan
         super().__init__(
             mean,
@@ -263,9 +276,9 @@ class REPS(GaussianSearch):
         )
 
     def _config(self) -> dict[str, Any]:
-        return {**super()._config(), "epsilon": self.epsilon}
+        return {**super()._config(), "epsilon": self.epsilon, "covariance_center": self.covariance_center}
 
     def _update(self, samples: np.ndarray, rewards: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         weights, self.last_eta = reps_weights(rewards, self.epsilon)
-        mean, cov = weighted_gaussian_fit(samples, weights)
+        mean, cov = weighted_gaussian_fit(samples, weights, center=self.mean if self.covariance_center == "previous" else None)
         return mean, self._blend(cov)
