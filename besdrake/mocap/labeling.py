@@ -87,12 +87,12 @@ class LabelingResult:
         }
 
 
-def labeling_accuracy(slot_labels: np.ndarray, truth: np.ndarray) -> dict:
+def labeling_accuracy(slot_labels: np.ndarray, truth: np.ndarray, marker_names: list[str] | None = None) -> dict:
     """Share of correctly labelled samples against ground truth (same layout as ``slot_labels``).
 
     A sample is one visible point in one frame (``truth != EMPTY``); it is correct when the label
     matches, ghosts counting as correct when rejected. Also reported: the share over real-marker
-    samples only and the share of ghost samples rejected.
+    samples only and the share of ghost samples rejected; with ``marker_names``, the share per marker.
     """
     if slot_labels.shape != truth.shape:
         raise ValueError(f"shapes differ: {slot_labels.shape} vs {truth.shape}")
@@ -107,6 +107,10 @@ def labeling_accuracy(slot_labels: np.ndarray, truth: np.ndarray) -> dict:
         "marker_correct_share": float((correct & real).sum() / max(real.sum(), 1)),
         "ghost_samples": int(ghosts.sum()),
         "ghost_rejected_share": float((correct & ghosts).sum() / max(ghosts.sum(), 1)),
+        **({"per_marker": {
+            name: float((correct & (truth == i)).sum() / max((truth == i).sum(), 1))
+            for i, name in enumerate(marker_names)
+        }} if marker_names is not None else {}),
     }
 
 
@@ -137,6 +141,7 @@ class MarkerLabeler:
         trim: int = 0,
         weighted: bool = True,
         elimination_factor: float = 2.0,
+        min_sigma: float = 0.0007,
         weight_scale: float = 0.02,
         strict_quantile: float = 0.9,
     ):
@@ -145,6 +150,7 @@ class MarkerLabeler:
         self.trim = trim
         self.weighted = weighted
         self.elimination_factor = elimination_factor
+        self.min_sigma = min_sigma
         self.weight_scale = weight_scale
         self.strict_quantile = strict_quantile
         self.refine_passes = refine_passes
@@ -191,6 +197,15 @@ class MarkerLabeler:
                 dens /= dens.max()
                 cost[i, j] = np.minimum(-np.log(dens + 1e-6), 12.0)
         self.pair_cost_ = cost
+        # Rigid pairs (plates): mean and spread of the distance for a Gaussian cost.
+        mu = np.zeros((m, m))
+        for i in range(m):
+            for j in range(m):
+                if informative[i, j]:
+                    mu[i, j] = np.nanmedian(d[:, i, j])
+        self.rigid_pair_ = informative & (spread < self.rigid_tol)
+        self.rigid_mu_ = mu
+        self.rigid_sigma_ = np.maximum(np.where(np.isfinite(spread), spread, 1.0), self.min_sigma)
         self.pair_weight_ = np.where(informative, 1.0 / (np.minimum(spread, 1.0) + self.weight_scale), 0.0)
         self.informative_ = informative
         self.spread_ = spread
@@ -228,10 +243,19 @@ class MarkerLabeler:
         bins = np.minimum(np.nan_to_num(d / self.bin_m).astype(int), self.pair_cost_.shape[2] - 1)
         ii, jj = np.meshgrid(np.arange(m), np.arange(m), indexing="ij")
         c = self.pair_cost_[ii[None], jj[None], bins]  # (n, m, m)
+        c = self._rigid_override(c, d, self.rigid_mu_[None], self.rigid_sigma_[None], self.rigid_pair_[None])
         w = vis[:, :, None] & vis[:, None, :] & self.informative_[None]
         out = self._trimmed_mean(c, w, self.pair_weight_[None])
         out[~vis] = np.nan
         return out
+
+    @staticmethod
+    def _rigid_override(c, d, mu, sigma, rigid):
+        """Rigid pairs: a Gaussian cost on the distance (finer than the histogram's bins, so
+        nearly isosceles plates are told apart)."""
+        with np.errstate(invalid="ignore"):
+            gauss = np.minimum(0.5 * ((d - mu) / sigma) ** 2, 12.0)
+        return np.where(rigid, np.where(np.isnan(gauss), c, gauss), c)
 
     def _trimmed_mean(self, c: np.ndarray, w: np.ndarray, pw: np.ndarray) -> np.ndarray:
         """Mean of ``c`` over the last axis where ``w``, dropping the ``trim`` worst terms when at
@@ -321,6 +345,7 @@ class MarkerLabeler:
         ok = ~np.isnan(d)
         bins = np.minimum(np.nan_to_num(d / self.bin_m).astype(int), self.pair_cost_.shape[2] - 1)
         c = self.pair_cost_[:, np.arange(m)[None, :], bins]  # (L, w, m)
+        c = self._rigid_override(c, d[None], self.rigid_mu_[:, None, :], self.rigid_sigma_[:, None, :], self.rigid_pair_[:, None, :])
         w = ok[None] & self.informative_[:, None, :]
         w &= ~np.eye(m, dtype=bool)[:, None, :]
         per_frame = self._trimmed_mean(c, w, self.pair_weight_[:, None, :])  # (L, w)
@@ -549,7 +574,9 @@ class MarkerLabeler:
                         break
                     dd = np.linalg.norm(xa[np.searchsorted(ra, common)] - xb[np.searchsorted(rb, common)], axis=1)
                     bins = np.minimum((dd / self.bin_m).astype(int), self.pair_cost_.shape[2] - 1)
-                    cost += float(self.pair_cost_[ia, ib, bins].mean())
+                    pc = self._rigid_override(self.pair_cost_[ia, ib, bins], dd, self.rigid_mu_[ia, ib],
+                                              self.rigid_sigma_[ia, ib], self.rigid_pair_[ia, ib])
+                    cost += float(pc.mean())
                     if cost >= best_cost:
                         break
                 if cost < best_cost:
