@@ -152,3 +152,18 @@ def test_imitating_a_synthetic_throw_gives_an_executable_49_parameter_plan(throw
     saved = json.loads(path.read_text())
     assert len(saved["theta"]) == 49 and saved["theta_names"][-1] == "execution_time"
     assert (tmp_path / "s0e0t0.plan.json").is_file()
+
+
+def test_jump_detector_flags_a_branch_switch_but_not_a_fast_smooth_motion():
+    from besdrake.embodiment.ik import IKTrajectory
+
+    t = np.linspace(0, 0.3, 31)
+    q = np.zeros((31, 6))
+    q[:, 1] = 2.0 * np.sin(np.pi * t / 0.3) ** 2  # fast: steps up to 0.2 rad at 100 Hz
+    ones = np.ones(31, dtype=bool)
+    smooth = IKTrajectory(t, q, np.zeros(31), np.zeros(31), ones)
+    assert smooth.jumps() == []
+    flipped = q.copy()
+    flipped[16:, 3] += np.pi  # the forearm flips to the other IK branch
+    jumps = IKTrajectory(t, flipped, np.zeros(31), np.zeros(31), ones).jumps()
+    assert [(i, j) for i, j, _ in jumps] == [(15, 3)]

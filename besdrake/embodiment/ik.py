@@ -34,6 +34,21 @@ class IKTrajectory:
     angle_residual: np.ndarray  # (n,) rad
     reachable: np.ndarray  # (n,) bool: position constraint met
 
+    def jumps(self, ratio: float = 4.0, floor: float = 0.3) -> list[tuple[int, int, float]]:
+        """Discontinuities: ``(sample, joint, step)`` where a joint moves more than ``floor`` rad and
+        more than ``ratio`` times the larger of its neighbouring steps. A fast but smooth motion
+        has similar consecutive steps; a switch between IK branches has one step far larger than
+        its neighbours (typically around pi), whatever the sample rate. Smaller kinks (seen: up
+        to 0.14 rad where a joint rides its margin to a limit) are smoothed by the DMP and are
+        not the large configuration changes the paper warns about."""
+        steps = np.abs(np.diff(self.q, axis=0))
+        if len(steps) < 2:
+            return []
+        padded = np.vstack([steps[:1] * 0, steps, steps[:1] * 0])
+        neighbour = np.maximum(padded[:-2], padded[2:])
+        mask = (steps > floor) & (steps > ratio * neighbour)
+        return [(int(i), int(j), float(steps[i, j])) for i, j in zip(*np.nonzero(mask))]
+
     @property
     def max_joint_step(self) -> float:
         """Largest change of any joint between consecutive samples (rad): a jump detector."""
@@ -70,10 +85,8 @@ def ik_trajectory(
     lower = robot.POSITION_LIMITS[:, 0] + joint_margin
     upper = robot.POSITION_LIMITS[:, 1] - joint_margin
     solver = SnoptSolver()
-    q_out = np.empty((n, 6))
-    reachable = np.ones(n, dtype=bool)
-    prev = np.clip(q_guess[0], lower, upper)
-    for i in range(n):
+
+    def solve(i: int, anchor: np.ndarray, guess: np.ndarray) -> tuple[np.ndarray, bool]:
         for hard in (True, False):
             ik = InverseKinematics(plant, with_joint_limits=False)
             q = ik.q()
@@ -87,15 +100,24 @@ def ik_trajectory(
             else:
                 ik.AddPositionCost(plant.world_frame(), positions[i], model.tcp, np.zeros(3), 1.0e4 * np.eye(3))
             ik.AddAngleBetweenVectorsCost(plant.world_frame(), axes[i], model.tcp, SCOOP_AXIS, angle_weight)
-            anchor = prev if i > 0 else np.clip(q_guess[0], lower, upper)
             prog.AddQuadraticErrorCost(continuity_weight * np.eye(6), anchor, q)
-            prog.SetInitialGuess(q, np.clip(q_guess[i], lower, upper) if i == 0 else prev)
+            prog.SetInitialGuess(q, guess)
             result = solver.Solve(prog)
             if result.is_success() or not hard:
-                q_out[i] = result.GetSolution(q)
-                reachable[i] = hard and result.is_success()
-                break
+                return result.GetSolution(q), hard and result.is_success()
+        raise AssertionError("unreachable")  # pragma: no cover
+
+    q_out = np.empty((n, 6))
+    reachable = np.ones(n, dtype=bool)
+    # Forward pass, each pose pulled towards the previous solution; then a backward pass pulls
+    # each pose towards its successor, starting from it, which removes the start-up transient of
+    # the first pose (solved from a mere guess, it can land in a worse local optimum).
+    prev = np.clip(q_guess[0], lower, upper)
+    for i in range(n):
+        q_out[i], reachable[i] = solve(i, prev, prev if i else np.clip(q_guess[0], lower, upper))
         prev = q_out[i]
+    for i in range(n - 2, -1, -1):
+        q_out[i], reachable[i] = solve(i, q_out[i + 1], q_out[i + 1])
     pos_res = np.empty(n)
     ang_res = np.empty(n)
     for i in range(n):

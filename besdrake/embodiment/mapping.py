@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -32,9 +32,6 @@ from besdrake.embodiment.scaling import TemporalScaling, ease_in, temporal_scali
 from besdrake.embodiment.sync_frame import SyncFrameOptions, SyncFrameResult, solve_sync_frame
 from besdrake.imitation import DMP, THROW_WEIGHTS_PER_JOINT, DMPParameterization
 from besdrake.plan import LimitReport, MotionPlan
-
-#: A joint moving more than this between consecutive samples at 100 Hz (rad) is a jump.
-JUMP_THRESHOLD = 0.25
 
 
 class ImitationError(ValueError):
@@ -52,6 +49,7 @@ class ImitationOptions:
     plan_dt: float = 0.002  # s between motion-plan samples
     velocity_safety: float = 0.9  # fraction of the limits the scaled trajectory may use
     max_refits: int = 8
+    joint_margins: tuple[float, ...] = (0.1, 0.25)  # rad kept from the position limits, tried in turn
     refit_stretch: float = 1.1
 
 
@@ -77,10 +75,18 @@ class ImitatedThrow:
         """The 49 parameters: start (6), goal (6), weights (36), execution time (1)."""
         return self.parameterization.to_vector()
 
+    def problems(self) -> list[str]:
+        """Why the plan is not executable (empty when it is)."""
+        out = [f"pose at t={p['t']:.3f} s unreachable by {1000 * p['position_residual_m']:.1f} mm" for p in self.ik.unreachable_report()]
+        for i, j, step in self.ik.jumps():
+            out.append(f"joint{j + 1} jumps by {step:.2f} rad at t={self.ik.t[i]:.3f} s (IK branch switch)")
+        out += self.limits.violations()
+        return out
+
     @property
     def executable(self) -> bool:
         """All poses reached, no jump, and the plan within every joint limit."""
-        return bool(self.ik.reachable.all() and self.ik.max_joint_step <= JUMP_THRESHOLD and self.limits.ok)
+        return not self.problems()
 
     def summary(self) -> dict[str, Any]:
         """JSON-ready report of the mapping."""
@@ -101,6 +107,7 @@ class ImitatedThrow:
             "peak_joint_velocity_rad_s": None if peak_v is None else peak_v.tolist(),
             "velocity_limit_rad_s": robot.VELOCITY_LIMITS.tolist(),
             "limit_violations": self.limits.violations(),
+            "problems": self.problems(),
             "timings_s": self.timings,
         }
 
@@ -136,6 +143,20 @@ class EmbodimentMapping:
             self._welded = compi_plant()
         return self._welded
 
+    def _fit_within_limits(self, t: np.ndarray, q: np.ndarray, stretch: float):
+        """Fit the DMP to ``q(t)`` stretched by ``stretch``; stretch more while its rollout exceeds the
+        velocity or acceleration limits (a position overshoot is not cured by slowing down)."""
+        opts = self.options
+        for _ in range(opts.max_refits):
+            dmp = DMP(6, n_weights_per_dim=opts.n_weights_per_dim).fit(t * stretch, q)
+            parameterization = DMPParameterization(dmp)
+            plan = parameterization.motion_plan(parameterization.to_vector(), dt=opts.plan_dt)
+            limits = plan.check_limits()
+            if not (np.any(limits.velocity > 0) or np.any(limits.acceleration > 0)):
+                break
+            stretch *= opts.refit_stretch
+        return dmp, plan, limits, stretch
+
     def imitate(self, hand: HandTrajectory, name: str = "throw") -> ImitatedThrow:
         """Synchronization frame, IK, temporal scaling and DMP imitation of one segment."""
         opts = self.options
@@ -143,40 +164,39 @@ class EmbodimentMapping:
         t0 = time.perf_counter()
         if opts.smooth_window_s > 0:
             hand = hand.smoothed(opts.smooth_window_s)
-        sync = solve_sync_frame(hand, opts.sync, self.mounted)
-        timings["sync_frame"] = time.perf_counter() - t0
-
-        t1 = time.perf_counter()
-        X_SB = mount_to_transform(sync.mount)
-        X_BS = X_SB.inverse()
-        R = X_BS.rotation().matrix()
-        p_B = hand.position @ R.T + X_BS.translation()
-        axes_B = hand.palm_axis @ R.T
-        q_guess = np.stack([np.interp(hand.t, sync.t, sync.q[:, j]) for j in range(6)], axis=1)
-        ik = ik_trajectory(self.welded, hand.t, p_B, axes_B, q_guess, position_tolerance=opts.sync.position_tolerance)
-        timings["inverse_kinematics"] = time.perf_counter() - t1
-
-        t2 = time.perf_counter()
-        # Peak velocities and accelerations of the DMP fitted at the demonstrated speed: the DMP
-        # is what will be executed, and its derivatives are free of the IK's sample noise.
-        t_demo, q_demo = ease_in(hand.t, ik.q, opts.ease_in_s)
-        demo = DMP(6, n_weights_per_dim=opts.n_weights_per_dim).fit(t_demo, q_demo).open_loop(0.001)
-        scaling = temporal_scaling(demo.t, demo.y, safety=opts.velocity_safety, toppra=False)
-        scaling.toppra_duration = toppra_duration(hand.t, ik.q, robot.VELOCITY_LIMITS, robot.ACCELERATION_LIMITS)
-        timings["temporal_scaling"] = time.perf_counter() - t2
-
-        t3 = time.perf_counter()
-        stretch = scaling.factor
-        for _ in range(opts.max_refits):
-            dmp = DMP(6, n_weights_per_dim=opts.n_weights_per_dim).fit(t_demo * stretch, q_demo)
-            plan = DMPParameterization(dmp).motion_plan(DMPParameterization(dmp).to_vector(), dt=opts.plan_dt)
-            limits = plan.check_limits()
-            if limits.ok:
+        # A DMP may overshoot the IK path by a few hundredths of a radian: when the plan breaks
+        # a position limit, frame and IK are solved again with a wider margin to the limits.
+        for margin in opts.joint_margins:
+            t1 = time.perf_counter()
+            sync = solve_sync_frame(hand, replace(opts.sync, joint_margin=margin), self.mounted)
+            timings["sync_frame"] = timings.get("sync_frame", 0.0) + time.perf_counter() - t1
+            X_BS = mount_to_transform(sync.mount).inverse()
+            R = X_BS.rotation().matrix()
+            p_B = hand.position @ R.T + X_BS.translation()
+            axes_B = hand.palm_axis @ R.T
+            q_guess = np.stack([np.interp(hand.t, sync.t, sync.q[:, j]) for j in range(6)], axis=1)
+            t1 = time.perf_counter()
+            ik = ik_trajectory(
+                self.welded, hand.t, p_B, axes_B, q_guess, position_tolerance=opts.sync.position_tolerance, joint_margin=margin
+            )
+            timings["inverse_kinematics"] = timings.get("inverse_kinematics", 0.0) + time.perf_counter() - t1
+            t2 = time.perf_counter()
+            # Peak velocities and accelerations of the DMP fitted at the demonstrated speed: the DMP
+            # is what will be executed, and its derivatives are free of the IK's sample noise.
+            t_demo, q_demo = ease_in(hand.t, ik.q, opts.ease_in_s)
+            demo = DMP(6, n_weights_per_dim=opts.n_weights_per_dim).fit(t_demo, q_demo).open_loop(0.001)
+            scaling = temporal_scaling(demo.t, demo.y, safety=opts.velocity_safety, toppra=False)
+            timings["temporal_scaling"] = timings.get("temporal_scaling", 0.0) + time.perf_counter() - t2
+            t3 = time.perf_counter()
+            dmp, plan, limits, stretch = self._fit_within_limits(t_demo, q_demo, scaling.factor)
+            timings["dmp_fit"] = timings.get("dmp_fit", 0.0) + time.perf_counter() - t3
+            if not np.any(limits.position > 0):
                 break
-            if np.any(limits.position > 0) and not (np.any(limits.velocity > 0) or np.any(limits.acceleration > 0)):
-                break  # slower is no cure for a position overshoot: report it
-            stretch *= opts.refit_stretch
-        timings["dmp_fit"] = time.perf_counter() - t3
+        t4 = time.perf_counter()
+        scaling.toppra_duration = toppra_duration(
+            hand.t, ik.q, robot.VELOCITY_LIMITS, robot.ACCELERATION_LIMITS, plant=self.welded.plant
+        )
+        timings["toppra"] = time.perf_counter() - t4
         timings["total"] = time.perf_counter() - t0
         scaling.factor = float(stretch)
         scaling.duration = float(dmp.execution_time)

@@ -83,9 +83,16 @@ def temporal_scaling(
 
 
 def toppra_duration(
-    t: np.ndarray, q: np.ndarray, velocity_limits: np.ndarray, acceleration_limits: np.ndarray, gridpoints: int = 200
+    t: np.ndarray,
+    q: np.ndarray,
+    velocity_limits: np.ndarray,
+    acceleration_limits: np.ndarray,
+    gridpoints: int = 200,
+    plant=None,
 ) -> float | None:
-    """Time-optimal duration of the joint path ``q(t)`` under per-joint limits (Drake's Toppra)."""
+    """Time-optimal duration of the joint path ``q(t)`` under per-joint limits (Drake's Toppra).
+
+    ``plant``: COMPI welded at its base (built here when not given); None when Toppra fails."""
     from pydrake.multibody.optimization import Toppra
     from pydrake.trajectories import PiecewisePolynomial
 
@@ -93,7 +100,7 @@ def toppra_duration(
 
     s = (t - t[0]) / (t[-1] - t[0])
     path = PiecewisePolynomial.CubicWithContinuousSecondDerivatives(s, q.T, np.zeros(6), np.zeros(6))
-    plant = compi_plant().plant
+    plant = plant or compi_plant().plant
     grid = Toppra.CalcGridPoints(path, _GridOptions(gridpoints))
     top = Toppra(path, plant, grid)
     top.AddJointVelocityLimit(-velocity_limits, velocity_limits)

@@ -50,7 +50,7 @@ class SyncFrameOptions:
     velocity_weight: float = 1.0
     acceleration_weight: float = 1.0
     jerk_weight: float = 1.0
-    joint_margin: float = 0.05  # rad kept from every position limit
+    joint_margin: float = 0.1  # rad kept from every position limit
     mount_lower: tuple[float, ...] = (-1.5, -1.5, -1.5, -0.6, -0.35, -0.35)
     mount_upper: tuple[float, ...] = (1.5, 1.5, 1.5, 0.6, 0.35, 0.35)
     position_tolerance: float = 0.0005  # m, half-width of the position box when reachable
