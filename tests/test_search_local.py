@@ -374,3 +374,32 @@ def test_a_failed_episode_is_never_reported_as_best(make):
     rewards[0] = np.nan
     opt.tell(candidates, rewards)
     assert opt.best[1] == rewards[1:].max()
+
+
+# ----------------------------------------------------------------------------- slow (--runslow)
+@pytest.mark.slow
+def test_cmaes_bipop_solves_rastrigin_5d_for_most_seeds():
+    solved = 0
+    for seed in range(6):
+        rng = np.random.default_rng(seed)
+        opt = CMAES(rng.uniform(-4, 4, 5), 2.0, rng, bounds=np.tile([-5.12, 5.12], (5, 1)), restarts=50)
+        optimize(opt, reward_of(rastrigin), 40000, target=-1e-8)
+        solved += opt.best[1] > -1e-8
+    assert solved >= 4  # measured: 5 of 6 within 40,000 evaluations
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    "make, budget, factor",
+    [
+        (lambda rng: CMAES(np.ones(49), 0.5, rng), 6000, 1e-8),
+        (lambda rng: REPS(np.ones(49), 0.25, rng), 15000, 1e-4),
+        (lambda rng: PI2(np.ones(49), 0.25, rng), 15000, 1e-4),
+    ],
+    ids=["cmaes", "reps", "pi2"],
+)
+def test_search_in_the_49_parameters_of_a_throw(make, budget, factor):
+    """49 parameters, as many as the throwing DMP; reward reduced by ``factor`` within ``budget``."""
+    opt = make(np.random.default_rng(0))
+    optimize(opt, reward_of(sphere), budget, target=-factor * 49.0)
+    assert opt.best[1] > -factor * 49.0
