@@ -1,0 +1,351 @@
+"""The measured-data log: a documented, versioned folder a real lab could write (see ``LOG_FORMAT.md``).
+
+::
+
+    LOGDIR/
+      log.json                          format, version, lab (public description), created, units, run
+      trials.csv                        one row per trial (the commit marker), appended and fsync'ed
+      trials/000007/plan.json           the MotionPlan
+      trials/000007/measurement.json    touchdown, flags, message, meta, what was recorded
+      trials/000007/joints.csv          t, q_cmd_joint1..6, q_meas_joint1..6 (when recorded)
+      trials/000007/ball.tsv            Qualisys TSV of the ball marker, mm (when recorded and seen)
+
+:meth:`LabLog.append` writes the trial folder first and the CSV row last, each file fsync'ed: a trial
+exists once its row does. A folder without a row (a run killed while writing) is overwritten by the
+next append; a row cut short by a kill (no final newline) is dropped when the log is opened.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+import shutil
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from besdrake import robot
+from besdrake.plan import MotionPlan, PlanError
+from besdrake.transfer.measurement import Measurement, MeasurementError
+
+LOG_FORMAT = "besdrake-lab-log"
+LOG_VERSION = 1
+CSV_COLUMNS = ("trial", "plan_hash", "touchdown_x", "touchdown_y", "flags", "message")
+JOINT_COLUMNS = ("t", *(f"q_cmd_{n}" for n in robot.JOINT_NAMES), *(f"q_meas_{n}" for n in robot.JOINT_NAMES))
+BALL_MARKER = "ball"
+#: Frequency written into ball.tsv when a lab records the ball at irregular times (see LOG_FORMAT.md).
+DEFAULT_BALL_RATE_HZ = 100.0
+
+
+class LogError(ValueError):
+    """A log folder is missing, of another format or version, corrupt, or used inconsistently."""
+
+
+def _fsync_write(path: Path, text: str) -> None:
+    with open(path, "w", encoding="utf-8", newline="") as f:
+        f.write(text)
+        f.flush()
+        os.fsync(f.fileno())
+
+
+def _fsync_dir(path: Path) -> None:
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:  # pragma: no cover - platforms without directory fds
+        return
+    try:
+        os.fsync(fd)
+    except OSError:  # pragma: no cover
+        pass
+    finally:
+        os.close(fd)
+
+
+def _trial_dir(root: Path, trial: int) -> Path:
+    return root / "trials" / f"{trial:06d}"
+
+
+def _fmt(x: float) -> str:
+    return repr(float(x))
+
+
+class LabLog:
+    """An open measured-data log; create with :meth:`create`, reopen with :meth:`open`."""
+
+    def __init__(self, root: Path, header: dict[str, Any], rows: list[dict[str, str]]) -> None:
+        self.root = root
+        self.header = header
+        self._rows = rows
+
+    # ------------------------------------------------------------------ open / create
+    @classmethod
+    def create(cls, logdir: str | Path, lab_description: dict[str, Any] | str, run: dict[str, Any] | None = None) -> "LabLog":
+        """Start a new log in ``logdir`` (created; must not already hold a log or other files).
+
+        ``lab_description``: the lab's public description (name, sensors; never hidden truth);
+        ``run``: facts about the run to check on resume (e.g. the seed)."""
+        root = Path(logdir)
+        if root.exists() and (not root.is_dir() or any(root.iterdir())):
+            raise LogError(f"{root} already exists and is not an empty folder; open it with LabLog.open to resume")
+        if isinstance(lab_description, str):
+            lab_description = {"name": lab_description}
+        if not isinstance(lab_description, dict) or not lab_description.get("name"):
+            raise LogError("lab_description must be a dict with a non-empty 'name' (or a name string)")
+        root.mkdir(parents=True, exist_ok=True)
+        (root / "trials").mkdir()
+        header = {
+            "format": LOG_FORMAT,
+            "version": LOG_VERSION,
+            "lab": lab_description,
+            "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+            "units": "SI (m, s, rad)",
+            "run": dict(run or {}),
+        }
+        _fsync_write(root / "trials.csv", ",".join(CSV_COLUMNS) + "\n")
+        _fsync_write(root / "log.json", json.dumps(header, indent=2) + "\n")
+        _fsync_dir(root)
+        return cls(root, header, [])
+
+    @classmethod
+    def open(cls, logdir: str | Path) -> "LabLog":
+        """Open an existing log (for reading or to append more trials); :class:`LogError` if it is not one."""
+        root = Path(logdir)
+        if not root.is_dir():
+            raise LogError(f"log folder not found: {root}")
+        hp = root / "log.json"
+        if not hp.is_file():
+            raise LogError(f"{root} is not a besdrake lab log: no log.json")
+        try:
+            header = json.loads(hp.read_text(encoding="utf-8"))
+        except (json.JSONDecodeError, UnicodeDecodeError) as err:
+            raise LogError(f"{hp} is not valid JSON: {err}") from err
+        if not isinstance(header, dict) or header.get("format") != LOG_FORMAT:
+            raise LogError(f"{hp}: format is {header.get('format') if isinstance(header, dict) else None!r}, expected {LOG_FORMAT!r}")
+        if header.get("version") != LOG_VERSION:
+            raise LogError(f"{hp}: log format version {header.get('version')!r} is not supported (this reader knows version {LOG_VERSION})")
+        rows = cls._read_rows(root / "trials.csv")
+        return cls(root, header, rows)
+
+    @staticmethod
+    def _read_rows(path: Path) -> list[dict[str, str]]:
+        if not path.is_file():
+            raise LogError(f"{path.parent} is not a complete log: trials.csv is missing")
+        raw = path.read_bytes()
+        if raw and not raw.endswith(b"\n"):
+            # A row cut short by a kill: it never committed, drop it (the trial will be redone).
+            cut = raw.rfind(b"\n") + 1
+            with open(path, "r+b") as f:
+                f.truncate(cut)
+                f.flush()
+                os.fsync(f.fileno())
+            raw = raw[:cut]
+        try:
+            text = raw.decode("utf-8")
+        except UnicodeDecodeError as err:
+            raise LogError(f"{path} is not UTF-8 text: {err}") from err
+        reader = csv.reader(io.StringIO(text))
+        try:
+            head = next(reader)
+        except StopIteration:
+            raise LogError(f"{path} is empty (no header line)") from None
+        if tuple(head) != CSV_COLUMNS:
+            raise LogError(f"{path}: header {head} differs from the format's {list(CSV_COLUMNS)}")
+        rows = []
+        for k, fields in enumerate(reader):
+            line = k + 2
+            if len(fields) != len(CSV_COLUMNS):
+                raise LogError(f"{path}, line {line}: {len(fields)} fields, expected {len(CSV_COLUMNS)}")
+            row = dict(zip(CSV_COLUMNS, fields))
+            if row["trial"] != str(k):
+                raise LogError(f"{path}, line {line}: trial {row['trial']!r}, expected {k} (trials must be 0, 1, 2, ... without gaps)")
+            rows.append(row)
+        return rows
+
+    # ------------------------------------------------------------------ access
+    def __len__(self) -> int:
+        return len(self._rows)
+
+    @property
+    def lab(self) -> dict[str, Any]:
+        """The lab's public description from ``log.json``."""
+        return dict(self.header.get("lab") or {})
+
+    def plan_hashes(self) -> list[str]:
+        """The plan hash of every logged trial, in trial order (cheap: read from trials.csv)."""
+        return [r["plan_hash"] for r in self._rows]
+
+    def measurement(self, trial: int) -> Measurement:
+        """Read trial ``trial`` back; :class:`LogError` naming the file when something is missing or corrupt."""
+        if not 0 <= trial < len(self._rows):
+            raise LogError(f"trial {trial} is not in the log {self.root} ({len(self._rows)} trials)")
+        return read_trial(self.root, trial, expected_hash=self._rows[trial]["plan_hash"])
+
+    def measurements(self) -> list[Measurement]:
+        """All logged trials in order."""
+        return [self.measurement(k) for k in range(len(self._rows))]
+
+    # ------------------------------------------------------------------ append
+    def append(self, m: Measurement) -> None:
+        """Write ``m`` as the next trial: its folder first (each file fsync'ed), then its row in trials.csv.
+
+        ``m.trial`` must equal ``len(self)``. A leftover folder of an interrupted write is replaced."""
+        if not isinstance(m, Measurement):
+            raise LogError(f"LabLog.append needs a Measurement, got {type(m).__name__}")
+        m.validate()
+        if m.trial != len(self._rows):
+            raise LogError(f"cannot append trial {m.trial}: the log {self.root} holds {len(self._rows)} trials, so the next is {len(self._rows)}")
+        d = _trial_dir(self.root, m.trial)
+        if d.exists():
+            shutil.rmtree(d)  # an uncommitted (interrupted) write of this trial
+        tmp = d.with_name(d.name + ".tmp")
+        if tmp.exists():
+            shutil.rmtree(tmp)
+        tmp.mkdir(parents=True)
+        write_trial_files(tmp, m)
+        _fsync_dir(tmp)
+        os.replace(tmp, d)
+        _fsync_dir(d.parent)
+        row = self._row(m)
+        buf = io.StringIO()
+        csv.writer(buf, lineterminator="\n").writerow([row[c] for c in CSV_COLUMNS])
+        with open(self.root / "trials.csv", "a", encoding="utf-8", newline="") as f:
+            f.write(buf.getvalue())
+            f.flush()
+            os.fsync(f.fileno())
+        self._rows.append(row)
+
+    @staticmethod
+    def _row(m: Measurement) -> dict[str, str]:
+        td = m.touchdown
+        return {
+            "trial": str(m.trial),
+            "plan_hash": m.plan_hash,
+            "touchdown_x": "" if td is None else _fmt(td[0]),
+            "touchdown_y": "" if td is None else _fmt(td[1]),
+            "flags": ";".join(m.raised_flags),
+            "message": " ".join(m.message.split()),  # one line; the full text is in measurement.json
+        }
+
+
+# ---------------------------------------------------------------------------------------- trial files
+
+
+def write_trial_files(folder: Path, m: Measurement) -> None:
+    """Write the files of one trial into ``folder`` (plan.json, measurement.json, joints.csv, ball.tsv)."""
+    from besdrake.mocap.qualisys import write_tsv
+    from besdrake.mocap.recording import MocapRecording
+
+    _fsync_write(folder / "plan.json", json.dumps(m.plan.to_dict()) + "\n")
+    info: dict[str, Any] = m.to_dict(arrays=False)
+    info["joints_recorded"] = m.joint_t is not None
+    info["ball_recorded"] = m.ball_t is not None
+    if m.joint_t is not None:
+        data = np.column_stack([m.joint_t, m.q_commanded, m.q_measured])
+        lines = [",".join(JOINT_COLUMNS)] + [",".join(_fmt(x) for x in row) for row in data]
+        _fsync_write(folder / "joints.csv", "\n".join(lines) + "\n")
+    if m.ball_t is not None and len(m.ball_t):
+        rate = float(m.meta.get("mocap_rate_hz") or DEFAULT_BALL_RATE_HZ)
+        frames = np.rint(m.ball_t * rate).astype(int) + 1
+        if np.any(np.diff(frames) <= 0) or np.any(frames < 1):
+            raise LogError(
+                f"trial {m.trial}: ball_t is not on a {rate:g} Hz grid from the plan start (frames must increase); "
+                "set meta['mocap_rate_hz'] to the capture rate"
+            )
+        rec = MocapRecording([BALL_MARKER], m.ball_path[:, None, :], rate, frames=frames, time=m.ball_t,
+                             metadata={"DESCRIPTION": f"besdrake lab log trial {m.trial}: ball marker, time from plan start"})
+        tmp = folder / "ball.tsv"
+        write_tsv(rec, tmp)
+        with open(tmp, "rb+") as f:
+            os.fsync(f.fileno())
+        info["ball_samples"] = int(len(m.ball_t))
+        info["ball_t"] = m.ball_t.tolist()  # exact times (the TSV's Time column has 10 us resolution)
+    _fsync_write(folder / "measurement.json", json.dumps(info, indent=1) + "\n")
+
+
+def _load_json(path: Path) -> Any:
+    if not path.is_file():
+        raise LogError(f"log file missing: {path}")
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
+        raise LogError(f"{path} is not valid JSON: {err}") from err
+
+
+def read_trial(root: str | Path, trial: int, expected_hash: str | None = None) -> Measurement:
+    """Read one committed trial folder of the log at ``root``."""
+    from besdrake.mocap.qualisys import read_tsv
+    from besdrake.mocap.recording import MocapFormatError
+
+    d = _trial_dir(Path(root), trial)
+    info = _load_json(d / "measurement.json")
+    plan_d = _load_json(d / "plan.json")
+    try:
+        plan = MotionPlan.from_dict(plan_d)
+    except PlanError as err:
+        if not (info.get("flags") or {}).get("refused_by_safety_gate"):
+            raise LogError(f"{d / 'plan.json'}: {err}") from err
+        # A malformed plan that the gate refused: keep it as written.
+        plan = MotionPlan(t=plan_d.get("t", []), q=plan_d.get("q", []), qd=plan_d.get("qd"), meta=dict(plan_d.get("meta") or {}))
+    joint_t = q_cmd = q_meas = None
+    if info.get("joints_recorded"):
+        path = d / "joints.csv"
+        if not path.is_file():
+            raise LogError(f"log file missing: {path} (measurement.json says joints were recorded)")
+        lines = path.read_text(encoding="utf-8").splitlines()
+        if not lines or tuple(lines[0].split(",")) != JOINT_COLUMNS:
+            raise LogError(f"{path}: header must be {','.join(JOINT_COLUMNS)}")
+        try:
+            data = np.array([[float(x) for x in ln.split(",")] for ln in lines[1:] if ln.strip()], dtype=float).reshape(-1, len(JOINT_COLUMNS))
+        except ValueError as err:
+            raise LogError(f"{path}: not numeric or wrong number of columns: {err}") from err
+        joint_t, q_cmd, q_meas = data[:, 0], data[:, 1:7], data[:, 7:13]
+    ball_t = ball_path = None
+    if info.get("ball_recorded"):
+        n = int(info.get("ball_samples", 0))
+        if n == 0:
+            ball_t, ball_path = np.zeros(0), np.zeros((0, 3))
+        else:
+            path = d / "ball.tsv"
+            if not path.is_file():
+                raise LogError(f"log file missing: {path} (measurement.json says {n} ball samples)")
+            try:
+                rec = read_tsv(path, check_units=False)
+            except MocapFormatError as err:
+                raise LogError(f"{path}: {err}") from err
+            if BALL_MARKER not in rec.marker_names or rec.n_frames != n:
+                raise LogError(f"{path}: expected marker {BALL_MARKER!r} with {n} frames, got {rec.marker_names} with {rec.n_frames}")
+            ball_path = rec.marker(BALL_MARKER)
+            ball_t = np.asarray(info["ball_t"], float) if info.get("ball_t") is not None else rec.time
+    try:
+        m = Measurement(
+            trial=int(info.get("trial", trial)),
+            plan=plan,
+            touchdown=info.get("touchdown"),
+            ball_t=ball_t,
+            ball_path=ball_path,
+            joint_t=joint_t,
+            q_commanded=q_cmd,
+            q_measured=q_meas,
+            flags=dict(info.get("flags") or {}),
+            message=info.get("message", ""),
+            meta=dict(info.get("meta") or {}),
+        )
+    except MeasurementError as err:
+        raise LogError(f"{d}: {err}") from err
+    if m.trial != trial:
+        raise LogError(f"{d / 'measurement.json'}: says trial {m.trial}, expected {trial}")
+    if expected_hash is not None and m.plan_hash != expected_hash:
+        raise LogError(f"{d / 'plan.json'}: plan hash {m.plan_hash} differs from trials.csv's {expected_hash}")
+    return m
+
+
+def read_log(logdir: str | Path) -> list[Measurement]:
+    """All trials of the log at ``logdir``, in order."""
+    return LabLog.open(logdir).measurements()
+
+
+__all__ = ["LabLog", "LogError", "read_log", "read_trial", "write_trial_files", "LOG_FORMAT", "LOG_VERSION", "CSV_COLUMNS", "JOINT_COLUMNS"]
