@@ -1,0 +1,192 @@
+"""The rollout benchmark behind ``besdrake bench rollout`` and ``scripts/bench_rollout.py``.
+
+It measures, on the nominal scenario and the default throw swept over its ``amplitude``:
+
+* ``max_landing_error_m``: largest landing difference between the default time step and a 1 ms-step
+  reference run of the same scenario, over a sweep of throws landing between 1 and 2.5 m (target <= 0.03);
+* ``ms_per_rollout`` / ``rollouts_per_s``: median wall time of one 1.5 s throw in this process (one core;
+  target <= 16 ms), with the median CPU time beside it;
+* ``speedup_2_workers``: time of a batch of 64 on a one-worker pool over the time on a two-worker pool
+  (both pools warm; target >= 1.8), and whether both gave identical outcomes;
+* smoothness of landing vs amplitude on a dense sweep (monotonic, largest step between neighbours over the
+  median step), plotted to ``landing_sweep.png``.
+
+Timings depend on the machine and on what else runs on it: the JSON records the CPU count and load.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+TARGETS = {"max_landing_error_m": 0.03, "ms_per_rollout": 16.0, "speedup_2_workers": 1.8}
+#: Amplitudes of the default throw that land between about 1 and 2.5 m on the nominal scenario.
+AMPLITUDE_RANGE = (0.17, 0.58)
+
+
+@dataclass
+class BenchResult:
+    """Figures of one benchmark run (SI units; times in ms)."""
+
+    max_landing_error_m: float
+    ms_per_rollout: float
+    cpu_ms_per_rollout: float
+    rollouts_per_s: float
+    realtime_factor: float
+    speedup_2_workers: float
+    backends_identical: bool
+    n_fidelity_throws: int
+    landing_range_m: tuple[float, float]
+    n_landing_1_to_2_5_m: int
+    landing_monotonic: bool
+    max_step_ratio: float
+    time_step_s: float
+    reference_time_step_s: float
+    batch_size: int
+    t_batch_1_worker_s: float
+    t_batch_2_workers_s: float
+    plot: str
+    machine: dict[str, Any] = field(default_factory=dict)
+    targets: dict[str, float] = field(default_factory=lambda: dict(TARGETS))
+    passed: dict[str, bool] = field(default_factory=dict)
+    flagged_throws: int = 0
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def _landing(o) -> float:
+    return float("nan") if o.touchdown is None else float(o.touchdown[0])
+
+
+def run_bench(quick: bool = False, out_dir: str | Path = "runs/bench", scenario: str = "nominal", progress=None) -> BenchResult:
+    """Run the benchmark (``quick``: fewer throws and a smaller batch, for smoke tests) and plot the sweep."""
+    from besdrake.sim.executors import make_executor
+    from besdrake.sim.rollout import Rollout
+    from besdrake.sim.scenario import load_scenario
+    from besdrake.sim.throws import default_throw
+
+    say = progress or (lambda msg: None)
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    scen = load_scenario(scenario)
+    ref_scen = scen.with_overrides(time_step=0.001, name=f"{scen.name}_1ms")
+
+    # 1. fidelity sweep + timing (default step, this process)
+    n_fid = 8 if quick else 24
+    amps = np.linspace(*AMPLITUDE_RANGE, n_fid)
+    plans = [default_throw(amplitude=float(a)) for a in amps]
+    say(f"building diagrams (default step {scen.time_step} s and 1 ms reference)")
+    sim = Rollout(scen)
+    ref = Rollout(ref_scen)
+    sim.rollout(plans[0])  # warm-up
+    wall, cpu, default_out = [], [], []
+    say(f"timing {n_fid} throws at the default step")
+    for p in plans:
+        w0, c0 = time.perf_counter(), time.process_time()
+        default_out.append(sim.rollout(p))
+        cpu.append(time.process_time() - c0)
+        wall.append(time.perf_counter() - w0)
+    say("1 ms reference throws")
+    ref_out = [ref.rollout(p) for p in plans]
+    land = np.array([_landing(o) for o in default_out])
+    land_ref = np.array([_landing(o) for o in ref_out])
+    err = np.abs(land - land_ref)
+    flagged = sum(not o.ok for o in default_out + ref_out)
+    max_err = float(np.nanmax(err)) if np.isfinite(err).any() else float("nan")
+    if np.isnan(err).any():
+        max_err = float("inf")
+
+    # 2. dense sweep for smoothness
+    n_dense = 15 if quick else 41
+    dense_a = np.linspace(AMPLITUDE_RANGE[0] - 0.02, AMPLITUDE_RANGE[1] + 0.02, n_dense)
+    say(f"dense sweep of {n_dense} throws")
+    dense = np.array([_landing(sim.rollout(default_throw(amplitude=float(a)))) for a in dense_a])
+    steps = np.diff(dense)
+    monotonic = bool(np.all(steps > 0))
+    max_step_ratio = float(np.max(np.abs(steps)) / np.median(np.abs(steps)))
+
+    # 3. parallel speed-up on a batch
+    batch = 16 if quick else 64
+    rng = np.random.default_rng(0)
+    batch_plans = [default_throw(amplitude=float(a), yaw=float(y)) for a, y in zip(rng.uniform(*AMPLITUDE_RANGE, batch), rng.uniform(-0.3, 0.3, batch))]
+    say(f"batch of {batch} on 1 and 2 workers")
+    with make_executor("process", workers=1, scenario=scen) as ex1:
+        t0 = time.perf_counter()
+        out1 = ex1.evaluate(batch_plans)
+        t1 = time.perf_counter() - t0
+    with make_executor("process", workers=2, scenario=scen) as ex2:
+        t0 = time.perf_counter()
+        out2 = ex2.evaluate(batch_plans)
+        t2 = time.perf_counter() - t0
+    identical = all(
+        (a.touchdown is None and b.touchdown is None) or (a.touchdown is not None and b.touchdown is not None and np.array_equal(a.touchdown, b.touchdown))
+        for a, b in zip(out1, out2)
+    )
+
+    plot = _plot(out_dir / "landing_sweep.png", amps, land, land_ref, dense_a, dense, scen.time_step)
+    ms = float(np.median(wall) * 1000.0)
+    try:
+        load = os.getloadavg()
+    except OSError:  # pragma: no cover
+        load = (float("nan"),) * 3
+    res = BenchResult(
+        max_landing_error_m=max_err,
+        ms_per_rollout=ms,
+        cpu_ms_per_rollout=float(np.median(cpu) * 1000.0),
+        rollouts_per_s=1000.0 / ms,
+        realtime_factor=1500.0 / ms,
+        speedup_2_workers=t1 / t2,
+        backends_identical=bool(identical),
+        n_fidelity_throws=n_fid,
+        landing_range_m=(float(np.nanmin(land)), float(np.nanmax(land))),
+        n_landing_1_to_2_5_m=int(np.sum((land >= 1.0) & (land <= 2.5))),
+        landing_monotonic=monotonic,
+        max_step_ratio=max_step_ratio,
+        time_step_s=scen.time_step,
+        reference_time_step_s=0.001,
+        batch_size=batch,
+        t_batch_1_worker_s=t1,
+        t_batch_2_workers_s=t2,
+        plot=str(plot),
+        machine={"cpu_count": os.cpu_count(), "loadavg_1_5_15": list(load), "quick": quick},
+        flagged_throws=int(flagged),
+    )
+    res.passed = {
+        "max_landing_error_m": res.max_landing_error_m <= TARGETS["max_landing_error_m"],
+        "ms_per_rollout": res.ms_per_rollout <= TARGETS["ms_per_rollout"],
+        "speedup_2_workers": res.speedup_2_workers >= TARGETS["speedup_2_workers"],
+        "smooth": monotonic,
+    }
+    (out_dir / "bench_rollout.json").write_text(json.dumps(res.to_dict(), indent=2))
+    return res
+
+
+def _plot(path: Path, amps, land, land_ref, dense_a, dense, dt) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(7, 7), sharex=True, gridspec_kw={"height_ratios": [2, 1]})
+    ax1.plot(dense_a, dense, ".-", color="tab:blue", label=f"default step {dt * 1000:g} ms (dense sweep)")
+    ax1.plot(amps, land_ref, "o", mfc="none", color="tab:orange", label="1 ms reference")
+    ax1.axhspan(1.0, 2.5, color="0.9", zorder=0, label="target band 1-2.5 m")
+    ax1.set_ylabel("landing x (m)")
+    ax1.set_title("Landing point vs default-throw amplitude (nominal scenario)")
+    ax1.legend(loc="upper left")
+    ax2.plot(amps, (land - land_ref) * 100.0, "s-", color="tab:red")
+    ax2.axhline(3.0, ls="--", color="0.5")
+    ax2.axhline(-3.0, ls="--", color="0.5")
+    ax2.set_ylabel("default - 1 ms (cm)")
+    ax2.set_xlabel("amplitude of default_throw")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

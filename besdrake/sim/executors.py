@@ -1,0 +1,236 @@
+"""Evaluate batches of motion plans: the one interface learning loops see.
+
+``make_executor(backend, workers, scenario)`` returns an executor with ``evaluate(plans, effects=None)``
+(``effects``: one ``{name: {param: value}}`` for all plans or a list with one per plan) that returns one
+:class:`~besdrake.sim.outcome.Outcome` per plan, in order. Backends:
+
+* ``"serial"``: one :class:`~besdrake.sim.rollout.Rollout` in this process.
+* ``"process"``: a local ``multiprocessing`` pool, one Diagram per worker built once by the pool initializer
+  and reused (Diagrams cannot be pickled; plans, effects and Outcomes travel between processes). The start
+  method is "fork" where available (fast, and no ``if __name__ == "__main__"`` guard needed in scripts); the
+  workers build their own Diagrams after the fork, so nothing of Drake's is shared. Pass
+  ``start_method="spawn"`` if the calling process runs threads (e.g. a Meshcat server).
+* ``"ray"``: Ray actors, one Diagram each, for clusters (``pip install 'besdrake[cluster]'``); ray is
+  imported only when this backend is requested.
+
+Every rollout starts from the same reset Context, so the same inputs give the same Outcomes on every
+backend, in any order. Plans are validated in the caller's process (:class:`~besdrake.plan.PlanError`
+raised there); anything unexpected inside a worker becomes an Outcome flagged ``sim_failed``.
+Executors are context managers: ``with make_executor("process", workers=2) as ex: ex.evaluate(plans)``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from typing import Any, Sequence
+
+from besdrake.plan import MotionPlan, PlanError
+from besdrake.sim.effects import merge_effects
+from besdrake.sim.outcome import FLAG_NAMES, Outcome
+from besdrake.sim.scenario import Scenario, load_scenario
+
+BACKENDS = ("serial", "process", "ray")
+
+
+class ExecutorError(RuntimeError):
+    """An executor cannot be created or used (unknown backend, ray missing, closed executor)."""
+
+
+def _failed(message: str) -> Outcome:
+    flags = {k: False for k in FLAG_NAMES}
+    flags["sim_failed"] = True
+    return Outcome(flags=flags, message=message)
+
+
+def _run_batch(rollout, items: list[tuple[MotionPlan, dict | None]], limits: str) -> list[Outcome]:
+    out = []
+    for plan, eff in items:
+        try:
+            out.append(rollout.rollout(plan, effects=eff, limits=limits))
+        except Exception as err:  # noqa: BLE001 - a worker must not die on one bad rollout
+            out.append(_failed(f"rollout raised {type(err).__name__}: {err}"))
+    return out
+
+
+class Executor:
+    """Base class: validates inputs, splits work, keeps the order."""
+
+    backend = ""
+
+    def __init__(self, scenario: Scenario | str = "nominal", limits: str = "flag") -> None:
+        self.scenario = load_scenario(scenario) if not isinstance(scenario, Scenario) else scenario
+        if limits not in ("raise", "flag"):
+            raise ValueError(f"limits must be 'raise' or 'flag', got {limits!r}")
+        self.limits = limits
+        self._closed = False
+
+    def _prepare(self, plans: Sequence[MotionPlan], effects) -> list[tuple[MotionPlan, dict | None]]:
+        if self._closed:
+            raise ExecutorError(f"{self.backend} executor is closed")
+        plans = list(plans)
+        for i, p in enumerate(plans):
+            if not isinstance(p, MotionPlan):
+                raise PlanError(f"plan {i} is a {type(p).__name__}, not a MotionPlan")
+            try:
+                p.validate()
+                if self.limits == "raise":
+                    rep = p.check_limits()
+                    if (rep.position > 0).any():
+                        raise PlanError("exceeds COMPI's position limits: " + ", ".join(rep.violations()))
+            except PlanError as err:
+                raise PlanError(f"plan {i}: {err}") from err
+        if effects is None or isinstance(effects, dict):
+            effs = [effects] * len(plans)
+        else:
+            effs = list(effects)
+            if len(effs) != len(plans):
+                raise ValueError(f"got {len(effs)} effect dicts for {len(plans)} plans (give one dict or one per plan)")
+        for e in effs:
+            merge_effects(self.scenario.effects, e)  # raises EffectError here, not in a worker
+        return list(zip(plans, effs))
+
+    def evaluate(self, plans: Sequence[MotionPlan], effects: dict | list | None = None) -> list[Outcome]:
+        """Simulate every plan (with its effects); Outcomes in the order of ``plans``."""
+        items = self._prepare(plans, effects)
+        return self._evaluate(items) if items else []
+
+    def _evaluate(self, items):  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def close(self) -> None:
+        self._closed = True
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+class SerialExecutor(Executor):
+    """All rollouts in this process, one Diagram built on first use."""
+
+    backend = "serial"
+
+    def __init__(self, scenario: Scenario | str = "nominal", limits: str = "flag") -> None:
+        super().__init__(scenario, limits)
+        self._rollout = None
+
+    def _evaluate(self, items):
+        if self._rollout is None:
+            from besdrake.sim.rollout import Rollout
+
+            self._rollout = Rollout(self.scenario)
+        return _run_batch(self._rollout, items, self.limits)
+
+
+# ------------------------------------------------------------------------------------------ process pool
+_WORKER_ROLLOUT = None
+
+
+def _init_worker(scenario: Scenario) -> None:
+    global _WORKER_ROLLOUT
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    from besdrake.sim.rollout import Rollout
+
+    _WORKER_ROLLOUT = Rollout(scenario)
+
+
+def _worker_batch(args) -> list[Outcome]:
+    items, limits = args
+    return _run_batch(_WORKER_ROLLOUT, items, limits)
+
+
+def _worker_ready(_=None) -> int:
+    return os.getpid() if _WORKER_ROLLOUT is not None else -1
+
+
+class ProcessExecutor(Executor):
+    """A local process pool; each worker builds its Diagram once (pool initializer) and reuses it."""
+
+    backend = "process"
+
+    def __init__(self, scenario: Scenario | str = "nominal", workers: int | None = None, limits: str = "flag", start_method: str | None = None) -> None:
+        import multiprocessing as mp
+
+        super().__init__(scenario, limits)
+        if start_method is None:
+            start_method = "fork" if "fork" in mp.get_all_start_methods() else "spawn"
+        self.workers = int(workers or os.cpu_count() or 1)
+        if self.workers < 1:
+            raise ValueError(f"workers must be >= 1, got {workers}")
+        self._pool = mp.get_context(start_method).Pool(self.workers, initializer=_init_worker, initargs=(self.scenario,))
+        # Wait until every worker has built its Diagram, so timings exclude start-up.
+        self._pool.map(_worker_ready, range(self.workers), chunksize=1)
+
+    def _evaluate(self, items):
+        n_chunks = min(len(items), self.workers * 4)
+        size = math.ceil(len(items) / n_chunks)
+        chunks = [items[i : i + size] for i in range(0, len(items), size)]
+        results = self._pool.map(_worker_batch, [(c, self.limits) for c in chunks], chunksize=1)
+        return [o for chunk in results for o in chunk]
+
+    def close(self) -> None:
+        if not self._closed:
+            self._pool.close()
+            self._pool.join()
+        super().close()
+
+
+# ------------------------------------------------------------------------------------------ ray
+def _import_ray():
+    try:
+        import ray  # noqa: PLC0415
+    except ImportError as err:
+        raise ExecutorError("the 'ray' backend needs the ray package: pip install 'besdrake[cluster]'") from err
+    return ray
+
+
+class RayExecutor(Executor):
+    """Ray actors (one Diagram each) on the current Ray cluster (``ray.init`` if none is running)."""
+
+    backend = "ray"
+
+    def __init__(self, scenario: Scenario | str = "nominal", workers: int | None = None, limits: str = "flag", **init_kwargs: Any) -> None:
+        ray = _import_ray()
+        super().__init__(scenario, limits)
+        if not ray.is_initialized():
+            ray.init(**init_kwargs)
+        self._ray = ray
+        self.workers = int(workers or max(1, int(ray.available_resources().get("CPU", 1))))
+
+        @ray.remote(num_cpus=1)
+        class _Actor:
+            def __init__(self, scenario):
+                _init_worker(scenario)
+
+            def run(self, items, limits):
+                return _worker_batch((items, limits))
+
+        self._actors = [_Actor.remote(self.scenario) for _ in range(self.workers)]
+
+    def _evaluate(self, items):
+        n_chunks = min(len(items), self.workers * 4)
+        size = math.ceil(len(items) / n_chunks)
+        chunks = [items[i : i + size] for i in range(0, len(items), size)]
+        refs = [self._actors[i % self.workers].run.remote(c, self.limits) for i, c in enumerate(chunks)]
+        return [o for chunk in self._ray.get(refs) for o in chunk]
+
+    def close(self) -> None:
+        if not self._closed:
+            for a in self._actors:
+                self._ray.kill(a)
+        super().close()
+
+
+def make_executor(backend: str = "serial", workers: int | None = None, scenario: Scenario | str = "nominal", limits: str = "flag", **kwargs: Any) -> Executor:
+    """An executor for ``backend`` ("serial", "process", "ray"). ``limits``: "flag" (default: plans beyond the
+    joint limits are simulated and flagged, as learning loops need) or "raise" (:class:`PlanError`)."""
+    if backend == "serial":
+        return SerialExecutor(scenario, limits=limits)
+    if backend == "process":
+        return ProcessExecutor(scenario, workers=workers, limits=limits, **kwargs)
+    if backend == "ray":
+        return RayExecutor(scenario, workers=workers, limits=limits, **kwargs)
+    raise ExecutorError(f"unknown executor backend {backend!r}; choose one of {BACKENDS}")
