@@ -59,10 +59,14 @@ def _unit(v: np.ndarray) -> np.ndarray:
     return v / np.maximum(n, 1e-12)
 
 
-def soft_reach(rel: np.ndarray, reach: float, knee: float = 0.9, span: float = 0.07) -> np.ndarray:
-    """Shrink shoulder-to-wrist vectors smoothly so they stay within ``(knee + span) * reach``."""
+def soft_reach(
+    rel: np.ndarray, reach: float, knee: float = 0.9, span: float = 0.07, low_knee: float = 0.45, low_span: float = 0.1
+) -> np.ndarray:
+    """Scale shoulder-to-wrist vectors smoothly so their length stays between
+    ``(low_knee - low_span) * reach`` (the elbow never folds completely) and ``(knee + span) * reach``."""
     r = np.linalg.norm(rel, axis=-1, keepdims=True) / reach
     r_new = np.where(r < knee, r, knee + span * np.tanh((r - knee) / span))
+    r_new = np.where(r_new > low_knee, r_new, low_knee - low_span * np.tanh((low_knee - r_new) / low_span))
     return rel * (r_new / np.maximum(r, 1e-12))
 
 

@@ -423,25 +423,38 @@ class MarkerLabeler:
         for p in self.plates_:
             in_plate[p] = True
 
+        owner = np.full((n, m), -1, dtype=int)
+
         def assign(t: int, lab: int) -> None:
+            for u in np.unique(owner[rows_of[t], lab]):
+                if u >= 0:  # displaced (only ever a much shorter trajectory)
+                    unassign(int(u))
             label_of[t] = lab
             label_pos[rows_of[t], lab] = pts_of[t]
             occupied[rows_of[t], lab] = True
+            owner[rows_of[t], lab] = t
 
         def unassign(t: int) -> None:
             lab = label_of[t]
             if lab >= 0:
                 label_pos[rows_of[t], lab] = np.nan
                 occupied[rows_of[t], lab] = False
+                owner[rows_of[t], lab] = -1
                 label_of[t] = GHOST
 
-        def cost_row(t: int) -> np.ndarray:
+        def cost_row(t: int, displace: bool = False) -> np.ndarray:
             """Cost above the label's typical cost, inf where it fails the label's threshold;
             NaN everywhere when there is nothing to compare with."""
             rows = rows_of[t]
             sample = np.unique(np.linspace(0, len(rows) - 1, min(self.window, len(rows))).round().astype(int))
             geo = self._geometry_cost(pts_of[t][sample], rows[sample], label_pos)
             free = ~occupied[rows].any(axis=0)
+            if displace:
+                # A long trajectory may take over a label held only by short (ghost-like) pieces.
+                own = owner[rows]
+                if len(rows) >= min_len:
+                    held_by_short = np.where(own >= 0, lengths[np.maximum(own, 0)] < min_len, True).all(axis=0)
+                    free |= held_by_short
             short = len(rows) < min_len
             out = np.full(m, np.inf)
             any_evidence = False
@@ -504,7 +517,7 @@ class MarkerLabeler:
             for t in np.argsort(-lengths, kind="stable"):
                 before = label_of[t]
                 unassign(t)
-                costs = cost_row(t)
+                costs = cost_row(t, displace=True)
                 if np.isfinite(costs).any():
                     assign(t, int(np.nanargmin(np.where(np.isnan(costs), np.inf, costs))))
                 changed += int(label_of[t] != before)

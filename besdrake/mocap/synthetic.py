@@ -80,14 +80,15 @@ class SubjectStyle:
     def sample(cls, rng: np.random.Generator) -> "SubjectStyle":
         height = rng.uniform(1.58, 1.95)
         s = height / 1.75
+        cock_height = rng.uniform(0.32, 0.5)
         return cls(
             height=height,
             upper_arm=0.29 * s * rng.uniform(0.95, 1.05),
             forearm=0.26 * s * rng.uniform(0.95, 1.05),
-            strike_depth=rng.uniform(0.15, 0.45),
-            cock_height=rng.uniform(0.28, 0.5),
+            strike_depth=rng.uniform(0.25, 0.45),
+            cock_height=cock_height,
             front_reach=rng.uniform(0.55, 0.72),
-            front_height=rng.uniform(0.28, 0.5),
+            front_height=cock_height + rng.uniform(0.0, 0.12),  # release level or slightly up
             throw_arc=rng.uniform(0.04, 0.14),
             strike_duration=rng.uniform(0.55, 0.9),
             swing_duration=rng.uniform(0.6, 1.0),
@@ -96,7 +97,7 @@ class SubjectStyle:
             release_phase=rng.uniform(0.55, 0.68),
             trunk_yaw_back=rng.uniform(0.15, 0.4),
             trunk_yaw_forward=rng.uniform(0.1, 0.3),
-            trunk_lean=rng.uniform(0.05, 0.2),
+            trunk_lean=rng.uniform(0.03, 0.12),
             target_offset=rng.normal(0.0, 0.15),
             noise_mm=rng.uniform(0.6, 1.2),
             gap_rate=rng.uniform(0.05, 0.25),
