@@ -1,0 +1,438 @@
+"""The virtual lab: the Drake simulation plus hidden physical effects plus the measurement process of a
+real lab, behind the same :class:`~besdrake.transfer.lab.Lab` interface as the real COMPI.
+
+Configured by a YAML file (see ``diagrams/labs/default_lab.yaml``)::
+
+    name: default_lab
+    description: public text (written into logs; do not describe the hidden effects here)
+    scenario: nominal                 # scenario name or path (relative to this file)
+    seed: 0
+    effects: {base_offset: {z: -0.03}}   # the hidden truth; never written into a log
+    noise:
+      touchdown_sd: 0.05              # m, per axis: throw-to-throw scatter not explained by ball placement
+      ball_placement_sd: 0.002        # m, per axis: the ball's placement in the scoop, throw to throw
+      mocap_rate_hz: 200              # ball marker sampling rate
+      mocap_noise_sd: 0.001           # m, per axis, on every marker sample and on the touchdown
+      mocap_dropout: 0.02             # probability that a frame misses the marker (NaN row)
+      capture_volume: {min: [-0.5, -1.5, 0.0], max: [3.5, 1.5, 3.0]}   # m, world frame
+      encoder_noise_sd: 0.0005        # rad, per joint sample
+      joint_rate_hz: 500              # joint log rate
+    record_ball_path: true
+    record_joints: true
+    plugins: [my_effects.py]          # user modules that register effects (relative to this file)
+
+How one trial is measured (all random numbers from ``numpy.random.default_rng([seed, trial])``, so trial
+``k`` measures the same whenever it is re-run, which makes resuming a run safe):
+
+1. **Ball placement.** The ball is put into the scoop off-centre by (dx, dy) ~ N(0, ball_placement_sd^2)
+   in the scoop's base plane, raised so that it rests against the funnel walls (the walls are at 45
+   degrees, so by |dx| + |dy|), and simulated from there: it rolls back while the arm starts to swing
+   and leaves a little differently. With the default throw, 2 mm SD gives 1-2 cm SD on the floor.
+2. **Simulation** with the scenario's and the hidden effects (:meth:`besdrake.sim.Rollout.rollout`).
+3. **Unexplained scatter.** The paper measured SD 4.5-7 cm for the touchdown of good throws (20 repetitions
+   each). What the model does not explain (ball spin, seam, small release differences) is added as a
+   horizontal release-velocity perturbation: the flight part of the path is shifted by
+   ``delta * (t - t_release) / (t_touchdown - t_release)`` with delta ~ N(0, touchdown_sd^2) per axis, so the
+   marker path and the touchdown stay consistent (exact for a drag-free flight).
+4. **Motion capture.** The ball marker is sampled at ``mocap_rate_hz`` from the plan start until the
+   touchdown, kept only while inside ``capture_volume``, with N(0, mocap_noise_sd^2) noise and dropouts.
+   The touchdown is measured (with the same noise) if it lies inside the volume, otherwise flag
+   ``ball_not_seen``.
+5. **Encoders.** Commanded and measured joint angles at ``joint_rate_hz`` with N(0, encoder_noise_sd^2)
+   noise; the log ends when the ball is in free flight (the simulation stops there).
+
+A measured joint angle beyond a position limit switches the robot off, as in the paper: flags
+``joint_limit_exceeded`` and ``aborted``, no touchdown. The "SD of the touchdown position" throughout is
+the pooled per-axis SD, sqrt((var x + var y) / 2).
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from besdrake import robot
+from besdrake.plan import MotionPlan, PlanError
+from besdrake.transfer.lab import TrialCounter
+from besdrake.transfer.measurement import Measurement
+from besdrake.transfer.plugins import load_plugins
+
+#: Largest |dx| + |dy| (m) of the ball placement: keeps the ball well below the scoop's lip.
+MAX_PLACEMENT_OFFSET = 0.008
+
+
+class LabConfigError(ValueError):
+    """A lab configuration (YAML) is missing, unreadable or has an invalid field; the message names it."""
+
+
+# ---------------------------------------------------------------------------------------- config
+
+
+@dataclass
+class CaptureVolume:
+    """Axis-aligned box (world frame, m) in which motion capture sees the ball marker."""
+
+    min: np.ndarray = field(default_factory=lambda: np.array([-0.5, -1.5, 0.0]))
+    max: np.ndarray = field(default_factory=lambda: np.array([3.5, 1.5, 3.0]))
+
+    def __post_init__(self) -> None:
+        self.min = np.asarray(self.min, dtype=float)
+        self.max = np.asarray(self.max, dtype=float)
+        if self.min.shape != (3,) or self.max.shape != (3,) or not (np.all(np.isfinite(self.min)) and np.all(np.isfinite(self.max))):
+            raise LabConfigError("noise.capture_volume: min and max must be 3 finite numbers each (x, y, z in m)")
+        if np.any(self.min >= self.max):
+            raise LabConfigError(f"noise.capture_volume: min {self.min.tolist()} must be below max {self.max.tolist()} on every axis")
+
+    def contains(self, p: np.ndarray) -> np.ndarray:
+        """Boolean mask over points ``p`` (..., 3)."""
+        p = np.asarray(p, dtype=float)
+        return np.all((p >= self.min) & (p <= self.max), axis=-1)
+
+    def to_dict(self) -> dict[str, list[float]]:
+        return {"min": self.min.tolist(), "max": self.max.tolist()}
+
+
+@dataclass
+class NoiseConfig:
+    """The lab's measurement process and throw-to-throw variation (SI units; see the module docstring)."""
+
+    touchdown_sd: float = 0.05
+    ball_placement_sd: float = 0.002
+    mocap_rate_hz: float = 200.0
+    mocap_noise_sd: float = 0.001
+    mocap_dropout: float = 0.0
+    capture_volume: CaptureVolume = field(default_factory=CaptureVolume)
+    encoder_noise_sd: float = 0.0005
+    joint_rate_hz: float = 500.0
+
+    #: (low, high) allowed for each number.
+    RANGES = {
+        "touchdown_sd": (0.0, 1.0),
+        "ball_placement_sd": (0.0, 0.005),
+        "mocap_rate_hz": (1.0, 2000.0),
+        "mocap_noise_sd": (0.0, 0.1),
+        "mocap_dropout": (0.0, 0.9),
+        "encoder_noise_sd": (0.0, 0.1),
+        "joint_rate_hz": (1.0, 5000.0),
+    }
+
+    def sensors(self) -> dict[str, Any]:
+        """The public sensor facts (what a lab's data sheet says), written into logs."""
+        return {
+            "mocap_rate_hz": self.mocap_rate_hz,
+            "mocap_noise_sd_m": self.mocap_noise_sd,
+            "capture_volume_m": self.capture_volume.to_dict(),
+            "joint_rate_hz": self.joint_rate_hz,
+            "encoder_noise_sd_rad": self.encoder_noise_sd,
+        }
+
+
+@dataclass
+class LabConfig:
+    """A validated virtual-lab configuration (see the module docstring for the YAML layout)."""
+
+    name: str
+    scenario: str = "nominal"
+    effects: dict[str, dict[str, float]] = field(default_factory=dict)
+    noise: NoiseConfig = field(default_factory=NoiseConfig)
+    seed: int = 0
+    record_ball_path: bool = True
+    record_joints: bool = True
+    plugins: list[str] = field(default_factory=list)
+    description: str = ""
+    path: Path | None = None
+
+    def with_seed(self, seed: int) -> "LabConfig":
+        """A copy with another noise seed."""
+        new = copy.deepcopy(self)
+        new.seed = _seed(seed, "seed")
+        return new
+
+
+def _number(key: str, value: Any, low: float, high: float) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise LabConfigError(f"lab config field {key} must be a number, got {value!r}")
+    v = float(value)
+    if not np.isfinite(v) or not (low <= v <= high):
+        raise LabConfigError(f"lab config field {key}={value!r} is outside [{low:g}, {high:g}]")
+    return v
+
+
+def _seed(value: Any, key: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
+        raise LabConfigError(f"lab config field {key} must be a non-negative integer, got {value!r}")
+    return int(value)
+
+
+def _bool(key: str, value: Any) -> bool:
+    if not isinstance(value, bool):
+        raise LabConfigError(f"lab config field {key} must be true or false, got {value!r}")
+    return value
+
+
+def parse_lab_config(data: Any, base_dir: Path | None = None, name: str = "lab") -> LabConfig:
+    """Validate a lab config mapping (as read from YAML); paths are resolved against ``base_dir``."""
+    from besdrake.sim.effects import EffectError, normalize_effects
+
+    if not isinstance(data, dict):
+        raise LabConfigError(f"a lab config must be a mapping, got {type(data).__name__}")
+    known = {"name", "description", "scenario", "effects", "noise", "seed", "record_ball_path", "record_joints", "plugins"}
+    unknown = set(data) - known
+    if unknown:
+        raise LabConfigError(f"lab config has unknown field(s) {sorted(unknown)}; known: {sorted(known)}")
+    noise_d = data.get("noise") or {}
+    if not isinstance(noise_d, dict):
+        raise LabConfigError(f"lab config field noise must be a mapping, got {noise_d!r}")
+    noise_d = dict(noise_d)
+    record = {}
+    for key in ("record_ball_path", "record_joints"):  # accepted at the top level or inside noise
+        if key in data and key in noise_d:
+            raise LabConfigError(f"lab config gives {key} both at the top level and under noise")
+        record[key] = _bool(key, data[key] if key in data else noise_d.pop(key, True))
+    noise_known = set(NoiseConfig.RANGES) | {"capture_volume"}
+    unknown = set(noise_d) - noise_known
+    if unknown:
+        raise LabConfigError(f"lab config noise has unknown field(s) {sorted(unknown)}; known: {sorted(noise_known)}")
+    kwargs: dict[str, Any] = {k: _number(f"noise.{k}", noise_d[k], *NoiseConfig.RANGES[k]) for k in NoiseConfig.RANGES if k in noise_d}
+    if "capture_volume" in noise_d:
+        cv = noise_d["capture_volume"]
+        if not isinstance(cv, dict) or set(cv) != {"min", "max"}:
+            raise LabConfigError(f"noise.capture_volume must be {{min: [x, y, z], max: [x, y, z]}} in m, got {cv!r}")
+        try:
+            kwargs["capture_volume"] = CaptureVolume(np.asarray(cv["min"], float), np.asarray(cv["max"], float))
+        except (TypeError, ValueError) as err:
+            if isinstance(err, LabConfigError):
+                raise
+            raise LabConfigError(f"noise.capture_volume: {err}") from err
+    noise = NoiseConfig(**kwargs)
+
+    plugins = data.get("plugins") or []
+    if not isinstance(plugins, list) or not all(isinstance(p, str) for p in plugins):
+        raise LabConfigError(f"lab config field plugins must be a list of file paths, got {plugins!r}")
+    plugins = [str(Path(p) if Path(p).is_absolute() or base_dir is None else (base_dir / p)) for p in plugins]
+    load_plugins(plugins)  # effects named in the config may come from them
+
+    scenario = data.get("scenario", "nominal")
+    if not isinstance(scenario, str) or not scenario:
+        raise LabConfigError(f"lab config field scenario must be a scenario name or path, got {scenario!r}")
+    if base_dir is not None and (scenario.endswith((".yaml", ".yml")) or "/" in scenario) and not Path(scenario).is_absolute():
+        candidate = base_dir / scenario
+        if candidate.exists():
+            scenario = str(candidate)
+    try:
+        effects = normalize_effects(data.get("effects") or {})
+    except EffectError as err:
+        raise LabConfigError(f"lab config effects: {err}") from err
+    lab_name = data.get("name", name)
+    if not isinstance(lab_name, str) or not lab_name:
+        raise LabConfigError(f"lab config field name must be a non-empty string, got {lab_name!r}")
+    description = data.get("description", "")
+    if not isinstance(description, str):
+        raise LabConfigError("lab config field description must be text")
+    return LabConfig(
+        name=lab_name,
+        scenario=scenario,
+        effects=effects,
+        noise=noise,
+        seed=_seed(data.get("seed", 0), "seed"),
+        record_ball_path=record["record_ball_path"],
+        record_joints=record["record_joints"],
+        plugins=plugins,
+        description=description.strip(),
+    )
+
+
+def load_lab_config(path: str | Path) -> LabConfig:
+    """Read and validate a lab YAML file; :class:`LabConfigError` naming the file and the problem."""
+    p = Path(path)
+    if not p.is_file():
+        raise LabConfigError(f"lab config file not found: {p}")
+    try:
+        data = yaml.safe_load(p.read_text(encoding="utf-8"))
+    except (yaml.YAMLError, UnicodeDecodeError) as err:
+        raise LabConfigError(f"lab config {p} is not valid YAML: {err}") from err
+    try:
+        cfg = parse_lab_config(data, base_dir=p.resolve().parent, name=p.stem)
+    except LabConfigError as err:
+        raise LabConfigError(f"{p}: {err}") from err
+    except ValueError as err:  # e.g. a plugin that failed
+        raise LabConfigError(f"{p}: {err}") from err
+    cfg.path = p
+    return cfg
+
+
+# ---------------------------------------------------------------------------------------- simulation
+
+
+def _placement_rollout_class():
+    """A :class:`besdrake.sim.Rollout` that puts the ball ``ball_offset`` (scoop-plane m) off-centre.
+
+    Built lazily so that importing this module does not import pydrake."""
+    from pydrake.math import RigidTransform
+
+    from besdrake.sim.rollout import Rollout
+
+    class PlacementRollout(Rollout):
+        """Rollout whose ball starts off-centre in the scoop, resting against the funnel walls."""
+
+        ball_offset: np.ndarray = np.zeros(2)
+
+        def _place_ball(self, q0, v0, radius):  # extends the sim's placement (see module docstring)
+            super()._place_ball(q0, v0, radius)
+            dx, dy = (float(v) for v in self.ball_offset)
+            if dx == 0.0 and dy == 0.0:
+                return
+            h = self.handles
+            X_WS = self._scoop_pose()
+            # 45-degree walls: moving the centre sideways by d towards a wall needs it d higher to keep contact.
+            lift = abs(dx) * np.tan(robot.SCOOP_WALL_ANGLE) + abs(dy) * np.tan(robot.SCOOP_WALL_ANGLE)
+            p_S = np.array([dx, dy, robot.ball_rest_height(radius) + 1e-4 + lift])
+            h.plant.SetFreeBodyPose(self.plant_context, h.ball_body, RigidTransform(X_WS.rotation(), X_WS.multiply(p_S)))
+
+    return PlacementRollout
+
+
+class VirtualLab(TrialCounter):
+    """A simulated lab with hidden effects and a real lab's measurement process (module docstring).
+
+    ``VirtualLab(config)`` with a :class:`LabConfig` or the path of a lab YAML file. The Drake diagram is
+    built on the first :meth:`execute` (about 1 s) and reused."""
+
+    def __init__(self, config: LabConfig | str | Path) -> None:
+        self.config = config if isinstance(config, LabConfig) else load_lab_config(config)
+        self.name = self.config.name
+        self._rollout = None
+
+    def description(self) -> dict[str, Any]:
+        """Public facts for a log: name, description, scenario, sensors, what is recorded (no hidden truth)."""
+        c = self.config
+        return {
+            "name": c.name,
+            "kind": "virtual",
+            "description": c.description,
+            "scenario": Path(c.scenario).stem if str(c.scenario).endswith((".yaml", ".yml")) else c.scenario,
+            "sensors": c.noise.sensors(),
+            "record_ball_path": c.record_ball_path,
+            "record_joints": c.record_joints,
+        }
+
+    @property
+    def rollout(self):
+        """The (lazily built) simulation."""
+        if self._rollout is None:
+            self._rollout = _placement_rollout_class()(self.config.scenario)
+        return self._rollout
+
+    def execute(self, plan: MotionPlan, trial: int | None = None) -> Measurement:
+        """Run ``plan`` as trial ``trial`` (default: the next one) and measure it."""
+        if not isinstance(plan, MotionPlan):
+            raise TypeError(f"VirtualLab.execute needs a MotionPlan, got {type(plan).__name__}")
+        trial = self.next_trial(trial)
+        c, n = self.config, self.config.noise
+        rng = np.random.default_rng([c.seed, trial])
+        offset = rng.normal(0.0, n.ball_placement_sd, 2)
+        if np.abs(offset).sum() > MAX_PLACEMENT_OFFSET:
+            offset *= MAX_PLACEMENT_OFFSET / np.abs(offset).sum()
+        delta = rng.normal(0.0, n.touchdown_sd, 2)
+        td_noise = rng.normal(0.0, n.mocap_noise_sd, 2)
+        meta = {
+            "lab": c.name,
+            "plan_name": str(plan.meta.get("name", plan.meta.get("generator", ""))),
+            "executed_at": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+            "mocap_rate_hz": n.mocap_rate_hz,
+            "joint_rate_hz": n.joint_rate_hz,
+        }
+        sim = self.rollout
+        sim.ball_offset = offset
+        try:
+            out = sim.rollout(plan, effects=c.effects, limits="flag")
+        except PlanError as err:
+            return Measurement(trial=trial, plan=plan, flags={"aborted": True}, message=f"aborted: malformed plan: {err}", meta=meta)
+        finally:
+            sim.ball_offset = np.zeros(2)
+
+        flags = {
+            "dropped_early": bool(out.flags.get("dropped_early")),
+            "never_released": bool(out.flags.get("never_released")),
+            "joint_limit_exceeded": bool(out.flags.get("joint_limit_exceeded")),
+            "aborted": False,
+            "ball_not_seen": False,
+        }
+        message = out.message
+        if out.flags.get("sim_failed"):
+            flags["aborted"] = True
+            message = f"aborted: {out.message}"
+        if flags["joint_limit_exceeded"]:
+            flags["aborted"] = True
+            message = "aborted: a joint went beyond its position limit and the robot switched itself off"
+
+        # True path with the unexplained scatter (a horizontal release-velocity perturbation).
+        ball_t = np.asarray(out.ball_t, float)
+        path = np.asarray(out.ball_path, float).copy()
+        true_td = None
+        if out.touchdown is not None and out.release_time is not None and out.touchdown_time is not None:
+            span = max(out.touchdown_time - out.release_time, 1e-9)
+            frac = np.clip((ball_t - out.release_time) / span, 0.0, 1.0)
+            path[:, :2] += frac[:, None] * delta
+            true_td = np.asarray(out.touchdown, float) + delta
+        t_end = out.touchdown_time if out.touchdown_time is not None else (float(ball_t[-1]) if ball_t.size else 0.0)
+
+        touchdown = None
+        if true_td is not None and not flags["aborted"]:
+            radius = float(path[-1, 2]) if path.size else 0.0
+            if c.noise.capture_volume.contains(np.array([true_td[0], true_td[1], radius])):
+                touchdown = true_td + td_noise
+            else:
+                flags["ball_not_seen"] = True
+                message = message or f"touchdown outside the capture volume {c.noise.capture_volume.to_dict()}"
+
+        m_ball_t = m_ball_path = None
+        if c.record_ball_path:
+            m_ball_t, m_ball_path = self._mocap(ball_t, path, t_end, rng)
+        joint_t = q_cmd = q_meas = None
+        if c.record_joints and out.joint_t.size:
+            joint_t, q_cmd, q_meas = self._encoders(plan, out.joint_t, out.q_measured, rng)
+        return Measurement(
+            trial=trial,
+            plan=plan,
+            touchdown=touchdown,
+            ball_t=m_ball_t,
+            ball_path=m_ball_path,
+            joint_t=joint_t,
+            q_commanded=q_cmd,
+            q_measured=q_meas,
+            flags={k: v for k, v in flags.items() if v},
+            message=message,
+            meta=meta,
+        )
+
+    def _mocap(self, t: np.ndarray, path: np.ndarray, t_end: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        n = self.config.noise
+        if t.size < 2:
+            return np.zeros(0), np.zeros((0, 3))
+        frames = np.arange(0, int(np.floor(t_end * n.mocap_rate_hz + 1e-9)) + 1)
+        ft = frames / n.mocap_rate_hz
+        p = np.column_stack([np.interp(ft, t, path[:, i]) for i in range(3)])
+        noise = rng.normal(0.0, n.mocap_noise_sd, p.shape)
+        lost = rng.random(len(ft)) < n.mocap_dropout
+        inside = n.capture_volume.contains(p)
+        p = p + noise
+        p[lost] = np.nan
+        return ft[inside], p[inside]
+
+    def _encoders(self, plan: MotionPlan, t: np.ndarray, q_meas: np.ndarray, rng: np.random.Generator):
+        n = self.config.noise
+        jt = np.arange(0, int(np.floor(t[-1] * n.joint_rate_hz + 1e-9)) + 1) / n.joint_rate_hz
+        q_cmd = plan.sample(jt)
+        q = np.column_stack([np.interp(jt, t, q_meas[:, i]) for i in range(6)])
+        q = q + rng.normal(0.0, n.encoder_noise_sd, q.shape)
+        return jt, q_cmd, q
+
+
+__all__ = ["CaptureVolume", "LabConfig", "LabConfigError", "NoiseConfig", "VirtualLab", "load_lab_config", "parse_lab_config"]
