@@ -22,9 +22,10 @@ import io
 import json
 import os
 import shutil
+from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -173,6 +174,10 @@ class LabLog:
     def lab(self) -> dict[str, Any]:
         """The lab's public description from ``log.json``."""
         return dict(self.header.get("lab") or {})
+
+    def rows(self) -> list[dict[str, str]]:
+        """The rows of trials.csv (strings, as written), one per committed trial."""
+        return [dict(r) for r in self._rows]
 
     def plan_hashes(self) -> list[str]:
         """The plan hash of every logged trial, in trial order (cheap: read from trials.csv)."""
@@ -348,4 +353,49 @@ def read_log(logdir: str | Path) -> list[Measurement]:
     return LabLog.open(logdir).measurements()
 
 
-__all__ = ["LabLog", "LogError", "read_log", "read_trial", "write_trial_files", "LOG_FORMAT", "LOG_VERSION", "CSV_COLUMNS", "JOINT_COLUMNS"]
+
+
+# ---------------------------------------------------------------------------------------- filling a log
+
+
+@dataclass
+class RunSummary:
+    """What :func:`run_plans` did: trials already in the log (skipped), executed now, and the log's total."""
+
+    skipped: int
+    executed: int
+    total: int
+    flag_counts: dict[str, int]
+
+
+def run_plans(lab: Any, plans: list[MotionPlan], log: LabLog, progress: Callable[[Measurement], None] | None = None) -> RunSummary:
+    """Execute ``plans`` through ``lab`` as trials 0, 1, ... and append each to ``log`` before the next runs.
+
+    Resumes an interrupted run: the trials already in the log are skipped after checking that they are the
+    same plans (:class:`LogError` otherwise), so no trial is repeated or lost. ``lab`` must make trial ``k``
+    reproducible (the interrupted trial is executed again from scratch)."""
+    from besdrake.transfer.measurement import plan_hash
+
+    done = log.plan_hashes()
+    if len(done) > len(plans):
+        raise LogError(f"the log {log.root} holds {len(done)} trials but only {len(plans)} plans were given: not the same run")
+    for k, h in enumerate(done):
+        if plan_hash(plans[k]) != h:
+            raise LogError(
+                f"trial {k} in the log {log.root} executed a different plan than plan {k} given now "
+                f"({h[:12]}... vs {plan_hash(plans[k])[:12]}...): not the same run; use a new log folder"
+            )
+    flag_counts: dict[str, int] = {}
+    for k in range(len(done), len(plans)):
+        m = lab.execute(plans[k], trial=k)
+        if m.trial != k:
+            raise LogError(f"the lab returned trial {m.trial} for trial {k}")
+        log.append(m)
+        for f in m.raised_flags:
+            flag_counts[f] = flag_counts.get(f, 0) + 1
+        if progress is not None:
+            progress(m)
+    return RunSummary(skipped=len(done), executed=len(plans) - len(done), total=len(log), flag_counts=flag_counts)
+
+
+__all__ = ["LabLog", "LogError", "RunSummary", "run_plans", "read_log", "read_trial", "write_trial_files", "LOG_FORMAT", "LOG_VERSION", "CSV_COLUMNS", "JOINT_COLUMNS"]
