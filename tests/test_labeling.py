@@ -161,3 +161,20 @@ def test_summary_is_json_serialisable(labeler, experiment):
     s = json.loads(json.dumps(res.summary()))
     assert s["frames"] == experiment.recording.n_frames
     assert s["gaps_flagged"] == len(s["flagged_gaps"])
+
+
+@pytest.mark.slow
+def test_all_subjects_above_99_percent():
+    """The benchmark's figure as a check: every subject, reference = experiment 1."""
+    demo = SyntheticDemonstrator(seed=0)
+    correct = total = 0
+    for i in range(10):
+        subj = demo.subject(i)
+        lab = MarkerLabeler().fit(subj.experiment(0).recording)
+        for j in (1, 2):
+            un, truth = subj.unlabeled_experiment(j)
+            acc = labeling_accuracy(lab.predict(un).slot_labels, truth)
+            correct += acc["correct_share"] * acc["samples"]
+            total += acc["samples"]
+            assert acc["correct_share"] > 0.98
+    assert correct / total > 0.99

@@ -142,3 +142,18 @@ def test_bad_parameters():
         SyntheticDemonstrator(0, n_throws=0)
     with pytest.raises(ValueError, match="shuffle"):
         make_unlabeled(SyntheticDemonstrator(0, 1).subject(0).experiment(0).recording, np.random.default_rng(0), shuffle="x")
+
+
+@pytest.mark.slow
+def test_full_default_dataset_is_quick(tmp_path):
+    import time
+
+    t0 = time.perf_counter()
+    summary = generate_dataset(tmp_path / "full")
+    elapsed = time.perf_counter() - t0
+    assert len(summary.files) == 30
+    assert elapsed < 60.0  # seconds, not minutes (shared CPU)
+    throws = sum(
+        [s.label for s in read_segmentation(segmentation_path(tmp_path / "full" / f))].count("throw") for f in summary.files
+    )
+    assert throws == 240
