@@ -80,7 +80,7 @@ class Effect:
 
     name: ClassVar[str] = ""
     params: ClassVar[dict[str, Param]] = {}
-    #: How the effect is applied: "context", "plan", "flight" (documentation and reports).
+    #: How the effect is applied: "context", "plan", "flight", "actuator" (documentation and reports).
     applied_via: ClassVar[str] = "context"
     #: True when the effect changes Diagram structure (none of the built-in ones does).
     needs_rebuild: ClassVar[bool] = False
@@ -296,6 +296,7 @@ class GainScale(Effect):
     """
 
     name = "gain_scale"
+    applied_via = "actuator"
     params = {
         "kp_scale": Param(1.0, 0.2, 2.0, "1", "factor on the proportional gains"),
         "kd_scale": Param(1.0, 0.2, 2.0, "1", "factor on the damping gains"),

@@ -221,3 +221,14 @@ class Rollout:
             out.message = f"ball fell out of the scoop at t={out.release_time:.3f} s with {np.linalg.norm(out.release_velocity):.2f} m/s"
         out.flags = flags
         return out
+
+
+_SHARED: dict[str, Rollout] = {}
+
+
+def shared_rollout(scenario: str = "nominal") -> Rollout:
+    """A per-process Rollout for a scenario name or path, built on first use and reused afterwards."""
+    key = str(scenario)
+    if key not in _SHARED:
+        _SHARED[key] = Rollout(scenario)
+    return _SHARED[key]

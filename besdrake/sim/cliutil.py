@@ -1,0 +1,54 @@
+"""Helpers shared by the ``simulate`` and ``record`` commands: effect options and plan loading."""
+
+from __future__ import annotations
+
+import argparse
+
+from besdrake.plan import MotionPlan
+from besdrake.sim.effects import EffectError, get_effect
+
+
+def parse_effect_option(text: str) -> tuple[str, dict[str, float]]:
+    """Parse ``NAME`` or ``NAME:key=val,key=val`` into ``(name, {key: value})``; :class:`EffectError` if malformed."""
+    name, _, rest = text.partition(":")
+    name = name.strip()
+    if not name:
+        raise EffectError(f"--effect {text!r}: missing effect name (NAME:key=val,...)")
+    get_effect(name)  # unknown name -> EffectError listing the known ones
+    values: dict[str, float] = {}
+    for item in filter(None, (s.strip() for s in rest.split(","))):
+        key, eq, val = item.partition("=")
+        if not eq:
+            raise EffectError(f"--effect {text!r}: {item!r} is not key=value")
+        try:
+            values[key.strip()] = float(val)
+        except ValueError:
+            raise EffectError(f"--effect {text!r}: value of {key.strip()!r} is not a number: {val!r}") from None
+    return name, values
+
+
+def effects_from_args(options: list[str] | None) -> dict[str, dict[str, float]]:
+    """All ``--effect`` options as one effects dict (later options update earlier ones)."""
+    effects: dict[str, dict[str, float]] = {}
+    for text in options or []:
+        name, values = parse_effect_option(text)
+        effects.setdefault(name, {}).update(values)
+    return effects
+
+
+def add_common_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--plan", help="motion plan JSON (MotionPlan.save); default: the default throw")
+    parser.add_argument("--amplitude", type=float, default=None, help="amplitude of the default throw (no --plan); default 0.35")
+    parser.add_argument("--yaw", type=float, default=0.0, help="joint-1 angle of the default throw (rad)")
+    parser.add_argument("--scenario", default="nominal", help="scenario name in diagrams/ or a YAML path")
+    parser.add_argument("--effect", action="append", metavar="NAME:key=val,...", help="physical effect, repeatable (see --list-effects)")
+
+
+def plan_from_args(args: argparse.Namespace) -> MotionPlan:
+    from besdrake.sim.throws import default_throw
+
+    if args.plan:
+        if args.amplitude is not None:
+            raise ValueError("give either --plan or --amplitude, not both")
+        return MotionPlan.load(args.plan)
+    return default_throw(amplitude=0.35 if args.amplitude is None else args.amplitude, yaw=args.yaw)

@@ -1,0 +1,107 @@
+"""MotionPlan: validation, interpolation, limit report and JSON round trip."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from besdrake import robot
+from besdrake.plan import LimitReport, MotionPlan, PlanError
+
+
+def _plan(n=50, T=1.0, amp=0.5, with_qd=True):
+    t = np.linspace(0.0, T, n)
+    w = 2 * np.pi / T
+    q = amp * np.sin(np.outer(t, [w] * 6))
+    qd = amp * w * np.cos(np.outer(t, [w] * 6)) if with_qd else None
+    return MotionPlan(t=t, q=q, qd=qd)
+
+
+def test_validate_accepts_good_plan_and_duration():
+    p = _plan()
+    assert p.validate() is p
+    assert p.duration == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize(
+    "change, match",
+    [
+        (lambda p: setattr(p, "q", p.q[:, :5]), "shape"),
+        (lambda p: p.q.__setitem__((3, 2), np.nan), "NaN"),
+        (lambda p: p.t.__setitem__(4, np.inf), "NaN or inf"),
+        (lambda p: p.t.__setitem__(5, p.t[4]), "increase"),
+        (lambda p: setattr(p, "t", p.t + 0.5), "start at 0"),
+        (lambda p: setattr(p, "qd", p.qd[:-1]), "qd must have"),
+        (lambda p: (setattr(p, "t", p.t[:1]), setattr(p, "q", p.q[:1])), "at least 2"),
+    ],
+)
+def test_validate_rejects_bad_plans(change, match):
+    p = _plan()
+    change(p)
+    with pytest.raises(PlanError, match=match):
+        p.validate()
+
+
+def test_plan_error_is_value_error():
+    assert issubclass(PlanError, ValueError)
+
+
+@pytest.mark.parametrize("with_qd", [True, False])
+def test_numpy_interpolation_matches_drake_trajectory(with_qd):
+    p = _plan(with_qd=with_qd)
+    traj = p.trajectory()
+    ts = np.random.default_rng(0).uniform(0, p.duration, 40)
+    for d in (0, 1, 2):
+        drake = (traj if d == 0 else traj.derivative(d)).vector_values(ts).T
+        assert np.allclose(p.sample(ts, d), drake, atol=1e-8 * (1 + 100 * d))
+    assert np.allclose(p.sample(p.t), p.q)
+
+
+def test_check_limits_reports_each_kind():
+    ok = _plan(T=2.0, amp=0.2)
+    rep = ok.check_limits()
+    assert isinstance(rep, LimitReport) and rep.ok and rep.violations() == []
+    big = _plan(T=1.0, amp=2.5)  # beyond joint2/3/5 limits, 15.7 rad/s, ~99 rad/s^2
+    rep = big.check_limits()
+    assert not rep.ok
+    assert rep.position[1] == pytest.approx(max(2.5 - 2.09, 2.5 - 1.8), abs=1e-3)  # lower limit -1.8 is worse
+    assert rep.position[2] == pytest.approx(2.5 - 2.3, abs=1e-3)
+    assert rep.position[0] == 0.0  # +-pi not reached by 2.5 rad
+    assert rep.velocity[0] == pytest.approx(2.5 * 2 * np.pi - 3.14, rel=1e-3)
+    assert np.all(rep.acceleration > 0)
+    assert any("joint2 position" in v for v in rep.violations())
+    # custom limits
+    rep2 = big.check_limits(position_limits=np.tile([-3.0, 3.0], (6, 1)), velocity_limits=np.full(6, 100.0), acceleration_limits=np.full(6, 1e3))
+    assert rep2.ok
+
+
+def test_json_round_trip(tmp_path):
+    p = _plan()
+    p.meta = {"source": "test"}
+    path = p.save(tmp_path / "plan.json")
+    q = MotionPlan.load(path)
+    assert np.array_equal(q.t, p.t) and np.array_equal(q.q, p.q) and np.array_equal(q.qd, p.qd)
+    assert q.meta == {"source": "test"}
+    d = json.loads(path.read_text())
+    assert d["joint_names"] == list(robot.JOINT_NAMES)
+    no_qd = MotionPlan.from_dict({"t": [0, 1], "q": [[0] * 6, [0.1] * 6]})
+    assert no_qd.qd is None
+
+
+def test_load_errors(tmp_path):
+    with pytest.raises(PlanError, match="not found"):
+        MotionPlan.load(tmp_path / "missing.json")
+    bad = tmp_path / "bad.json"
+    bad.write_text("{not json")
+    with pytest.raises(PlanError, match="not valid JSON"):
+        MotionPlan.load(bad)
+    with pytest.raises(PlanError, match="missing key"):
+        MotionPlan.from_dict({"t": [0, 1]})
+    with pytest.raises(PlanError, match="joint_names"):
+        MotionPlan.from_dict({"t": [0, 1], "q": [[0] * 6] * 2, "joint_names": ["a"] * 6})
+    with pytest.raises(PlanError, match="NaN"):
+        MotionPlan.from_dict({"t": [0, 1], "q": [[0] * 6, [float("nan")] * 6]})
+    with pytest.raises(PlanError, match="numeric or ragged"):
+        MotionPlan.from_dict({"t": [0, 1], "q": [[0] * 6, [0] * 5]})
