@@ -39,7 +39,7 @@ def main() -> None:
         labeler = MarkerLabeler().fit(subj.experiment(0).recording)
         for j in range(1, args.experiments):
             exp = subj.experiment(j)
-            un, truth = make_unlabeled(exp.recording, np.random.default_rng([args.seed, i, j, 5]), subj.style.ghost_rate, args.shuffle)
+            un, truth = subj.unlabeled_experiment(j, exp, args.shuffle)  # with long occlusions and ghosts
             t0 = time.process_time()
             res = labeler.predict(un)
             seconds.append(time.process_time() - t0)

@@ -157,3 +157,24 @@ def test_full_default_dataset_is_quick(tmp_path):
         [s.label for s in read_segmentation(segmentation_path(tmp_path / "full" / f))].count("throw") for f in summary.files
     )
     assert throws == 240
+
+
+def test_labelled_files_have_only_short_gaps_long_ones_go_to_the_unlabelled_variant():
+    from besdrake.mocap.gaps import find_gaps
+
+    demo = SyntheticDemonstrator(0)
+    n_long = 0
+    for i in range(4):
+        subj = demo.subject(i)
+        exp = subj.experiment(0)
+        rec = exp.recording
+        body = rec.visible()[:, :8]
+        for _col, a, b in find_gaps(body):
+            assert b - a <= 0.2 * rec.frequency  # fillable by downstream preprocessing
+            assert a >= 0.1 * rec.frequency and b <= rec.n_frames - 0.1 * rec.frequency
+        n_long += int(exp.truth.long_occlusions.any())
+        un, label = subj.unlabeled_experiment(0, exp)
+        for col in range(8):
+            hidden = exp.truth.long_occlusions[:, col]
+            assert not (label[hidden] == col).any()
+    assert n_long >= 1

@@ -128,6 +128,7 @@ class ExperimentTruth:
     wrist: np.ndarray
     hand_speed: np.ndarray
     clean_positions: np.ndarray  # (n_frames, n_markers, 3) before noise and gaps (NaN: ball absent)
+    long_occlusions: np.ndarray  # (n_frames, n_markers) bool: long gaps of the unlabelled variant only
     release_frames: np.ndarray
     release_velocity: np.ndarray  # (n_throws, 3)
     landing_points: np.ndarray  # (n_throws, 3)
@@ -368,7 +369,8 @@ class SyntheticSubject:
         # Noise and gaps.
         noise_rng = np.random.default_rng(rng_seed + [4])
         observed = clean + noise_rng.normal(0.0, st.noise_mm / 1000.0 / np.sqrt(3), size=clean.shape)
-        observed[self._gap_mask(noise_rng, time, kin, subs)] = np.nan
+        short_gaps, long_gaps = self._gap_mask(noise_rng, time, subs)
+        observed[short_gaps] = np.nan
 
         rec = MocapRecording(
             list(MARKER_NAMES), observed, self.frequency, frames, time,
@@ -385,7 +387,7 @@ class SyntheticSubject:
             hand_position_in_back=np.einsum("nji,nj->ni", kin["rot"], kin["hand_centre"] - kin["back_origin"]),
             hand_quaternion_in_back=am.rotation_to_quaternion(rel_rot),
             shoulder=kin["shoulder"], elbow=kin["elbow"], wrist=kin["wrist"], hand_speed=hand_speed,
-            clean_positions=clean, release_frames=frames[release_idx], release_velocity=vel,
+            clean_positions=clean, long_occlusions=long_gaps, release_frames=frames[release_idx], release_velocity=vel,
             landing_points=landing, target=target,
             segment_starts=np.array([s.start_frame for s in segments]),
             segment_ends=np.array([s.end_frame for s in segments]),
@@ -393,21 +395,27 @@ class SyntheticSubject:
         )
         return SyntheticExperiment(rec, segments, truth)
 
-    def _gap_mask(self, rng: np.random.Generator, time: np.ndarray, kin: dict, subs: list[_Sub]) -> np.ndarray:
-        """Occlusions ``(n_frames, n_markers)``: random short gaps, a few long ones, and hand or
-        elbow markers hidden in some throws while the hand is behind the head or in front."""
+    def _gap_mask(self, rng: np.random.Generator, time: np.ndarray, subs: list[_Sub]) -> tuple[np.ndarray, np.ndarray]:
+        """Occlusions ``(n_frames, n_markers)``: short ones (random, and hand or elbow markers
+        hidden in some throws while the hand is behind the head or in front; at most 0.2 s, none
+        in the first and last 0.1 s), and long ones (0.5-1 s) kept apart: the labelled files
+        stand for recordings after labelling and gap filling, so only the unlabelled variant
+        carries the long occlusions (which a labeller flags, as in the paper)."""
         st = self.style
         n, m = len(time), len(MARKER_NAMES)
         dt = 1.0 / self.frequency
         mask = np.zeros((n, m), dtype=bool)
+        long_mask = np.zeros((n, m), dtype=bool)
         duration = time[-1] - time[0]
+        max_short = max(1, int(0.2 / dt))
         for col in range(m):
             for _ in range(rng.poisson(st.gap_rate * duration)):
                 start = rng.integers(0, n)
-                length = int(np.clip(rng.lognormal(np.log(0.06), 0.6) / dt, 1, 40))
+                length = int(np.clip(rng.lognormal(np.log(0.06), 0.6) / dt, 1, max_short))
                 if rng.random() < 0.04:
-                    length = int(rng.uniform(0.5, 1.0) / dt)  # a long occlusion: flagged, not filled
-                mask[start : start + length, col] = True
+                    long_mask[start : start + int(rng.uniform(0.5, 1.0) / dt), col] = True
+                else:
+                    mask[start : start + length, col] = True
         hand_cols = [MARKER_NAMES.index(n_) for n_ in ("Hand top", "Hand right", "Hand left")]
         elbow_col = MARKER_NAMES.index("Elbow")
         for sub in subs:
@@ -418,12 +426,18 @@ class SyntheticSubject:
             if sub.label == "throw" and rng.random() < 0.2:
                 a = int((sub.start + 0.3 * sub.duration) / dt)
                 mask[a : a + rng.integers(2, 10), elbow_col] = True
-        return mask
+        edge = int(0.1 / dt)
+        mask[:edge] = False
+        mask[n - edge :] = False
+        return mask, long_mask
 
     def unlabeled_experiment(self, j: int, experiment: SyntheticExperiment | None = None, shuffle: str = "gap") -> tuple[MocapRecording, np.ndarray]:
-        """The experiment as a passive system delivers it: see :func:`make_unlabeled`."""
+        """The experiment as a passive system delivers it, with its long occlusions too: see
+        :func:`make_unlabeled`."""
         exp = experiment if experiment is not None else self.experiment(j)
-        return make_unlabeled(exp.recording, np.random.default_rng([self.seed, self.index, j, 5]), self.style.ghost_rate, shuffle)
+        rec = exp.recording.copy()
+        rec.positions[exp.truth.long_occlusions] = np.nan
+        return make_unlabeled(rec, np.random.default_rng([self.seed, self.index, j, 5]), self.style.ghost_rate, shuffle)
 
 
 def min_jerk_outer(tau: np.ndarray, delta: np.ndarray) -> np.ndarray:
