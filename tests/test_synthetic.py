@@ -9,7 +9,7 @@ import pytest
 
 from besdrake.cli import main
 from besdrake.mocap import arm_model as am
-from besdrake.mocap.qualisys import read_segmentation, read_tsv, segmentation_path
+from besdrake.mocap.qualisys import Segment, read_segmentation, read_tsv, segmentation_path
 from besdrake.mocap.synthetic import (
     MARKER_NAMES,
     ExperimentTruth,
@@ -39,8 +39,13 @@ def test_segments_cycle_and_sit_on_speed_minima(experiment):
     assert segs[0].start_frame == rec.frames[0] and segs[-1].end_frame == rec.frames[-1]
     for s0, s1 in zip(segs, segs[1:]):
         assert s0.end_frame == s1.start_frame and s0.start_frame < s0.end_frame
+    # The "manual" borders are the exact ones give or take an annotator's jitter.
+    manual = np.array([s.start_frame for s in segs])
+    assert 0 < np.abs(manual - truth.segment_starts).max() <= 0.1 * rec.frequency
+    assert truth.segment_labels == labels
+    exact = [Segment(int(a), int(b), lab) for a, b, lab in zip(truth.segment_starts, truth.segment_ends, truth.segment_labels)]
     speed = truth.hand_speed
-    for s0, s1 in zip(segs, segs[1:]):
+    for s0, s1 in zip(exact, exact[1:]):
         if (s0.label, s1.label) in (("strike_out", "throw"), ("throw", "swing_out")):
             i = rec.frame_index(s0.end_frame)
             # A local minimum of hand speed, well below the neighbouring peaks.

@@ -49,6 +49,7 @@ MARKER_NAMES = [
 ]
 LABELS = ("idle", "strike_out", "throw", "swing_out")
 TARGET_DISTANCE = 2.0  # metres in front of the subject's feet
+ANNOTATOR_JITTER_S = 0.02  # spread of the "manual" segment borders around the exact ones
 
 
 @dataclass
@@ -113,6 +114,8 @@ class ExperimentTruth:
     hand plate's marker coordinates in it are :data:`besdrake.mocap.arm_model.HAND_PLATE`),
     ``back_*`` the trunk frame at the back plate origin (x forward, y left, z up;
     :data:`~besdrake.mocap.arm_model.BACK_PLATE`), ``hand_*_in_back`` the hand pose in the back frame.
+    ``segment_*`` are the exact borders (hand-speed minima and sub-movement onsets/ends); the
+    ``_manually_segmented.json`` files hold them with annotator jitter (:data:`ANNOTATOR_JITTER_S`).
     """
 
     time: np.ndarray
@@ -364,7 +367,15 @@ class SyntheticSubject:
             labels += ["strike_out", "throw", "swing_out", "idle"]
         bounds.append(n - 1)
         frames = np.arange(1, n + 1)
-        segments = [Segment(int(frames[bounds[i]]), int(frames[bounds[i + 1]]), labels[i]) for i in range(len(labels))]
+        exact = [Segment(int(frames[bounds[i]]), int(frames[bounds[i + 1]]), labels[i]) for i in range(len(labels))]
+        # The "manual" segmentation: a human annotator places interior borders a little off
+        # (Gaussian, ANNOTATOR_JITTER_S); the exact borders stay in the truth.
+        b = np.array(bounds, dtype=float)
+        jitter = np.random.default_rng(rng_seed + [6]).normal(0.0, ANNOTATOR_JITTER_S * self.frequency, size=len(b))
+        b[1:-1] = np.round(b[1:-1] + jitter[1:-1])
+        for i in range(1, len(b) - 1):  # keep every segment at least 2 frames long
+            b[i] = np.clip(b[i], b[i - 1] + 2, bounds[i + 1] - 2)
+        segments = [Segment(int(frames[int(b[i])]), int(frames[int(b[i + 1])]), labels[i]) for i in range(len(labels))]
 
         # Noise and gaps.
         noise_rng = np.random.default_rng(rng_seed + [4])
@@ -389,9 +400,9 @@ class SyntheticSubject:
             shoulder=kin["shoulder"], elbow=kin["elbow"], wrist=kin["wrist"], hand_speed=hand_speed,
             clean_positions=clean, long_occlusions=long_gaps, release_frames=frames[release_idx], release_velocity=vel,
             landing_points=landing, target=target,
-            segment_starts=np.array([s.start_frame for s in segments]),
-            segment_ends=np.array([s.end_frame for s in segments]),
-            segment_labels=[s.label for s in segments],
+            segment_starts=np.array([s.start_frame for s in exact]),
+            segment_ends=np.array([s.end_frame for s in exact]),
+            segment_labels=[s.label for s in exact],
         )
         return SyntheticExperiment(rec, segments, truth)
 
