@@ -189,6 +189,12 @@ def test_measured_joint_beyond_limit_aborts_the_run(quiet_lab):
     assert m.touchdown is None and "switched itself off" in m.message
 
 
+def test_without_the_gate_a_plan_over_the_limits_aborts_the_run(quiet_lab):
+    m = with_noise(quiet_lab).execute(default_throw(0.35, accel=30.0), trial=0)
+    assert m.flags == {"joint_limit_exceeded": True, "aborted": True}
+    assert "acceleration" in m.message and m.touchdown is None and m.joint_t is None
+
+
 def test_lab_config_errors_name_the_problem(tmp_path):
     with pytest.raises(LabConfigError, match="not found"):
         load_lab_config(tmp_path / "missing.yaml")

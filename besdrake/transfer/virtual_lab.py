@@ -42,7 +42,9 @@ How one trial is measured (all random numbers from ``numpy.random.default_rng([s
    noise; the log ends when the ball is in free flight (the simulation stops there).
 
 A measured joint angle beyond a position limit switches the robot off, as in the paper: flags
-``joint_limit_exceeded`` and ``aborted``, no touchdown. The "SD of the touchdown position" throughout is
+``joint_limit_exceeded`` and ``aborted``, no touchdown. A plan beyond a position, velocity or acceleration
+limit (a lab without a :class:`~besdrake.transfer.lab.SafetyGate` in front) is aborted the same way
+without being simulated. The "SD of the touchdown position" throughout is
 the pooled per-axis SD, sqrt((var x + var y) / 2).
 """
 
@@ -348,6 +350,18 @@ class VirtualLab(TrialCounter):
             "mocap_rate_hz": n.mocap_rate_hz,
             "joint_rate_hz": n.joint_rate_hz,
         }
+        try:
+            over = plan.check_limits().violations()
+        except PlanError as err:
+            return Measurement(trial=trial, plan=plan, flags={"aborted": True}, message=f"aborted: malformed plan: {err}", meta=meta)
+        if over:  # no safety gate in front: the robot's drives stop it, as in the paper
+            return Measurement(
+                trial=trial,
+                plan=plan,
+                flags={"joint_limit_exceeded": True, "aborted": True},
+                message="aborted: the plan drove a joint beyond its limits and the robot switched itself off: " + "; ".join(over),
+                meta=meta,
+            )
         sim = self.rollout
         sim.ball_offset = offset
         try:
