@@ -1,0 +1,82 @@
+"""``besdrake diagnose LOGDIR``: what the simulation gets wrong against a lab log, why, the refined scenario, the gain."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+COMMAND = ("diagnose",)
+HELP = "compare a lab log with the simulation, name the cause (effect fit + BIC), write a refined scenario and the held-out gain"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("logdir", type=Path, help="a measured-data log folder (besdrake lab run --out ...)")
+    parser.add_argument("--out", type=Path, default=None, help="folder for report.md, diagnosis.json, refined_scenario.yaml, figures (default: runs/diagnosis/<log name>)")
+    parser.add_argument("--scenario", default="nominal", help="the simulation the lab is compared with (name or YAML path)")
+    parser.add_argument("--candidates", default=None, help="comma-separated effect names to consider (default: every registered effect)")
+    parser.add_argument("--no-pairs", action="store_true", help="fit single effects only (no pairs)")
+    parser.add_argument("--plugin", action="append", default=[], metavar="FILE.py", help="load a Python file that registers further effects (repeatable)")
+    parser.add_argument("--backend", choices=("serial", "process"), default="process", help="rollout executor (default: process pool)")
+    parser.add_argument("--workers", type=int, default=2, help="worker processes for the process backend (default 2)")
+    parser.add_argument("--folds", type=int, default=3, help="K of the held-out (K-fold by plan) gain (default 3)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the folds and the bootstrap")
+    parser.add_argument("--no-figures", action="store_true", help="do not write PNG figures")
+    parser.add_argument("--json", action="store_true", help="print the machine-readable summary as JSON")
+
+
+def run(args: argparse.Namespace) -> int:
+    from besdrake.cli import UserError
+    from besdrake.diagnosis import DiagnosisError, diagnose
+    from besdrake.diagnosis.report import write_report
+    from besdrake.sim.effects import EffectError, get_effect
+    from besdrake.sim.scenario import ScenarioError, load_scenario
+
+    if args.workers < 1:
+        raise UserError(f"--workers must be >= 1, got {args.workers}")
+    if args.folds < 2:
+        raise UserError(f"--folds must be >= 2, got {args.folds}")
+    try:
+        from besdrake.transfer.plugins import PluginError, load_plugins
+
+        load_plugins(args.plugin)
+    except PluginError as err:
+        raise UserError(str(err)) from None
+    try:
+        from besdrake.transfer.log import read_log
+
+        measurements = read_log(args.logdir)
+    except (OSError, ValueError) as err:
+        raise UserError(f"cannot read the log {args.logdir}: {err}") from None
+    candidates = None if args.candidates is None else [c.strip() for c in args.candidates.split(",") if c.strip()]
+    backend = args.backend
+    try:
+        scenario = load_scenario(args.scenario)
+        names = candidates if candidates is not None else None
+        if names is not None:
+            for n in names:
+                get_effect(n)
+        # Effects registered by a plugin exist only in this process: simulate them here.
+        from besdrake.sim.effects import list_effects
+
+        if args.plugin and any(type(get_effect(n)).__module__ != "besdrake.sim.effects" for n in (names or list_effects())):
+            backend = "serial"
+        diag = diagnose(measurements, scenario=scenario, candidates=candidates, pairs=not args.no_pairs, backend=backend,
+                        workers=args.workers, folds=args.folds, seed=args.seed)
+    except (DiagnosisError, EffectError, ScenarioError) as err:
+        raise UserError(str(err)) from None
+    out = args.out or Path("runs") / "diagnosis" / Path(args.logdir).resolve().name
+    paths = write_report(diag, out, figures=not args.no_figures)
+    if args.json:
+        print(diag.to_json())
+    else:
+        print(f"{diag.verdict}")
+        print(f"explained: {diag.explained} (confidence {diag.confidence}); best: {diag.best.to_dict()['effect'] if diag.best else 'none'}")
+        if diag.gain:
+            g = diag.gain
+            print(f"held-out median touchdown disparity: {g.median_disparity_before_m:.3f} m -> {g.median_disparity_after_m:.3f} m "
+                  f"(95% CI {g.ci_after_m[0]:.3f}-{g.ci_after_m[1]:.3f} m, {g.n_heldout} throws)")
+        print(f"report: {paths['report']}")
+        print(f"refined scenario: {paths['scenario']}")
+        print(json.dumps({"timings_s": {k: round(v, 1) for k, v in diag.timings.items()}, "rollouts": diag.n_rollouts}))
+    return 0

@@ -1,0 +1,542 @@
+"""``diagnose(measurements)``: what the simulation gets wrong, the cause, the refined model and the gain.
+
+1. *Comparison*: every usable logged plan is replayed in the nominal simulation and compared throw by throw
+   (touchdown, the ball's flight state, joint tracking; :mod:`~besdrake.diagnosis.observables`); the mean
+   residual of each group is tested against the measurement noise (systematic vs noise).
+2. *Cause*: every candidate effect of the registry and every pair is fitted (:mod:`~besdrake.diagnosis.fitting`)
+   and ranked by BIC; candidates within :data:`INDISTINGUISHABLE_DBIC` of the best that are not merely the
+   best plus an unneeded effect are reported as "cannot tell apart", with the recording or throw that would
+   separate them (predicted by simulating both fitted candidates). When even the best candidate leaves a
+   residual above the noise (lack-of-fit test at :data:`ALPHA`), the result is "not explained".
+3. *Refined model*: the scenario with the fitted effects (:meth:`Diagnosis.refined_scenario`).
+4. *Gain*: touchdown disparity before/after on throws held out from the fit (K-fold: each throw is predicted
+   by a model fitted without it), medians with bootstrap confidence intervals.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+from scipy import stats
+
+from besdrake.diagnosis import fitting, noise, observables
+from besdrake.diagnosis.observables import group_slices
+from besdrake.sim.effects import list_effects
+from besdrake.sim.scenario import Scenario, load_scenario
+
+#: Lack-of-fit test level: "not explained" when the best candidate's residual is this improbable.
+ALPHA = 0.01
+#: Candidates whose BIC is within this of the best cannot be told apart by the data ("positive evidence" < 6).
+INDISTINGUISHABLE_DBIC = 6.0
+#: Systematic error: |mean residual| above this many standard errors.
+SYSTEMATIC_Z = 3.0
+MIN_THROWS = 6
+#: An explanation is "confident" when its lack-of-fit p-value is at least this and no rival is as good.
+CONFIDENT_P = 0.05
+
+
+class DiagnosisError(ValueError):
+    """The log cannot be diagnosed (too few usable throws, unknown candidate effect, ...)."""
+
+
+# ---------------------------------------------------------------------------------------------- results
+@dataclass
+class GroupComparison:
+    """Sim-vs-lab residuals of one feature group over all throws: mean, its standard error, systematic?"""
+
+    group: str
+    unit: str
+    n_throws: int
+    mean: list[float]
+    stderr: list[float]
+    rms: float
+    noise_sd: float
+    systematic: bool
+    chi2: float
+    dof: int
+
+
+@dataclass
+class Cause:
+    """A ranked candidate: effects, fitted parameters with standard errors, BIC and its delta to the best."""
+
+    effects: tuple[str, ...]
+    parameters: list[dict]
+    bic: float
+    delta_bic: float
+    chi2: float
+    n: int
+    k: int
+    refined: bool
+    p_value: float
+    unobservable: list[str] = field(default_factory=list)
+    p_groups: dict[str, float] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "effect": " + ".join(self.effects) if self.effects else "none",
+            "effects": list(self.effects),
+            "parameters": {p["effect"] + "." + p["parameter"]: {"value": p["value"], "stderr": p["stderr"], "unit": p["unit"], "at_bound": p["at_bound"]} for p in self.parameters},
+            "bic": self.bic,
+            "delta_bic": self.delta_bic,
+            "chi2": self.chi2,
+            "n": self.n,
+            "k": self.k,
+            "refined_with_rollouts": self.refined,
+            "p_value": self.p_value,
+            "p_value_by_group": self.p_groups,
+            "unobservable": self.unobservable,
+        }
+
+
+@dataclass
+class Gain:
+    """Held-out touchdown disparity (m) before/after refinement: medians with bootstrap 95% CIs."""
+
+    median_disparity_before_m: float
+    median_disparity_after_m: float
+    ci_before_m: tuple[float, float]
+    ci_after_m: tuple[float, float]
+    ratio_after_before: float
+    n_heldout: int
+    folds: int
+    disparity_before: list[float] = field(default_factory=list)
+    disparity_after: list[float] = field(default_factory=list)
+
+    def to_dict(self) -> dict[str, Any]:
+        d = {k: v for k, v in vars(self).items() if k not in ("disparity_before", "disparity_after")}
+        d["ci_before_m"], d["ci_after_m"] = list(self.ci_before_m), list(self.ci_after_m)
+        return d
+
+
+@dataclass
+class Diagnosis:
+    """Everything :func:`diagnose` found (JSON via :meth:`summary`)."""
+
+    explained: bool
+    confidence: str
+    verdict: str
+    causes: list[Cause]
+    best: Cause | None
+    indistinguishable: list[dict]
+    noise: noise.NoiseModel
+    comparison: list[GroupComparison]
+    gain: Gain | None
+    groups_measured: list[str]
+    n_trials: int
+    n_used: int
+    skipped: list[dict]
+    per_throw: list[dict]
+    scenario: Scenario
+    timings: dict[str, float]
+    n_rollouts: int
+    notes: list[str] = field(default_factory=list)
+    refined_scenario_path: str | None = None
+
+    def refined_effects(self) -> dict[str, dict[str, float]]:
+        if not self.best or not self.best.effects:
+            return {}
+        out: dict[str, dict[str, float]] = {}
+        for p in self.best.parameters:
+            out.setdefault(p["effect"], {})[p["parameter"]] = round(float(p["value"]), 6)
+        return out
+
+    def refined_scenario(self) -> dict[str, Any]:
+        """The base scenario as a YAML-ready dict with the fitted effects under ``effects``."""
+        d = self.scenario.to_dict()
+        eff = {k: dict(v) for k, v in d.get("effects", {}).items()}
+        for name, vals in self.refined_effects().items():
+            eff.setdefault(name, {}).update(vals)
+        d["effects"] = eff
+        d["name"] = f"{self.scenario.name}_refined"
+        what = self.best.to_dict()["effect"] if self.best else "none"
+        d["description"] = f"{self.scenario.name} refined by besdrake diagnose: fitted {what} ({'explained' if self.explained else 'NOT explained'}); {self.verdict}"
+        return d
+
+    def summary(self) -> dict[str, Any]:
+        return {
+            "explained": self.explained,
+            "confidence": self.confidence,
+            "verdict": self.verdict,
+            "causes": [c.to_dict() for c in self.causes],
+            "best": self.best.to_dict() if self.best else None,
+            "indistinguishable": self.indistinguishable,
+            "gain": self.gain.to_dict() if self.gain else None,
+            "noise": self.noise.to_dict(),
+            "comparison": [vars(g) for g in self.comparison],
+            "groups_measured": self.groups_measured,
+            "n_trials": self.n_trials,
+            "n_used": self.n_used,
+            "skipped": self.skipped,
+            "refined_scenario": self.refined_scenario_path,
+            "refined_effects": self.refined_effects(),
+            "timings_s": self.timings,
+            "n_rollouts": self.n_rollouts,
+            "notes": self.notes,
+        }
+
+    def to_json(self) -> str:
+        return json.dumps(self.summary(), indent=2, default=float)
+
+
+# ---------------------------------------------------------------------------------------------- simulation
+class _Sim:
+    """Batches rollouts through an executor and turns Outcomes into features (counting rollouts)."""
+
+    def __init__(self, executor, plans, layouts, full_layouts):
+        self.ex, self.plans, self.layouts, self.full_layouts = executor, plans, layouts, full_layouts
+        self.n_rollouts = 0
+        self.full_cache: dict[str, np.ndarray] = {}
+        self.touchdown_cache: dict[str, np.ndarray] = {}
+
+    @staticmethod
+    def key(effects: dict) -> str:
+        return json.dumps(effects, sort_keys=True)
+
+    def features(self, effects_list: list[dict], rows: Sequence[int] | None = None) -> np.ndarray:
+        """Features (len(effects_list), N, F) with NaN rows outside ``rows``."""
+        rows = list(range(len(self.plans))) if rows is None else list(rows)
+        items_p, items_e = [], []
+        for e in effects_list:
+            for i in rows:
+                items_p.append(self.plans[i])
+                items_e.append(e)
+        outs = self.ex.evaluate(items_p, items_e) if items_p else []
+        self.n_rollouts += len(outs)
+        Y = np.full((len(effects_list), len(self.plans), observables.N_FEATURES), np.nan)
+        it = iter(outs)
+        for a, e in enumerate(effects_list):
+            full = np.full((len(self.plans), observables.N_FEATURES), np.nan)
+            for i in rows:
+                o = next(it)
+                Y[a, i] = observables.simulated_features(o, self.layouts[i])
+                full[i] = observables.simulated_features(o, self.full_layouts[i])
+            k = self.key(e)
+            prev = self.full_cache.get(k)
+            if prev is not None:
+                full = np.where(np.isfinite(full), full, prev)
+            self.full_cache[k] = full
+        return Y
+
+    def one(self, effects: dict, rows: Sequence[int] | None = None) -> np.ndarray:
+        return self.features([effects], rows)[0]
+
+
+def _full_layout(layout: observables.ThrowLayout) -> observables.ThrowLayout:
+    """A layout with every group (100 Hz flight window, joint grid) for predictions of unmeasured signals."""
+    full = observables.ThrowLayout(ball_times=layout.ball_times, ball_center=layout.ball_center, joint_times=layout.joint_times,
+                                   release_time_nominal=layout.release_time_nominal, touchdown_time_nominal=layout.touchdown_time_nominal)
+    if layout.release_time_nominal is None:
+        return full
+    if full.ball_times is None:
+        t = np.arange(layout.release_time_nominal + observables.WINDOW_AFTER_RELEASE, layout.touchdown_time_nominal - observables.WINDOW_BEFORE_TOUCHDOWN, 0.01)
+        if len(t) >= observables.MIN_BALL_SAMPLES:
+            full.ball_times, full.ball_center = t, float(t.mean())
+    if full.joint_times is None:
+        t_end = layout.release_time_nominal
+        full.joint_times = np.linspace(t_end / observables.N_JOINT_TIMES, t_end, observables.N_JOINT_TIMES)
+    return full
+
+
+# ---------------------------------------------------------------------------------------------- helpers
+def _bootstrap_median_ci(x: np.ndarray, rng: np.random.Generator, n_boot: int = 2000) -> tuple[float, float]:
+    if len(x) == 0:
+        return (float("nan"), float("nan"))
+    idx = rng.integers(0, len(x), size=(n_boot, len(x)))
+    meds = np.median(x[idx], axis=1)
+    return (float(np.quantile(meds, 0.025)), float(np.quantile(meds, 0.975)))
+
+
+def _lack_of_fit_p(prob: fitting.Problem, y_fit: np.ndarray, k: int, noise_model: noise.NoiseModel, groups: list[str]) -> tuple[float, dict[str, float]]:
+    """Lack-of-fit p-value per measured group and overall (Bonferroni over groups).
+
+    A group's weighted residual sum of squares is an F statistic against the pure error when its noise was
+    measured from repeated plans (dof of both), a chi-square when the noise is assumed. The k fitted
+    parameters are charged to the groups in proportion to their sizes.
+    """
+    c2 = fitting.chi2_by_group(prob, y_fit, group_slices())
+    sl = group_slices()
+    ps = {}
+    for g in groups:
+        n_g = int(prob.mask[:, sl[g]].sum())
+        if n_g == 0 or g not in c2:
+            continue
+        dof = max(n_g - k * n_g / max(prob.n, 1), 1.0)
+        nu = noise_model.dof.get(g, 0)
+        ps[g] = float(stats.f.sf(c2[g] / dof, dof, nu)) if nu > 0 else float(stats.chi2.sf(c2[g], dof))
+        # Systematic offset left over: t test of each feature's mean residual (Bonferroni within the group).
+        r = (prob.y_meas[:, sl[g]] - y_fit[:, sl[g]]) / prob.sd[sl[g]]
+        m = prob.mask[:, sl[g]]
+        tp = []
+        for j in range(r.shape[1]):
+            v = r[m[:, j], j]
+            v = v[np.isfinite(v)]
+            if len(v) >= 3:
+                tstat = abs(v.mean()) * np.sqrt(len(v))
+                tp.append(2 * (stats.t.sf(tstat, nu) if nu > 0 else stats.norm.sf(tstat)))
+        if tp:
+            ps[g + ":mean"] = float(min(1.0, len(tp) * min(tp)))
+    p = min(1.0, len(ps) * min(ps.values())) if ps else 1.0
+    return p, ps
+
+
+def _separation_advice(a: fitting.CandidateFit, b: fitting.CandidateFit, sim: _Sim, measured: list[str], plans_meta: list[dict]) -> dict:
+    """Which unmeasured signal or which of the logged throws separates two fitted candidates most."""
+    ya = sim.full_cache.get(sim.key(a.parameters()))
+    yb = sim.full_cache.get(sim.key(b.parameters()))
+    advice: dict[str, Any] = {"a": a.name, "b": b.name, "signals": []}
+    if ya is None or yb is None:
+        return advice
+    sl = group_slices()
+    for g, s in sl.items():
+        d = np.abs(ya[:, s] - yb[:, s])
+        if not np.isfinite(d).any():
+            continue
+        typ = noise.TYPICAL[g]
+        score = float(np.nanmax(d) / typ)
+        advice["signals"].append({"group": g, "measured": g in measured, "max_difference": float(np.nanmax(d)), "unit": observables.GROUP_UNITS[g], "in_noise_sd": score})
+    advice["signals"].sort(key=lambda x: -x["in_noise_sd"])
+    td = np.linalg.norm(ya[:, sl["touchdown"]] - yb[:, sl["touchdown"]], axis=1)
+    if np.isfinite(td).any():
+        i = int(np.nanargmax(td))
+        advice["most_separating_throw"] = {"index": i, "touchdown_difference_m": float(td[i]), "plan": plans_meta[i]}
+    unmeasured = [s for s in advice["signals"] if not s["measured"] and s["in_noise_sd"] > 3]
+    names = {"ball_pos": "record the ball path (motion capture)", "ball_vel": "record the ball path (motion capture): the release speed/direction", "ball_acc": "record the ball path (motion capture): the in-flight deceleration", "joints": "record the joint encoders (tracking error)", "touchdown": "measure the touchdown"}
+    if unmeasured:
+        best = unmeasured[0]
+        advice["recommendation"] = f"{names[best['group']]}: the fitted candidates differ by up to {best['max_difference']:.3g} {best['unit']} there (~{best['in_noise_sd']:.0f} x typical noise)"
+    else:
+        advice["recommendation"] = ("throw plans that spread the release speed and height more widely (e.g. amplitudes outside the logged range, other accelerations) "
+                                    "and repeat each several times: the fitted candidates predict nearly the same signals for the logged throws")
+        if "most_separating_throw" in advice:
+            advice["recommendation"] += f"; the largest logged difference is {advice['most_separating_throw']['touchdown_difference_m'] * 100:.1f} cm (throw {i})"
+    return advice
+
+
+# ---------------------------------------------------------------------------------------------- main
+def diagnose(
+    measurements: Sequence,
+    scenario: Scenario | str = "nominal",
+    candidates: Sequence[str] | None = None,
+    pairs: bool = True,
+    backend: str = "serial",
+    workers: int | None = None,
+    folds: int = 3,
+    refine_top: int = 4,
+    refine_iterations: int = 3,
+    seed: int = 0,
+    executor=None,
+) -> Diagnosis:
+    """Diagnose a lab log (a list of :class:`~besdrake.transfer.measurement.Measurement`).
+
+    ``candidates``: effect names to consider (default: every registered effect); ``pairs``: also fit every
+    pair; ``backend``/``workers``: the rollout executor (:func:`besdrake.sim.make_executor`), or pass an
+    open ``executor``; ``folds``: K of the held-out (K-fold) gain; ``seed`` seeds the bootstrap and folds.
+    """
+    from besdrake.sim.executors import make_executor
+    from besdrake.transfer.measurement import plan_hash
+
+    t_start = time.perf_counter()
+    timings: dict[str, float] = {}
+    rng = np.random.default_rng(seed)
+    scen = load_scenario(scenario) if not isinstance(scenario, Scenario) else scenario
+    known = list_effects()
+    cands = list(known if candidates is None else candidates)
+    unknown = [c for c in cands if c not in known]
+    if unknown:
+        raise DiagnosisError(f"unknown candidate effect(s) {unknown}; registered effects: {known}")
+    if not cands:
+        raise DiagnosisError("no candidate effects to fit")
+    measurements = list(measurements)
+    used, skipped = [], []
+    for m in measurements:
+        ok, why = observables.usable(m)
+        (used if ok else skipped).append(m if ok else {"trial": m.trial, "reason": why})
+    if len(used) < MIN_THROWS:
+        raise DiagnosisError(f"only {len(used)} usable throws in the log ({len(skipped)} skipped); the diagnosis needs at least {MIN_THROWS}")
+    plans = [m.plan for m in used]
+    keys = [plan_hash(p) for p in plans]
+
+    own_executor = executor is None
+    ex = executor or make_executor(backend, workers=workers, scenario=scen, limits="flag")
+    try:
+        # ---------------------------------------------------------------- 1. nominal replay and comparison
+        nominal = ex.evaluate(plans, None)
+        layouts = [observables.make_layout(m, o) for m, o in zip(used, nominal)]
+        full_layouts = [_full_layout(lay) for lay in layouts]
+        sim = _Sim(ex, plans, layouts, full_layouts)
+        sim.n_rollouts = len(nominal)
+        meas, rms = [], []
+        for m, lay in zip(used, layouts):
+            f, r = observables.measured_features(m, lay)
+            meas.append(f)
+            rms.append(r)
+        y_meas = np.array(meas)
+        y0 = np.array([observables.simulated_features(o, lay) for o, lay in zip(nominal, layouts)])
+        sim.full_cache[sim.key({})] = np.array([observables.simulated_features(o, lay) for o, lay in zip(nominal, full_layouts)])
+        sl = group_slices()
+        measured_groups = [g for g, s in sl.items() if np.isfinite(y_meas[:, s]).all(axis=1).sum() >= 2]
+        mocap_sd = observables.mocap_noise_from_residuals(rms)
+        enc_sd = observables.encoder_noise(used)
+        ball_sd = noise.ball_fit_sd([lay.ball_times for lay in layouts], [lay.ball_center for lay in layouts], mocap_sd)
+        nm = noise.estimate_noise(y_meas, keys, mocap_sd, enc_sd, ball_sd)
+        timings["replay"] = time.perf_counter() - t_start
+
+        comparison = []
+        resid0 = y_meas - y0
+        for g, s in sl.items():
+            if g not in measured_groups:
+                continue
+            block = resid0[:, s]
+            rows = np.all(np.isfinite(block), axis=1)
+            b = block[rows]
+            se = np.full(b.shape[1], nm.sd[g] / np.sqrt(len(b)))
+            mean = b.mean(axis=0)
+            z = np.abs(mean) / se
+            chi2 = float(np.sum((b / nm.sd[g]) ** 2))
+            comparison.append(GroupComparison(g, observables.GROUP_UNITS[g], int(len(b)), mean.tolist(), se.tolist(), float(np.sqrt(np.mean(b**2))), nm.sd[g], bool(np.any(z > SYSTEMATIC_Z)), chi2, int(b.size)))
+
+        # ---------------------------------------------------------------- 2. sensitivities and candidate fits
+        t0 = time.perf_counter()
+        specs, spec_notes = fitting.param_specs(cands)
+        sens = fitting.compute_sensitivity(specs, y0, lambda effs: sim.features(effs))
+        timings["sensitivity"] = time.perf_counter() - t0
+
+        def fit_all(nm_: noise.NoiseModel):
+            prob_ = fitting.Problem(y_meas, y0, nm_.vector())
+            fits_ = [fitting.linear_fit(prob_, sens, c) for c in fitting.candidate_sets(cands, pairs)]
+            fits_.sort(key=lambda f: f.bic)
+            return prob_, fits_
+
+        prob, fits = fit_all(nm)
+        # Without repeated plans the non-touchdown groups' throw-to-throw scatter is unknown: take it from the
+        # best linear candidate's residual (profile likelihood) so that they do not dominate the ranking.
+        notes = list(nm.notes) + spec_notes
+        if nm.n_repeat_groups == 0 or any(nm.dof.get(g, 0) == 0 for g in measured_groups if g != "touchdown"):
+            best_lin = fits[0]
+            y_lin = y0 + np.tensordot(best_lin.theta - np.array([s.nominal for s in best_lin.specs]), sens.dy[[sens.specs.index(s) for s in best_lin.specs]], axes=1) if best_lin.specs else y0
+            c2 = fitting.chi2_by_group(prob, y_lin, sl)
+            changed = False
+            for g in measured_groups:
+                if g == "touchdown" or nm.dof.get(g, 0) > 0:
+                    continue
+                n_g = int(prob.mask[:, sl[g]].sum())
+                if n_g and c2.get(g, 0) / n_g > 1.0:
+                    nm.sd[g] *= float(np.sqrt(c2[g] / n_g))
+                    nm.source[g] += "; scaled to the best candidate's residual scatter (no repeated plans)"
+                    changed = True
+            if changed:
+                prob, fits = fit_all(nm)
+
+        t0 = time.perf_counter()
+        to_refine = [f for f in fits if f.effects][:refine_top]
+        for f in to_refine:
+            fitting.refine(prob, f, lambda e: sim.one(e), iterations=refine_iterations)
+        none_fit = next(f for f in fits if not f.effects)
+        none_fit.refined, none_fit.y_fit = True, y0
+        timings["refine"] = time.perf_counter() - t0
+        # Rank: refined candidates by their real chi2; linear-only ones are never ranked above a refined one
+        # with a better linear BIC (they were not refined because their linear fit was worse).
+        fits.sort(key=lambda f: (f.bic if f.refined else np.inf, f.bic))
+        best_fit = fits[0]
+        groups_used = [g for g in measured_groups]
+        causes = []
+        for f in fits:
+            if f.refined:
+                p, p_groups = _lack_of_fit_p(prob, f.y_fit, f.k, nm, groups_used)
+            else:
+                p, p_groups = float("nan"), {}
+            causes.append(Cause(f.effects, f.parameter_table(), f.bic, f.bic - best_fit.bic, f.chi2, f.n, f.k, f.refined, p, f.unobservable, p_groups))
+        best = causes[0]
+
+        # ---------------------------------------------------------------- verdict
+        none_c = next(c for c in causes if not c.effects)
+        indist = []
+        for f, c in zip(fits[1:], causes[1:]):
+            if not f.refined or c.delta_bic >= INDISTINGUISHABLE_DBIC or not c.effects:
+                continue
+            if set(best.effects) <= set(c.effects):
+                continue  # the best plus an effect it does not need
+            adv = _separation_advice(best_fit, f, sim, measured_groups, [p.meta for p in plans])
+            adv["delta_bic"] = c.delta_bic
+            indist.append(adv)
+        explained = bool(best.effects) and best.p_value >= ALPHA
+        confidence = "high" if explained and not indist and best.p_value >= CONFIDENT_P else "low"
+        nothing_wrong = none_c.p_value >= ALPHA and none_c.delta_bic < INDISTINGUISHABLE_DBIC
+        if nothing_wrong:
+            explained, confidence = True, "high" if none_c.p_value >= CONFIDENT_P else "low"
+            verdict = "the nominal simulation agrees with the lab within the measurement noise"
+        elif not explained:
+            verdict = (f"not explained: the best candidate ({fits[0].name}) leaves a residual above the noise "
+                       f"(lack-of-fit p = {best.p_value:.2g} < {ALPHA}); an effect the registry does not know is likely")
+        elif indist:
+            verdict = f"explained by {fits[0].name}, but cannot tell it from " + ", ".join(a["b"] for a in indist)
+        else:
+            verdict = f"explained by {fits[0].name} (next candidate {causes[1].delta_bic:.1f} BIC worse)"
+        if not explained and indist:
+            verdict += "; candidates that fit about equally: " + ", ".join(a["b"] for a in indist)
+
+        # ---------------------------------------------------------------- 4. held-out gain
+        t0 = time.perf_counter()
+        gain = None
+        per_throw_after = np.full(len(used), np.nan)
+        td = sl["touchdown"]
+        have_td = np.isfinite(y_meas[:, td]).all(axis=1) & np.isfinite(y0[:, td]).all(axis=1)
+        if best_fit.effects and have_td.sum() >= folds >= 2:
+            idx = np.nonzero(have_td)[0]
+            # Folds by plan (repeats of a plan stay together, so a held-out plan was never seen by the fit).
+            uniq = sorted(set(keys[i] for i in idx))
+            order = rng.permutation(len(uniq))
+            fold_of = {uniq[j]: r % folds for r, j in enumerate(order)}
+            for k in range(folds):
+                test = [i for i in idx if fold_of[keys[i]] == k]
+                train = [i for i in range(len(used)) if fold_of.get(keys[i], -1) != k]
+                if not test or len(train) < 3:
+                    continue
+                prob_k = fitting.Problem(y_meas, y0, nm.vector(), rows=train)
+                fit_k = fitting.linear_fit(prob_k, sens, best_fit.effects)
+                fitting.refine(prob_k, fit_k, lambda e, tr=train: sim.one(e, rows=tr), iterations=2)
+                y_test = sim.one(fit_k.parameters(), rows=test)
+                per_throw_after[test] = np.linalg.norm(y_meas[test][:, td] - y_test[test][:, td], axis=1)
+            before = np.linalg.norm(y_meas[:, td] - y0[:, td], axis=1)
+            ok = np.isfinite(per_throw_after) & have_td
+            b, a = before[ok], per_throw_after[ok]
+            if len(a):
+                gain = Gain(float(np.median(b)), float(np.median(a)), _bootstrap_median_ci(b, rng), _bootstrap_median_ci(a, rng),
+                            float(np.median(a) / max(np.median(b), 1e-12)), int(len(a)), folds, b.tolist(), a.tolist())
+        timings["heldout"] = time.perf_counter() - t0
+
+        # ---------------------------------------------------------------- per-throw table
+        y_best = best_fit.y_fit if best_fit.y_fit is not None else y0
+        per_throw = []
+        for i, m in enumerate(used):
+            row: dict[str, Any] = {"trial": m.trial, "plan": m.plan.meta.get("name") or m.plan.meta.get("generator", ""), "plan_hash": keys[i][:12]}
+            for g, s in sl.items():
+                if np.isfinite(y_meas[i, s]).all():
+                    row[f"{g}_error_before"] = float(np.linalg.norm(y_meas[i, s] - y0[i, s]))
+                    row[f"{g}_error_after_fit"] = float(np.linalg.norm(y_meas[i, s] - y_best[i, s]))
+            row["touchdown_measured"] = None if not np.isfinite(y_meas[i, td]).all() else y_meas[i, td].tolist()
+            row["touchdown_nominal"] = y0[i, td].tolist()
+            row["touchdown_refined"] = y_best[i, td].tolist()
+            row["touchdown_heldout_disparity_after"] = None if not np.isfinite(per_throw_after[i]) else float(per_throw_after[i])
+            per_throw.append(row)
+    finally:
+        if own_executor:
+            ex.close()
+    timings["total"] = time.perf_counter() - t_start
+    if mocap_sd is not None:
+        notes.append(f"marker noise from the flight fits: {mocap_sd * 1000:.1f} mm")
+    if enc_sd is not None:
+        notes.append(f"encoder noise from second differences: {enc_sd:.2e} rad")
+    return Diagnosis(
+        explained=explained, confidence=confidence, verdict=verdict, causes=causes, best=best, indistinguishable=indist, noise=nm, comparison=comparison,
+        gain=gain, groups_measured=measured_groups, n_trials=len(measurements), n_used=len(used), skipped=skipped, per_throw=per_throw,
+        scenario=scen, timings=timings, n_rollouts=sim.n_rollouts, notes=notes,
+    )
+
+
+__all__ = ["diagnose", "Diagnosis", "Cause", "Gain", "GroupComparison", "DiagnosisError", "ALPHA", "INDISTINGUISHABLE_DBIC"]

@@ -1,0 +1,287 @@
+"""Fit candidate effects to the measured features: sensitivities, bounded Gauss-Newton, BIC.
+
+The per-throw features (:mod:`besdrake.diagnosis.observables`) are smooth functions of the effect
+parameters. One finite-difference Jacobian at nominal, built from one batch of rollouts per parameter,
+serves every candidate (single effects and pairs): each candidate is first fitted on that linear model
+(bounded least squares, :func:`scipy.optimize.lsq_linear`), then the best few are refined with real rollouts
+(Gauss-Newton steps on a Broyden-updated Jacobian, within the effect's realistic bounds). The weighted
+residuals use the measurement noise per feature group, so ``chi2`` is -2 log-likelihood up to a constant
+and candidates are compared by BIC = chi2 + k ln n. Parameter standard errors come from the Gauss-Newton
+covariance sigma^2 (J^T W J)^-1 at the optimum.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass, field
+from typing import Callable, Sequence
+
+import numpy as np
+from scipy.optimize import lsq_linear
+
+from besdrake.sim.effects import EffectError, get_effect
+
+#: Finite-difference step as a fraction of a parameter's realistic range (high - low).
+STEP_FRACTION = 0.05
+#: Parameters not fitted because they are degenerate with another of the same effect
+#: (drag depends on rho * cd only; cd is fitted at the nominal air density).
+DEGENERATE = {("air_drag", "rho"): "only the product rho * cd matters; cd is fitted at the nominal air density"}
+#: Weak Gaussian prior on each parameter: SD = this fraction of its range around the nominal value.
+PRIOR_FRACTION = 0.5
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One fitted parameter: effect, name, nominal value, bounds, finite-difference step (signed), unit."""
+
+    effect: str
+    name: str
+    nominal: float
+    low: float
+    high: float
+    step: float
+    unit: str
+
+    @property
+    def key(self) -> str:
+        return f"{self.effect}.{self.name}"
+
+
+def param_specs(effect_names: Sequence[str]) -> tuple[list[ParamSpec], list[str]]:
+    """Parameter specs of the effects and notes on parameters left out."""
+    specs, notes = [], []
+    for e in effect_names:
+        eff = get_effect(e)
+        for name, p in eff.params.items():
+            if (e, name) in DEGENERATE:
+                notes.append(f"{e}.{name}: {DEGENERATE[(e, name)]}")
+                continue
+            h = STEP_FRACTION * (p.high - p.low)
+            step = h if p.nominal + h <= p.high else -h
+            if e == "scoop_friction" and name == "mu_dynamic":
+                step = -abs(h)  # keep mu_dynamic <= mu_static
+            specs.append(ParamSpec(e, name, p.nominal, p.low, p.high, step, p.unit))
+    return specs, notes
+
+
+def effects_from(specs: Sequence[ParamSpec], theta: np.ndarray) -> dict[str, dict[str, float]]:
+    """``{effect: {param: value}}`` for parameter values ``theta``, made valid for the effect (e.g. friction order)."""
+    out: dict[str, dict[str, float]] = {}
+    for s, v in zip(specs, theta):
+        out.setdefault(s.effect, {})[s.name] = float(np.clip(v, s.low, s.high))
+    for e, vals in out.items():
+        try:
+            get_effect(e).complete(vals)
+        except EffectError:
+            if e == "scoop_friction":  # dynamic above static friction: static follows
+                vals["mu_static"] = max(vals.get("mu_static", get_effect(e).params["mu_static"].nominal), vals.get("mu_dynamic", 0.0))
+            else:
+                raise
+    return out
+
+
+@dataclass
+class Sensitivity:
+    """Features at nominal ``y0`` (N, F) and their finite-difference derivatives ``dy`` (P, N, F) per parameter."""
+
+    specs: list[ParamSpec]
+    y0: np.ndarray
+    dy: np.ndarray
+
+    def column(self, i: int) -> np.ndarray:
+        return self.dy[i]
+
+
+def compute_sensitivity(specs: list[ParamSpec], y0: np.ndarray, simulate: Callable[[list[dict]], np.ndarray]) -> Sensitivity:
+    """One batch of rollouts per parameter (all throws), stepped by ``spec.step``; ``simulate`` maps a list of
+    effects dicts (one per parameter) to features (P, N, F)."""
+    effs = []
+    for s in specs:
+        theta = np.array([x.nominal for x in specs])
+        theta[specs.index(s)] += s.step
+        effs.append(effects_from([s], [theta[specs.index(s)]]))
+    ys = simulate(effs)
+    dy = (ys - y0[None]) / np.array([s.step for s in specs])[:, None, None]
+    dy[~np.isfinite(dy)] = 0.0
+    return Sensitivity(specs=specs, y0=y0, dy=dy)
+
+
+@dataclass
+class CandidateFit:
+    """The fit of one candidate (a set of effects) to the data."""
+
+    effects: tuple[str, ...]
+    specs: list[ParamSpec]
+    theta: np.ndarray
+    stderr: np.ndarray
+    chi2: float
+    n: int
+    k: int
+    refined: bool = False
+    chi2_groups: dict[str, float] = field(default_factory=dict)
+    unobservable: list[str] = field(default_factory=list)
+    y_fit: np.ndarray | None = None  # simulated features at theta (N, F) when refined
+    jac: np.ndarray | None = None  # weighted Jacobian rows (used for the covariance)
+
+    @property
+    def bic(self) -> float:
+        return float(self.chi2 + self.k * np.log(max(self.n, 1)))
+
+    @property
+    def name(self) -> str:
+        return " + ".join(self.effects) if self.effects else "none (nominal simulation)"
+
+    def parameters(self) -> dict[str, dict[str, float]]:
+        return effects_from(self.specs, self.theta)
+
+    def parameter_table(self) -> list[dict]:
+        return [
+            {"effect": s.effect, "parameter": s.name, "value": float(v), "stderr": float(e), "nominal": s.nominal, "low": s.low, "high": s.high, "unit": s.unit, "at_bound": bool(np.isclose(v, s.low) or np.isclose(v, s.high))}
+            for s, v, e in zip(self.specs, self.theta, self.stderr)
+        ]
+
+
+class Problem:
+    """The data of a fit: measured features, nominal features, weights, and which entries are usable."""
+
+    def __init__(self, y_meas: np.ndarray, y0: np.ndarray, sd: np.ndarray, rows: np.ndarray | None = None) -> None:
+        self.y_meas = y_meas
+        self.y0 = y0
+        self.sd = sd
+        self.rows = np.arange(len(y_meas)) if rows is None else np.asarray(rows)
+        mask = np.isfinite(y_meas) & np.isfinite(y0)
+        keep = np.zeros(len(y_meas), bool)
+        keep[self.rows] = True
+        self.mask = mask & keep[:, None]
+        self.n = int(self.mask.sum())
+
+    def weighted(self, y_sim: np.ndarray) -> np.ndarray:
+        """Weighted residuals (measured - simulated) / sd on the usable entries; NaN sims count as huge."""
+        r = (self.y_meas - y_sim) / self.sd[None, :]
+        r = r[self.mask]
+        r[~np.isfinite(r)] = 1e3
+        return r
+
+    def weighted_jac(self, dy: np.ndarray) -> np.ndarray:
+        """Weighted Jacobian of the residual entries (n, P) from feature derivatives (P, N, F)."""
+        return np.stack([(d / self.sd[None, :])[self.mask] for d in dy], axis=1) if len(dy) else np.zeros((self.n, 0))
+
+
+def _prior_rows(specs: list[ParamSpec], theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    sd = np.array([PRIOR_FRACTION * (s.high - s.low) for s in specs])
+    nominal = np.array([s.nominal for s in specs])
+    return np.diag(1.0 / sd), (nominal - theta) / sd
+
+
+def _solve_step(A: np.ndarray, r: np.ndarray, specs: list[ParamSpec], theta: np.ndarray) -> np.ndarray:
+    """Bounded least-squares step delta minimising |r - A delta|^2 + prior, theta + delta within bounds."""
+    P, b = _prior_rows(specs, theta)
+    M = np.vstack([A, P])
+    rhs = np.concatenate([r, b])
+    lo = np.array([s.low for s in specs]) - theta
+    hi = np.array([s.high for s in specs]) - theta
+    lo, hi = np.minimum(lo, 0.0), np.maximum(hi, 0.0)
+    hi = np.where(hi <= lo, lo + 1e-12, hi)
+    return lsq_linear(M, rhs, bounds=(lo, hi), method="bvls" if M.shape[1] <= 12 else "trf").x
+
+
+def stderr_from(A: np.ndarray, specs: list[ParamSpec]) -> np.ndarray:
+    """Standard errors from the weighted Jacobian (Gauss-Newton covariance, with the weak prior)."""
+    if A.shape[1] == 0:
+        return np.zeros(0)
+    P, _ = _prior_rows(specs, np.array([s.nominal for s in specs]))
+    H = A.T @ A + P.T @ P
+    try:
+        return np.sqrt(np.clip(np.diag(np.linalg.inv(H)), 0.0, None))
+    except np.linalg.LinAlgError:
+        return np.full(len(specs), np.inf)
+
+
+def chi2_by_group(prob: Problem, y_sim: np.ndarray, slices: dict[str, slice]) -> dict[str, float]:
+    r = (prob.y_meas - y_sim) / prob.sd[None, :]
+    out = {}
+    for g, s in slices.items():
+        m = prob.mask[:, s]
+        if m.any():
+            v = r[:, s][m]
+            v[~np.isfinite(v)] = 1e3
+            out[g] = float(np.sum(v * v))
+    return out
+
+
+def linear_fit(prob: Problem, sens: Sensitivity, effects: tuple[str, ...], observable_tol: float = 1e-3) -> CandidateFit:
+    """Fit a candidate on the linear model at nominal (no rollouts)."""
+    idx = [i for i, s in enumerate(sens.specs) if s.effect in effects]
+    A_all = prob.weighted_jac(sens.dy[idx]) if idx else np.zeros((prob.n, 0))
+    scale = np.array([abs(s.high - s.low) for s in (sens.specs[i] for i in idx)])
+    norms = np.linalg.norm(A_all, axis=0) * scale if idx else np.zeros(0)
+    keep = [j for j, nrm in enumerate(norms) if nrm > observable_tol * max(1.0, np.sqrt(prob.n))]
+    unobs = [sens.specs[idx[j]].key for j in range(len(idx)) if j not in keep]
+    specs = [sens.specs[idx[j]] for j in keep]
+    A = A_all[:, keep]
+    r0 = prob.weighted(sens.y0)
+    theta0 = np.array([s.nominal for s in specs])
+    if specs:
+        delta = _solve_step(A, r0, specs, theta0)
+        r = r0 - A @ delta
+    else:
+        delta, r = np.zeros(0), r0
+    return CandidateFit(effects=effects, specs=specs, theta=theta0 + delta, stderr=stderr_from(A, specs), chi2=float(r @ r), n=prob.n, k=len(specs), unobservable=unobs, jac=A)
+
+
+def refine(prob: Problem, fit: CandidateFit, simulate_one: Callable[[dict], np.ndarray], iterations: int = 3, tol: float = 1e-3) -> CandidateFit:
+    """Gauss-Newton with real rollouts from the linear solution: Broyden-updated Jacobian, step halving.
+
+    ``simulate_one(effects) -> features (N, F)`` of all throws for one parameter set.
+    """
+    if not fit.specs:
+        y = simulate_one({})
+        r = prob.weighted(y)
+        fit.chi2, fit.refined, fit.y_fit = float(r @ r), True, y
+        return fit
+    specs = fit.specs
+    A = fit.jac.copy()
+    # Start from the better of the nominal and the linear solution.
+    theta_nom = np.array([s.nominal for s in specs])
+    y_lin = simulate_one(effects_from(specs, fit.theta))
+    r_lin = prob.weighted(y_lin)
+    r_nom = prob.weighted(prob.y0)
+    if r_lin @ r_lin <= r_nom @ r_nom:
+        theta, r, y = fit.theta.copy(), r_lin, y_lin
+        dth = theta - theta_nom
+        if np.any(dth):
+            A = A + np.outer((r_nom - r_lin) - A @ dth, dth) / (dth @ dth)
+    else:
+        theta, r, y = theta_nom, r_nom, prob.y0
+    ranges = np.array([s.high - s.low for s in specs])
+    for _ in range(iterations):
+        delta = _solve_step(A, r, specs, theta)
+        if np.max(np.abs(delta) / ranges) < tol:
+            break
+        for _half in range(2):
+            cand = theta + delta
+            y_c = simulate_one(effects_from(specs, cand))
+            r_c = prob.weighted(y_c)
+            # Broyden rank-one update with the observed change of the residuals.
+            A = A + np.outer((r - r_c) - A @ delta, delta) / (delta @ delta)
+            if r_c @ r_c < r @ r:
+                theta, r, y = cand, r_c, y_c
+                break
+            delta = 0.5 * delta
+        else:
+            break
+    fit.theta, fit.chi2, fit.refined, fit.y_fit, fit.jac = theta, float(r @ r), True, y, A
+    fit.stderr = stderr_from(A, specs)
+    return fit
+
+
+def candidate_sets(effects: Sequence[str], pairs: bool = True) -> list[tuple[str, ...]]:
+    """The empty set, every single effect and (optionally) every pair."""
+    out: list[tuple[str, ...]] = [()]
+    out += [(e,) for e in effects]
+    if pairs:
+        out += list(itertools.combinations(effects, 2))
+    return out
+
+
+__all__ = ["ParamSpec", "param_specs", "effects_from", "Sensitivity", "compute_sensitivity", "CandidateFit", "Problem", "linear_fit", "refine", "candidate_sets", "chi2_by_group"]

@@ -1,0 +1,180 @@
+"""Write a :class:`~besdrake.diagnosis.core.Diagnosis` to a folder: ``report.md``, ``diagnosis.json``, the refined
+scenario YAML (loads with :func:`besdrake.sim.load_scenario`) and PNG figures.
+
+Figures: ``touchdowns.png`` (lab vs nominal vs refined touchdown per throw), ``residuals.png`` (touchdown
+disparity per throw before the fit, after it, and held out), ``groups.png`` (mean sim-vs-lab residual per
+feature group in noise units, before and after).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from besdrake.diagnosis.core import Diagnosis
+
+
+def _fmt_param(p: dict) -> str:
+    bound = " (at its bound)" if p["at_bound"] else ""
+    return f"{p['effect']}.{p['parameter']} = {p['value']:.4g} +- {p['stderr']:.2g} {p['unit']}{bound}"
+
+
+def write_refined_scenario(diag: Diagnosis, path: str | Path) -> Path:
+    """Write the refined scenario YAML and check that it loads."""
+    from besdrake.sim.scenario import load_scenario
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    d = diag.refined_scenario()
+    path.write_text("# Written by besdrake diagnose: the scenario with the fitted effect(s). Units: SI (m, s, rad, kg).\n" + yaml.safe_dump(d, sort_keys=False))
+    load_scenario(path)  # raises ScenarioError naming the field if anything is off
+    return path
+
+
+def _figures(diag: Diagnosis, out: Path) -> list[str]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    files = []
+    rows = [r for r in diag.per_throw if r.get("touchdown_measured") is not None]
+    if rows:
+        lab = np.array([r["touchdown_measured"] for r in rows])
+        nom = np.array([r["touchdown_nominal"] for r in rows])
+        ref = np.array([r["touchdown_refined"] for r in rows])
+        fig, ax = plt.subplots(figsize=(7, 6))
+        for a, b in zip(nom, lab):
+            ax.plot([a[0], b[0]], [a[1], b[1]], color="0.8", lw=0.8, zorder=1)
+        ax.scatter(lab[:, 0], lab[:, 1], s=22, c="k", label="lab (measured)", zorder=3)
+        ax.scatter(nom[:, 0], nom[:, 1], s=22, marker="x", c="tab:red", label="nominal simulation", zorder=2)
+        if diag.best and diag.best.effects:
+            ax.scatter(ref[:, 0], ref[:, 1], s=22, marker="+", c="tab:blue", label=f"refined ({' + '.join(diag.best.effects)})", zorder=2)
+        ax.set_xlabel("x (m)")
+        ax.set_ylabel("y (m)")
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.set_title("Touchdown: lab vs simulation")
+        ax.legend(loc="best", fontsize=8)
+        fig.tight_layout()
+        fig.savefig(out / "touchdowns.png", dpi=110)
+        plt.close(fig)
+        files.append("touchdowns.png")
+
+        fig, ax = plt.subplots(figsize=(8, 4))
+        trials = [r["trial"] for r in rows]
+        before = [r.get("touchdown_error_before", np.nan) for r in rows]
+        after = [r.get("touchdown_error_after_fit", np.nan) for r in rows]
+        held = [np.nan if r.get("touchdown_heldout_disparity_after") is None else r["touchdown_heldout_disparity_after"] for r in rows]
+        x = np.arange(len(rows))
+        ax.bar(x - 0.27, before, 0.27, label="nominal", color="tab:red")
+        ax.bar(x, after, 0.27, label="refined (fit on all)", color="tab:blue")
+        ax.bar(x + 0.27, held, 0.27, label="refined (held out)", color="tab:green")
+        ax.axhline(diag.noise.sd["touchdown"] * np.sqrt(2 * np.log(2)), color="k", ls="--", lw=0.8, label="median disparity of pure noise")
+        ax.set_xticks(x)
+        ax.set_xticklabels([str(t) for t in trials], fontsize=6)
+        ax.set_xlabel("trial")
+        ax.set_ylabel("touchdown disparity (m)")
+        ax.legend(fontsize=7)
+        fig.tight_layout()
+        fig.savefig(out / "residuals.png", dpi=110)
+        plt.close(fig)
+        files.append("residuals.png")
+    if diag.comparison:
+        fig, ax = plt.subplots(figsize=(7, 3.5))
+        names = [g.group for g in diag.comparison]
+        z = [np.max(np.abs(np.array(g.mean)) / np.array(g.stderr)) for g in diag.comparison]
+        ax.bar(names, z, color="tab:red")
+        ax.axhline(3.0, color="k", ls="--", lw=0.8, label="3 standard errors")
+        ax.set_ylabel("largest |mean residual| / SE")
+        ax.set_title("Systematic error of the nominal simulation per signal")
+        ax.legend(fontsize=8)
+        fig.tight_layout()
+        fig.savefig(out / "groups.png", dpi=110)
+        plt.close(fig)
+        files.append("groups.png")
+    return files
+
+
+def _markdown(diag: Diagnosis, figures: list[str], scenario_path: Path | None) -> str:
+    s = diag.summary()
+    L = ["# Diagnosis of the simulation against the lab log", ""]
+    L.append(f"**Verdict:** {diag.verdict}.  ")
+    L.append(f"**Explained:** {'yes' if diag.explained else 'no'} (confidence: {diag.confidence}).")
+    L.append("")
+    L.append(f"Trials in the log: {diag.n_trials}; compared: {diag.n_used}; skipped: {len(diag.skipped)}. Signals measured: {', '.join(diag.groups_measured)}.")
+    L += ["", "## 1. What the simulation gets wrong (nominal replay of every logged plan)", ""]
+    L.append("| signal | throws | mean residual (lab - sim) | SE | RMS | noise SD | systematic |")
+    L.append("|---|---|---|---|---|---|---|")
+    for g in diag.comparison:
+        mean = ", ".join(f"{v:.3g}" for v in g.mean[:3]) + (" ..." if len(g.mean) > 3 else "")
+        L.append(f"| {g.group} ({g.unit}) | {g.n_throws} | {mean} | {g.stderr[0]:.2g} | {g.rms:.3g} | {g.noise_sd:.3g} | {'yes' if g.systematic else 'no'} |")
+    L.append("")
+    L.append("Measurement noise per signal (never read from the lab's configuration):")
+    for g, src in diag.noise.source.items():
+        L.append(f"- {g}: SD {diag.noise.sd[g]:.3g} ({src})")
+    L += ["", "## 2. The cause: candidates ranked by BIC", ""]
+    L.append("| rank | candidate | delta BIC | lack-of-fit p | fitted parameters (+- 1 SE) |")
+    L.append("|---|---|---|---|---|")
+    for i, c in enumerate(diag.causes[:10]):
+        name = " + ".join(c.effects) if c.effects else "none (nominal)"
+        pv = "n/a (linearised)" if not c.refined else f"{c.p_value:.3g}"
+        params = "; ".join(_fmt_param(p) for p in c.parameters) or "-"
+        L.append(f"| {i + 1} | {name} | {c.delta_bic:.1f} | {pv} | {params} |")
+    L.append("")
+    if diag.indistinguishable:
+        L.append("### Causes the logged signals cannot tell apart")
+        for a in diag.indistinguishable:
+            L.append(f"- cannot tell **{a['a']}** from **{a['b']}** (delta BIC {a['delta_bic']:.1f}). To separate them: {a.get('recommendation', '')}.")
+        L.append("")
+    unobs = diag.best.unobservable if diag.best else []
+    if unobs:
+        L.append(f"Parameters of the best candidate the data do not constrain (left at nominal): {', '.join(unobs)}.")
+    if not diag.explained:
+        L.append("**Not explained**: no candidate brings the residual down to the noise level. An effect outside the registry "
+                 "(or a combination of more than two) is at work; the refined scenario below is only the best available approximation.")
+    L += ["", "## 3. Refined model", ""]
+    L.append(f"Scenario file: `{scenario_path}`" if scenario_path else "No refined scenario written.")
+    L.append("")
+    L.append("```yaml\neffects: " + json.dumps(diag.refined_effects()) + "\n```")
+    L += ["", "## 4. The gain (throws held out from the fit)", ""]
+    if diag.gain:
+        g = diag.gain
+        L.append(f"{g.folds}-fold cross-validation by plan: every throw is predicted by a model fitted without its plan ({g.n_heldout} throws).")
+        L.append("")
+        L.append("| | median touchdown disparity | 95% CI (bootstrap) |")
+        L.append("|---|---|---|")
+        L.append(f"| before (nominal) | {g.median_disparity_before_m:.3f} m | {g.ci_before_m[0]:.3f}-{g.ci_before_m[1]:.3f} m |")
+        L.append(f"| after (refined) | {g.median_disparity_after_m:.3f} m | {g.ci_after_m[0]:.3f}-{g.ci_after_m[1]:.3f} m |")
+        L.append("")
+        floor = diag.noise.sd["touchdown"] * np.sqrt(2 * np.log(2))
+        L.append(f"Median disparity of pure measurement noise (from the noise estimate): {floor:.3f} m.")
+    else:
+        L.append("No held-out gain computed (no cause fitted or too few touchdowns).")
+    L += ["", "## Figures", ""]
+    for f in figures:
+        L.append(f"![{f}]({f})")
+    L += ["", "## Notes", ""]
+    for n in diag.notes:
+        L.append(f"- {n}")
+    L.append(f"- {diag.n_rollouts} rollouts in {s['timings_s']['total']:.1f} s ({', '.join(f'{k} {v:.1f} s' for k, v in s['timings_s'].items() if k != 'total')}).")
+    return "\n".join(L) + "\n"
+
+
+def write_report(diag: Diagnosis, out: str | Path, figures: bool = True) -> dict[str, str]:
+    """Write ``report.md``, ``diagnosis.json``, ``refined_scenario.yaml`` and figures into ``out``; returns the paths."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    scen = write_refined_scenario(diag, out / "refined_scenario.yaml")
+    diag.refined_scenario_path = str(scen)
+    figs = _figures(diag, out) if figures else []
+    (out / "diagnosis.json").write_text(diag.to_json())
+    per_throw = out / "per_throw.json"
+    per_throw.write_text(json.dumps(diag.per_throw, indent=1))
+    (out / "report.md").write_text(_markdown(diag, figs, scen))
+    return {"report": str(out / "report.md"), "json": str(out / "diagnosis.json"), "scenario": str(scen), "per_throw": str(per_throw), **{f: str(out / f) for f in figs}}
+
+
+__all__ = ["write_report", "write_refined_scenario"]
