@@ -5,7 +5,8 @@ Figures are medians over seeds. References are measured in the same run:
 * CMA-ES wrapper vs ``cma`` used directly (same population, its own seeding): evaluations to the
   target (ratio ~1 means the wrapper changes nothing) and wall time per generation (overhead);
 * REPS and PI2 vs CMA-ES on the same 5-D sphere from the same start (evaluations until the mean
-  of the search distribution is within 1e-2 of the optimum);
+  of the search distribution is within 1e-2 of the optimum), REPS and PI2 on 5-D Rosenbrock, and
+  all three with 49 parameters (as many as the throwing DMP; sphere, reward reduced 1e-4 times);
 * C-REPS: mean regret over the paper's 16 test contexts after a fixed number of episodes, passive
   (uniform contexts) vs active (bandit) context selection;
 * the loop driver: seconds per episode with and without an ``out_dir`` (CSV row fsync + state).
@@ -57,12 +58,12 @@ def raw_cma_to_target(cost, x0, sigma0, seed, target, budget):
     return es.countevals if best < target else np.nan, (time.perf_counter() - start) / max(es.countiter, 1)
 
 
-def mean_to_optimum(opt, budget, tol=1e-2):
-    reward = reward_of(sphere)
+def mean_to_optimum(opt, budget, tol=1e-2, cost=sphere, optimum=0.0):
+    reward = reward_of(cost)
     while opt.n_evaluations < budget:
         x = opt.ask()
         opt.tell(x, reward(x))
-        if np.linalg.norm(opt.mean) < tol:
+        if np.linalg.norm(opt.mean - optimum) < tol:
             return opt.n_evaluations
     return np.nan
 
@@ -121,6 +122,27 @@ def main() -> None:
         "reps_ratio_vs_cmaes": med(reps) / med(cma_mean),
         "pi2_ratio_vs_cmaes": med(pi2) / med(cma_mean),
     }
+
+    rosen_start = np.zeros(5)
+    out["rosenbrock5_mean_within_1e-2"] = {
+        name: med([mean_to_optimum(make(rosen_start, 0.25, np.random.default_rng(s)), 20000, cost=rosenbrock, optimum=np.ones(5)) for s in seeds])
+        for name, make in (("reps_evaluations_median", REPS), ("pi2_evaluations_median", PI2))
+    }
+
+    d49 = {}
+    for name, make, sigma in (("cmaes", CMAES, 0.5), ("reps", REPS, 0.25), ("pi2", PI2, 0.25)):
+        evaluations = []
+        for s in seeds:
+            opt = make(np.ones(49), sigma, np.random.default_rng(s))
+            reward = reward_of(sphere)
+            while opt.n_evaluations < 30000 and opt.best[1] < -1e-4 * 49:
+                x = opt.ask()
+                opt.tell(x, reward(x))
+            evaluations.append(opt.n_evaluations if opt.best[1] >= -1e-4 * 49 else np.nan)
+        d49[f"{name}_evaluations_median"] = med(evaluations)
+    d49["reps_ratio_vs_cmaes"] = d49["reps_evaluations_median"] / d49["cmaes_evaluations_median"]
+    d49["pi2_ratio_vs_cmaes"] = d49["pi2_evaluations_median"] / d49["cmaes_evaluations_median"]
+    out["sphere49_reward_reduced_1e-4"] = d49
 
     passive = [creps_regret(s, args.creps_episodes, False) for s in seeds]
     active = [creps_regret(s, args.creps_episodes, True) for s in seeds]
