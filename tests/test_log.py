@@ -177,6 +177,14 @@ def test_resume_refuses_other_plans_and_append_checks_the_order(tmp_path, lab):
         log.append(Measurement(trial=5, plan=ps[0]))
     with pytest.raises(LogError, match="already exists"):
         LabLog.create(tmp_path / "run", "again")
+    # a create killed before log.json was written leaves a skeleton that may be created again
+    (tmp_path / "half" / "trials").mkdir(parents=True)
+    (tmp_path / "half" / "trials.csv").write_text("trial,plan_hash,touchdown_x,touchdown_y,flags,message\n")
+    assert len(LabLog.create(tmp_path / "half", "again")) == 0
+    (tmp_path / "other").mkdir()
+    (tmp_path / "other" / "notes.txt").write_text("someone's file")
+    with pytest.raises(LogError, match="already exists"):
+        LabLog.create(tmp_path / "other", "lab")
 
 
 def test_corrupt_or_foreign_logs_are_named(tmp_path, lab):

@@ -90,14 +90,14 @@ class LabLog:
         ``lab_description``: the lab's public description (name, sensors; never hidden truth);
         ``run``: facts about the run to check on resume (e.g. the seed)."""
         root = Path(logdir)
-        if root.exists() and (not root.is_dir() or any(root.iterdir())):
+        if root.exists() and (not root.is_dir() or not cls._is_unfinished_create(root)):
             raise LogError(f"{root} already exists and is not an empty folder; open it with LabLog.open to resume")
         if isinstance(lab_description, str):
             lab_description = {"name": lab_description}
         if not isinstance(lab_description, dict) or not lab_description.get("name"):
             raise LogError("lab_description must be a dict with a non-empty 'name' (or a name string)")
         root.mkdir(parents=True, exist_ok=True)
-        (root / "trials").mkdir()
+        (root / "trials").mkdir(exist_ok=True)
         header = {
             "format": LOG_FORMAT,
             "version": LOG_VERSION,
@@ -110,6 +110,18 @@ class LabLog:
         _fsync_write(root / "log.json", json.dumps(header, indent=2) + "\n")
         _fsync_dir(root)
         return cls(root, header, [])
+
+    @staticmethod
+    def _is_unfinished_create(root: Path) -> bool:
+        """True for an empty folder or one left by a :meth:`create` killed before log.json was written
+        (at most an empty ``trials/`` and a header-only ``trials.csv``): it may be created again."""
+        for p in root.iterdir():
+            if p.name == "trials" and p.is_dir() and not any(p.iterdir()):
+                continue
+            if p.name == "trials.csv" and p.is_file() and p.read_text(encoding="utf-8", errors="replace").count("\n") <= 1:
+                continue
+            return False
+        return True
 
     @classmethod
     def open(cls, logdir: str | Path) -> "LabLog":
