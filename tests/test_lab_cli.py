@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 import uuid
 
+import numpy as np
+import pytest
 import yaml
 
 from besdrake.cli import main
@@ -95,3 +97,41 @@ def test_lab_run_reports_bad_input(tmp_path, capsys):
     assert main(["lab", "run", "--lab", str(lab), "--plans", str(bad), "--out", str(tmp_path / "o"),
                  "--plugin", str(tmp_path / "missing.py")]) == 2
     assert "plugin file not found" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_sigkilled_cli_run_resumes_to_the_same_log(tmp_path):
+    """A real kill (SIGKILL mid-run), then the same command: the log equals an uninterrupted run's."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    lab = write_lab(tmp_path)
+    plans = tmp_path / "plans.json"
+    plans.write_text(json.dumps([default_throw(a).to_dict() for a in np.linspace(0.25, 0.5, 10)]))
+
+    def cmd(out):
+        return [sys.executable, "-m", "besdrake", "lab", "run", "--lab", str(lab), "--plans", str(plans), "--out", str(out), "--quiet"]
+
+    subprocess.run(cmd(tmp_path / "ref"), check=True, capture_output=True)
+    proc = subprocess.Popen(cmd(tmp_path / "run"), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    csv_path = tmp_path / "run" / "trials.csv"
+    deadline = time.time() + 120
+    while time.time() < deadline and proc.poll() is None:
+        if csv_path.is_file() and len(csv_path.read_text().splitlines()) >= 4:  # header + 3 trials
+            break
+        time.sleep(0.01)
+    assert proc.poll() is None, "the run finished before it could be killed"
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    n_before = len(LabLog.open(tmp_path / "run"))
+    assert 3 <= n_before < 10
+    subprocess.run(cmd(tmp_path / "run"), check=True, capture_output=True)
+    got, want = read_log(tmp_path / "run"), read_log(tmp_path / "ref")
+    assert [m.trial for m in got] == list(range(10))
+    for a, b in zip(got, want):
+        assert a.plan_hash == b.plan_hash
+        np.testing.assert_array_equal(a.touchdown, b.touchdown)
+        np.testing.assert_array_equal(a.q_measured, b.q_measured)
