@@ -178,3 +178,18 @@ def test_all_subjects_above_99_percent():
             total += acc["samples"]
             assert acc["correct_share"] > 0.98
     assert correct / total > 0.99
+
+
+def test_marker_set_without_plates_uses_the_initial_pose(subject, experiment):
+    names = ["Back top", "Shoulder", "Elbow", "Hand top", "Ball"]
+    lab = MarkerLabeler().fit(subject.experiment(0).recording.select(names))
+    assert lab.plates_ == []
+    un, truth = make_unlabeled(experiment.recording.select(names), np.random.default_rng(0), 0.2)
+    acc = labeling_accuracy(lab.predict(un).slot_labels, truth, names)
+    assert acc["correct_share"] > 0.99
+    assert min(acc["per_marker"].values()) > 0.98
+
+
+def test_rejects_bad_parameters():
+    with pytest.raises(ValueError, match="track_gate"):
+        MarkerLabeler(track_gate=0.0)

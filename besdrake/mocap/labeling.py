@@ -1,25 +1,37 @@
 """Automatic marker labelling from relative distances, learned from one labelled recording.
 
 The paper's labeller needs "neighbouring markers, initial pose". Here :class:`MarkerLabeler`
-learns from one labelled reference recording of the same marker set:
+learns from one labelled reference recording of the same marker set (same subject and marker
+placement):
 
-* for every pair of markers, the distribution of their distance (a smoothed histogram, so rigid
-  pairs get a sharp peak and loose pairs a broad one);
-* the rigid plates: groups of three markers whose pairwise distances vary by less than
-  ``rigid_tol`` (the back and hand plates);
-* how well the true marker fits its neighbours (a per-label cost threshold).
+* for every pair of markers, the distribution of their distance: a smoothed histogram, and for
+  rigid pairs (plates) a Gaussian, fine enough to tell nearly isosceles plates apart;
+* the rigid plates: disjoint triples whose pairwise distances vary by less than ``rigid_tol``
+  (the back and hand plates), most rigid first;
+* how well each true marker fits its neighbours in the reference (per-label cost thresholds).
 
-:meth:`MarkerLabeler.predict` then labels a recording of unnamed trajectories:
+The cost of a point for a label is the mean, over the labelled markers visible at the same
+time, of the pair costs (-log density), weighted towards sharp (rigid) neighbours.
 
-1. *Tracking*: points are linked frame to frame (constant-velocity prediction, Hungarian
-   assignment, gate ``track_gate`` metres) into tracklets; a tracklet ends at a gap or a jump.
-   Slot numbers play no role, so identities shuffled per gap or per frame are the same problem.
-2. *Identification*, in order of tracklet start: a new tracklet gets the free label whose learned
-   distances to the labelled markers visible at the same time fit best, or whose motion it
-   continues (prediction from previous frames over a gap), if that fit passes the label's
-   threshold; otherwise it is a ghost. Tracklets that start together (e.g. the first frame) are
-   resolved rigid plates first (best triple by distances), then singles, greedily.
-3. *Gap filling* (:mod:`besdrake.mocap.gaps`): rigid fits for plate markers, splines otherwise;
+:meth:`MarkerLabeler.predict` labels a recording of unnamed trajectories:
+
+1. *Tracking*: points are linked frame to frame into tracklets (constant-velocity prediction,
+   Hungarian assignment, a gate of a few times each tracklet's recent prediction error, so a
+   neighbouring plate marker is not taken over when a marker vanishes). Slot numbers play no
+   role, so identities shuffled per gap or per frame are the same problem.
+2. *Seed*: at the frame where most long tracklets coexist, whole plates are assigned first (the
+   triple that best fits the learned distances), the initial pose.
+3. *Identification*, most certain first: repeatedly, the tracklet whose best label beats its
+   runner-up by the widest margin takes it, if its cost passes the label's threshold or if it
+   continues the label's motion across a gap (prediction from the neighbouring frames).
+   Short tracklets (< ``min_length_s``) pass a stricter threshold, and a short piece of a single
+   (non-plate) marker must continue that marker's motion: alone, such pieces are mostly ghosts.
+   What fits nothing is a ghost.
+4. *Refinement*: every tracklet is re-decided with all others labelled; a long one may take over
+   a label held only by short pieces. Long tracklets that still fit nothing take the free label
+   they fit best within ``elimination_factor`` times its threshold (reported in the warnings:
+   e.g. a marker re-attached since the reference).
+5. *Gap filling* (:mod:`besdrake.mocap.gaps`): rigid fits for plate markers, splines otherwise;
    long gaps are flagged.
 """
 
@@ -117,53 +129,62 @@ def labeling_accuracy(slot_labels: np.ndarray, truth: np.ndarray, marker_names: 
 class MarkerLabeler:
     """Label unnamed marker trajectories (scikit-learn style: ``fit(reference)``, ``predict(recording)``).
 
-    Parameters: ``track_gate`` (m) for frame-to-frame linking, ``max_gap_s`` for continuing a
-    label's motion across a gap and for gap filling, ``rigid_tol`` (m) to detect plates,
-    ``window`` frames of a new tracklet used to identify it, ``bin_m`` and ``smooth_m`` for the
-    distance histograms.
+    Distances in metres, times in seconds. Tracking: ``track_gate`` (largest link distance),
+    ``min_gate`` (smallest adaptive gate), ``max_speed`` (gate of a tracklet without velocity).
+    Model: ``rigid_tol`` (plate detection), ``bin_m``/``smooth_m``/``max_distance`` (distance
+    histograms), ``min_sigma`` (floor of a rigid pair's spread), ``weighted``/``weight_scale``
+    (neighbours weighted by 1 / (spread + weight_scale)), ``trim`` (drop the worst neighbours),
+    ``threshold_quantile``/``threshold_margin`` and ``strict_quantile`` (acceptance thresholds
+    from the reference's own costs). Identification: ``window`` (frames sampled per tracklet),
+    ``min_length_s`` (shorter tracklets are treated as possible ghosts), ``max_gap_s`` (motion
+    continued across gaps up to this long; also the longest gap filled), ``refine_passes``,
+    ``elimination_factor`` (<= 1 disables elimination).
     """
 
     def __init__(
         self,
         track_gate: float = 0.05,
-        max_gap_s: float = 0.25,
+        min_gate: float = 0.012,
+        max_speed: float = 10.0,
         rigid_tol: float = 0.003,
-        window: int = 10,
         bin_m: float = 0.002,
         smooth_m: float = 0.004,
         max_distance: float = 6.0,
+        min_sigma: float = 0.0007,
+        weighted: bool = True,
+        weight_scale: float = 0.02,
+        trim: int = 0,
         threshold_quantile: float = 0.99,
         threshold_margin: float = 1.5,
-        refine_passes: int = 3,
-        max_speed: float = 10.0,
-        min_length_s: float = 0.3,
-        min_gate: float = 0.012,
-        trim: int = 0,
-        weighted: bool = True,
-        elimination_factor: float = 2.0,
-        min_sigma: float = 0.0007,
-        weight_scale: float = 0.02,
         strict_quantile: float = 0.9,
+        window: int = 10,
+        min_length_s: float = 0.3,
+        max_gap_s: float = 0.25,
+        refine_passes: int = 3,
+        elimination_factor: float = 2.0,
     ):
-        self.min_length_s = min_length_s
-        self.min_gate = min_gate
-        self.trim = trim
-        self.weighted = weighted
-        self.elimination_factor = elimination_factor
-        self.min_sigma = min_sigma
-        self.weight_scale = weight_scale
-        self.strict_quantile = strict_quantile
-        self.refine_passes = refine_passes
-        self.max_speed = max_speed
         self.track_gate = track_gate
-        self.max_gap_s = max_gap_s
+        self.min_gate = min_gate
+        self.max_speed = max_speed
         self.rigid_tol = rigid_tol
-        self.window = window
         self.bin_m = bin_m
         self.smooth_m = smooth_m
         self.max_distance = max_distance
+        self.min_sigma = min_sigma
+        self.weighted = weighted
+        self.weight_scale = weight_scale
+        self.trim = trim
         self.threshold_quantile = threshold_quantile
         self.threshold_margin = threshold_margin
+        self.strict_quantile = strict_quantile
+        self.window = window
+        self.min_length_s = min_length_s
+        self.max_gap_s = max_gap_s
+        self.refine_passes = refine_passes
+        self.elimination_factor = elimination_factor
+        for name in ("track_gate", "min_gate", "max_speed", "rigid_tol", "bin_m", "max_distance", "min_sigma", "window"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
 
     # ------------------------------------------------------------------ fit
     def fit(self, reference: MocapRecording) -> "MarkerLabeler":
@@ -234,6 +255,9 @@ class MarkerLabeler:
         self.strict_thresholds_ = strict
         self.typical_ = typical
         self.frequency_ = reference.frequency
+        # Initial pose: the first reference frame with the most markers visible.
+        vis = reference.visible()
+        self.initial_pose_ = pos[int(np.argmax(vis.sum(axis=1)))].copy()
         return self
 
     def _frame_costs(self, pos: np.ndarray, d: np.ndarray) -> np.ndarray:
@@ -443,8 +467,8 @@ class MarkerLabeler:
                 label_of[t] = GHOST
 
         def cost_row(t: int, displace: bool = False) -> np.ndarray:
-            """Cost above the label's typical cost, inf where it fails the label's threshold;
-            NaN everywhere when there is nothing to compare with."""
+            """Per-label cost of tracklet ``t`` (lower is better), inf where the label is taken or
+            fails its threshold; NaN everywhere when there is nothing to compare with yet."""
             rows = rows_of[t]
             sample = np.unique(np.linspace(0, len(rows) - 1, min(self.window, len(rows))).round().astype(int))
             geo = self._geometry_cost(pts_of[t][sample], rows[sample], label_pos)
@@ -473,7 +497,7 @@ class MarkerLabeler:
                 out[:] = np.nan
             return out
 
-        # 1. Seed: at the frame where most long tracklets coexist, whole plates, then singles.
+        # 1. Seed: at the frame where most long tracklets coexist, whole plates (initial pose).
         long_ts = np.nonzero(lengths >= min(self.window, lengths.max()))[0]
         active = np.zeros(n, dtype=int)
         for t in long_ts:
@@ -481,6 +505,9 @@ class MarkerLabeler:
         f_seed = int(np.argmax(active))
         seed_group = [int(t) for t in long_ts if rows_of[t][0] <= f_seed <= rows_of[t][-1]]
         self._seed_plates(seed_group, f_seed, rows_of, pts_of, occupied, assign)
+        if not occupied.any():
+            # No plate found: fall back on the reference's initial pose.
+            self._seed_initial_pose(seed_group, f_seed, rows_of, pts_of, assign)
         # 2. The most certain decision first: repeatedly assign the pending tracklet whose best
         #    label beats its runner-up (or its threshold) by the widest margin; decisions
         #    change the neighbours' costs, so tracklets overlapping in time are re-scored.
@@ -564,6 +591,25 @@ class MarkerLabeler:
             names, slot_labels, out_rec, raw, gaps, n_t, int((label_of == GHOST).sum()), never,
             _time.process_time() - t_start, warnings, tid, label_of,
         )
+
+    def _seed_initial_pose(self, group, frame, rows_of, pts_of, assign, max_error: float = 0.1) -> None:
+        """Match the tracklets active at ``frame`` to the reference's initial pose (both
+        centred on their centroid), Hungarian on distance, matches within ``max_error`` metres."""
+        if len(group) < 2:
+            return
+        ref = self.initial_pose_
+        ok = ~np.isnan(ref).any(axis=1)
+        pts = np.array([pts_of[t][int(np.searchsorted(rows_of[t], frame))] for t in group])
+        if ok.sum() < 2:
+            return
+        ref_c = ref[ok] - ref[ok].mean(axis=0)
+        pts_c = pts - pts.mean(axis=0)
+        cost = np.linalg.norm(pts_c[:, None, :] - ref_c[None, :, :], axis=2)
+        rows, cols = linear_sum_assignment(cost)
+        labels = np.nonzero(ok)[0]
+        for r, c in zip(rows, cols):
+            if cost[r, c] <= max_error:
+                assign(group[r], int(labels[c]))
 
     def _seed_plates(self, group, frame, rows_of, pts_of, occupied, assign) -> None:
         """Assign whole plates among ``group`` (tracklets active at ``frame``), best-fitting
