@@ -303,10 +303,12 @@ def _placement_rollout_class():
 class VirtualLab(TrialCounter):
     """A simulated lab with hidden effects and a real lab's measurement process (module docstring).
 
-    ``VirtualLab(config)`` with a :class:`LabConfig` or the path of a lab YAML file. The Drake diagram is
+    ``VirtualLab(config)`` with a :class:`LabConfig`, a config mapping or the path of a lab YAML file. The Drake diagram is
     built on the first :meth:`execute` (about 1 s) and reused."""
 
-    def __init__(self, config: LabConfig | str | Path) -> None:
+    def __init__(self, config: LabConfig | dict | str | Path) -> None:
+        if isinstance(config, dict):
+            config = parse_lab_config(config)
         self.config = config if isinstance(config, LabConfig) else load_lab_config(config)
         self.name = self.config.name
         self._rollout = None
