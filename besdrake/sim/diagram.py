@@ -48,6 +48,7 @@ class SimHandles:
     ball_instance: Any
     base_frame: Any
     scoop_frame: Any
+    scoop_body: Any
     ball_body: Any
     actuators: list
     ball_collision_id: Any
@@ -86,7 +87,7 @@ def base_transform(scenario: Scenario):
 
 def build_diagram(scenario: Scenario | str = "nominal", meshcat=None) -> SimHandles:
     """Build the Diagram for ``scenario`` (a Scenario or a name/path); optionally visualise in ``meshcat``."""
-    from pydrake.geometry import Box, MeshcatVisualizer, MeshcatVisualizerParams, Role, Sphere
+    from pydrake.geometry import Box, CollisionFilterDeclaration, GeometrySet, MeshcatVisualizer, MeshcatVisualizerParams, Role, Sphere
     from pydrake.math import RigidTransform
     from pydrake.multibody.parsing import Parser
     from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
@@ -112,7 +113,7 @@ def build_diagram(scenario: Scenario | str = "nominal", meshcat=None) -> SimHand
     base_frame = plant.AddFrame(FixedOffsetFrame("compi_base", plant.world_frame(), base_transform(scenario)))
     plant.WeldFrames(base_frame, plant.GetFrameByName(robot.BASE_LINK, arm))
     ball_instance = _parse(parser, scenario, "ball")[0]
-    _parse(parser, scenario, "ground")  # a <static> model: welded to the world by the parser
+    ground = _parse(parser, scenario, "ground")[0]  # a <static> model: welded to the world by the parser
     z = scenario.base.z
     if z > 0.02:
         plant.RegisterVisualGeometry(
@@ -146,6 +147,12 @@ def build_diagram(scenario: Scenario | str = "nominal", meshcat=None) -> SimHand
     diagram = builder.Build()
     diagram.set_name(f"besdrake_{scenario.name}")
 
+    # The floor is handled by the rollout (it stops when the ball reaches the floor and computes the
+    # touchdown analytically), so no contact with it is ever needed: filtering it saves ~15% per step.
+    ground_geoms = GeometrySet([g for b in plant.GetBodyIndices(ground) for g in plant.GetCollisionGeometriesForBody(plant.get_body(b))])
+    all_geoms = GeometrySet(list(scene_graph.model_inspector().GetAllGeometryIds(Role.kProximity)))
+    scene_graph.collision_filter_manager().Apply(CollisionFilterDeclaration().ExcludeBetween(ground_geoms, all_geoms))
+
     inspector = scene_graph.model_inspector()
     ball_body = plant.GetBodyByName(robot.BALL_BODY, ball_instance)
     ball_coll = list(plant.GetCollisionGeometriesForBody(ball_body))
@@ -164,6 +171,7 @@ def build_diagram(scenario: Scenario | str = "nominal", meshcat=None) -> SimHand
         ball_instance=ball_instance,
         base_frame=base_frame,
         scoop_frame=scoop_body.body_frame(),
+        scoop_body=scoop_body,
         ball_body=ball_body,
         actuators=actuators,
         ball_collision_id=ball_coll[0],

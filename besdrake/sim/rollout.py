@@ -25,6 +25,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from pydrake.math import RigidTransform
+
 from besdrake import robot
 from besdrake.plan import MotionPlan, PlanError
 from besdrake.sim.diagram import SimHandles, build_diagram
@@ -40,7 +42,7 @@ DIVERGENCE_SPEED = 50.0
 
 
 class PlanLimitError(PlanError):
-    """A motion plan commands joint positions or velocities beyond COMPI's limits."""
+    """A motion plan commands joint positions beyond COMPI's limits (velocity excess is flagged, not raised)."""
 
 
 class Rollout:
@@ -62,11 +64,13 @@ class Rollout:
         # Indices of the arm and ball in the plant's state vector.
         plant = h.plant
         self._arm_q_idx = np.array([plant.GetJointByName(n, h.arm).position_start() for n in robot.JOINT_NAMES])
-        self._arm_v_idx = np.array([plant.GetJointByName(n, h.arm).velocity_start() for n in robot.JOINT_NAMES])
         ball = h.ball_body
         self._ball_q0 = ball.floating_positions_start()  # quaternion (4) then position (3)
         self._ball_v0 = self._nq + ball.floating_velocities_start_in_v()  # angular (3) then linear (3)
         self._gravity = plant.gravity_field().gravity_vector()
+        self._scratch = h.plant.CreateDefaultContext()  # FK for the re-catch check, never simulated
+        #: Time (s) after a tentative release over which the scoop's planned path is checked for a re-catch.
+        self.recatch_horizon = 0.3
         #: Time (s) by which the reference leads the plan (see rollout()); one time step.
         self.reference_lead = self.scenario.time_step
 
@@ -92,28 +96,72 @@ class Rollout:
         plant = h.plant
         plant.SetPositions(self.plant_context, h.arm, q0)
         plant.SetVelocities(self.plant_context, h.arm, v0)
-        from pydrake.math import RigidTransform
-
         X_WS = self._scoop_pose()
         p = X_WS.multiply(np.array([0.0, 0.0, robot.ball_rest_height(radius) + 1e-4]))
         plant.SetFreeBodyPose(self.plant_context, h.ball_body, RigidTransform(X_WS.rotation(), p))
         plant.SetVelocities(self.plant_context, h.ball_instance, np.zeros(6))
 
     def _ball_outside(self, radius: float) -> tuple[bool, bool, bool]:
-        """(left the scoop's hull, touching the floor, diverged) for the current state."""
+        """(left the scoop for good, touching the floor, diverged) for the current state.
+
+        Tentatively released: the ball touches no scoop geometry, its centre is above the rim plane of the
+        funnel (or beside the funnel) and it moves away from the scoop; or it is ``release.margin`` outside
+        the scoop's bounding box grown by its radius. It has left *for good* when, in addition, its free
+        flight over the next ``recatch_horizon`` s stays outside that box around the scoop as the scoop
+        follows the commanded plan (so a slow lob that falls back onto the scoop is simulated on).
+        """
         h = self.handles
-        x = h.plant.GetPositionsAndVelocities(self.plant_context)
+        plant = h.plant
+        x = plant.GetPositionsAndVelocities(self.plant_context)
         if not np.all(np.isfinite(x)):
             return False, False, True
         p = x[self._ball_q0 + 4 : self._ball_q0 + 7]
         v = x[self._ball_v0 + 3 : self._ball_v0 + 6]
         if np.linalg.norm(v) > DIVERGENCE_SPEED:
             return False, False, True
-        p_S = self._scoop_pose().inverse().multiply(p)
+        on_floor = bool(p[2] <= radius + 1e-3)
+        X_WS = self._scoop_pose()
+        R_SW = X_WS.rotation().inverse()
+        p_S = X_WS.inverse().multiply(p)
         m = self.scenario.release.margin
-        half = robot.SCOOP_TOP_HALF_WIDTH + radius + m
-        outside = abs(p_S[0]) > half or abs(p_S[1]) > half or p_S[2] > robot.SCOOP_LIP_HEIGHT + radius + m or p_S[2] < robot.SCOOP_FLOOR_Z - radius - m
-        return bool(outside), bool(p[2] <= radius + 1e-3), False
+        half = robot.SCOOP_TOP_HALF_WIDTH + radius
+        if abs(p_S[0]) > half + m or abs(p_S[1]) > half + m or p_S[2] > robot.SCOOP_LIP_HEIGHT + radius + m or p_S[2] < robot.SCOOP_FLOOR_Z - radius - m:
+            return self._no_recatch(p, v, radius), on_floor, False
+        beside = abs(p_S[0]) > half or abs(p_S[1]) > half
+        if not (p_S[2] > robot.SCOOP_LIP_HEIGHT or beside):
+            return False, on_floor, False
+        contacts = plant.get_contact_results_output_port().Eval(self.plant_context)
+        ball = h.ball_body.index()
+        for i in range(contacts.num_point_pair_contacts()):
+            info = contacts.point_pair_contact_info(i)
+            if ball in (info.bodyA_index(), info.bodyB_index()):
+                return False, on_floor, False
+        V = plant.EvalBodySpatialVelocityInWorld(self.plant_context, h.scoop_body)
+        v_point = V.translational() + np.cross(V.rotational(), p - X_WS.translation())
+        v_rel_S = R_SW.multiply(v - v_point)
+        away = float(np.dot(v_rel_S, p_S - np.array([0.0, 0.0, robot.ball_rest_height(radius)]))) > 0.0
+        return bool(away and self._no_recatch(p, v, radius)), on_floor, False
+
+    def _no_recatch(self, p: np.ndarray, v: np.ndarray, radius: float) -> bool:
+        """True when the ball, flying freely from (p, v), stays outside the scoop's box grown by its radius
+        while the scoop follows the commanded plan for ``recatch_horizon`` s (or until the ball is below it)."""
+        h = self.handles
+        plant = h.plant
+        t0 = self.context.get_time()
+        taus = np.arange(0.01, self.recatch_horizon + 1e-9, 0.01)
+        qs = self._cmd.sample(t0 + taus)
+        self._scratch.SetTimeStateAndParametersFrom(self.plant_context)
+        half = robot.SCOOP_TOP_HALF_WIDTH + radius
+        for tau, q in zip(taus, qs):
+            ball = p + v * tau + 0.5 * self._gravity * tau * tau
+            plant.SetPositions(self._scratch, h.arm, q)
+            X_WS = plant.CalcRelativeTransform(self._scratch, plant.world_frame(), h.scoop_frame)
+            b = X_WS.inverse().multiply(ball)
+            if abs(b[0]) < half and abs(b[1]) < half and robot.SCOOP_FLOOR_Z - radius < b[2] < robot.SCOOP_LIP_HEIGHT + radius:
+                return False
+            if ball[2] < X_WS.translation()[2] - 0.3:  # well below the scoop: it cannot be caught any more
+                break
+        return True
 
     # ------------------------------------------------------------------ main
     def rollout(self, plan: MotionPlan, effects: dict | None = None, limits: str = "raise") -> Outcome:
@@ -136,6 +184,7 @@ class Rollout:
         )
         apply_effects(setup, effects_done)
         cmd = setup.plan
+        self._cmd = cmd
         # The discrete plant's implicit PD acts on the state at the end of each step, but the source is
         # sampled at its start: lead the reference by one step so that the logged joint angles at time t
         # track the plan at t for every step size (a pure time shift: it does not change where the ball lands).

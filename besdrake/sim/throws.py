@@ -40,7 +40,7 @@ def default_throw(
     yaw: float = 0.0,
     accel: float = 19.0,
     duration: float = 1.5,
-    hold: float = 0.05,
+    hold: float = 0.03,
     dt: float = 0.01,
 ) -> MotionPlan:
     """The default overhand throw (see module docstring); ``amplitude`` > 0 (1 = the full :data:`SWING`),
