@@ -159,10 +159,12 @@ def test_interrupted_write_is_discarded_and_redone(tmp_path, lab, monkeypatch):
     with open(tmp_path / "run" / "trials.csv", "a") as f:
         f.write("2,deadbeef,1.0")
     assert len(LabLog.open(tmp_path / "run")) == 2
+    assert (tmp_path / "run" / "trials.csv").read_text().endswith("1.0"), "reading never modifies the log"
     run_plans(SafetyGate(lab), ps, LabLog.open(tmp_path / "run"))
     got = read_log(tmp_path / "run")
     assert [m.trial for m in got] == [0, 1, 2, 3]
     assert got[2].flags.get("refused_by_safety_gate")
+    assert "deadbeef" not in (tmp_path / "run" / "trials.csv").read_text()
 
 
 def test_resume_refuses_other_plans_and_append_checks_the_order(tmp_path, lab):

@@ -12,7 +12,8 @@
 
 :meth:`LabLog.append` writes the trial folder first and the CSV row last, each file fsync'ed: a trial
 exists once its row does. A folder without a row (a run killed while writing) is overwritten by the
-next append; a row cut short by a kill (no final newline) is dropped when the log is opened.
+next append; a row cut short by a kill (no final newline) is ignored by readers and cut off by the next
+append (readers never modify the folder, so a log may be read while it is being written).
 """
 
 from __future__ import annotations
@@ -148,14 +149,9 @@ class LabLog:
         if not path.is_file():
             raise LogError(f"{path.parent} is not a complete log: trials.csv is missing")
         raw = path.read_bytes()
-        if raw and not raw.endswith(b"\n"):
-            # A row cut short by a kill: it never committed, drop it (the trial will be redone).
-            cut = raw.rfind(b"\n") + 1
-            with open(path, "r+b") as f:
-                f.truncate(cut)
-                f.flush()
-                os.fsync(f.fileno())
-            raw = raw[:cut]
+        # A last line without its newline is a row cut short by a kill (or being written right now): it has
+        # not committed, so it is ignored here; the next append cuts it off (readers never modify the file).
+        raw = raw[: raw.rfind(b"\n") + 1]
         try:
             text = raw.decode("utf-8")
         except UnicodeDecodeError as err:
@@ -229,8 +225,17 @@ class LabLog:
         row = self._row(m)
         buf = io.StringIO()
         csv.writer(buf, lineterminator="\n").writerow([row[c] for c in CSV_COLUMNS])
-        with open(self.root / "trials.csv", "a", encoding="utf-8", newline="") as f:
-            f.write(buf.getvalue())
+        with open(self.root / "trials.csv", "r+b") as f:
+            size = f.seek(0, os.SEEK_END)
+            f.seek(max(size - 4096, 0))
+            tail = f.read()
+            if tail and not tail.endswith(b"\n"):  # drop an uncommitted partial row left by a kill
+                cut = tail.rfind(b"\n")
+                if cut < 0:
+                    raise LogError(f"{self.root / 'trials.csv'}: cannot find the end of the last complete row")
+                f.truncate(size - len(tail) + cut + 1)
+            f.seek(0, os.SEEK_END)
+            f.write(buf.getvalue().encode("utf-8"))
             f.flush()
             os.fsync(f.fileno())
         self._rows.append(row)
