@@ -255,13 +255,13 @@ def run_creps(opt, problem, n_episodes, seed_contexts=None):
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_creps_contextual_quadratic_mean_regret_below_1e_2_within_1000_episodes(seed):
+def test_creps_contextual_quadratic_mean_regret_below_1e_2_within_1500_episodes(seed):
     problem = ContextualQuadratic.random(4, 2, np.random.default_rng(100 + seed), condition=10.0)
     opt = CREPS(np.zeros(4), 2, 1.0, np.random.default_rng(seed))
     initial = float(np.mean(problem.regret(TEST_CONTEXTS, opt.policy(TEST_CONTEXTS))))
-    final = run_creps(opt, problem, 1000)
+    final = run_creps(opt, problem, 1500)
     assert initial > 1.0
-    assert final < 1e-2
+    assert final < 1e-2  # measured 1.6e-5 to 2.5e-4 (seeds 0-2); 2e-3 to 9e-3 after 1000 episodes
     # the learned policy is the linear map from context to optimum
     np.testing.assert_allclose(opt.policy(TEST_CONTEXTS), problem.optimum(TEST_CONTEXTS), atol=0.1)
 
@@ -270,7 +270,7 @@ def test_creps_active_bandit_context_selection_learns_on_grid_contexts():
     problem = ContextualQuadratic.random(4, 2, np.random.default_rng(100), condition=10.0)
     opt = CREPS(np.zeros(4), 2, 1.0, np.random.default_rng(0), active=True, context_bounds=CONTEXT_BOUNDS, bandit_grid=4)
     chosen = []
-    for _ in range(1000):
+    for _ in range(1500):
         context = opt.select_context(CONTEXT_BOUNDS)
         chosen.append(context)
         params = opt.ask(context)
@@ -280,7 +280,7 @@ def test_creps_active_bandit_context_selection_learns_on_grid_contexts():
     assert all(opt.bandit.arm_of(c) is not None for c in chosen)
     assert len({tuple(c) for c in chosen[:16]}) == 16  # every arm tried once first
     final = float(np.mean(problem.regret(TEST_CONTEXTS, opt.policy(TEST_CONTEXTS))))
-    assert final < 1e-2
+    assert final < 1e-2  # measured 2.4e-5
 
 
 def test_context_bandit_prefers_the_arm_with_learning_progress():
