@@ -11,7 +11,7 @@ import pytest
 
 from besdrake.search.cmaes import CMAES
 from besdrake.search.creps import CREPS
-from besdrake.search.loop import EPISODES_FILE, ResumeError, run_contextual_search, run_search
+from besdrake.search.loop import EPISODES_FILE, ResumeError, batch_evaluator, run_contextual_search, run_search
 from besdrake.search.reps import REPS
 from besdrake.search.testfunctions import ContextualQuadratic, reward_of, sphere
 
@@ -246,3 +246,44 @@ def test_contextual_search_rejects_bad_bounds():
     opt = CREPS(np.zeros(3), 2, 1.0, np.random.default_rng(0))
     with pytest.raises(ValueError, match="context_bounds"):
         run_contextual_search(opt, lambda s, p: 0.0, 10, np.array([[1.0, 0.0], [0.0, 1.0]]))
+
+
+class FakeRolloutExecutor:
+    """Stands in for a besdrake.sim executor: evaluate(plans) -> outcomes, rejecting the whole batch
+    when one plan is invalid (as the real one validates plans before simulating)."""
+
+    def __init__(self):
+        self.batches = []
+
+    def evaluate(self, plans):
+        self.batches.append(len(plans))
+        for plan in plans:
+            if plan["speed"] > 2.0:
+                raise ValueError(f"plan exceeds the joint speed limit ({plan['speed']:.2f})")
+        return [{"distance": float(np.linalg.norm(plan["params"])), "dropped": plan["params"][1] > 1.8} for plan in plans]
+
+
+def test_batch_evaluator_keeps_failures_with_their_episode():
+    executor = FakeRolloutExecutor()
+
+    def to_input(params):
+        if params[2] > 1.9:
+            raise ValueError("execution time must be positive")
+        return {"params": params, "speed": abs(params[0])}
+
+    def to_reward(outcome):
+        if outcome["dropped"]:
+            raise RuntimeError("ball dropped early")
+        return -outcome["distance"] ** 2
+
+    evaluate = batch_evaluator(executor.evaluate, to_input, to_reward)
+    candidates = np.array([[0.1, 0.0, 0.0], [2.5, 0.0, 0.0], [0.2, 1.9, 0.0], [0.3, 0.0, 2.0], [0.4, 0.0, 0.0]])
+    rewards = evaluate(candidates)
+    assert rewards[0] == pytest.approx(-0.01) and rewards[4] == pytest.approx(-0.16)
+    assert "joint speed limit" in str(rewards[1]) and "dropped" in str(rewards[2]) and "execution time" in str(rewards[3])
+    assert executor.batches[0] == 4  # one batch call, then one call per plan to isolate the invalid one
+
+    result = run_search(CMAES(np.full(3, 1.5), 0.5, np.random.default_rng(0)), evaluate, 160)
+    assert 0 < result.n_failed < 160 and result.best_reward > -0.5
+    assert any("ValueError: plan exceeds the joint speed limit" in e for e in result.errors)
+    assert any("RuntimeError: ball dropped early" in e for e in result.errors)

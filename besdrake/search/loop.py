@@ -203,7 +203,12 @@ class _EpisodeLog:
 
 
 def _as_reward(value: Any) -> tuple[float, str]:
-    """A float reward and an error message ('' when the reward is usable)."""
+    """A float reward and an error message ('' when the reward is usable).
+
+    An exception instance in place of a reward marks a failed episode with its message.
+    """
+    if isinstance(value, BaseException):
+        return np.nan, _error_text(value)
     try:
         reward = float(value)
     except (TypeError, ValueError):
@@ -249,6 +254,54 @@ def _check_match(row: _Row, params: np.ndarray, context: np.ndarray | None, wher
 # ---------------------------------------------------------------------------------------------
 # evaluation of one batch
 # ---------------------------------------------------------------------------------------------
+def batch_evaluator(
+    evaluate_many: Callable[[list[Any]], Sequence[Any]],
+    to_input: Callable[[np.ndarray], Any] = lambda params: params,
+    to_reward: Callable[[Any], float] = float,
+) -> Callable[[np.ndarray], list[Any]]:
+    """An ``evaluate_batch`` for :func:`run_search` around a batch evaluator such as a rollout executor.
+
+    ``evaluate_many(inputs) -> outputs`` evaluates a list in one call (e.g.
+    ``besdrake.sim`` executors' ``evaluate(plans) -> outcomes``); ``to_input`` turns a parameter
+    vector into an input (e.g. a motion plan) and ``to_reward`` an output into a reward. Failures
+    stay with their episode: a parameter vector that ``to_input`` rejects, an output ``to_reward``
+    rejects, or, when ``evaluate_many`` raises for the whole batch (one invalid plan fails the
+    call), the inputs it rejects when evaluated one at a time, become failed episodes with their
+    error message; the rest of the batch is evaluated normally.
+    """
+
+    def evaluate_batch(candidates: np.ndarray) -> list[Any]:
+        results: list[Any] = [None] * len(candidates)
+        inputs: list[tuple[int, Any]] = []
+        for i, params in enumerate(candidates):
+            try:
+                inputs.append((i, to_input(params)))
+            except Exception as err:
+                results[i] = err
+        try:
+            outputs = list(evaluate_many([item for _, item in inputs])) if inputs else []
+            if len(outputs) != len(inputs):
+                raise ValueError(f"evaluate_many returned {len(outputs)} outputs for {len(inputs)} inputs")
+        except Exception:
+            outputs = []
+            for _, item in inputs:  # isolate the failing input(s)
+                try:
+                    outputs.extend(evaluate_many([item]))
+                except Exception as err:
+                    outputs.append(err)
+        for (i, _), output in zip(inputs, outputs):
+            if isinstance(output, BaseException):
+                results[i] = output
+                continue
+            try:
+                results[i] = to_reward(output)
+            except Exception as err:
+                results[i] = err
+        return results
+
+    return evaluate_batch
+
+
 ExecutorLike = cf.Executor | Callable[[], cf.Executor]
 
 
@@ -350,7 +403,9 @@ def run_search(
     """Maximise with ``optimizer`` until ``n_evaluations`` episodes are told or it stops.
 
     Evaluation is either ``evaluate_batch(candidates) -> rewards`` (one call per generation, e.g.
-    a rollout executor's batch evaluation; if it raises, the whole batch is failed) or
+    a rollout executor's batch evaluation wrapped by :func:`batch_evaluator`; an exception
+    instance in place of a reward fails that episode; if the call raises, the whole batch is
+    failed) or
     ``evaluate_episode(params) -> reward`` (per episode, serially or through ``executor``: a
     :class:`concurrent.futures.Executor`, or a zero-argument factory of one, which the loop then
     owns and recreates when a worker dies). The last generation is always completed, so the count
