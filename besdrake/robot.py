@@ -114,3 +114,33 @@ def ball_rest_height(radius: float) -> float:
     s = np.sin(SCOOP_WALL_ANGLE)
     c = np.cos(SCOOP_WALL_ANGLE)
     return max((radius - a * s) / c, SCOOP_FLOOR_Z + radius)
+
+
+def scoop_surfaces() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The scoop's contact surfaces as rectangles in the scoop frame: origins (5, 3) (centre of the bottom
+    edge of each wall, centre of the floor plate), unit axes ``u`` (5, 3) (up the wall / along x) and ``w``
+    (5, 3) (along the wall / along y), and half-extents (5, 2) along them (``u`` measured from 0 for walls).
+    The four 45-degree walls' inner faces and the floor plate's top face, as in ``compi.urdf``."""
+    a, h, al = SCOOP_BOTTOM_HALF_WIDTH, SCOOP_LIP_HEIGHT, SCOOP_WALL_ANGLE
+    length = h / np.sin(al)
+    half_w = SCOOP_TOP_HALF_WIDTH + 0.005
+    c, s = np.cos(al), np.sin(al)
+    origins = np.array([[a, 0, 0], [-a, 0, 0], [0, a, 0], [0, -a, 0], [0, 0, SCOOP_FLOOR_Z]], dtype=float)
+    u = np.array([[c, 0, s], [-c, 0, s], [0, c, s], [0, -c, s], [1, 0, 0]], dtype=float)
+    w = np.array([[0, 1, 0], [0, 1, 0], [1, 0, 0], [1, 0, 0], [0, 1, 0]], dtype=float)
+    floor_half = a + 0.005
+    ext = np.array([[length, half_w]] * 4 + [[floor_half, floor_half]], dtype=float)
+    return origins, u, w, ext
+
+
+def distance_to_scoop(p_S: np.ndarray) -> float:
+    """Distance (m) from a point in the scoop frame to the nearest scoop surface (ball contact when < radius)."""
+    origins, u, w, ext = scoop_surfaces()
+    rel = np.asarray(p_S, dtype=float) - origins
+    cu = np.einsum("ij,ij->i", rel, u)
+    cw = np.einsum("ij,ij->i", rel, w)
+    lo_u = np.where(np.arange(5) < 4, 0.0, -ext[:, 0])
+    cu = np.clip(cu, lo_u, ext[:, 0])
+    cw = np.clip(cw, -ext[:, 1], ext[:, 1])
+    closest = origins + cu[:, None] * u + cw[:, None] * w
+    return float(np.min(np.linalg.norm(p_S - closest, axis=1)))

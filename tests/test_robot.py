@@ -72,3 +72,14 @@ def test_missing_model_file_is_a_clear_error(monkeypatch, tmp_path):
         robot.compi_model_path()
     with pytest.raises(FileNotFoundError, match="package file missing"):
         robot.package_xml_path()
+
+
+def test_distance_to_scoop_surfaces():
+    r = 0.035
+    assert robot.distance_to_scoop([0.0, 0.0, robot.ball_rest_height(r)]) == pytest.approx(r)
+    # straight above the funnel: the nearest surface is the rim, at the top of the walls
+    top = robot.SCOOP_TOP_HALF_WIDTH
+    d = robot.distance_to_scoop([0.0, 0.0, 0.5])
+    assert d == pytest.approx(np.hypot(top, 0.5 - robot.SCOOP_LIP_HEIGHT), rel=1e-6)
+    # below the floor plate
+    assert robot.distance_to_scoop([0.0, 0.0, robot.SCOOP_FLOOR_Z - 0.1]) == pytest.approx(0.1)

@@ -8,13 +8,14 @@ Built once per process (about 0.3 s), then every call
 2. applies the scenario's and the caller's effects (:mod:`besdrake.sim.effects`),
 3. swaps the plan in with ``TrajectorySource.UpdateTrajectory`` and places the ball at rest in the scoop,
 4. advances the simulator in chunks of ``release.check_interval`` and, between chunks, checks whether the
-   ball has left the scoop's hull by ``release.margin`` (no per-step Python),
+   ball has left the scoop for good: no contact now, and its predicted free flight keeps ``release.margin``
+   from the scoop's surfaces while the scoop follows the commanded plan (no per-step Python),
 5. finds the release instant in the per-step state log (the last step in which the ball's velocity change
    differs from gravity's) and computes the flight from the state there (:mod:`besdrake.sim.flight`).
 
-Stopping the simulation at release is exact for the ball as long as the arm does not touch the ball again
-after it left the scoop (the arm decelerates after the throw; arm-ball contact after release is not
-modelled). The joint trajectories in the Outcome therefore end at that point.
+Stopping the simulation at release is exact for the ball as long as nothing touches it again; the re-catch
+prediction covers the scoop (links other than the scoop do not collide in the model). The joint
+trajectories in the Outcome therefore end shortly after the release.
 
 A solver error or a diverging state gives an Outcome with ``flags["sim_failed"]``; a malformed plan or a
 plan beyond the position limits raises :class:`~besdrake.plan.PlanError` (``limits="raise"``, the default)
@@ -104,10 +105,8 @@ class Rollout:
     def _ball_outside(self, radius: float) -> tuple[bool, bool, bool]:
         """(left the scoop for good, touching the floor, diverged) for the current state.
 
-        Tentatively released: the ball touches no scoop geometry, its centre is above the rim plane of the
-        funnel (or beside the funnel) and it moves away from the scoop; or it is ``release.margin`` outside
-        the scoop's bounding box grown by its radius. It has left *for good* when, in addition, its free
-        flight over the next ``recatch_horizon`` s stays outside that box around the scoop as the scoop
+        The ball has left for good when it touches no scoop geometry now and its free flight over the next
+        ``recatch_horizon`` s keeps at least ``release.margin`` from every scoop surface while the scoop
         follows the commanded plan (so a slow lob that falls back onto the scoop is simulated on).
         """
         h = self.handles
@@ -120,44 +119,29 @@ class Rollout:
         if np.linalg.norm(v) > DIVERGENCE_SPEED:
             return False, False, True
         on_floor = bool(p[2] <= radius + 1e-3)
-        X_WS = self._scoop_pose()
-        R_SW = X_WS.rotation().inverse()
-        p_S = X_WS.inverse().multiply(p)
-        m = self.scenario.release.margin
-        half = robot.SCOOP_TOP_HALF_WIDTH + radius
-        if abs(p_S[0]) > half + m or abs(p_S[1]) > half + m or p_S[2] > robot.SCOOP_LIP_HEIGHT + radius + m or p_S[2] < robot.SCOOP_FLOOR_Z - radius - m:
-            return self._no_recatch(p, v, radius), on_floor, False
-        beside = abs(p_S[0]) > half or abs(p_S[1]) > half
-        if not (p_S[2] > robot.SCOOP_LIP_HEIGHT or beside):
-            return False, on_floor, False
         contacts = plant.get_contact_results_output_port().Eval(self.plant_context)
         ball = h.ball_body.index()
         for i in range(contacts.num_point_pair_contacts()):
             info = contacts.point_pair_contact_info(i)
             if ball in (info.bodyA_index(), info.bodyB_index()):
                 return False, on_floor, False
-        V = plant.EvalBodySpatialVelocityInWorld(self.plant_context, h.scoop_body)
-        v_point = V.translational() + np.cross(V.rotational(), p - X_WS.translation())
-        v_rel_S = R_SW.multiply(v - v_point)
-        away = float(np.dot(v_rel_S, p_S - np.array([0.0, 0.0, robot.ball_rest_height(radius)]))) > 0.0
-        return bool(away and self._no_recatch(p, v, radius)), on_floor, False
+        return self._no_recatch(p, v, radius), on_floor, False
 
     def _no_recatch(self, p: np.ndarray, v: np.ndarray, radius: float) -> bool:
-        """True when the ball, flying freely from (p, v), stays outside the scoop's box grown by its radius
-        while the scoop follows the commanded plan for ``recatch_horizon`` s (or until the ball is below it)."""
+        """True when the ball, flying freely from (p, v), keeps ``release.margin`` from every scoop surface while
+        the scoop follows the commanded plan for ``recatch_horizon`` s (or until the ball is well below it)."""
         h = self.handles
         plant = h.plant
+        clearance = radius + self.scenario.release.margin
         t0 = self.context.get_time()
-        taus = np.arange(0.01, self.recatch_horizon + 1e-9, 0.01)
+        taus = np.arange(0.0, self.recatch_horizon + 1e-9, 0.01)
         qs = self._cmd.sample(t0 + taus)
         self._scratch.SetTimeStateAndParametersFrom(self.plant_context)
-        half = robot.SCOOP_TOP_HALF_WIDTH + radius
         for tau, q in zip(taus, qs):
             ball = p + v * tau + 0.5 * self._gravity * tau * tau
             plant.SetPositions(self._scratch, h.arm, q)
             X_WS = plant.CalcRelativeTransform(self._scratch, plant.world_frame(), h.scoop_frame)
-            b = X_WS.inverse().multiply(ball)
-            if abs(b[0]) < half and abs(b[1]) < half and robot.SCOOP_FLOOR_Z - radius < b[2] < robot.SCOOP_LIP_HEIGHT + radius:
+            if robot.distance_to_scoop(X_WS.inverse().multiply(ball)) < (radius + 1e-3 if tau == 0.0 else clearance):
                 return False
             if ball[2] < X_WS.translation()[2] - 0.3:  # well below the scoop: it cannot be caught any more
                 break

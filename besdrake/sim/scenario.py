@@ -50,13 +50,14 @@ class ReleaseConfig:
     """How the simulation decides that the ball has left the scoop for good.
 
     ``check_interval``: the simulator advances in chunks of this length (s) and checks the ball between
-    chunks; ``margin``: the ball must be this far (m) outside the scoop's hull; ``min_speed``: a ball
+    chunks; ``margin``: clearance (m) that the ball's predicted free flight must keep from the scoop (moving
+    along the plan) for the ball to count as gone (see ``Rollout``); ``min_speed``: a ball
     that leaves with less speed (m/s) fell out rather than being thrown (flag ``dropped_early``);
     ``tail``: time (s) simulated after the end of the plan before ``never_released`` is declared.
     """
 
     check_interval: float = 0.02
-    margin: float = 0.01
+    margin: float = 0.002
     min_speed: float = 1.0
     tail: float = 0.3
 
