@@ -86,8 +86,10 @@ def ik_trajectory(
     upper = robot.POSITION_LIMITS[:, 1] - joint_margin
     solver = SnoptSolver()
 
-    def solve(i: int, anchor: np.ndarray, guess: np.ndarray) -> tuple[np.ndarray, bool]:
-        for hard in (True, False):
+    def solve(i: int, anchor: np.ndarray, *guesses: np.ndarray) -> tuple[np.ndarray, bool]:
+        """Pose ``i`` pulled towards ``anchor``: the position as a constraint from each guess in
+        turn, and as a cost (unreachable) only when no guess satisfies it."""
+        for hard, guess in [(True, g) for g in guesses] + [(False, guesses[0])]:
             ik = InverseKinematics(plant, with_joint_limits=False)
             q = ik.q()
             prog = ik.get_mutable_prog()
@@ -104,8 +106,8 @@ def ik_trajectory(
             prog.SetInitialGuess(q, guess)
             result = solver.Solve(prog)
             if result.is_success() or not hard:
-                return result.GetSolution(q), hard and result.is_success()
-        raise AssertionError("unreachable")  # pragma: no cover
+                break
+        return result.GetSolution(q), hard and result.is_success()
 
     q_out = np.empty((n, 6))
     reachable = np.ones(n, dtype=bool)
@@ -117,7 +119,9 @@ def ik_trajectory(
         q_out[i], reachable[i] = solve(i, prev, prev if i else np.clip(q_guess[0], lower, upper))
         prev = q_out[i]
     for i in range(n - 2, -1, -1):
-        q_out[i], reachable[i] = solve(i, q_out[i + 1], q_out[i + 1])
+        q_new, ok = solve(i, q_out[i + 1], q_out[i + 1], q_out[i])
+        if ok or not reachable[i]:  # never trade a reached pose for a missed one
+            q_out[i], reachable[i] = q_new, ok
     pos_res = np.empty(n)
     ang_res = np.empty(n)
     for i in range(n):
