@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -199,3 +200,27 @@ def test_segmentation_round_trip_and_errors(tmp_path):
     p.write_text("[{")
     with pytest.raises(MocapFormatError, match="not valid JSON"):
         read_segmentation(p)
+
+
+def test_c3d_in_metres_and_binary_tsv(tmp_path):
+    import c3d
+
+    writer = c3d.Writer(point_rate=50.0, point_units="m   ")
+    writer.set_point_labels(["A", "B"])
+    pts = np.zeros((2, 5), dtype=np.float32)
+    pts[0, :3] = [0.1, 0.2, 1.3]
+    pts[1, :3] = [0.5, 0.2, 1.0]
+    missing = pts.copy()
+    missing[1, 3] = -1.0
+    writer.add_frames([(pts, np.zeros((0, 0), dtype=np.float32)), (missing, np.zeros((0, 0), dtype=np.float32))])
+    path = tmp_path / "m.c3d"
+    with open(path, "wb") as handle, warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the c3d package warns about the absent analog data
+        writer.write(handle)
+    rec = read_recording(path)
+    np.testing.assert_allclose(rec.marker("A")[0], [0.1, 0.2, 1.3], atol=1e-6)
+    assert np.isnan(rec.marker("B")[1]).all() and rec.frequency == 50.0
+    binary = tmp_path / "not_text.tsv"
+    binary.write_bytes(bytes(range(256)))
+    with pytest.raises(MocapFormatError, match="not a text file"):
+        read_tsv(binary)
