@@ -403,3 +403,18 @@ def test_search_in_the_49_parameters_of_a_throw(make, budget, factor):
     opt = make(np.random.default_rng(0))
     optimize(opt, reward_of(sphere), budget, target=-factor * 49.0)
     assert opt.best[1] > -factor * 49.0
+
+
+def test_cmaes_resume_right_after_a_restart_is_exact(tmp_path):
+    reward = reward_of(sphere)
+    opt = CMAES(np.full(3, 2.0), 1.0, np.random.default_rng(4), restarts=5, tolfun=1e-4, tolx=1e-4)
+    while opt.n_restarts_done < 2:
+        candidates = opt.ask()
+        opt.tell(candidates, reward(candidates))
+    resumed = roundtrip(opt, tmp_path, CMAES)
+    assert resumed.run == opt.run and resumed.n_restarts_done == 2
+    for _ in range(10):
+        a, b = opt.ask(), resumed.ask()
+        np.testing.assert_array_equal(a, b)
+        opt.tell(a, reward(a))
+        resumed.tell(b, reward(b))
