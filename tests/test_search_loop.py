@@ -306,3 +306,44 @@ def test_cmaes_aims_the_default_throw_through_the_rollout_executor(tmp_path):
         opt = CMAES(np.array([0.35, 0.0]), 0.1, np.random.default_rng(0), bounds=np.array([[0.1, 0.7], [-0.8, 0.8]]))
         result = run_search(opt, evaluate, 60, out_dir=tmp_path)
     assert np.sqrt(-result.best_reward) < 0.10  # metres from the target; measured 0.033
+
+
+@pytest.mark.parametrize("mode", ["batch", "episode"])
+def test_contextual_search_in_batches_resumes_exactly(tmp_path, mode):
+    problem = ContextualQuadratic.random(3, 2, np.random.default_rng(7))
+
+    def make():
+        return CREPS(np.zeros(3), 2, 1.0, np.random.default_rng(2), n_samples_per_update=20)
+
+    class Evaluations:
+        def __init__(self, kill_at=None):
+            self.n, self.kill_at = 0, kill_at
+
+        def batch(self, contexts, params):
+            if self.kill_at is not None and self.n >= self.kill_at:
+                raise KeyboardInterrupt
+            self.n += len(params)
+            return [problem.reward(s, p) if p[0] < 2.5 else ValueError("too far") for s, p in zip(contexts, params)]
+
+        def episode(self, context, params):
+            if self.n == self.kill_at:
+                raise KeyboardInterrupt
+            self.n += 1
+            return problem.reward(context, params)
+
+    def kwargs(ev):
+        return {"evaluate": None, "evaluate_batch": ev.batch} if mode == "batch" else {"evaluate": ev.episode}
+
+    expected = run_contextual_search(make(), n_episodes=200, context_bounds=BOUNDS, batch_size=20, **kwargs(Evaluations()))
+    killed = Evaluations(kill_at=70)
+    with pytest.raises(KeyboardInterrupt):
+        run_contextual_search(make(), n_episodes=200, context_bounds=BOUNDS, out_dir=tmp_path, batch_size=20, **kwargs(killed))
+    resumed = Evaluations()
+    result = run_contextual_search(make(), n_episodes=200, context_bounds=BOUNDS, out_dir=tmp_path, batch_size=20, **kwargs(resumed))
+    assert killed.n + resumed.n == 200  # batch mode: 60 + 140; episode mode: 70 + 130
+    np.testing.assert_array_equal(result.params, expected.params)
+    np.testing.assert_array_equal(result.optimizer.W, expected.optimizer.W)
+    assert result.n_failed == expected.n_failed
+    np.testing.assert_array_equal(np.unique(result.generations), np.arange(10))
+    regret = problem.regret(BOUNDS.mean(axis=1), result.optimizer.policy(BOUNDS.mean(axis=1)))
+    assert regret < problem.regret(BOUNDS.mean(axis=1), np.zeros(3))  # it learned something in 200 episodes

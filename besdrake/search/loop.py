@@ -462,20 +462,33 @@ def run_search(
 
 def run_contextual_search(
     optimizer: ContextualOptimizer,
-    evaluate: Callable[[np.ndarray, np.ndarray], float],
+    evaluate: Callable[[np.ndarray, np.ndarray], float] | None,
     n_episodes: int,
     context_bounds: np.ndarray,
     out_dir: str | Path | None = None,
     callback: Callable[[GenerationInfo], bool | None] | None = None,
+    *,
+    evaluate_batch: Callable[[np.ndarray, np.ndarray], Sequence[Any]] | None = None,
+    batch_size: int = 1,
 ) -> LoopResult:
     """Contextual policy search: per episode, ``s = optimizer.select_context(context_bounds)``,
     ``theta = optimizer.ask(s)``, ``reward = evaluate(s, theta)``, ``optimizer.tell(s, theta, reward)``.
 
-    Episodes are recorded (with their context) and the state saved after each one; the episode
-    number is the ``generation`` column. Failures and resume as in :func:`run_search`.
+    With ``batch_size > 1``, ``batch_size`` episodes are asked before they are evaluated and told
+    (for parallel rollouts; meant for optimizers whose ``ask`` does not need the unreported
+    episodes, such as C-REPS, which updates only every ``n_samples_per_update`` episodes), and
+    ``evaluate_batch(contexts, params) -> rewards`` (arrays of shape ``(k, n_context)``,
+    ``(k, n_params)``; an exception instance in place of a reward fails that episode) may replace
+    ``evaluate``. Episodes are recorded (with their context) as they are evaluated and the state is
+    saved after every batch; the batch number is the ``generation`` column (the episode number when
+    ``batch_size == 1``). Failures and resume as in :func:`run_search`.
     """
     if n_episodes < 1:
         raise ValueError(f"n_episodes must be >= 1, got {n_episodes}")
+    if batch_size < 1:
+        raise ValueError(f"batch_size must be >= 1, got {batch_size}")
+    if (evaluate is None) == (evaluate_batch is None):
+        raise ValueError("give exactly one of evaluate or evaluate_batch")
     bounds = np.asarray(context_bounds, dtype=float)
     if bounds.shape != (optimizer.n_context, 2) or not np.isfinite(bounds).all() or (bounds[:, 0] >= bounds[:, 1]).any():
         raise ValueError(f"context_bounds must be a finite ({optimizer.n_context}, 2) array with lower < upper")
@@ -483,30 +496,53 @@ def run_contextual_search(
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
     optimizer, loop = _restore(optimizer, out)
-    episode = int(loop["generation"]) if loop else 0
+    generation = int(loop["generation"]) if loop else 0
+    told = int(loop["n_evaluations"]) if loop else 0
     log = _EpisodeLog(None if out is None else out / EPISODES_FILE, optimizer.n_params, optimizer.n_context)
     resumed = loop is not None or bool(log.rows)
     stop_reason = "budget"
-    while episode < n_episodes:
-        context = np.asarray(optimizer.select_context(bounds), dtype=float).ravel()
-        params = np.asarray(optimizer.ask(context), dtype=float).ravel()
-        pending = log.pending(episode)
-        if 0 in pending:
-            row = pending[0]
-            _check_match(row, params, context, out)
-            reward, error = row.reward, row.error if row.failed else ""
-        else:
+    while told < n_episodes:
+        k = min(batch_size, n_episodes - told)
+        contexts = np.zeros((k, optimizer.n_context))
+        params = np.zeros((k, optimizer.n_params))
+        for i in range(k):
+            contexts[i] = np.asarray(optimizer.select_context(bounds), dtype=float).ravel()
+            params[i] = np.asarray(optimizer.ask(contexts[i]), dtype=float).ravel()
+        raw = np.full(k, np.nan)
+        failed = np.zeros(k, dtype=bool)
+        done = np.zeros(k, dtype=bool)
+        for index, row in log.pending(generation).items():
+            if index >= k:
+                raise ResumeError(f"{out}: episode {generation}/{index} does not exist in a batch of {k}")
+            _check_match(row, params[index], contexts[index], out)
+            raw[index], failed[index], done[index] = row.reward, row.failed, True
+        todo = [i for i in range(k) if not done[i]]
+        results: list[tuple[int, float, str]] = []
+        if evaluate_batch is not None and todo:
             try:
-                reward, error = _as_reward(evaluate(context, params))
+                values = list(evaluate_batch(contexts[todo], params[todo]))
             except Exception as err:
-                reward, error = np.nan, _error_text(err)
-            log.append(_Row(episode, 0, reward, bool(error), error, context, params))
-        optimizer.tell(context, params, np.nan if error else float(reward))
-        episode += 1
-        _save(optimizer, out, {"generation": episode, "n_evaluations": episode})
-        if callback is not None and callback(
-            GenerationInfo(episode, params[None], np.array([reward]), np.array([bool(error)]), episode, optimizer, context[None])
-        ):
+                values = [err] * len(todo)
+            if len(values) != len(todo):
+                raise ValueError(f"evaluate_batch returned {len(values)} rewards for {len(todo)} episodes")
+            results = [(i, *_as_reward(value)) for i, value in zip(todo, values)]
+            log.append(*(_Row(generation, i, r, bool(e), e, contexts[i], params[i]) for i, r, e in results))
+        elif evaluate is not None:
+            for i in todo:
+                try:
+                    reward, error = _as_reward(evaluate(contexts[i], params[i]))
+                except Exception as err:
+                    reward, error = np.nan, _error_text(err)
+                results.append((i, reward, error))
+                log.append(_Row(generation, i, reward, bool(error), error, contexts[i], params[i]))
+        for i, reward, error in results:
+            raw[i], failed[i] = reward, bool(error)
+        for i in range(k):
+            optimizer.tell(contexts[i], params[i], np.nan if failed[i] else float(raw[i]))
+        generation += 1
+        told += k
+        _save(optimizer, out, {"generation": generation, "n_evaluations": told})
+        if callback is not None and callback(GenerationInfo(generation, params, raw, failed, told, optimizer, contexts)):
             stop_reason = "callback"
             break
     return log.result(optimizer, resumed, stop_reason, contextual=True)
