@@ -2,7 +2,7 @@
 
 Public API::
 
-    from besdrake.sim import load_scenario, build_diagram, Rollout, Outcome, make_executor
+    from besdrake.sim import load_scenario, build_diagram, Rollout, shared_rollout, Outcome, make_executor
     from besdrake.sim import register_effect, get_effect, list_effects, Effect, Param
     from besdrake.sim.throws import default_throw
 """
@@ -25,6 +25,7 @@ __all__ = [
     "build_diagram",
     "Rollout",
     "PlanLimitError",
+    "shared_rollout",
     "make_executor",
 ]
 
@@ -34,7 +35,7 @@ def __getattr__(name):  # lazy: importing pydrake-heavy modules only when used
         from besdrake.sim.diagram import build_diagram
 
         return build_diagram
-    if name in ("Rollout", "PlanLimitError"):
+    if name in ("Rollout", "PlanLimitError", "shared_rollout"):
         from besdrake.sim import rollout
 
         return getattr(rollout, name)

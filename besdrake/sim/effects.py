@@ -372,8 +372,10 @@ class BallProperties(Effect):
 @register_effect
 class ScoopFriction(Effect):
     """Ball-scoop Coulomb friction (static ``mu_static``, dynamic ``mu_dynamic``): a worn, dusty or wet
-    scoop. Friction decides how the ball rolls or slides up the funnel wall as it leaves, and so the
-    release direction and speed. The proximity properties of the ball and of every scoop geometry are
+    scoop. Friction decides whether the ball rolls or slides on the funnel wall as it leaves, and so (a
+    little) the release direction and speed. With the default throw the ball is catapulted out along the
+    wall normal, so the effect is small (about 2 mm of landing for mu 0.1 -> 1.2); it grows for throws in
+    which the ball rolls out over the rim. The proximity properties of the ball and of every scoop geometry are
     replaced in the SceneGraph Context (``SceneGraph.AssignRole(..., RoleAssign.kReplace)``) with the
     same coefficients, so the combined ball-scoop friction equals the given values. No rebuild.
     """
