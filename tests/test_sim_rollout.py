@@ -128,3 +128,18 @@ def test_outcome_json_round_trip(nominal):
     assert np.allclose(back.ball_path, nominal.ball_path)
     assert back.flags == nominal.flags and back.ok
     assert d["effects"] == {} and d["scenario"] == "nominal"
+
+
+def test_plan_ending_in_motion_holds_its_last_position(sim):
+    full = default_throw(amplitude=0.3)
+    cut = int(np.searchsorted(full.t, 0.15))  # ends mid-swing, at speed
+    plan = MotionPlan(t=full.t[: cut + 1], q=full.q[: cut + 1], qd=full.qd[: cut + 1])
+    assert np.any(np.abs(plan.qd[-1]) > 0.5)
+    o = sim.rollout(plan)
+    assert o.ok or o.flags["dropped_early"]  # the sudden stop throws the ball
+    # after its end the plan commands its last position at rest
+    src = sim.handles.plan_source
+    ctx = src.GetMyContextFromRoot(sim.context)
+    sim.context.SetTime(plan.duration + 0.1)
+    desired = src.get_output_port().Eval(ctx)
+    assert np.allclose(desired[:6], plan.q[-1], atol=1e-3) and np.allclose(desired[6:], 0.0)
