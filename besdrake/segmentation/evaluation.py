@@ -27,14 +27,35 @@ BORDER_DEFINITION = (
 )
 
 
+BORDER_MODES = ("starts_and_ends", "starts", "midgap")
+
+
 def manual_borders(segments: list[Segment], first_frame: int, last_frame: int, frequency: float,
-                   merge_s: float = 0.1, include_parts: bool = True) -> np.ndarray:
-    """Interior border frame numbers of a manual segmentation (see the module docstring)."""
+                   merge_s: float = 0.1, include_parts: bool = True, mode: str = "starts_and_ends") -> np.ndarray:
+    """Interior border frame numbers of a manual segmentation (see the module docstring).
+
+    ``mode``: ``"starts_and_ends"`` (both ends of an unlabelled pause are borders), ``"starts"``
+    (only segment starts: a pause belongs to the movement before it), ``"midgap"`` (one border
+    in the middle of each pause).
+    """
+    if mode not in BORDER_MODES:
+        raise ValueError(f"mode must be one of {BORDER_MODES}, got {mode!r}")
+    segs = [s for s in segments if include_parts or not s.label.endswith("_part")]
     b = []
-    for s in segments:
-        if not include_parts and s.label.endswith("_part"):
-            continue
-        b += [s.start_frame, s.end_frame]
+    if mode == "starts_and_ends":
+        for s in segs:
+            b += [s.start_frame, s.end_frame]
+    elif mode == "starts":
+        b = [s.start_frame for s in segs]
+    else:
+        starts = sorted({s.start_frame for s in segs})
+        ends = sorted({s.end_frame for s in segs})
+        for st in starts:
+            prev = [e for e in ends if e <= st]
+            if prev and st - prev[-1] > merge_s * frequency:
+                b.append(0.5 * (st + prev[-1]))
+            else:
+                b.append(st)
     b = np.array(sorted(b), dtype=float)
     merge = merge_s * frequency
     margin = 0.5 * merge

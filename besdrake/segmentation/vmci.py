@@ -14,6 +14,13 @@ passes through a minimum. This module implements that model from the papers:
   segment is unknown, shared by the dimensions, with an inverse-gamma prior
   ``IG(nu/2, gamma/2)``; the weights have the prior ``N(0, sigma^2 delta^2 I)`` (the
   conjugate model of Fearnhead 2006), so the segment's marginal likelihood is closed-form.
+  (``noise_model="shared"``: a known noise variance instead.)
+* Open ends: the first and last segment may start / end at a non-zero velocity (the
+  recording may be cropped mid-movement): two cubic ramps join their basis there.
+* Rest model: as Fearnhead & Liu allow several models per segment, a segment may instead
+  be a *rest* (velocity zero plus noise with its own, smaller prior noise level
+  ``rest_noise_ratio``), so pauses become segments of their own (both ends of a pause are
+  borders). ``segment_models`` in the result says which model won per segment.
 * Segment length prior: geometric with mean ``mean_length_s`` (a per-segment penalty),
   truncated below ``min_length_s``.
 * Inference: the online Viterbi recursion of Fearnhead & Liu 2007,
@@ -42,53 +49,69 @@ from besdrake.segmentation.base import (
 )
 
 
-@dataclass
 class _LengthTables:
-    """Per-length tables: polynomial coefficients of the basis and posterior matrices."""
+    """Per-length tables of the segment basis: polynomial coefficients and posterior matrices.
 
-    n_basis: int
-    delta2: float
-    dt: float
-    coef: list = field(default_factory=list)  # L -> (K, deg+1) coefficients in u (seconds)
-    post: list = field(default_factory=list)  # L -> (K, K) posterior matrix M_L
-    logdet: list = field(default_factory=list)  # L -> 0.5 * (log|M_L| - K log delta2)
+    Basis ``k < n_bells``: bells; then two cubic Hermite ramps (velocity 1 -> 0 and 0 -> 1 with
+    zero slope at both ends) that let a segment start / end at a non-zero velocity. A ramp is
+    used with prior variance ``ramp_var[0]`` (start) / ``ramp_var[1]`` (end) relative to
+    sigma^2, or left out where that variance is 0 (its row of ``coef`` and of the posterior is
+    then zero). Four variants: index ``open_start + 2 * open_end`` where an open end of the
+    recording uses ``open_var`` instead of the interior ramp variance.
+    """
 
-    @property
-    def degree(self) -> int:
-        return 4 + self.n_basis - 1
-
-    def grow(self, upto: int) -> None:
-        P = np.polynomial.polynomial
-        K = self.n_basis
-        while len(self.coef) <= upto:
-            L = len(self.coef)
-            if L == 0:
-                self.coef.append(np.zeros((K, self.degree + 1)))
-                self.post.append(np.eye(K) * self.delta2)
-                self.logdet.append(0.0)
-                continue
-            T = L * self.dt
-            base = P.polymul(P.polymul([0, 0, 1.0], [T, -1.0]), [T, -1.0])  # u^2 (T-u)^2
-            rows = []
-            for k in range(K):
-                c = P.polymul(base, P.polypow([-T, 2.0], k)) * 16.0 / T ** (4 + k)
-                rows.append(np.pad(c, (0, self.degree + 1 - len(c))))
-            coef = np.array(rows)
-            u = (np.arange(L) + 0.5) * self.dt
-            phi = np.stack([P.polyval(u, c) for c in coef], axis=1)  # (L, K)
-            A = phi.T @ phi + np.eye(K) / self.delta2
+    def __init__(self, n_bells: int, bell_var: float, ramp_var: float, open_var: float, dt: float, upto: int):
+        self.n_bells = n_bells
+        self.K = n_bells + 2
+        self.degree = max(4 + n_bells - 1, 3)
+        self.dt = dt
+        n = upto + 1
+        D = self.degree + 1
+        coef = np.zeros((n, self.K, D))
+        for L in range(1, n):
+            coef[L] = self.polynomials(L * dt)
+        # Gram matrices from power sums: G[L]_kj = sum_ab c_ka c_jb S_{a+b}(L),
+        # S_m(L) = sum_{i<L} u_i^m with u_i = (i + 1/2) dt (vectorised over all lengths)
+        u = (np.arange(n - 1) + 0.5) * dt
+        powers = u[:, None] ** np.arange(2 * D - 1)[None, :]
+        S = np.vstack([np.zeros((1, 2 * D - 1)), np.cumsum(powers, axis=0)])  # (n, 2D-1)
+        idx = np.arange(D)[:, None] + np.arange(D)[None, :]
+        gram = np.einsum("lka,ljb,lab->lkj", coef, coef, S[:, idx])
+        self.coef = np.zeros((4, n, self.K, D))
+        self.post = np.zeros((4, n, self.K, self.K))
+        self.logdet = np.zeros((4, n))
+        for variant in range(4):
+            var = np.r_[
+                np.full(n_bells, bell_var),
+                open_var if variant & 1 else ramp_var,
+                open_var if variant & 2 else ramp_var,
+            ]
+            used = np.flatnonzero(var > 0)
+            A = gram[1:][:, used][:, :, used] + np.diag(1.0 / var[used])[None]
             M = np.linalg.inv(A)
-            sign, ld = np.linalg.slogdet(M)
-            self.coef.append(coef)
-            self.post.append(M)
-            self.logdet.append(0.5 * (ld - K * np.log(self.delta2)))
-        return None
+            _, ld = np.linalg.slogdet(M)
+            self.coef[variant, 1:, used] = np.moveaxis(coef[1:, used], 1, 0)
+            sub = self.post[variant, 1:]
+            sub[:, used[:, None], used[None, :]] = M
+            self.logdet[variant, 1:] = 0.5 * (ld - np.sum(np.log(var[used])))
+
+    def polynomials(self, T: float) -> np.ndarray:
+        """``(K, degree+1)`` coefficients in ``u`` (seconds) of the basis for a segment of duration T."""
+        P = np.polynomial.polynomial
+        rows = []
+        base = P.polymul(P.polymul([0, 0, 1.0], [T, -1.0]), [T, -1.0])  # u^2 (T-u)^2
+        for k in range(self.n_bells):
+            rows.append(P.polymul(base, P.polypow([-T, 2.0], k)) * 16.0 / T ** (4 + k))
+        rows.append(np.array([1.0, 0.0, -3.0 / T**2, 2.0 / T**3]))
+        rows.append(np.array([0.0, 0.0, 3.0 / T**2, -2.0 / T**3]))
+        return np.array([np.pad(c, (0, self.degree + 1 - len(c))) for c in rows])
 
 
 @dataclass
 class VMCIResult(SegmentationResult):
     """A segmentation by :class:`VMCI` plus its inference statistics."""
 
+    segment_models: list = field(default_factory=list)  # "movement" or "rest", one per segment
     log_posterior: float = float("nan")
     mean_particles: float = float("nan")
     max_particles_used: int = 0
@@ -107,6 +130,16 @@ class VMCI(SegmenterMixin):
         mean_length_s: mean of the geometric prior on segment duration (seconds).
         min_length_s: shortest segment (seconds).
         max_length_s: longest segment (seconds); particles older than this are dropped.
+        boundary_ratio: if > 0, two cubic ramps let a segment start and end at a non-zero
+            velocity, with a prior standard deviation of ``boundary_ratio`` times the RMS
+            speed (small: borders are drawn to speed minima without requiring rest).
+        noise_model: ``"segment"`` (unknown noise variance per segment, inverse-gamma prior)
+            or ``"shared"`` (known noise variance ``(noise_ratio * RMS speed)^2``).
+        rest_log_prior: log prior odds of the rest model against a movement segment; None
+            disables the rest model.
+        open_ends: let the first / last segment start / end at a non-zero velocity.
+        rest_noise_ratio: prior mean noise level of rest segments, as a fraction of the RMS
+            speed (None: ``noise_ratio``).
         max_particles: particles kept after each step.
         prune_log_ratio: particles whose path log-probability is lower than the best by more
             than this are pruned.
@@ -122,12 +155,17 @@ class VMCI(SegmenterMixin):
     def __init__(
         self,
         n_basis: int = 2,
-        noise_ratio: float = 0.1,
+        noise_ratio: float = 0.3,
         weight_ratio: float = 3.0,
-        nu: float = 4.0,
+        nu: float = 10.0,
         mean_length_s: float = 1.5,
-        min_length_s: float = 0.25,
+        min_length_s: float = 0.4,
         max_length_s: float = 8.0,
+        boundary_ratio: float = 0.0,
+        noise_model: str = "segment",
+        rest_log_prior: float | None = 0.0,
+        open_ends: bool = True,
+        rest_noise_ratio: float | None = 0.25,
         max_particles: int = 60,
         prune_log_ratio: float = 60.0,
         frequency: float = 60.0,
@@ -141,6 +179,11 @@ class VMCI(SegmenterMixin):
         self.mean_length_s = mean_length_s
         self.min_length_s = min_length_s
         self.max_length_s = max_length_s
+        self.boundary_ratio = boundary_ratio
+        self.noise_model = noise_model
+        self.rest_log_prior = rest_log_prior
+        self.open_ends = open_ends
+        self.rest_noise_ratio = rest_noise_ratio
         self.max_particles = max_particles
         self.prune_log_ratio = prune_log_ratio
         self.frequency = frequency
@@ -151,6 +194,8 @@ class VMCI(SegmenterMixin):
     def _check_params(self) -> None:
         if int(self.n_basis) != self.n_basis or not 1 <= self.n_basis <= 4:
             raise ValueError(f"n_basis must be an integer in 1..4, got {self.n_basis}")
+        if not (np.isfinite(self.boundary_ratio) and self.boundary_ratio >= 0):
+            raise ValueError(f"boundary_ratio must be >= 0, got {self.boundary_ratio}")
         for name in ("noise_ratio", "weight_ratio", "nu", "mean_length_s", "min_length_s", "max_length_s", "frequency"):
             val = getattr(self, name)
             if not (np.isfinite(val) and val > 0):
@@ -159,6 +204,8 @@ class VMCI(SegmenterMixin):
             raise ValueError(f"max_length_s ({self.max_length_s}) must exceed min_length_s ({self.min_length_s})")
         if self.max_particles < 1:
             raise ValueError(f"max_particles must be >= 1, got {self.max_particles}")
+        if self.noise_model not in ("segment", "shared"):
+            raise ValueError(f"noise_model must be 'segment' or 'shared', got {self.noise_model!r}")
         if self.input not in ("position", "velocity"):
             raise ValueError(f"input must be 'position' or 'velocity', got {self.input!r}")
 
@@ -190,19 +237,25 @@ class VMCI(SegmenterMixin):
             return VMCIResult(borders=np.array([], dtype=int), n_samples=n, log_posterior=0.0,
                               mean_particles=1.0, max_particles_used=1)
         V = V / scale  # unit RMS speed: the priors below are relative to the data
-        K = int(self.n_basis)
         nu = float(self.nu)
         gamma = nu * self.noise_ratio**2  # prior mean of sigma^2 ~ gamma / nu (relative units)
-        delta2 = (self.weight_ratio / self.noise_ratio) ** 2
-        tables = _LengthTables(K, delta2, dt)
-        tables.grow(min(lmax, n) + 1)
+        bell_var = (self.weight_ratio / self.noise_ratio) ** 2
+        tables = _LengthTables(
+            int(self.n_basis),
+            bell_var,
+            (self.boundary_ratio / self.noise_ratio) ** 2,
+            bell_var if self.open_ends else (self.boundary_ratio / self.noise_ratio) ** 2,
+            dt,
+            min(lmax, n) + 1,
+        )
         deg = tables.degree
-        post = np.array(tables.post)  # (Lmax+1, K, K)
-        coef = np.array(tables.coef)  # (Lmax+1, K, deg+1)
-        logdet = np.array(tables.logdet)
+        post, coef, logdet = tables.post, tables.coef, tables.logdet
         p = 1.0 / max(self.mean_length_s * frequency, 1.0 + 1e-9)
         log_pen = np.log(p) - np.log1p(-p)  # per-segment log prior (geometric, up to a constant)
         lg_nu = gammaln(nu / 2) - 0.5 * nu * np.log(gamma)
+        shared_noise = self.noise_model == "shared"
+        s2 = self.noise_ratio**2
+        log_2pi_s2 = np.log(2 * np.pi * s2)
 
         sq = np.sum(V**2, axis=1)
         csq = np.r_[0.0, np.cumsum(sq)]
@@ -210,6 +263,27 @@ class VMCI(SegmenterMixin):
         Vbest = np.full(n + 1, -np.inf)
         Vbest[0] = 0.0
         back = np.zeros(n + 1, dtype=int)
+        kind = np.zeros(n + 1, dtype=bool)  # True: the segment ending at t is a rest segment
+        rest = self.rest_log_prior is not None
+        log_rest = float(self.rest_log_prior) if rest else 0.0
+
+        rest_ratio = self.rest_noise_ratio if self.rest_noise_ratio else self.noise_ratio
+        gamma_rest = nu * rest_ratio**2
+        lg_nu_rest = gammaln(nu / 2) - 0.5 * nu * np.log(gamma_rest)
+
+        def marginal(rss, N, logdet_term, rest_model=False):
+            """Log marginal likelihood of a segment from its residual sum of squares."""
+            if shared_noise:
+                var = rest_ratio**2 if rest_model else s2
+                return -0.5 * N * np.log(2 * np.pi * var) - 0.5 * rss / var + logdet_term
+            g, lg = (gamma_rest, lg_nu_rest) if rest_model else (gamma, lg_nu)
+            return (
+                -0.5 * N * np.log(np.pi)
+                - lg
+                - 0.5 * (N + nu) * np.log(g + rss)
+                + gammaln(0.5 * (N + nu))
+                + logdet_term
+            )
         # particle state: start index, moments (P, deg+1, d)
         starts = np.array([0], dtype=int)
         mom = np.zeros((1, deg + 1, d))
@@ -220,24 +294,24 @@ class VMCI(SegmenterMixin):
             u = (t - 1 - starts + 0.5) * dt  # time of sample t-1 since each particle's start
             mom += (u[:, None] ** powers)[:, :, None] * v[None, None, :]
             L = t - starts
-            b = np.einsum("pkm,pmd->pkd", coef[L], mom)  # Phi^T v  (P, K, d)
-            quad = np.einsum("pkd,pkj,pjd->p", b, post[L], b)
+            variant = (starts == 0) + (2 if t == n else 0)
+            b = np.einsum("pkm,pmd->pkd", coef[variant, L], mom)  # Phi^T v  (P, K, d)
+            quad = np.einsum("pkd,pkj,pjd->p", b, post[variant, L], b)
             rss = np.maximum(csq[t] - csq[starts] - quad, 0.0)
             N = L * d
-            loglik = (
-                -0.5 * N * np.log(np.pi)
-                - lg_nu
-                - 0.5 * (N + nu) * np.log(gamma + rss)
-                + gammaln(0.5 * (N + nu))
-                + d * logdet[L]
-            )
-            score = Vbest[starts] + loglik + log_pen
+            score = Vbest[starts] + marginal(rss, N, d * logdet[variant, L]) + log_pen
+            is_rest = np.zeros(len(starts), dtype=bool)
+            if rest:
+                score_rest = Vbest[starts] + marginal(csq[t] - csq[starts], N, 0.0, rest_model=True) + log_pen + log_rest
+                is_rest = score_rest > score
+                score = np.where(is_rest, score_rest, score)
             ok = L >= lmin
             if ok.any():
                 cand = np.where(ok, score, -np.inf)
                 j = int(np.argmax(cand))
                 Vbest[t] = cand[j]
                 back[t] = starts[j]
+                kind[t] = is_rest[j]
             # prune: keep young particles, the best by score, within the ratio
             if t < n:
                 keep = L < lmax
@@ -258,16 +332,18 @@ class VMCI(SegmenterMixin):
                 n_used.append(len(starts))
         if not np.isfinite(Vbest[n]):
             raise SegmentationError("no segmentation satisfies the length limits; lower min_length_s")
-        borders = []
+        borders, models = [], []
         t = n
         while t > 0:
             s = back[t]
+            models.append("rest" if kind[t] else "movement")
             if s > 0:
                 borders.append(s)
             t = s
         return VMCIResult(
             borders=np.array(sorted(borders), dtype=int),
             n_samples=n,
+            segment_models=models[::-1],
             log_posterior=float(Vbest[n]),
             mean_particles=float(np.mean(n_used)) if n_used else 1.0,
             max_particles_used=int(max(n_used)) if n_used else 1,
