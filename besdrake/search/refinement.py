@@ -1,0 +1,564 @@
+"""Refinement in simulation: the 49-parameter throwing problem for policy search (paper section 3.1.5, step 1).
+
+A throw imitated from a human (:class:`besdrake.imitation.DMP`, 49 parameters: start 6, goal 6,
+forcing-term weights 36, execution time 1) usually just drops the ball near COMPI. Refinement
+changes all 49 parameters so the ball lands within :data:`SUCCESS_DISTANCE` of a target.
+
+* :class:`ThrowReward` turns a rollout into a reward (m, to maximise)::
+
+      reward = -|touchdown - target| - penalty(limits) [- NEVER_RELEASED_PENALTY]
+
+  ``penalty`` sums the plan's joint-limit violations (:meth:`besdrake.plan.MotionPlan.check_limits`:
+  position in rad, velocity in rad/s, acceleration in rad/s^2), each weighted (m per unit), plus
+  :attr:`ThrowReward.violation_offset` (m) as soon as any limit is violated, so that a plan beyond a
+  limit never scores like a successful throw. A ball that never leaves the scoop has no touchdown:
+  the reward is then the (shaped) distance of the ball's last position to the target plus
+  ``never_released_penalty`` (the search still sees which plans bring the ball closer). A failed
+  simulation (``sim_failed``) or a parameter vector that gives no DMP rollout is a failed episode:
+  the reward is NaN and the search loop records it as failed (the optimizers penalise it).
+* :class:`ParameterScaling` maps the optimizer's normalised space ``x`` to ``theta`` and back:
+  ``theta = theta0 + scale * x``. One unit is :data:`POSITION_UNIT` rad for start/goal,
+  :data:`TIME_UNIT` s for the execution time and, for each weight, the weight change that changes the
+  joint's acceleration by :data:`ACCELERATION_UNIT` rad/s^2 at its basis centre (weights act through
+  ``z * w / tau^2`` with the phase ``z`` decaying to 0.01, so late weights need ~100 times larger
+  steps; imitated weights range over 1e0...1e4). Bounds: start and goal within the joint position
+  limits, execution time in [:data:`MIN_EXECUTION_TIME`, :data:`MAX_EXECUTION_TIME`] s, weights within
+  +-:data:`WEIGHT_BOUND_UNITS` units of the imitated value.
+* :class:`RefinementProblem` evaluates batches of normalised candidates through a rollout executor
+  (:func:`besdrake.sim.make_executor`), keeps a per-episode record, and :func:`refine` runs CMA-ES
+  (population 20 as in the paper) through the resumable search loop (:func:`besdrake.search.loop.run_search`).
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import json
+import os
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from besdrake import robot
+from besdrake.imitation import DMP, DMPParameterError, DMPParameterization
+from besdrake.plan import MotionPlan, PlanError
+
+#: The goal of refinement: touchdown within this distance (m) of the target, no limit violated.
+SUCCESS_DISTANCE = 0.1
+#: Default target (x forward, y lateral; m) on the floor: 2 m in front of COMPI.
+DEFAULT_TARGET = (2.0, 0.0)
+#: Minimum execution time (s) of a throw (the paper's), maximum: our sane choice.
+MIN_EXECUTION_TIME = 0.95
+MAX_EXECUTION_TIME = 4.0
+#: Units of the normalised space (see module docstring).
+POSITION_UNIT = 0.3  # rad
+TIME_UNIT = 0.3  # s
+ACCELERATION_UNIT = 2.0  # rad/s^2 at a basis centre
+WEIGHT_BOUND_UNITS = 50.0
+#: Population size and budget of the paper's refinement runs.
+PAPER_POPSIZE = 20
+PAPER_MAX_EPISODES = 10_000
+#: Plan sampling step (s) for the DMP rollout that the simulation executes.
+PLAN_DT = 0.01
+
+DETAILS_FILE = "details.csv"
+PROBLEM_FILE = "problem.json"
+
+
+class RefinementError(ValueError):
+    """Bad input to refinement: a malformed template, target, scaling or run folder."""
+
+
+# ---------------------------------------------------------------------------------------------
+# reward
+# ---------------------------------------------------------------------------------------------
+@dataclass
+class RewardBreakdown:
+    """One episode's reward and its parts (m; ``reward`` is NaN for a failed episode)."""
+
+    reward: float
+    distance: float
+    penalty: float
+    touchdown: tuple[float, float] | None
+    flags: list[str] = field(default_factory=list)
+    message: str = ""
+
+    @property
+    def failed(self) -> bool:
+        return not np.isfinite(self.reward)
+
+    @property
+    def success(self) -> bool:
+        """Touchdown within :data:`SUCCESS_DISTANCE` of the target and no limit violated."""
+        return (not self.failed) and self.touchdown is not None and self.distance < SUCCESS_DISTANCE and self.penalty == 0.0
+
+
+@dataclass
+class ThrowReward:
+    """``reward = -distance(touchdown, target) - limit penalties`` (see module docstring); SI units.
+
+    Weights are in m per rad (position), m per rad/s (velocity) and m per rad/s^2 (acceleration).
+    """
+
+    target: tuple[float, float] = DEFAULT_TARGET
+    position_weight: float = 2.0
+    velocity_weight: float = 1.0
+    acceleration_weight: float = 0.1
+    violation_offset: float = 0.2
+    never_released_penalty: float = 1.0
+
+    def __post_init__(self) -> None:
+        target = np.asarray(self.target, dtype=float).ravel()
+        if target.shape != (2,) or not np.isfinite(target).all():
+            raise RefinementError(f"target must be two finite numbers (x forward, y lateral; m), got {self.target!r}")
+        self.target = (float(target[0]), float(target[1]))
+        for name in ("position_weight", "velocity_weight", "acceleration_weight", "violation_offset", "never_released_penalty"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v >= 0):
+                raise RefinementError(f"{name} must be a finite number >= 0, got {v!r}")
+
+    def penalty(self, plan: MotionPlan) -> float:
+        """Limit penalty (m) of ``plan``: weighted sum of the violations, plus the offset if any."""
+        rep = plan.check_limits()
+        total = (
+            self.position_weight * float(rep.position.sum())
+            + self.velocity_weight * float(rep.velocity.sum())
+            + self.acceleration_weight * float(rep.acceleration.sum())
+        )
+        return total + self.violation_offset if not rep.ok else 0.0
+
+    def __call__(self, plan: MotionPlan, outcome) -> RewardBreakdown:
+        """Reward of ``outcome`` (a :class:`besdrake.sim.Outcome`) of ``plan``."""
+        flags = [k for k, v in outcome.flags.items() if v]
+        if outcome.flags.get("sim_failed"):
+            return RewardBreakdown(np.nan, np.nan, np.nan, None, flags, outcome.message or "simulation failed")
+        penalty = self.penalty(plan)
+        target = np.asarray(self.target)
+        if outcome.touchdown is not None and np.isfinite(outcome.touchdown).all():
+            td = np.asarray(outcome.touchdown, dtype=float)[:2]
+            distance = float(np.linalg.norm(td - target))
+            return RewardBreakdown(-distance - penalty, distance, penalty, (float(td[0]), float(td[1])), flags, outcome.message)
+        # never released: shaped by where the ball is at the end of the simulation
+        path = np.asarray(outcome.ball_path, dtype=float).reshape(-1, 3)
+        path = path[np.isfinite(path).all(axis=1)]
+        if path.size == 0:
+            return RewardBreakdown(np.nan, np.nan, np.nan, None, flags, "no ball position recorded")
+        distance = float(np.linalg.norm(path[-1, :2] - target))
+        reward = -distance - penalty - self.never_released_penalty
+        return RewardBreakdown(reward, distance, penalty, None, flags, outcome.message or "never released")
+
+    def to_dict(self) -> dict[str, Any]:
+        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(self).items()}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "ThrowReward":
+        try:
+            return cls(**{k: (tuple(v) if k == "target" else float(v)) for k, v in d.items()})
+        except TypeError as err:
+            raise RefinementError(f"bad reward settings {d!r}: {err}") from err
+
+
+def failed_breakdown(message: str) -> RewardBreakdown:
+    """The record of an episode that produced no rollout (NaN reward)."""
+    return RewardBreakdown(np.nan, np.nan, np.nan, None, ["failed"], message)
+
+
+# ---------------------------------------------------------------------------------------------
+# normalised parameter space
+# ---------------------------------------------------------------------------------------------
+@dataclass
+class ParameterScaling:
+    """``theta = theta0 + scale * x``; ``bounds`` (n, 2) are in theta units."""
+
+    theta0: np.ndarray
+    scale: np.ndarray
+    bounds: np.ndarray
+
+    def __post_init__(self) -> None:
+        self.theta0 = np.asarray(self.theta0, dtype=float).ravel()
+        self.scale = np.asarray(self.scale, dtype=float).ravel()
+        self.bounds = np.asarray(self.bounds, dtype=float).reshape(-1, 2)
+        n = self.theta0.size
+        if self.scale.shape != (n,) or self.bounds.shape != (n, 2):
+            raise RefinementError(f"scaling needs theta0 ({n},), scale ({n},), bounds ({n}, 2); got {self.scale.shape}, {self.bounds.shape}")
+        if not (np.isfinite(self.theta0).all() and np.isfinite(self.scale).all() and (self.scale > 0).all()):
+            raise RefinementError("scaling: theta0 must be finite and every scale finite and > 0")
+        if np.isnan(self.bounds).any() or (self.bounds[:, 0] >= self.bounds[:, 1]).any():
+            raise RefinementError("scaling: bounds must be ordered (lower < upper) without NaN")
+
+    @classmethod
+    def for_dmp(
+        cls,
+        dmp: DMP,
+        position_limits: np.ndarray | None = None,
+        position_unit: float = POSITION_UNIT,
+        acceleration_unit: float = ACCELERATION_UNIT,
+        time_unit: float = TIME_UNIT,
+    ) -> "ParameterScaling":
+        """Scaling around the imitated ``dmp`` (see module docstring for the units and bounds)."""
+        for name, v in (("position_unit", position_unit), ("acceleration_unit", acceleration_unit), ("time_unit", time_unit)):
+            if not (np.isfinite(v) and v > 0):
+                raise RefinementError(f"{name} must be a finite number > 0, got {v!r}")
+        n, k = dmp.n_dims, dmp.n_weights_per_dim
+        param = DMPParameterization(dmp)
+        theta0 = param.to_vector()
+        tau = float(np.clip(dmp.execution_time, MIN_EXECUTION_TIME, MAX_EXECUTION_TIME))
+        theta0[-1] = tau
+        centers = dmp.basis.centers  # phase at each basis centre
+        w_scale = np.tile(acceleration_unit * tau**2 / centers, n)
+        scale = np.concatenate([np.full(2 * n, position_unit), w_scale, [time_unit]])
+        if position_limits is None:
+            position_limits = robot.POSITION_LIMITS if n == len(robot.JOINT_NAMES) else np.tile([-np.pi, np.pi], (n, 1))
+        limits = np.asarray(position_limits, dtype=float)
+        w = theta0[2 * n : 2 * n + n * k]
+        bounds = np.vstack(
+            [
+                limits,
+                limits,
+                np.column_stack([w - WEIGHT_BOUND_UNITS * w_scale, w + WEIGHT_BOUND_UNITS * w_scale]),
+                [[MIN_EXECUTION_TIME, MAX_EXECUTION_TIME]],
+            ]
+        )
+        theta0[: 2 * n] = np.clip(theta0[: 2 * n], np.tile(limits[:, 0], 2), np.tile(limits[:, 1], 2))
+        return cls(theta0, scale, bounds)
+
+    @property
+    def x_bounds(self) -> np.ndarray:
+        """Bounds in the normalised space."""
+        return (self.bounds - self.theta0[:, None]) / self.scale[:, None]
+
+    def to_theta(self, x: np.ndarray) -> np.ndarray:
+        x = np.asarray(x, dtype=float)
+        return np.clip(self.theta0 + self.scale * x, self.bounds[:, 0], self.bounds[:, 1])
+
+    def to_x(self, theta: np.ndarray) -> np.ndarray:
+        theta = np.clip(np.asarray(theta, dtype=float), self.bounds[:, 0], self.bounds[:, 1])
+        return (theta - self.theta0) / self.scale
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"theta0": self.theta0.tolist(), "scale": self.scale.tolist(), "bounds": self.bounds.tolist()}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "ParameterScaling":
+        try:
+            return cls(np.asarray(d["theta0"]), np.asarray(d["scale"]), np.asarray(d["bounds"]))
+        except (KeyError, TypeError, ValueError) as err:
+            raise RefinementError(f"bad scaling record: {err}") from err
+
+
+# ---------------------------------------------------------------------------------------------
+# the problem
+# ---------------------------------------------------------------------------------------------
+def params_key(x: np.ndarray) -> str:
+    """Identifier of a candidate (its exact float values), to join episode records."""
+    return hashlib.sha1(np.ascontiguousarray(np.asarray(x, dtype=float).ravel()).tobytes()).hexdigest()[:16]
+
+
+class RefinementProblem:
+    """Throw refinement of a template DMP towards a target, in the normalised space of :class:`ParameterScaling`.
+
+    ``evaluate(X)`` simulates a batch of normalised candidates (rows of ``X``) with ``executor``
+    (anything with ``evaluate(plans) -> list[Outcome]``) and returns one :class:`RewardBreakdown` each.
+    Candidates whose DMP cannot be rolled out become failed episodes; an executor that raises fails the batch.
+    """
+
+    def __init__(
+        self,
+        template: DMP,
+        reward: ThrowReward | None = None,
+        scaling: ParameterScaling | None = None,
+        dt: float = PLAN_DT,
+    ) -> None:
+        if not isinstance(template, DMP):
+            raise RefinementError(f"template must be a besdrake.imitation.DMP, got {type(template).__name__}")
+        self.parameterization = DMPParameterization(template)
+        self.reward = reward if reward is not None else ThrowReward()
+        self.scaling = scaling if scaling is not None else ParameterScaling.for_dmp(template)
+        if self.scaling.theta0.size != self.parameterization.n_params:
+            raise RefinementError(f"scaling has {self.scaling.theta0.size} parameters, the DMP {self.parameterization.n_params}")
+        if not (np.isfinite(dt) and dt > 0):
+            raise RefinementError(f"dt must be > 0 s, got {dt!r}")
+        self.dt = float(dt)
+        self.records: dict[str, RewardBreakdown] = {}
+
+    @property
+    def n_params(self) -> int:
+        return self.parameterization.n_params
+
+    @property
+    def target(self) -> tuple[float, float]:
+        return self.reward.target
+
+    def theta(self, x: np.ndarray) -> np.ndarray:
+        return self.scaling.to_theta(x)
+
+    def plan(self, x: np.ndarray) -> MotionPlan:
+        """Motion plan of normalised candidate ``x`` (raises DMPParameterError/PlanError for a bad one)."""
+        plan = self.parameterization.motion_plan(self.theta(x), dt=self.dt)
+        return plan.validate()
+
+    def evaluate(self, X: np.ndarray, executor) -> list[RewardBreakdown]:
+        X = np.atleast_2d(np.asarray(X, dtype=float))
+        plans: list[MotionPlan | None] = []
+        out: list[RewardBreakdown | None] = []
+        for x in X:
+            try:
+                if not np.isfinite(x).all():
+                    raise DMPParameterError("candidate contains NaN or infinite values")
+                plans.append(self.plan(x))
+                out.append(None)
+            except (DMPParameterError, PlanError, ValueError) as err:
+                plans.append(None)
+                out.append(failed_breakdown(f"no motion plan: {err}"))
+        todo = [i for i, p in enumerate(plans) if p is not None]
+        if todo:
+            outcomes = executor.evaluate([plans[i] for i in todo])
+            if len(outcomes) != len(todo):
+                raise RuntimeError(f"executor returned {len(outcomes)} outcomes for {len(todo)} plans")
+            for i, o in zip(todo, outcomes):
+                out[i] = self.reward(plans[i], o)
+        return [r for r in out if r is not None]
+
+    def batch_evaluator(self, executor, details_path: Path | None = None) -> Callable[[np.ndarray], list[float]]:
+        """``evaluate_batch`` for :func:`besdrake.search.loop.run_search`; records every episode
+        (in memory and, with ``details_path``, appended to a CSV keyed by :func:`params_key`)."""
+
+        def evaluate_batch(X: np.ndarray) -> list[float]:
+            results = self.evaluate(X, executor)
+            rows = []
+            for x, r in zip(np.atleast_2d(X), results):
+                key = params_key(x)
+                self.records[key] = r
+                rows.append(_details_row(key, r))
+            if details_path is not None:
+                _append_details(details_path, rows)
+            return [r.reward for r in results]
+
+        return evaluate_batch
+
+    def describe(self) -> dict[str, Any]:
+        """JSON record of the problem (template, reward, scaling, dt): enough to rebuild it."""
+        return {
+            "template": self.parameterization.template.to_dict(),
+            "reward": self.reward.to_dict(),
+            "scaling": self.scaling.to_dict(),
+            "dt": self.dt,
+            "names": list(self.parameterization.names),
+        }
+
+    @classmethod
+    def from_description(cls, d: dict[str, Any]) -> "RefinementProblem":
+        try:
+            template = DMP.from_dict(d["template"])
+        except (KeyError, TypeError, ValueError) as err:
+            raise RefinementError(f"bad problem record: {err}") from err
+        return cls(template, ThrowReward.from_dict(d["reward"]), ParameterScaling.from_dict(d["scaling"]), float(d["dt"]))
+
+
+_DETAIL_COLUMNS = ["key", "reward", "distance", "penalty", "touchdown_x", "touchdown_y", "flags", "message"]
+
+
+def _details_row(key: str, r: RewardBreakdown) -> list[str]:
+    td = r.touchdown if r.touchdown is not None else (np.nan, np.nan)
+    return [key, repr(float(r.reward)), repr(float(r.distance)), repr(float(r.penalty)), repr(float(td[0])), repr(float(td[1])), ";".join(r.flags), r.message.replace("\n", " ")[:300]]
+
+
+def _append_details(path: Path, rows: list[list[str]]) -> None:
+    new = not path.exists() or path.stat().st_size == 0
+    with open(path, "a", newline="") as handle:
+        writer = csv.writer(handle)
+        if new:
+            writer.writerow(_DETAIL_COLUMNS)
+        writer.writerows(rows)
+        handle.flush()
+        os.fsync(handle.fileno())
+
+
+def read_details(path: Path) -> dict[str, RewardBreakdown]:
+    """Episode records written during a run, by :func:`params_key` (a truncated last row is skipped)."""
+    out: dict[str, RewardBreakdown] = {}
+    if not path.exists():
+        return out
+    with open(path, newline="") as handle:
+        reader = csv.reader(handle)
+        header = next(reader, None)
+        if header != _DETAIL_COLUMNS:
+            raise RefinementError(f"{path}: not a refinement details file (columns {header})")
+        for fields in reader:
+            if len(fields) != len(_DETAIL_COLUMNS):
+                continue
+            try:
+                tx, ty = float(fields[4]), float(fields[5])
+                out[fields[0]] = RewardBreakdown(
+                    float(fields[1]), float(fields[2]), float(fields[3]),
+                    None if not (np.isfinite(tx) and np.isfinite(ty)) else (tx, ty),
+                    [f for f in fields[6].split(";") if f], fields[7],
+                )
+            except ValueError:
+                continue
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# start point and driver
+# ---------------------------------------------------------------------------------------------
+@dataclass
+class RefinementResult:
+    """Outcome of one refinement run (distances in m, times in s)."""
+
+    best_theta: np.ndarray
+    best_reward: float
+    best_distance: float
+    best_touchdown: tuple[float, float] | None
+    success: bool
+    episodes_to_success: int | None
+    n_episodes: int
+    n_failed: int
+    wall_time: float
+    rewards: np.ndarray
+    distances: np.ndarray
+    successes: np.ndarray
+    resumed: bool = False
+    stop_reason: str = "budget"
+
+    def best_so_far(self) -> np.ndarray:
+        """Best distance (m) among successful-or-not valid episodes up to each episode (NaN before the first)."""
+        d = np.where(np.isfinite(self.distances), self.distances, np.inf)
+        best = np.minimum.accumulate(d) if d.size else d
+        return np.where(np.isfinite(best), best, np.nan)
+
+    def summary(self) -> dict[str, Any]:
+        return {
+            "success": self.success,
+            "episodes_to_success": self.episodes_to_success,
+            "best_distance_m": None if not np.isfinite(self.best_distance) else self.best_distance,
+            "best_reward": None if not np.isfinite(self.best_reward) else self.best_reward,
+            "best_touchdown_m": None if self.best_touchdown is None else list(self.best_touchdown),
+            "n_episodes": self.n_episodes,
+            "n_failed": self.n_failed,
+            "wall_time_s": self.wall_time,
+            "resumed": self.resumed,
+            "stop_reason": self.stop_reason,
+        }
+
+
+def best_start(problems: Sequence[RefinementProblem], executor) -> tuple[int, RewardBreakdown]:
+    """Index of the imitated throw (x = 0 of each problem) with the highest reward, and its record."""
+    results = []
+    for i, p in enumerate(problems):
+        r = p.evaluate(np.zeros((1, p.n_params)), executor)[0]
+        results.append((i, r))
+    finite = [(i, r) for i, r in results if np.isfinite(r.reward)]
+    if not finite:
+        raise RefinementError("none of the imitated throws could be simulated")
+    return max(finite, key=lambda ir: ir[1].reward)
+
+
+def make_optimizer(problem: RefinementProblem, seed: int = 0, sigma0: float = 1.0, popsize: int = PAPER_POPSIZE, x0: np.ndarray | None = None):
+    """CMA-ES on the normalised space, started at the imitated throw (``x0 = 0``) unless ``x0`` is given."""
+    from besdrake.search.cmaes import CMAES
+
+    x0 = np.zeros(problem.n_params) if x0 is None else np.asarray(x0, dtype=float)
+    bounds = problem.scaling.x_bounds
+    x0 = np.clip(x0, bounds[:, 0] + 1e-9, bounds[:, 1] - 1e-9)
+    return CMAES(x0, sigma0, np.random.default_rng(seed), popsize=popsize, bounds=bounds)
+
+
+def refine(
+    problem: RefinementProblem,
+    executor,
+    n_episodes: int = 2000,
+    seed: int = 0,
+    out_dir: str | Path | None = None,
+    sigma0: float = 1.0,
+    popsize: int = PAPER_POPSIZE,
+    stop_on_success: bool = True,
+    progress: Callable[[int, float, float], None] | None = None,
+    optimizer=None,
+) -> RefinementResult:
+    """Refine ``problem`` with CMA-ES for at most ``n_episodes`` episodes (stops at the first
+    generation with a success when ``stop_on_success``). With ``out_dir`` the run is resumable:
+    calling again with the same folder continues it (see :mod:`besdrake.search.loop`).
+    ``progress(n_episodes, best_distance, generation_wall_time)`` is called after each generation."""
+    from besdrake.search.loop import run_search
+
+    if n_episodes < 1:
+        raise RefinementError(f"n_episodes must be >= 1, got {n_episodes}")
+    out = None if out_dir is None else Path(out_dir)
+    details_path = None
+    if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
+        desc_path = out / PROBLEM_FILE
+        desc = problem.describe() | {"seed": int(seed), "sigma0": float(sigma0), "popsize": int(popsize)}
+        if desc_path.exists():
+            try:
+                old = json.loads(desc_path.read_text())
+            except (OSError, json.JSONDecodeError) as err:
+                raise RefinementError(f"{desc_path} is corrupt: {err}") from err
+            if json.dumps(old, sort_keys=True) != json.dumps(json.loads(json.dumps(desc)), sort_keys=True):
+                raise RefinementError(f"{out} holds another refinement run (different template, target, seed or settings); use another folder")
+        else:
+            tmp = desc_path.with_suffix(".tmp")
+            tmp.write_text(json.dumps(desc))
+            tmp.replace(desc_path)
+        details_path = out / DETAILS_FILE
+        problem.records.update(read_details(details_path))
+    opt = optimizer if optimizer is not None else make_optimizer(problem, seed, sigma0, popsize)
+    t0 = time.perf_counter()
+    best = [np.inf]
+    last = [t0]
+
+    def callback(info) -> bool:
+        recs = [problem.records.get(params_key(x)) for x in info.candidates]
+        for r in recs:
+            if r is not None and np.isfinite(r.distance) and r.penalty == 0.0:
+                best[0] = min(best[0], r.distance)
+        now = time.perf_counter()
+        if progress is not None:
+            progress(info.n_evaluations, best[0], now - last[0])
+        last[0] = now
+        return bool(stop_on_success and any(r is not None and r.success for r in recs))
+
+    loop = run_search(opt, problem.batch_evaluator(executor, details_path), n_evaluations=n_episodes, out_dir=out, callback=callback)
+    wall = time.perf_counter() - t0
+    return _result(problem, loop, wall)
+
+
+def _result(problem: RefinementProblem, loop, wall: float) -> RefinementResult:
+    recs = [problem.records.get(params_key(x)) for x in loop.params]
+    distances = np.array([np.nan if r is None else r.distance for r in recs], dtype=float)
+    successes = np.array([r is not None and r.success for r in recs], dtype=bool)
+    rewards = np.asarray(loop.rewards, dtype=float)
+    ok = np.flatnonzero(np.isfinite(rewards) & ~loop.failed)
+    if successes.any():
+        # best = closest successful throw
+        idx = np.flatnonzero(successes)
+        i = int(idx[np.argmin(distances[idx])])
+    elif ok.size:
+        i = int(ok[np.argmax(rewards[ok])])
+    else:
+        i = -1
+    if i >= 0:
+        r = recs[i]
+        best_theta = problem.theta(loop.params[i])
+        best_reward, best_distance = float(rewards[i]), float(distances[i])
+        best_td = None if r is None else r.touchdown
+    else:
+        best_theta, best_reward, best_distance, best_td = problem.scaling.theta0.copy(), -np.inf, np.inf, None
+    first = int(np.argmax(successes)) + 1 if successes.any() else None
+    return RefinementResult(
+        best_theta=best_theta, best_reward=best_reward, best_distance=best_distance, best_touchdown=best_td,
+        success=bool(successes.any()), episodes_to_success=first, n_episodes=int(loop.n_evaluations),
+        n_failed=int(loop.n_failed), wall_time=wall, rewards=rewards, distances=distances, successes=successes,
+        resumed=bool(loop.resumed), stop_reason=loop.stop_reason,
+    )
+
+
+__all__ = [
+    "SUCCESS_DISTANCE", "DEFAULT_TARGET", "MIN_EXECUTION_TIME", "MAX_EXECUTION_TIME", "PAPER_POPSIZE",
+    "RefinementError", "RewardBreakdown", "ThrowReward", "ParameterScaling", "RefinementProblem",
+    "RefinementResult", "best_start", "make_optimizer", "refine", "read_details", "params_key", "failed_breakdown",
+]

@@ -1,0 +1,432 @@
+"""Behaviour templates: one refined throw generalised over target positions (paper sections 3.2.2 and 4).
+
+A :class:`BehaviorTemplate` is a base DMP (a refined throw) plus an upper-level policy
+``theta = pi(s)`` over two meta-parameters:
+
+* ``theta[0]``: execution time (s) of the DMP -- how far the ball flies;
+* ``theta[1]``: goal of joint 1 (rad) -- the direction of the throw.
+
+The context ``s = (x, y)`` is the target on the floor in m, COMPI at the origin facing +x:
+**x is forward, y is lateral (left positive)**. The paper's test grid lists the lateral coordinate
+first ({-0.7, -0.2, 0.2, 0.7} lateral x {1.3, 1.6, 1.9, 2.2} forward); :data:`TEST_CONTEXTS` holds
+those 16 targets as (x, y) rows.
+
+Joint-1 mode. With the joint-1 *start* fixed, the DMP's moving goal turns joint 1 slowly over the
+whole execution time, while the ball leaves the scoop early in the swing, so the yaw at release
+barely follows the goal (in our simulation a goal change of 0.4 rad moves the touchdown by ~1 cm).
+``joint1_mode="rotate"`` (default) therefore moves the joint-1 start with the goal
+(``start1 = base_start1 + goal1 - base_goal1``), which rotates the whole throw about the vertical axis
+(the DMP is exactly shift-invariant); ``"goal"`` is the paper-literal variant (start fixed).
+
+:func:`train_template` learns the policy by contextual policy search through the resumable loop
+(:func:`besdrake.search.loop.run_contextual_search`): BO-CPS with entropy search (``"es"``) or upper
+confidence bound (``"ucb"``), ACES (``"aces"``, active context selection). Reward: minus the squared
+touchdown distance (m^2), as in the paper; a rollout without touchdown or a failed simulation is a
+failed episode. :meth:`BehaviorTemplate.instantiate` returns the :class:`~besdrake.plan.MotionPlan`
+for a target; :class:`TemplatePool` stores templates as JSON + npz with their provenance.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import time
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from besdrake import robot
+from besdrake.imitation import DMP, DMPParameterError
+from besdrake.plan import MotionPlan
+from besdrake.search.base import load_state, save_state
+from besdrake.search.refinement import MIN_EXECUTION_TIME, PLAN_DT
+
+#: Context box of the paper: x (forward) in [1, 2.5] m, y (lateral) in [-1, 1] m.
+CONTEXT_BOUNDS = np.array([[1.0, 2.5], [-1.0, 1.0]])
+#: The paper's 16 test contexts as (x forward, y lateral) rows (never used for training).
+TEST_CONTEXTS = np.array([[x, y] for x in (1.3, 1.6, 1.9, 2.2) for y in (-0.7, -0.2, 0.2, 0.7)])
+METHODS = ("es", "ucb", "aces")
+JOINT1_MODES = ("rotate", "goal")
+META_NAMES = ("execution_time", "goal.joint1")
+#: Paper's results on the real robot after 80 episodes (mean distance over the test contexts, cm).
+PAPER_MEAN_CM = {"es": 9.01, "ucb": 19.74}
+
+
+class TemplateError(ValueError):
+    """Bad template input: context out of shape, NaN, corrupt template file, unknown method or name."""
+
+
+def default_meta_bounds(base: DMP) -> np.ndarray:
+    """Execution time in [0.7, 1.4] x the base's (at least 0.95 s), joint-1 goal within +-0.9 rad of the base's."""
+    tau = float(base.execution_time)
+    g1 = float(base.goal[0])
+    lo = max(MIN_EXECUTION_TIME, 0.7 * tau)
+    hi = max(lo + 0.1, 1.4 * tau)
+    jl = robot.POSITION_LIMITS[0]
+    return np.array([[lo, hi], [max(jl[0], g1 - 0.9), min(jl[1], g1 + 0.9)]])
+
+
+def _check_context(context: Any) -> np.ndarray:
+    s = np.asarray(context, dtype=float).ravel()
+    if s.shape != (2,):
+        raise TemplateError(f"a context is a target (x forward, y lateral) in m: two numbers, got shape {s.shape}")
+    if not np.isfinite(s).all():
+        raise TemplateError(f"context must be finite, got {s.tolist()}")
+    return s
+
+
+@dataclass
+class MetaDMP:
+    """The base DMP with its two meta-parameters exposed: ``dmp(theta)``, ``plan(theta)``."""
+
+    base: DMP
+    joint1_mode: str = "rotate"
+    dt: float = PLAN_DT
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.base, DMP) or self.base.n_dims != len(robot.JOINT_NAMES):
+            raise TemplateError("the base of a template must be a 6-joint besdrake.imitation.DMP")
+        if self.joint1_mode not in JOINT1_MODES:
+            raise TemplateError(f"joint1_mode must be one of {JOINT1_MODES}, got {self.joint1_mode!r}")
+
+    def dmp(self, theta: np.ndarray) -> DMP:
+        theta = np.asarray(theta, dtype=float).ravel()
+        if theta.shape != (2,) or not np.isfinite(theta).all():
+            raise TemplateError(f"meta-parameters are (execution time s, joint-1 goal rad), got {theta.tolist()}")
+        d = self.base.copy()
+        try:
+            d.execution_time = float(theta[0])
+        except DMPParameterError as err:
+            raise TemplateError(str(err)) from err
+        goal = d.goal.copy()
+        shift = float(theta[1]) - goal[0]
+        goal[0] = float(theta[1])
+        d.goal = goal
+        if self.joint1_mode == "rotate":
+            start = d.start.copy()
+            start[0] += shift
+            d.start = start
+        return d
+
+    def plan(self, theta: np.ndarray) -> MotionPlan:
+        traj = self.dmp(theta).open_loop(self.dt)
+        meta = {"source": "behavior_template", "execution_time": float(theta[0]), "goal_joint1": float(theta[1])}
+        return MotionPlan(t=traj.t, q=traj.y, qd=traj.yd, meta=meta)
+
+
+def _make_optimizer(method: str, meta_bounds: np.ndarray, seed: int, **kwargs: Any):
+    from besdrake.search.aces import ACES
+    from besdrake.search.bocps import BOCPS
+
+    rng = np.random.default_rng(seed)
+    if method == "aces":
+        return ACES(CONTEXT_BOUNDS, meta_bounds, rng=rng, **kwargs)
+    if method in ("es", "ucb"):
+        return BOCPS(CONTEXT_BOUNDS, meta_bounds, method, rng=rng, **kwargs)
+    raise TemplateError(f"unknown method {method!r}; choose one of {METHODS}")
+
+
+_OPTIMIZER_TYPES = {"BOCPS": "besdrake.search.bocps", "ACES": "besdrake.search.aces"}
+
+
+def _optimizer_from_state(state: dict[str, Any]):
+    import importlib
+
+    kind = state.get("type")
+    if kind not in _OPTIMIZER_TYPES:
+        raise TemplateError(f"unknown upper-level policy type {kind!r} (known: {sorted(_OPTIMIZER_TYPES)})")
+    module = importlib.import_module(_OPTIMIZER_TYPES[kind])
+    return getattr(module, kind).from_state(state)
+
+
+@dataclass
+class BehaviorTemplate:
+    """A base DMP + an upper-level policy over (execution time, joint-1 goal); see module docstring."""
+
+    name: str
+    meta: MetaDMP
+    meta_bounds: np.ndarray
+    optimizer: Any  # a ContextualOptimizer with policy(context)
+    provenance: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if not re.fullmatch(r"[A-Za-z0-9_.-]+", self.name or ""):
+            raise TemplateError(f"template name must use letters, digits, '_', '-', '.', got {self.name!r}")
+        self.meta_bounds = np.asarray(self.meta_bounds, dtype=float).reshape(2, 2)
+
+    def meta_parameters(self, context: Any) -> np.ndarray:
+        """(execution time s, joint-1 goal rad) for target ``context`` = (x forward, y lateral) m."""
+        s = _check_context(context)
+        theta = np.asarray(self.optimizer.policy(s), dtype=float).ravel()
+        return np.clip(theta, self.meta_bounds[:, 0], self.meta_bounds[:, 1])
+
+    def instantiate(self, context: Any) -> MotionPlan:
+        """The motion plan that throws at target ``context`` = (x forward, y lateral) in m."""
+        s = _check_context(context)
+        lo, hi = CONTEXT_BOUNDS[:, 0], CONTEXT_BOUNDS[:, 1]
+        outside = (s < lo - 1e-9) | (s > hi + 1e-9)
+        plan = self.meta.plan(self.meta_parameters(s))
+        plan.meta.update({"template": self.name, "context_m": s.tolist(), "extrapolated": bool(outside.any())})
+        return plan
+
+    # -------------------------------------------------------------- persistence
+    def to_record(self) -> dict[str, Any]:
+        return {
+            "format": "besdrake.behavior_template/1",
+            "name": self.name,
+            "meta_names": list(META_NAMES),
+            "context_names": ["x_forward_m", "y_lateral_m"],
+            "context_bounds": CONTEXT_BOUNDS.tolist(),
+            "meta_bounds": self.meta_bounds.tolist(),
+            "joint1_mode": self.meta.joint1_mode,
+            "dt": self.meta.dt,
+            "base_dmp": self.meta.base.to_dict(),
+            "policy_type": type(self.optimizer).__name__,
+            "provenance": self.provenance,
+        }
+
+    def save(self, folder: str | Path) -> Path:
+        """Write ``<name>.template.json`` and the policy state ``<name>.policy.json/.npz``; returns the first."""
+        folder = Path(folder)
+        folder.mkdir(parents=True, exist_ok=True)
+        save_state(self.optimizer.state_dict(), folder / f"{self.name}.policy")
+        path = folder / f"{self.name}.template.json"
+        tmp = path.with_suffix(".tmp")
+        tmp.write_text(json.dumps(self.to_record(), indent=1, default=_json_default))
+        tmp.replace(path)
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path) -> "BehaviorTemplate":
+        """Read a template written by :meth:`save`; :class:`TemplateError` names what is missing or corrupt."""
+        path = Path(path)
+        if not path.is_file():
+            raise TemplateError(f"template file not found: {path}")
+        try:
+            rec = json.loads(path.read_text())
+            if rec.get("format") != "besdrake.behavior_template/1":
+                raise TemplateError(f"{path} is not a behaviour template (format {rec.get('format')!r})")
+            name = rec["name"]
+            base = DMP.from_dict(rec["base_dmp"])
+            meta = MetaDMP(base, rec["joint1_mode"], float(rec["dt"]))
+            state_path = path.parent / f"{name}.policy"
+            if not state_path.with_suffix(".json").is_file() or not state_path.with_suffix(".npz").is_file():
+                raise TemplateError(f"{path}: the policy files {state_path}.json/.npz are missing")
+            optimizer = _optimizer_from_state(load_state(state_path))
+            bounds = np.asarray(rec["meta_bounds"], dtype=float)
+            if bounds.shape != (2, 2) or not np.isfinite(bounds).all():
+                raise TemplateError(f"{path}: meta_bounds must be a finite 2x2 array")
+        except TemplateError:
+            raise
+        except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError, ValueError, OSError) as err:
+            raise TemplateError(f"{path}: corrupt template ({type(err).__name__}: {err})") from err
+        return cls(name, meta, bounds, optimizer, dict(rec.get("provenance") or {}))
+
+
+def _json_default(obj):
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, np.generic):
+        return obj.item()
+    raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
+
+
+class TemplatePool:
+    """A folder of behaviour templates with an index ``pool.json`` (name -> file, provenance)."""
+
+    INDEX = "pool.json"
+
+    def __init__(self, folder: str | Path) -> None:
+        self.folder = Path(folder)
+        self._index: dict[str, dict[str, Any]] = {}
+        index = self.folder / self.INDEX
+        if index.exists():
+            try:
+                data = json.loads(index.read_text())
+                self._index = dict(data["templates"])
+            except (json.JSONDecodeError, KeyError, TypeError) as err:
+                raise TemplateError(f"{index}: corrupt pool index ({err})") from err
+
+    def names(self) -> list[str]:
+        return sorted(self._index)
+
+    def __contains__(self, name: str) -> bool:
+        return name in self._index
+
+    def __len__(self) -> int:
+        return len(self._index)
+
+    def add(self, template: BehaviorTemplate, overwrite: bool = False) -> Path:
+        """Save ``template`` into the pool (``overwrite`` to replace one of the same name)."""
+        if template.name in self._index and not overwrite:
+            raise TemplateError(f"the pool already holds a template {template.name!r} (use overwrite=True)")
+        path = template.save(self.folder)
+        self._index[template.name] = {"file": path.name, "provenance": template.provenance}
+        self._write_index()
+        return path
+
+    def get(self, name: str) -> BehaviorTemplate:
+        if name not in self._index:
+            raise TemplateError(f"no template {name!r} in {self.folder} (has: {self.names()})")
+        return BehaviorTemplate.load(self.folder / self._index[name]["file"])
+
+    def provenance(self, name: str) -> dict[str, Any]:
+        if name not in self._index:
+            raise TemplateError(f"no template {name!r} in {self.folder}")
+        return dict(self._index[name]["provenance"])
+
+    def instantiate(self, name: str, context: Any) -> MotionPlan:
+        return self.get(name).instantiate(context)
+
+    def _write_index(self) -> None:
+        self.folder.mkdir(parents=True, exist_ok=True)
+        path = self.folder / self.INDEX
+        tmp = path.with_suffix(".tmp")
+        tmp.write_text(json.dumps({"format": "besdrake.template_pool/1", "templates": self._index}, indent=1, default=_json_default))
+        tmp.replace(path)
+
+
+# ---------------------------------------------------------------------------------------------
+# training and evaluation
+# ---------------------------------------------------------------------------------------------
+@dataclass
+class TemplateEvaluation:
+    """Distances (m) of the template's throws to each test context; NaN where no touchdown."""
+
+    contexts: np.ndarray
+    touchdowns: np.ndarray
+    distances: np.ndarray
+    limit_violations: int
+
+    @property
+    def mean_distance(self) -> float:
+        """Mean over the contexts; a throw without touchdown counts as NaN (so the mean is NaN)."""
+        return float(np.mean(self.distances))
+
+    def summary(self) -> dict[str, Any]:
+        return {
+            "mean_distance_cm": 100.0 * self.mean_distance,
+            "median_distance_cm": 100.0 * float(np.median(self.distances)),
+            "max_distance_cm": 100.0 * float(np.max(self.distances)),
+            "n_contexts": int(self.contexts.shape[0]),
+            "n_no_touchdown": int(np.isnan(self.distances).sum()),
+            "limit_violations": self.limit_violations,
+            "distances_cm": [round(100.0 * float(d), 3) for d in self.distances],
+        }
+
+
+def touchdowns(plans: list[MotionPlan], executor) -> np.ndarray:
+    """(n, 2) touchdown points (NaN for no touchdown or a failed simulation)."""
+    outcomes = executor.evaluate(plans)
+    out = np.full((len(plans), 2), np.nan)
+    for i, o in enumerate(outcomes):
+        if o.touchdown is not None and not o.flags.get("sim_failed"):
+            out[i] = np.asarray(o.touchdown, dtype=float)[:2]
+    return out
+
+
+def evaluate_template(template: BehaviorTemplate, executor, contexts: np.ndarray = TEST_CONTEXTS) -> TemplateEvaluation:
+    """Simulate the template's throw for each context and measure the touchdown distance."""
+    contexts = np.atleast_2d(np.asarray(contexts, dtype=float))
+    plans = [template.instantiate(s) for s in contexts]
+    td = touchdowns(plans, executor)
+    violations = sum(0 if p.check_limits().ok else 1 for p in plans)
+    return TemplateEvaluation(contexts, td, np.linalg.norm(td - contexts, axis=1), violations)
+
+
+@dataclass
+class TemplateTraining:
+    """A trained template and its learning record."""
+
+    template: BehaviorTemplate
+    loop: Any  # besdrake.search.loop.LoopResult
+    curve: dict[int, float]  # episode -> mean test distance (m), at the checkpoints
+    wall_time: float
+
+
+def train_template(
+    base: DMP,
+    executor,
+    method: str = "es",
+    n_episodes: int = 80,
+    seed: int = 0,
+    name: str = "throw",
+    out_dir: str | Path | None = None,
+    meta_bounds: np.ndarray | None = None,
+    joint1_mode: str = "rotate",
+    checkpoints: tuple[int, ...] = (),
+    eval_contexts: np.ndarray = TEST_CONTEXTS,
+    provenance: dict[str, Any] | None = None,
+    progress: Callable[[int, float], None] | None = None,
+    optimizer_kwargs: dict[str, Any] | None = None,
+) -> TemplateTraining:
+    """Learn a behaviour template from ``base`` with ``method`` in ``n_episodes`` rollouts.
+
+    With ``out_dir`` the search is resumable (episodes and optimizer state on disk). At each episode
+    in ``checkpoints`` the current policy is evaluated on ``eval_contexts`` (extra rollouts that are
+    not training episodes). ``progress(episode, reward)`` is called after every episode.
+    """
+    from besdrake.search.loop import run_contextual_search
+
+    if n_episodes < 1:
+        raise TemplateError(f"n_episodes must be >= 1, got {n_episodes}")
+    if method not in METHODS:
+        raise TemplateError(f"unknown method {method!r}; choose one of {METHODS}")
+    meta = MetaDMP(base, joint1_mode)
+    bounds = default_meta_bounds(base) if meta_bounds is None else np.asarray(meta_bounds, dtype=float)
+    if bounds.shape != (2, 2) or not np.isfinite(bounds).all() or (bounds[:, 0] >= bounds[:, 1]).any():
+        raise TemplateError(f"meta_bounds must be a finite 2x2 array with lower < upper, got {bounds.tolist()}")
+    if bounds[0, 0] <= 0:
+        raise TemplateError("the execution-time bound must be > 0 s")
+    optimizer = _make_optimizer(method, bounds, seed, **(optimizer_kwargs or {}))
+
+    def evaluate(context: np.ndarray, theta: np.ndarray) -> float:
+        td = touchdowns([meta.plan(theta)], executor)[0]
+        if not np.isfinite(td).all():
+            raise RuntimeError("no touchdown (never released or simulation failed)")
+        return -float(np.sum((td - context) ** 2))
+
+    curve: dict[int, float] = {}
+
+    def callback(info) -> bool:
+        if progress is not None:
+            progress(info.n_evaluations, float(info.rewards[0]))
+        if info.n_evaluations in checkpoints:
+            tmp = BehaviorTemplate(name, meta, bounds, info.optimizer)
+            curve[info.n_evaluations] = evaluate_template(tmp, executor, eval_contexts).mean_distance
+        return False
+
+    t0 = time.perf_counter()
+    loop = run_contextual_search(optimizer, evaluate, n_episodes, CONTEXT_BOUNDS, out_dir=out_dir, callback=callback)
+    wall = time.perf_counter() - t0
+    prov = {
+        "created_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "method": method,
+        "n_episodes": int(loop.n_evaluations),
+        "n_failed_episodes": int(loop.n_failed),
+        "seed": int(seed),
+        "joint1_mode": joint1_mode,
+        "reward": "-(squared touchdown distance, m^2)",
+        "scenario": getattr(getattr(executor, "scenario", None), "name", None),
+    } | dict(provenance or {})
+    template = BehaviorTemplate(name, meta, bounds, loop.optimizer, prov)
+    return TemplateTraining(template, loop, curve, wall)
+
+
+def fitted_default_throw(amplitude: float = 0.6, n_weights_per_dim: int = 6) -> DMP:
+    """A base DMP fitted to :func:`besdrake.sim.throws.default_throw` (a stand-in for a refined throw,
+    for tests and benchmarks without a refinement run)."""
+    from besdrake.sim.throws import default_throw
+
+    plan = default_throw(amplitude)
+    return DMP(len(robot.JOINT_NAMES), n_weights_per_dim).fit(plan.t, plan.q)
+
+
+__all__ = [
+    "CONTEXT_BOUNDS", "TEST_CONTEXTS", "METHODS", "JOINT1_MODES", "META_NAMES", "PAPER_MEAN_CM",
+    "TemplateError", "MetaDMP", "BehaviorTemplate", "TemplatePool", "TemplateEvaluation", "TemplateTraining",
+    "default_meta_bounds", "evaluate_template", "train_template", "touchdowns", "fitted_default_throw",
+]
