@@ -9,7 +9,8 @@ With an ``out_dir`` both keep two things on disk:
   flag, error message, context for contextual searches, parameters), appended, flushed and fsynced
   as soon as the episode is evaluated, *before* the optimizer is told;
 * ``optimizer.json`` + ``optimizer.npz``: the optimizer's :meth:`state_dict` and the loop counters,
-  written atomically after every generation (every episode for contextual searches).
+  written atomically after every generation (every batch of ``batch_size`` episodes for
+  contextual searches).
 
 Calling the driver again with the same ``out_dir`` (and an optimizer of the same type) resumes: the
 optimizer is restored from the saved state, and because a restored optimizer asks exactly the
