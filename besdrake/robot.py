@@ -133,14 +133,24 @@ def scoop_surfaces() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     return origins, u, w, ext
 
 
-def distance_to_scoop(p_S: np.ndarray) -> float:
-    """Distance (m) from a point in the scoop frame to the nearest scoop surface (ball contact when < radius)."""
-    origins, u, w, ext = scoop_surfaces()
-    rel = np.asarray(p_S, dtype=float) - origins
-    cu = np.einsum("ij,ij->i", rel, u)
-    cw = np.einsum("ij,ij->i", rel, w)
-    lo_u = np.where(np.arange(5) < 4, 0.0, -ext[:, 0])
-    cu = np.clip(cu, lo_u, ext[:, 0])
-    cw = np.clip(cw, -ext[:, 1], ext[:, 1])
-    closest = origins + cu[:, None] * u + cw[:, None] * w
-    return float(np.min(np.linalg.norm(p_S - closest, axis=1)))
+_SURFACES = None
+
+
+def distance_to_scoop(p_S: np.ndarray) -> np.ndarray | float:
+    """Distance (m) from point(s) in the scoop frame, shape (3,) or (K, 3), to the nearest scoop surface
+    (a ball of radius r touches the scoop when this is < r)."""
+    global _SURFACES
+    if _SURFACES is None:
+        origins, u, w, ext = scoop_surfaces()
+        lo_u = np.where(np.arange(len(origins)) < 4, 0.0, -ext[:, 0])
+        _SURFACES = (origins, u, w, ext, lo_u)
+    origins, u, w, ext, lo_u = _SURFACES
+    pts = np.asarray(p_S, dtype=float)
+    single = pts.ndim == 1
+    pts = np.atleast_2d(pts)
+    rel = pts[:, None, :] - origins[None, :, :]  # (K, 5, 3)
+    cu = np.clip(np.einsum("kij,ij->ki", rel, u), lo_u, ext[:, 0])
+    cw = np.clip(np.einsum("kij,ij->ki", rel, w), -ext[:, 1], ext[:, 1])
+    closest = origins[None] + cu[..., None] * u[None] + cw[..., None] * w[None]
+    d = np.min(np.linalg.norm(pts[:, None, :] - closest, axis=2), axis=1)
+    return float(d[0]) if single else d

@@ -129,23 +129,22 @@ class Rollout:
 
     def _no_recatch(self, p: np.ndarray, v: np.ndarray, radius: float) -> bool:
         """True when the ball, flying freely from (p, v), keeps ``release.margin`` from every scoop surface while
-        the scoop follows the commanded plan for ``recatch_horizon`` s (or until the ball is well below it)."""
+        the scoop follows the commanded plan for ``recatch_horizon`` s (sampled every 10 ms)."""
         h = self.handles
         plant = h.plant
-        clearance = radius + self.scenario.release.margin
+        X_WS = self._scoop_pose()
+        if robot.distance_to_scoop(X_WS.inverse().multiply(p)) < radius + 1e-3:
+            return False  # still touching (contact results lag the state by one step)
         t0 = self.context.get_time()
-        taus = np.arange(0.0, self.recatch_horizon + 1e-9, 0.01)
+        taus = np.arange(0.01, self.recatch_horizon + 1e-9, 0.01)
         qs = self._cmd.sample(t0 + taus)
+        balls = p + np.outer(taus, v) + 0.5 * np.outer(taus * taus, self._gravity)
         self._scratch.SetTimeStateAndParametersFrom(self.plant_context)
-        for tau, q in zip(taus, qs):
-            ball = p + v * tau + 0.5 * self._gravity * tau * tau
+        local = np.empty_like(balls)
+        for i, q in enumerate(qs):
             plant.SetPositions(self._scratch, h.arm, q)
-            X_WS = plant.CalcRelativeTransform(self._scratch, plant.world_frame(), h.scoop_frame)
-            if robot.distance_to_scoop(X_WS.inverse().multiply(ball)) < (radius + 1e-3 if tau == 0.0 else clearance):
-                return False
-            if ball[2] < X_WS.translation()[2] - 0.3:  # well below the scoop: it cannot be caught any more
-                break
-        return True
+            local[i] = plant.CalcRelativeTransform(self._scratch, h.scoop_frame, plant.world_frame()).multiply(balls[i])
+        return bool(np.all(robot.distance_to_scoop(local) >= radius + self.scenario.release.margin))
 
     # ------------------------------------------------------------------ main
     def rollout(self, plan: MotionPlan, effects: dict | None = None, limits: str = "raise") -> Outcome:
