@@ -421,12 +421,14 @@ class RefinementResult:
     rewards: np.ndarray
     distances: np.ndarray
     successes: np.ndarray
+    penalties: np.ndarray = field(default_factory=lambda: np.zeros(0))
     resumed: bool = False
     stop_reason: str = "budget"
 
     def best_so_far(self) -> np.ndarray:
-        """Best distance (m) among successful-or-not valid episodes up to each episode (NaN before the first)."""
-        d = np.where(np.isfinite(self.distances), self.distances, np.inf)
+        """Best target distance (m) of the throws within every limit, up to each episode (NaN before the first)."""
+        valid = np.isfinite(self.distances) & (self.penalties == 0.0) if self.penalties.size == self.distances.size else np.isfinite(self.distances)
+        d = np.where(valid, self.distances, np.inf)
         best = np.minimum.accumulate(d) if d.size else d
         return np.where(np.isfinite(best), best, np.nan)
 
@@ -435,6 +437,7 @@ class RefinementResult:
             "success": self.success,
             "episodes_to_success": self.episodes_to_success,
             "best_distance_m": None if not np.isfinite(self.best_distance) else self.best_distance,
+            "best_distance_within_limits_m": (float(np.nanmin(self.best_so_far())) if np.isfinite(self.best_so_far()).any() else None),
             "best_reward": None if not np.isfinite(self.best_reward) else self.best_reward,
             "best_touchdown_m": None if self.best_touchdown is None else list(self.best_touchdown),
             "n_episodes": self.n_episodes,
@@ -531,6 +534,7 @@ def _result(problem: RefinementProblem, loop, wall: float) -> RefinementResult:
     recs = [problem.records.get(params_key(x)) for x in loop.params]
     distances = np.array([np.nan if r is None else r.distance for r in recs], dtype=float)
     successes = np.array([r is not None and r.success for r in recs], dtype=bool)
+    penalties = np.array([np.nan if r is None else r.penalty for r in recs], dtype=float)
     rewards = np.asarray(loop.rewards, dtype=float)
     ok = np.flatnonzero(np.isfinite(rewards) & ~loop.failed)
     if successes.any():
@@ -553,7 +557,7 @@ def _result(problem: RefinementProblem, loop, wall: float) -> RefinementResult:
         best_theta=best_theta, best_reward=best_reward, best_distance=best_distance, best_touchdown=best_td,
         success=bool(successes.any()), episodes_to_success=first, n_episodes=int(loop.n_evaluations),
         n_failed=int(loop.n_failed), wall_time=wall, rewards=rewards, distances=distances, successes=successes,
-        resumed=bool(loop.resumed), stop_reason=loop.stop_reason,
+        penalties=penalties, resumed=bool(loop.resumed), stop_reason=loop.stop_reason,
     )
 
 

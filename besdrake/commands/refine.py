@@ -1,0 +1,203 @@
+"""``besdrake refine IMITATED...``: refine imitated throws in simulation until the ball lands near a target.
+
+Inputs are the imitation's outputs (``besdrake imitate ... --out DIR``): folders holding ``*.dmp.json``
+files, single ``*.dmp.json`` files, or ``synthetic:S[:E]`` (the imitation is run first, with the given
+segmentation, into ``OUT/imitation``). All motion plans are simulated once; each run of CMA-ES starts
+from the best of them (the paper: "all available motion plans"). Every run has its own resumable folder
+``OUT/runK`` (episodes, optimizer state, per-episode touchdowns); calling the command again with the
+same ``--out`` continues unfinished runs. Writes ``OUT/runK/refined.dmp.json`` (the best throw, a
+template base for ``besdrake template``), ``OUT/learning_curve.png`` and ``OUT/summary.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+COMMAND = ("refine",)
+HELP = "refine imitated throws (49 DMP parameters) with CMA-ES in simulation so the ball lands within 0.1 m of a target"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("imitated", nargs="+", help="imitation output folder(s), *.dmp.json file(s) or synthetic:SUBJECT[:EXPERIMENT]")
+    parser.add_argument("--out", type=Path, default=Path("runs/refine"), help="run folder (resumable)")
+    parser.add_argument("--target", nargs=2, type=float, default=[2.0, 0.0], metavar=("X", "Y"), help="target on the floor, m (x forward, y lateral); default 2 0")
+    parser.add_argument("--runs", type=int, default=1, help="independent CMA-ES runs (seeds SEED, SEED+1, ...); the paper: 6")
+    parser.add_argument("--episodes", type=int, default=2000, help="episode budget per run (the paper: at most 10000)")
+    parser.add_argument("--popsize", type=int, default=20, help="CMA-ES population (the paper: 20)")
+    parser.add_argument("--sigma0", type=float, default=1.0, help="initial step size in normalised units")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--continue-after-success", action="store_true", help="use the whole budget instead of stopping at the first success")
+    parser.add_argument("--backend", choices=("serial", "process"), default="process", help="rollout executor")
+    parser.add_argument("--workers", type=int, default=2, help="worker processes of the process backend")
+    parser.add_argument("--scenario", default="nominal", help="simulation scenario (name or YAML path)")
+    parser.add_argument("--no-figures", action="store_true", help="do not write learning_curve.png")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    parser.add_argument("--json", action="store_true", help="print the summary as one JSON object")
+
+
+def _collect_dmps(sources: list[str], out: Path) -> list[Path]:
+    from besdrake.cli import UserError
+
+    files: list[Path] = []
+    for src in sources:
+        if src.startswith("synthetic:"):
+            files += _imitate_synthetic(src, out / "imitation")
+            continue
+        p = Path(src)
+        if p.is_dir():
+            found = sorted(p.glob("*.dmp.json"))
+            if not found:
+                raise UserError(f"{p}: no *.dmp.json files (run 'besdrake imitate ... --out {p}' first)")
+            files += found
+        elif p.is_file():
+            files.append(p)
+        else:
+            raise UserError(f"{src}: no such file or folder")
+    return files
+
+
+def _imitate_synthetic(source: str, folder: Path) -> list[Path]:
+    from besdrake.cli import UserError
+    from besdrake.pipeline.imitation import find_throws, imitate_recording, load_demonstration, prepare
+
+    tag = source.replace(":", "_")
+    done = folder / f"{tag}.done"
+    if done.exists():
+        return [folder / n for n in json.loads(done.read_text())]
+    try:
+        demos = load_demonstration(source)
+    except ValueError as err:
+        raise UserError(str(err)) from None
+    names = []
+    for name, rec, segments in demos:
+        pre = prepare(rec)
+        throws = find_throws(pre, segments=segments)
+        for r in imitate_recording(name, pre, throws, out_dir=folder, simulate=False, figures=False):
+            if r.error is None:
+                names.append(f"{name}_throw{r.index}.dmp.json")
+    done.write_text(json.dumps(names))
+    return [folder / n for n in names]
+
+
+def run(args: argparse.Namespace) -> int:
+    import logging
+
+    import numpy as np
+
+    from besdrake.cli import UserError
+    from besdrake.imitation import DMPParameterError, load_dmp, save_dmp
+    from besdrake.search.loop import ResumeError
+    from besdrake.search.refinement import RefinementError, RefinementProblem, ThrowReward, best_start, refine
+    from besdrake.sim import make_executor
+    from besdrake.sim.scenario import ScenarioError
+
+    logging.getLogger("drake").setLevel(logging.ERROR)
+    for name, v, lo in (("--runs", args.runs, 1), ("--episodes", args.episodes, 1), ("--popsize", args.popsize, 2), ("--workers", args.workers, 1)):
+        if v < lo:
+            raise UserError(f"{name} must be >= {lo}, got {v}")
+    if not (np.isfinite(args.sigma0) and args.sigma0 > 0):
+        raise UserError(f"--sigma0 must be > 0, got {args.sigma0}")
+    if not np.isfinite(args.target).all():
+        raise UserError(f"--target must be finite, got {args.target}")
+    t_start = time.perf_counter()
+    args.out.mkdir(parents=True, exist_ok=True)
+    files = _collect_dmps(args.imitated, args.out)
+    if not files:
+        raise UserError("no imitated throws to refine")
+    try:
+        reward = ThrowReward(target=tuple(args.target))
+        problems = [RefinementProblem(load_dmp(f), reward) for f in files]
+    except (DMPParameterError, RefinementError) as err:
+        raise UserError(str(err)) from None
+    show = not args.quiet and sys.stderr.isatty()
+    try:
+        executor = make_executor(args.backend, workers=args.workers, scenario=args.scenario) if args.backend == "process" else make_executor("serial", scenario=args.scenario)
+    except ScenarioError as err:
+        raise UserError(str(err)) from None
+    start_file = args.out / "start.json"
+    runs = []
+    with executor:
+        if start_file.exists():
+            start = json.loads(start_file.read_text())
+            if start["files"] != [str(f) for f in files] or start["target"] != list(args.target):
+                raise UserError(f"{args.out} holds a refinement of other throws or another target; use another --out")
+            index = int(start["index"])
+        else:
+            index, rec = best_start(problems, executor)
+            start = {"files": [str(f) for f in files], "target": list(args.target), "index": index,
+                     "start_distance_m": rec.distance, "start_touchdown_m": rec.touchdown, "start_flags": rec.flags}
+            start_file.write_text(json.dumps(start, indent=1))
+        problem = problems[index]
+        for k in range(args.runs):
+            run_dir = args.out / f"run{k}"
+            bar = None
+            if show:
+                from tqdm import tqdm
+
+                bar = tqdm(total=args.episodes, desc=f"run {k + 1}/{args.runs}", unit="ep", file=sys.stderr)
+
+            def progress(n: int, best: float, _wall: float, bar=bar) -> None:
+                if bar is not None:
+                    bar.update(n - bar.n)
+                    bar.set_postfix(best_m=f"{best:.3f}")
+
+            try:
+                result = refine(problem, executor, args.episodes, seed=args.seed + k, out_dir=run_dir, sigma0=args.sigma0,
+                                popsize=args.popsize, stop_on_success=not args.continue_after_success, progress=progress)
+            except (RefinementError, ResumeError) as err:
+                raise UserError(str(err)) from None
+            finally:
+                if bar is not None:
+                    bar.close()
+            save_dmp(problem.parameterization.from_vector(result.best_theta), run_dir / "refined.dmp.json")
+            runs.append(result)
+    summary = {
+        "target_m": list(args.target),
+        "n_imitated_throws": len(files),
+        "start": start,
+        "runs": [r.summary() | {"folder": str(args.out / f"run{k}"), "refined_dmp": str(args.out / f"run{k}" / "refined.dmp.json")} for k, r in enumerate(runs)],
+        "success_rate": float(np.mean([r.success for r in runs])),
+        "median_episodes_to_success": (float(np.median([r.episodes_to_success for r in runs if r.success])) if any(r.success for r in runs) else None),
+        "wall_time_s": time.perf_counter() - t_start,
+    }
+    if not args.no_figures:
+        summary["learning_curve"] = str(_plot(runs, args.out / "learning_curve.png"))
+    tmp = args.out / "summary.tmp"
+    tmp.write_text(json.dumps(summary, indent=1, default=float))
+    tmp.replace(args.out / "summary.json")
+    if args.json:
+        print(json.dumps(summary, default=float))
+    else:
+        for k, r in enumerate(runs):
+            state = f"success after {r.episodes_to_success} episodes" if r.success else f"no success in {r.n_episodes} episodes"
+            print(f"run {k}: {state}; best distance {r.best_distance:.3f} m; {r.wall_time:.0f} s")
+        print(f"summary: {args.out / 'summary.json'}")
+    return 0
+
+
+def _plot(runs, path: Path) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from besdrake.search.refinement import SUCCESS_DISTANCE
+
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for k, r in enumerate(runs):
+        best = r.best_so_far()
+        ax.plot(np.arange(1, best.size + 1), best, label=f"run {k}")
+    ax.axhline(SUCCESS_DISTANCE, color="gray", lw=1, ls="--", label="goal 0.1 m")
+    ax.set_xlabel("episode")
+    ax.set_ylabel("best distance within limits so far (m)")
+    ax.set_yscale("log")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
