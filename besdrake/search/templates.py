@@ -60,11 +60,11 @@ class TemplateError(ValueError):
 
 
 def default_meta_bounds(base: DMP) -> np.ndarray:
-    """Execution time in [0.7, 1.4] x the base's (at least 0.95 s), joint-1 goal within +-0.9 rad of the base's."""
+    """Execution time in [0.7, 1.6] x the base's (at least 0.95 s), joint-1 goal within +-0.9 rad of the base's."""
     tau = float(base.execution_time)
     g1 = float(base.goal[0])
     lo = max(MIN_EXECUTION_TIME, 0.7 * tau)
-    hi = max(lo + 0.1, 1.4 * tau)
+    hi = max(lo + 0.1, 1.6 * tau)
     jl = robot.POSITION_LIMITS[0]
     return np.array([[lo, hi], [max(jl[0], g1 - 0.9), min(jl[1], g1 + 0.9)]])
 

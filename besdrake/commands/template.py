@@ -1,0 +1,189 @@
+"""``besdrake template ACTION``: behaviour templates (contextual policy search over two meta-parameters).
+
+* ``train BASE --pool DIR --name NAME``: learn a template from a base DMP (a refined throw, e.g.
+  ``OUT/run0/refined.dmp.json`` of ``besdrake refine``; ``default`` = a DMP fitted to the built-in
+  default throw) with BO-CPS (``--method es|ucb``) or ACES, evaluate it on the paper's 16 test
+  contexts and add it to the pool. The search is resumable: it lives in ``DIR/runs/NAME``.
+* ``eval NAME --pool DIR``: mean distance over the 16 test contexts (simulated).
+* ``instantiate NAME --pool DIR --target X Y [--plan-out FILE]``: the motion plan for a target.
+* ``list --pool DIR``: the templates of a pool with their provenance.
+
+Targets are (x forward, y lateral) in m, COMPI at the origin facing +x.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+COMMAND = ("template",)
+HELP = "behaviour templates: train (BO-CPS/ACES), evaluate, instantiate and list a template pool"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("action", choices=("train", "eval", "instantiate", "list"))
+    parser.add_argument("name_or_base", nargs="?", help="train: base DMP file or 'default'; eval/instantiate: template name")
+    parser.add_argument("--pool", type=Path, default=Path("runs/templates"), help="template pool folder")
+    parser.add_argument("--name", default=None, help="train: name of the new template (default: method_seed)")
+    parser.add_argument("--method", choices=("es", "ucb", "aces"), default="es", help="es: BO-CPS entropy search; ucb: upper confidence bound; aces: active context selection")
+    parser.add_argument("--episodes", type=int, default=80)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--joint1-mode", choices=("rotate", "goal"), default="rotate", help="rotate: the joint-1 start moves with its goal (default); goal: the paper-literal goal only")
+    parser.add_argument("--overwrite", action="store_true", help="train: replace a template of the same name")
+    parser.add_argument("--target", nargs=2, type=float, metavar=("X", "Y"), help="instantiate: target (x forward, y lateral), m")
+    parser.add_argument("--plan-out", type=Path, default=None, help="instantiate: write the motion plan JSON here")
+    parser.add_argument("--backend", choices=("serial", "process"), default="process")
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--scenario", default="nominal")
+    parser.add_argument("--no-figures", action="store_true")
+    parser.add_argument("--quiet", action="store_true")
+    parser.add_argument("--json", action="store_true", help="print the result as one JSON object")
+
+
+def _executor(args):
+    from besdrake.cli import UserError
+    from besdrake.sim import make_executor
+    from besdrake.sim.scenario import ScenarioError
+
+    try:
+        if args.backend == "process":
+            return make_executor("process", workers=args.workers, scenario=args.scenario)
+        return make_executor("serial", scenario=args.scenario)
+    except ScenarioError as err:
+        raise UserError(str(err)) from None
+
+
+def _emit(args, data: dict, text: str) -> None:
+    print(json.dumps(data, default=float) if args.json else text)
+
+
+def run(args: argparse.Namespace) -> int:
+    import logging
+
+    from besdrake.cli import UserError
+    from besdrake.search.templates import TemplateError, TemplatePool
+
+    logging.getLogger("drake").setLevel(logging.ERROR)
+    try:
+        pool = TemplatePool(args.pool)
+        if args.action == "list":
+            data = {"pool": str(args.pool), "templates": {n: pool.provenance(n) for n in pool.names()}}
+            _emit(args, data, "\n".join(f"{n}: {json.dumps(p)}" for n, p in data["templates"].items()) or f"{args.pool}: empty pool")
+            return 0
+        if not args.name_or_base:
+            raise UserError(f"template {args.action} needs a {'base DMP' if args.action == 'train' else 'template name'}")
+        if args.action == "train":
+            return _train(args, pool)
+        template = pool.get(args.name_or_base)
+        if args.action == "instantiate":
+            if args.target is None:
+                raise UserError("template instantiate needs --target X Y")
+            plan = template.instantiate(args.target)
+            if args.plan_out is not None:
+                plan.save(args.plan_out)
+            data = {"template": template.name, "target_m": list(args.target), "meta_parameters": plan.meta,
+                    "duration_s": plan.duration, "plan": str(args.plan_out) if args.plan_out else None,
+                    "within_limits": plan.check_limits().ok}
+            _emit(args, data, f"{template.name} -> target {args.target}: execution time {plan.meta['execution_time']:.3f} s, "
+                              f"joint-1 goal {plan.meta['goal_joint1']:.3f} rad" + (f"; plan: {args.plan_out}" if args.plan_out else ""))
+            return 0
+        # eval
+        from besdrake.search.templates import evaluate_template
+
+        with _executor(args) as ex:
+            ev = evaluate_template(template, ex)
+        data = {"template": template.name} | ev.summary()
+        _emit(args, data, f"{template.name}: mean distance over the 16 test contexts {data['mean_distance_cm']:.2f} cm")
+        return 0
+    except TemplateError as err:
+        raise UserError(str(err)) from None
+
+
+def _train(args, pool) -> int:
+    import numpy as np
+
+    from besdrake.cli import UserError
+    from besdrake.imitation import DMPParameterError, load_dmp
+    from besdrake.search.loop import ResumeError
+    from besdrake.search.templates import PAPER_MEAN_CM, evaluate_template, fitted_default_throw, train_template
+
+    if args.episodes < 1:
+        raise UserError(f"--episodes must be >= 1, got {args.episodes}")
+    name = args.name or f"{args.method}_seed{args.seed}"
+    if name in pool and not args.overwrite:
+        raise UserError(f"{args.pool} already holds a template {name!r} (use --overwrite or another --name)")
+    if args.name_or_base == "default":
+        base, base_source = fitted_default_throw(), "fitted_default_throw(amplitude=0.6)"
+    else:
+        try:
+            base, base_source = load_dmp(args.name_or_base), str(Path(args.name_or_base).resolve())
+        except DMPParameterError as err:
+            raise UserError(str(err)) from None
+    show = not args.quiet and sys.stderr.isatty()
+    bar = None
+    if show:
+        from tqdm import tqdm
+
+        bar = tqdm(total=args.episodes, desc=f"template {name}", unit="ep", file=sys.stderr)
+
+    def progress(n: int, reward: float) -> None:
+        if bar is not None:
+            bar.update(n - bar.n)
+            bar.set_postfix(reward=f"{reward:.3f}")
+
+    run_dir = args.pool / "runs" / name
+    t0 = time.perf_counter()
+    checkpoints = tuple(sorted({e for e in (20, 40, 60, args.episodes) if e <= args.episodes}))
+    try:
+        with _executor(args) as ex:
+            training = train_template(base, ex, args.method, args.episodes, args.seed, name, run_dir,
+                                      joint1_mode=args.joint1_mode, checkpoints=checkpoints,
+                                      provenance={"base_dmp": base_source, "run_dir": str(run_dir)}, progress=progress)
+            ev = evaluate_template(training.template, ex)
+    except ResumeError as err:
+        raise UserError(f"{run_dir}: {err}") from None
+    finally:
+        if bar is not None:
+            bar.close()
+    training.template.provenance["test_mean_distance_cm"] = 100.0 * ev.mean_distance
+    path = pool.add(training.template, overwrite=args.overwrite)
+    data = {
+        "template": name, "file": str(path), "method": args.method, "episodes": int(training.loop.n_evaluations),
+        "failed_episodes": int(training.loop.n_failed), "resumed": bool(training.loop.resumed),
+        "test": ev.summary(), "curve_mean_distance_cm": {str(k): 100.0 * v for k, v in training.curve.items()},
+        "paper_real_robot_mean_cm": PAPER_MEAN_CM.get(args.method), "wall_time_s": time.perf_counter() - t0,
+    }
+    if not args.no_figures:
+        data["learning_curve"] = str(_plot(training, ev, args.pool / "runs" / name / "learning_curve.png"))
+    _emit(args, data, f"{name}: mean distance over the 16 test contexts {data['test']['mean_distance_cm']:.2f} cm "
+                      f"after {data['episodes']} episodes ({data['failed_episodes']} failed); saved {path}")
+    return 0
+
+
+def _plot(training, ev, path: Path) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    loop = training.loop
+    fig, ax = plt.subplots(figsize=(6, 4))
+    episodes = np.arange(1, loop.rewards.size + 1)
+    dist = np.sqrt(np.maximum(-np.where(loop.failed, np.nan, loop.rewards), 0.0))
+    ax.plot(episodes, 100 * dist, ".", ms=4, color="0.6", label="training episode")
+    if training.curve:
+        ks = sorted(training.curve)
+        ax.plot(ks, [100 * training.curve[k] for k in ks], "o-", label="mean over 16 test contexts")
+    ax.set_xlabel("episode")
+    ax.set_ylabel("distance to target (cm)")
+    ax.set_yscale("log")
+    ax.legend()
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
