@@ -143,3 +143,15 @@ def test_plan_ending_in_motion_holds_its_last_position(sim):
     sim.context.SetTime(plan.duration + 0.1)
     desired = src.get_output_port().Eval(ctx)
     assert np.allclose(desired[:6], plan.q[-1], atol=1e-3) and np.allclose(desired[6:], 0.0)
+
+
+def test_initial_hold_is_skipped_but_reported_in_plan_time(sim):
+    short = sim.rollout(default_throw(amplitude=0.3, hold=0.03))
+    long = sim.rollout(default_throw(amplitude=0.3, hold=0.5))
+    # the arm and ball start at their static equilibrium, so a longer hold changes nothing but the clock
+    assert long.touchdown[0] == pytest.approx(short.touchdown[0], abs=1e-6)
+    assert long.release_time == pytest.approx(short.release_time + 0.47, abs=1e-9)
+    assert long.joint_t[0] == 0.0 and long.ball_t[0] == 0.0
+    assert np.all(np.diff(long.joint_t) > 0)
+    # the reported measured joints hold still during the skipped part and track the plan afterwards
+    assert np.max(np.abs(long.q_measured - long.q_commanded)) < 0.05

@@ -65,6 +65,7 @@ class Rollout:
         # Indices of the arm and ball in the plant's state vector.
         plant = h.plant
         self._arm_q_idx = np.array([plant.GetJointByName(n, h.arm).position_start() for n in robot.JOINT_NAMES])
+        self._arm_v_idx = np.array([plant.GetJointByName(n, h.arm).velocity_start() for n in robot.JOINT_NAMES])
         ball = h.ball_body
         self._ball_q0 = ball.floating_positions_start()  # quaternion (4) then position (3)
         self._ball_v0 = self._nq + ball.floating_velocities_start_in_v()  # angular (3) then linear (3)
@@ -72,6 +73,9 @@ class Rollout:
         self._scratch = h.plant.CreateDefaultContext()  # FK for the re-catch check, never simulated
         #: Time (s) after a tentative release over which the scoop's planned path is checked for a re-catch.
         self.recatch_horizon = 0.3
+        #: Time (s) of a plan's initial hold that is still simulated (ball and contact settle).
+        self.settle_time = 0.01
+        self._skip = 0.0
         #: Time (s) by which the reference leads the plan (see rollout()); one time step.
         self.reference_lead = self.scenario.time_step
 
@@ -93,14 +97,34 @@ class Rollout:
         return h.plant.CalcRelativeTransform(self.plant_context, h.plant.world_frame(), h.scoop_frame)
 
     def _place_ball(self, q0: np.ndarray, v0: np.ndarray, radius: float) -> None:
+        """Put the arm at the plan's start (sagged under gravity to where its PD servos hold it, when at rest)
+        and the ball at rest in the scoop's funnel."""
         h = self.handles
         plant = h.plant
         plant.SetPositions(self.plant_context, h.arm, q0)
         plant.SetVelocities(self.plant_context, h.arm, v0)
+        if not np.any(v0):
+            # Static equilibrium of the servos: kp (q0 - q) + tau_gravity(q) = 0, two fixed-point steps.
+            kp = np.array([a.get_controller_gains().p for a in h.actuators])
+            if np.all(kp > 0):
+                q = np.array(q0, dtype=float)
+                for _ in range(2):
+                    tau_g = plant.CalcGravityGeneralizedForces(self.plant_context)[self._arm_v_idx]
+                    q = q0 + tau_g / kp
+                    plant.SetPositions(self.plant_context, h.arm, q)
         X_WS = self._scoop_pose()
-        p = X_WS.multiply(np.array([0.0, 0.0, robot.ball_rest_height(radius) + 1e-4]))
+        p = X_WS.multiply(np.array([0.0, 0.0, robot.ball_rest_height(radius)]))
         plant.SetFreeBodyPose(self.plant_context, h.ball_body, RigidTransform(X_WS.rotation(), p))
         plant.SetVelocities(self.plant_context, h.ball_instance, np.zeros(6))
+
+    def _initial_hold(self, plan: MotionPlan) -> float:
+        """Seconds of the plan's initial hold (still at its first sample) that need not be simulated."""
+        qd = plan.knot_velocities()
+        moving = np.any(np.abs(plan.q - plan.q[0]) > 1e-12, axis=1) | np.any(qd != 0.0, axis=1)
+        if not np.any(moving):
+            return 0.0
+        i = int(np.argmax(moving))
+        return max(0.0, float(plan.t[i - 1]) - self.settle_time) if i > 0 else 0.0
 
     def _ball_outside(self, radius: float) -> tuple[bool, bool, bool]:
         """(left the scoop for good, touching the floor, diverged) for the current state.
@@ -135,7 +159,7 @@ class Rollout:
         X_WS = self._scoop_pose()
         if robot.distance_to_scoop(X_WS.inverse().multiply(p)) < radius + 1e-3:
             return False  # still touching (contact results lag the state by one step)
-        t0 = self.context.get_time()
+        t0 = self.context.get_time() + self._skip
         taus = np.arange(0.01, self.recatch_horizon + 1e-9, 0.01)
         qs = self._cmd.sample(t0 + taus)
         balls = p + np.outer(taus, v) + 0.5 * np.outer(taus * taus, self._gravity)
@@ -179,7 +203,12 @@ class Rollout:
             cmd_src = MotionPlan(t=t_ext, q=np.vstack([cmd.q, cmd.q[-1]]), qd=np.vstack([qd_all, np.zeros(6)]))
         else:
             cmd_src = cmd
-        h.plan_source.UpdateTrajectory(cmd_src.trajectory(time_shift=-self.reference_lead))
+        # A plan that starts by holding still: the arm and the ball start at their static equilibrium, so
+        # only the last ``settle_time`` s of that hold are simulated (the simulation clock runs ``skip`` s
+        # behind the plan's; all reported times are plan times).
+        skip = self._initial_hold(cmd)
+        self._skip = skip
+        h.plan_source.UpdateTrajectory(cmd_src.trajectory(time_shift=-self.reference_lead - skip))
         q0 = cmd.q[0]
         v0 = cmd.knot_velocities()[0]
         self._place_ball(q0, v0, setup.ball_radius)
@@ -188,7 +217,7 @@ class Rollout:
         out = Outcome(effects=effects_done, scenario=self.scenario.name)
         flags = {k: False for k in FLAG_NAMES}
         rel = self.scenario.release
-        t_end = cmd.duration + rel.tail
+        t_end = cmd.duration + rel.tail - skip
         separated = on_floor = diverged = False
         try:
             self.simulator.Initialize()
@@ -201,18 +230,21 @@ class Rollout:
                     break
         except RuntimeError as err:
             flags["sim_failed"] = True
-            out.message = f"simulation failed at t={self.context.get_time():.3f} s: {err}"
+            out.message = f"simulation failed at t={self.context.get_time() + skip:.3f} s: {err}"
         if diverged:
             flags["sim_failed"] = True
-            out.message = f"simulation diverged at t={self.context.get_time():.3f} s"
-        out.sim_time = float(self.context.get_time())
+            out.message = f"simulation diverged at t={self.context.get_time() + skip:.3f} s"
+        out.sim_time = float(self.context.get_time()) + skip
 
         log = self.logger_log
-        ts = np.asarray(log.sample_times()).copy()
-        xs = np.asarray(log.data()).T.copy()
+        ts = np.asarray(log.sample_times()).copy() + skip
+        xs = np.asarray(log.data()).T.copy().reshape(-1, plant.num_multibody_states())
         if ts.size == 0 or ts[-1] < out.sim_time - 1e-9:  # make sure the final state is included
             ts = np.append(ts, out.sim_time)
-            xs = np.vstack([xs.reshape(-1, plant.num_multibody_states()), plant.GetPositionsAndVelocities(self.plant_context)])
+            xs = np.vstack([xs, plant.GetPositionsAndVelocities(self.plant_context)])
+        if skip > 0.0:  # the skipped part of the hold: the state at its end, held
+            ts = np.concatenate([[0.0], ts])
+            xs = np.vstack([xs[:1], xs])
         finite = np.all(np.isfinite(xs), axis=1)
         ts, xs = ts[finite], xs[finite]
         q_arm = xs[:, self._arm_q_idx]
