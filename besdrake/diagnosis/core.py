@@ -185,34 +185,47 @@ class Diagnosis:
 
 # ---------------------------------------------------------------------------------------------- simulation
 class _Sim:
-    """Batches rollouts through an executor and turns Outcomes into features (counting rollouts)."""
+    """Batches rollouts through an executor and turns Outcomes into features.
 
-    def __init__(self, executor, plans, layouts, full_layouts):
-        self.ex, self.plans, self.layouts, self.full_layouts = executor, plans, layouts, full_layouts
+    Repeated plans are simulated once per parameter set, and Outcomes are memoised by (plan hash, effects)
+    in ``cache`` (a dict the caller may share between diagnoses of the same throws, e.g. a full and a
+    touchdown-only view of one log). ``n_rollouts`` counts the rollouts actually run.
+    """
+
+    def __init__(self, executor, plans, keys, layouts, full_layouts, cache: dict | None = None):
+        self.ex, self.plans, self.keys, self.layouts, self.full_layouts = executor, plans, keys, layouts, full_layouts
         self.n_rollouts = 0
+        self.cache: dict = {} if cache is None else cache
         self.full_cache: dict[str, np.ndarray] = {}
-        self.touchdown_cache: dict[str, np.ndarray] = {}
 
     @staticmethod
     def key(effects: dict) -> str:
         return json.dumps(effects, sort_keys=True)
 
+    def outcomes(self, effects_list: list[dict], rows: Sequence[int]) -> list[list]:
+        todo: dict[tuple[str, str], tuple] = {}
+        for e in effects_list:
+            ek = self.key(e)
+            for i in rows:
+                ck = (self.keys[i], ek)
+                if ck not in self.cache and ck not in todo:
+                    todo[ck] = (self.plans[i], e)
+        if todo:
+            items = list(todo.items())
+            outs = self.ex.evaluate([p for _, (p, _e) in items], [e for _, (_p, e) in items])
+            self.n_rollouts += len(outs)
+            for (ck, _), o in zip(items, outs):
+                self.cache[ck] = o
+        return [[self.cache[(self.keys[i], self.key(e))] for i in rows] for e in effects_list]
+
     def features(self, effects_list: list[dict], rows: Sequence[int] | None = None) -> np.ndarray:
         """Features (len(effects_list), N, F) with NaN rows outside ``rows``."""
         rows = list(range(len(self.plans))) if rows is None else list(rows)
-        items_p, items_e = [], []
-        for e in effects_list:
-            for i in rows:
-                items_p.append(self.plans[i])
-                items_e.append(e)
-        outs = self.ex.evaluate(items_p, items_e) if items_p else []
-        self.n_rollouts += len(outs)
+        outs = self.outcomes(effects_list, rows)
         Y = np.full((len(effects_list), len(self.plans), observables.N_FEATURES), np.nan)
-        it = iter(outs)
         for a, e in enumerate(effects_list):
             full = np.full((len(self.plans), observables.N_FEATURES), np.nan)
-            for i in rows:
-                o = next(it)
+            for i, o in zip(rows, outs[a]):
                 Y[a, i] = observables.simulated_features(o, self.layouts[i])
                 full[i] = observables.simulated_features(o, self.full_layouts[i])
             k = self.key(e)
@@ -327,15 +340,18 @@ def diagnose(
     workers: int | None = None,
     folds: int = 3,
     refine_top: int = 4,
-    refine_iterations: int = 3,
+    refine_iterations: int = 5,
     seed: int = 0,
     executor=None,
+    cache: dict | None = None,
 ) -> Diagnosis:
     """Diagnose a lab log (a list of :class:`~besdrake.transfer.measurement.Measurement`).
 
     ``candidates``: effect names to consider (default: every registered effect); ``pairs``: also fit every
     pair; ``backend``/``workers``: the rollout executor (:func:`besdrake.sim.make_executor`), or pass an
-    open ``executor``; ``folds``: K of the held-out (K-fold) gain; ``seed`` seeds the bootstrap and folds.
+    open ``executor``; ``folds``: K of the held-out (K-fold) gain; ``seed`` seeds the bootstrap and folds;
+    ``cache``: a dict memoising Outcomes by (plan hash, effects), shareable between diagnoses of the same
+    scenario (never between scenarios).
     """
     from besdrake.sim.executors import make_executor
     from besdrake.transfer.measurement import plan_hash
@@ -365,11 +381,11 @@ def diagnose(
     ex = executor or make_executor(backend, workers=workers, scenario=scen, limits="flag")
     try:
         # ---------------------------------------------------------------- 1. nominal replay and comparison
-        nominal = ex.evaluate(plans, None)
-        layouts = [observables.make_layout(m, o) for m, o in zip(used, nominal)]
-        full_layouts = [_full_layout(lay) for lay in layouts]
-        sim = _Sim(ex, plans, layouts, full_layouts)
-        sim.n_rollouts = len(nominal)
+        sim = _Sim(ex, plans, keys, [], [], cache)
+        nominal = sim.outcomes([{}], range(len(plans)))[0]
+        sim.layouts = [observables.make_layout(m, o) for m, o in zip(used, nominal)]
+        sim.full_layouts = [_full_layout(lay) for lay in sim.layouts]
+        layouts, full_layouts = sim.layouts, sim.full_layouts
         meas, rms = [], []
         for m, lay in zip(used, layouts):
             f, r = observables.measured_features(m, lay)
@@ -433,9 +449,24 @@ def diagnose(
                 prob, fits = fit_all(nm)
 
         t0 = time.perf_counter()
-        to_refine = [f for f in fits if f.effects][:refine_top]
+        top = [f for f in fits if f.effects][:refine_top]
+        singles_needed = {(e,) for f in top for e in f.effects}
+        to_refine = [f for f in fits if f.effects and (any(f is t for t in top) or f.effects in singles_needed)]
+        to_refine.sort(key=lambda f: (len(f.effects), f.bic))
+        refined_singles: dict[str, fitting.CandidateFit] = {}
         for f in to_refine:
-            fitting.refine(prob, f, lambda e: sim.one(e), iterations=refine_iterations)
+            starts = []
+            for e in f.effects:  # warm starts of a pair from its refined single effects (no new rollouts)
+                sf = refined_singles.get(e)
+                if sf is not None and len(f.effects) > 1:
+                    th = np.array([s.nominal for s in f.specs])
+                    for s_, v in zip(sf.specs, sf.theta):
+                        if s_ in f.specs:
+                            th[f.specs.index(s_)] = v
+                    starts.append((th, sf.y_fit))
+            fitting.refine(prob, f, lambda e: sim.one(e), iterations=refine_iterations, starts=starts)
+            if len(f.effects) == 1:
+                refined_singles[f.effects[0]] = f
         none_fit = next(f for f in fits if not f.effects)
         none_fit.refined, none_fit.y_fit = True, y0
         timings["refine"] = time.perf_counter() - t0
@@ -499,7 +530,11 @@ def diagnose(
                     continue
                 prob_k = fitting.Problem(y_meas, y0, nm.vector(), rows=train)
                 fit_k = fitting.linear_fit(prob_k, sens, best_fit.effects)
-                fitting.refine(prob_k, fit_k, lambda e, tr=train: sim.one(e, rows=tr), iterations=2)
+                # Warm start at the all-data optimum (its simulated features of the training throws are known),
+                # then Gauss-Newton on the training throws only.
+                th0 = np.array([best_fit.theta[best_fit.specs.index(s_)] if s_ in best_fit.specs else s_.nominal for s_ in fit_k.specs])
+                starts = [(th0, best_fit.y_fit)] if best_fit.y_fit is not None else []
+                fitting.refine(prob_k, fit_k, lambda e, tr=train: sim.one(e, rows=tr), iterations=refine_iterations, starts=starts, try_linear=False)
                 y_test = sim.one(fit_k.parameters(), rows=test)
                 per_throw_after[test] = np.linalg.norm(y_meas[test][:, td] - y_test[test][:, td], axis=1)
             before = np.linalg.norm(y_meas[:, td] - y0[:, td], axis=1)

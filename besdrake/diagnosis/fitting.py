@@ -229,10 +229,21 @@ def linear_fit(prob: Problem, sens: Sensitivity, effects: tuple[str, ...], obser
     return CandidateFit(effects=effects, specs=specs, theta=theta0 + delta, stderr=stderr_from(A, specs), chi2=float(r @ r), n=prob.n, k=len(specs), unobservable=unobs, jac=A)
 
 
-def refine(prob: Problem, fit: CandidateFit, simulate_one: Callable[[dict], np.ndarray], iterations: int = 3, tol: float = 1e-3) -> CandidateFit:
-    """Gauss-Newton with real rollouts from the linear solution: Broyden-updated Jacobian, step halving.
+def refine(
+    prob: Problem,
+    fit: CandidateFit,
+    simulate_one: Callable[[dict], np.ndarray],
+    iterations: int = 5,
+    starts: Sequence[tuple[np.ndarray, np.ndarray]] = (),
+    try_linear: bool = True,
+    min_gain: float = 0.5,
+) -> CandidateFit:
+    """Gauss-Newton with real rollouts: Broyden-updated Jacobian, step halving, bounded steps.
 
-    ``simulate_one(effects) -> features (N, F)`` of all throws for one parameter set.
+    ``simulate_one(effects) -> features (N, F)``. The start is the best (real chi2) of the nominal, the
+    linear solution (``try_linear``: one batch of rollouts) and ``starts``: already simulated
+    ``(theta, y_sim)`` pairs, e.g. a refined single effect for a pair. Stops when an iteration lowers chi2
+    by less than ``min_gain`` or after ``iterations``.
     """
     if not fit.specs:
         y = simulate_one({})
@@ -241,34 +252,40 @@ def refine(prob: Problem, fit: CandidateFit, simulate_one: Callable[[dict], np.n
         return fit
     specs = fit.specs
     A = fit.jac.copy()
-    # Start from the better of the nominal and the linear solution.
     theta_nom = np.array([s.nominal for s in specs])
-    y_lin = simulate_one(effects_from(specs, fit.theta))
-    r_lin = prob.weighted(y_lin)
     r_nom = prob.weighted(prob.y0)
-    if r_lin @ r_lin <= r_nom @ r_nom:
-        theta, r, y = fit.theta.copy(), r_lin, y_lin
-        dth = theta - theta_nom
+    points = [(theta_nom, prob.y0, r_nom)]
+    if try_linear and np.any(fit.theta != theta_nom):
+        y_lin = simulate_one(effects_from(specs, fit.theta))
+        points.append((fit.theta.copy(), y_lin, prob.weighted(y_lin)))
+    for th, y in starts:
+        points.append((np.asarray(th, float), y, prob.weighted(y)))
+    # Secant information from every start point (rank-one updates from the nominal).
+    for th, _y, r_p in points[1:]:
+        dth = th - theta_nom
         if np.any(dth):
-            A = A + np.outer((r_nom - r_lin) - A @ dth, dth) / (dth @ dth)
-    else:
-        theta, r, y = theta_nom, r_nom, prob.y0
+            A = A + np.outer((r_nom - r_p) - A @ dth, dth) / (dth @ dth)
+    theta, y, r = min(points, key=lambda p: float(p[2] @ p[2]))
+    theta = theta.copy()
     ranges = np.array([s.high - s.low for s in specs])
     for _ in range(iterations):
         delta = _solve_step(A, r, specs, theta)
-        if np.max(np.abs(delta) / ranges) < tol:
+        if np.max(np.abs(delta) / ranges) < 1e-7:
             break
-        for _half in range(2):
+        improved = False
+        for _half in range(3):
             cand = theta + delta
             y_c = simulate_one(effects_from(specs, cand))
             r_c = prob.weighted(y_c)
             # Broyden rank-one update with the observed change of the residuals.
             A = A + np.outer((r - r_c) - A @ delta, delta) / (delta @ delta)
             if r_c @ r_c < r @ r:
+                gain = float(r @ r - r_c @ r_c)
                 theta, r, y = cand, r_c, y_c
+                improved = gain >= min_gain
                 break
             delta = 0.5 * delta
-        else:
+        if not improved:
             break
     fit.theta, fit.chi2, fit.refined, fit.y_fit, fit.jac = theta, float(r @ r), True, y, A
     fit.stderr = stderr_from(A, specs)

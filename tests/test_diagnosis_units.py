@@ -1,0 +1,132 @@
+"""Unit tests of the diagnosis building blocks (no simulation): features, noise, fitting, verdict helpers."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from besdrake.diagnosis import fitting, noise, observables
+from besdrake.diagnosis.design import diagnosis_plans
+from besdrake.diagnosis.observables import N_FEATURES, group_slices
+
+
+def test_quadratic_flight_fit_recovers_position_velocity_acceleration():
+    rng = np.random.default_rng(0)
+    t = np.linspace(0.3, 0.8, 60)
+    p0, v, a = np.array([0.5, 0.1, 1.4]), np.array([2.5, 0.3, 0.2]), np.array([-0.4, 0.0, -9.81])
+    tc = t.mean()
+    s = t - tc
+    path = p0 + np.outer(s, v) + 0.5 * np.outer(s * s, a) + rng.normal(0, 0.002, (len(t), 3))
+    q0, qv, qa, res = observables._quadratic_fit(t, path, tc)
+    assert np.allclose(q0, p0, atol=2e-3)
+    assert np.allclose(qv, v, atol=0.03)
+    assert np.allclose(qa, a, atol=0.5)
+    assert 0.001 < np.sqrt(np.mean(res**2)) < 0.003  # the residual measures the marker noise
+
+
+def test_pure_error_from_repeated_plans_matches_the_noise():
+    rng = np.random.default_rng(1)
+    n_plans, reps, sd = 30, 3, 0.04
+    truth = rng.normal(0, 1, (n_plans, N_FEATURES))
+    feats = np.repeat(truth, reps, axis=0)
+    sl = group_slices()
+    feats[:, sl["touchdown"]] += rng.normal(0, sd, (len(feats), 2))
+    keys = [f"p{i}" for i in range(n_plans) for _ in range(reps)]
+    pe = noise.pure_error(feats, keys)
+    est, dof = pe["touchdown"]
+    assert dof == n_plans * (reps - 1) * 2
+    assert abs(est - sd) < 0.15 * sd
+    # No repeats: the touchdown noise is the paper's prior and says so.
+    nm = noise.estimate_noise(feats[::reps], keys[::reps], None, None)
+    assert nm.sd["touchdown"] == noise.PRIOR_TOUCHDOWN_SD and nm.dof["touchdown"] == 0
+    assert "assumed" in nm.source["touchdown"]
+
+
+def _linear_problem(true_effect: str, magnitude: float, seed: int = 0):
+    """A synthetic linear world: random sensitivities for three effects, data from one of them plus noise."""
+    rng = np.random.default_rng(seed)
+    specs = [
+        fitting.ParamSpec("base_offset", "z", 0.0, -0.2, 0.2, 0.02, "m"),
+        fitting.ParamSpec("actuator_lag", "tau", 0.0, 0.0, 0.1, 0.005, "s"),
+        fitting.ParamSpec("air_drag", "cd", 0.0, 0.0, 1.0, 0.05, "1"),
+    ]
+    N = 25
+    y0 = rng.normal(0, 1, (N, N_FEATURES))
+    dy = rng.normal(0, 1, (3, N, N_FEATURES))
+    sd = np.full(N_FEATURES, 0.05)
+    which = [s.effect for s in specs].index(true_effect)
+    y_meas = y0 + magnitude * dy[which] + rng.normal(0, 0.05, y0.shape)
+    return specs, fitting.Sensitivity(specs, y0, dy), fitting.Problem(y_meas, y0, sd)
+
+
+@pytest.mark.parametrize("effect,value", [("actuator_lag", 0.03), ("air_drag", 0.4), ("base_offset", -0.04)])
+def test_linear_fit_ranks_the_true_effect_first_with_its_value(effect, value):
+    specs, sens, prob = _linear_problem(effect, value)
+    fits = sorted((fitting.linear_fit(prob, sens, c) for c in fitting.candidate_sets(["base_offset", "actuator_lag", "air_drag"])), key=lambda f: f.bic)
+    assert fits[0].effects == (effect,)
+    assert fits[0].theta[0] == pytest.approx(value, abs=4 * fits[0].stderr[0] + 1e-3)
+    assert fits[0].stderr[0] > 0
+    # The empty model is far worse, and chi2 of the best is near its degrees of freedom.
+    none = next(f for f in fits if not f.effects)
+    assert none.bic - fits[0].bic > 100
+    assert 0.8 < fits[0].chi2 / (fits[0].n - 1) < 1.2
+
+
+def test_fit_respects_bounds():
+    specs, sens, prob = _linear_problem("actuator_lag", 0.03)
+    prob.y_meas = sens.y0 - 0.05 * sens.dy[1]  # would need a negative time constant
+    fit = fitting.linear_fit(prob, sens, ("actuator_lag",))
+    assert fit.theta[0] >= 0.0
+    assert fit.parameter_table()[0]["at_bound"]
+
+
+def test_refine_with_a_nonlinear_model_converges():
+    specs, sens, prob = _linear_problem("air_drag", 0.5, seed=3)
+    true = sens.y0 + 0.5 * sens.dy[2] + 0.3 * 0.5**2 * sens.dy[2]  # the world is quadratic in cd
+    prob.y_meas = true
+
+    def simulate_one(effects):
+        cd = effects.get("air_drag", {}).get("cd", 0.0)
+        return sens.y0 + cd * sens.dy[2] + 0.3 * cd**2 * sens.dy[2]
+
+    fit = fitting.linear_fit(prob, sens, ("air_drag",))
+    lin_err = abs(fit.theta[0] - 0.5)
+    fitting.refine(prob, fit, simulate_one, iterations=5)
+    assert fit.refined
+    assert abs(fit.theta[0] - 0.5) < min(lin_err, 0.01)
+
+
+def test_effects_from_keeps_friction_valid_and_bounds():
+    specs, _ = fitting.param_specs(["scoop_friction", "air_drag"])
+    assert [s.key for s in specs] == ["scoop_friction.mu_static", "scoop_friction.mu_dynamic", "air_drag.cd"]
+    eff = fitting.effects_from(specs, np.array([0.3, 0.4, 2.0]))
+    assert eff["scoop_friction"]["mu_static"] >= eff["scoop_friction"]["mu_dynamic"]
+    assert eff["air_drag"]["cd"] == 1.0  # clipped to the bound
+
+
+def test_diagnosis_plans_repeat_and_spread():
+    plans = diagnosis_plans(20, 6, seed=2)
+    from besdrake.transfer.measurement import plan_hash
+
+    hashes = [plan_hash(p) for p in plans]
+    assert len(plans) == 20 and len(set(hashes)) == 14
+    amps = sorted(p.meta["amplitude"] for p in plans)
+    assert amps[0] < 0.25 and amps[-1] > 0.45
+    assert all(p.check_limits().ok for p in plans)
+    with pytest.raises(ValueError, match="repeats"):
+        diagnosis_plans(10, 8)
+
+
+def test_diagnose_rejects_bad_input():
+    from besdrake.diagnosis import DiagnosisError, diagnose
+    from besdrake.transfer.measurement import Measurement
+
+    plans = diagnosis_plans(4, 0)
+    ms = [Measurement(trial=i, plan=p, touchdown=np.array([1.5, 0.0])) for i, p in enumerate(plans)]
+    with pytest.raises(DiagnosisError, match="at least"):
+        diagnose(ms)
+    with pytest.raises(DiagnosisError, match="unknown candidate"):
+        diagnose(ms, candidates=["no_such_effect"])
+    refused = [Measurement(trial=i, plan=p, flags={"refused_by_safety_gate": True}) for i, p in enumerate(diagnosis_plans(8, 0))]
+    with pytest.raises(DiagnosisError, match="usable"):
+        diagnose(refused)
