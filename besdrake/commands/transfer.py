@@ -1,0 +1,94 @@
+"""``besdrake transfer``: the Transferability Approach between a simulation scenario and a lab."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+COMMAND = ("transfer",)
+HELP = "refine throws with the Transferability Approach: search in simulation, transfer diverse plans to the lab"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--lab", type=Path, required=True, help="virtual lab YAML (diagrams/labs/*.yaml)")
+    parser.add_argument("--seeds", type=Path, nargs="+", required=True,
+                        help="DMP files (*.dmp.json) or folders of them: throws refined in simulation")
+    parser.add_argument("--scenario", default="nominal", help="simulation scenario (name or YAML, e.g. a refined one from 'besdrake diagnose')")
+    parser.add_argument("--target", type=float, nargs=2, default=(2.0, 0.0), metavar=("X", "Y"), help="target on the floor (m)")
+    parser.add_argument("--out", type=Path, default=Path("runs/transfer"), help="output folder (resumable): lab log, state, summary")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the search")
+    parser.add_argument("--max-transfers", type=int, default=25)
+    parser.add_argument("--population", type=int, default=50)
+    parser.add_argument("--workers", type=int, default=1, help="simulation processes")
+    parser.add_argument("--plugin", action="append", default=[], help="module registering further effects (for the lab)")
+    parser.add_argument("--keep-going", action="store_true", help="do not stop at the first 3/3 success")
+    parser.add_argument("--json", action="store_true", help="print the summary as one JSON object")
+
+
+def _dmp_files(paths: list[Path]) -> list[Path]:
+    files: list[Path] = []
+    for p in paths:
+        files += sorted(p.glob("*.dmp.json")) if p.is_dir() else [p]
+    return files
+
+
+def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from besdrake.cli import UserError
+    from besdrake.imitation import DMPParameterization
+    from besdrake.imitation.io import load_dmp
+    from besdrake.search.refinement import ParameterScaling
+    from besdrake.sim import make_executor
+    from besdrake.transfer.lab import SafetyGate
+    from besdrake.transfer.log import LabLog
+    from besdrake.transfer.plugins import PluginError, load_plugins
+    from besdrake.transfer.transferability import TransferabilityApproach, TransferabilityConfig
+    from besdrake.transfer.virtual_lab import LabConfigError, VirtualLab, load_lab_config
+
+    files = _dmp_files(args.seeds)
+    if not files:
+        raise UserError(f"no *.dmp.json seed found in {[str(p) for p in args.seeds]}")
+    try:
+        load_plugins(args.plugin)
+        cfg = load_lab_config(args.lab)
+        dmps = [load_dmp(f) for f in files]
+    except (PluginError, LabConfigError, OSError, ValueError) as err:
+        raise UserError(str(err)) from None
+    template = dmps[0]
+    if any(d.n_dims != template.n_dims or d.n_weights_per_dim != template.n_weights_per_dim for d in dmps):
+        raise UserError("all seed DMPs must have the same number of joints and weights")
+    param = DMPParameterization(template)
+    scaling = ParameterScaling.for_dmp(template)
+    seeds = np.array([param.to_vector(d) for d in dmps])
+    config = TransferabilityConfig(
+        target=tuple(args.target), population=args.population, max_transfers=args.max_transfers,
+        stop_on_success=not args.keep_going,
+    )
+    lab = SafetyGate(VirtualLab(cfg))
+    args.out.mkdir(parents=True, exist_ok=True)
+    log_dir = args.out / "lab_log"
+    log = LabLog.open(log_dir) if (log_dir / "log.json").is_file() else LabLog.create(log_dir, lab.description(), run={"seed": args.seed})
+    executor = make_executor("process" if args.workers > 1 else "serial", workers=args.workers, scenario=args.scenario)
+    with executor:
+        search = TransferabilityApproach(
+            lambda theta: param.motion_plan(theta), seeds, scaling.scale, scaling.bounds, executor, lab,
+            np.random.default_rng(args.seed), config, log=log, out_dir=args.out,
+            progress=(lambda msg: print(msg, file=sys.stderr)) if not args.json else None,
+        )
+        result = search.run()
+    summary = result.summary() | {"scenario": args.scenario, "lab": cfg.name, "seeds": [str(f) for f in files], "out": str(args.out)}
+    if result.best_theta is not None:
+        best = param.from_vector(result.best_theta)
+        best.save(args.out / "best.dmp.json")
+        param.motion_plan(result.best_theta).save(args.out / "best.plan.json")
+    (args.out / "summary.json").write_text(json.dumps(summary, indent=1, default=float))
+    if args.json:
+        print(json.dumps(summary, default=float))
+    else:
+        print(f"{summary['lab_trials']} lab trials; 3/3 success after {summary['transfers_until_success']} trials; "
+              f"{summary['n_reliable_final_candidates']} of {len(summary['final_candidates'])} final candidates reliable; "
+              f"summary: {args.out / 'summary.json'}")
+    return 0

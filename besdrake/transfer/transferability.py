@@ -1,0 +1,453 @@
+"""The Transferability Approach (Koos et al. 2013) as the BesMan paper applies it (sections 2.5, 3.1.5).
+
+A multi-objective evolutionary search over motion-plan parameters, seeded with plans refined in
+simulation, minimises three objectives at once:
+
+1. the target distance of the touchdown **in simulation** (plus a penalty for joint-limit violations);
+2. the simulation-to-reality **disparity predicted by a surrogate** (a Gaussian process over the
+   17-feature behaviour description of :mod:`besdrake.transfer.descriptor`, trained on every plan
+   transferred so far: disparity = distance between simulated and measured touchdown);
+3. minus the **behavioural diversity** (mean distance to the nearest behaviours of the population
+   and of the plans already transferred), which keeps the search exploring.
+
+Selection is NSGA-II (non-dominated sorting, crowding distance). After every generation (the paper:
+one transfer per 50 simulated episodes, the population size) the update heuristic transfers one
+plan to the lab: among the non-dominated plans that land within ``transfer_max_sim_distance`` of
+the target in simulation and break no limit, the one whose behaviour differs most from everything
+transferred before. Its measured disparity trains the surrogate. When a transferred plan lands
+within ``success_radius`` of the target, it is repeated until ``success_repetitions`` lab trials
+say whether it does so reliably (the issue's success criterion: 3 of 3). At the end, the 2 best
+plans in the lab and 4 plans of the Pareto front are evaluated ``final_repetitions`` times.
+
+Every lab trial goes through the caller's lab (put a :class:`~besdrake.transfer.lab.SafetyGate` in
+front) and, when a :class:`~besdrake.transfer.log.LabLog` is given, is appended to it before it is
+used. The search state is saved after every generation; a rerun with the same output folder
+resumes, taking trials that the log already holds from the log instead of executing them again.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from besdrake.plan import MotionPlan
+from besdrake.search.base import load_state, rng_from_state, rng_state, save_state
+from besdrake.transfer.descriptor import N_FEATURES, behaviour_descriptor
+from besdrake.transfer.measurement import Measurement, plan_hash
+
+#: Touchdown "distance" given to a throw that never lands (m): worse than any real throw.
+NO_TOUCHDOWN_DISTANCE = 5.0
+
+
+@dataclass
+class TransferabilityConfig:
+    """Settings of the Transferability Approach (defaults follow the paper where it gives numbers)."""
+
+    target: tuple[float, float] = (2.0, 0.0)
+    population: int = 50
+    max_transfers: int = 25
+    success_radius: float = 0.1
+    success_repetitions: int = 3
+    stop_on_success: bool = True
+    final_best_in_lab: int = 2
+    final_pareto: int = 4
+    final_repetitions: int = 3
+    mutation_sd: float = 0.3  # in units of the parameter scales
+    transfer_max_sim_distance: float = 0.3
+    limit_penalty: float = 1.0  # m of objective per rad (rad/s, rad/s^2) of limit violation
+    diversity_neighbours: int = 5
+
+
+@dataclass
+class Transfer:
+    """One lab trial of the search."""
+
+    trial: int
+    kind: str  # "transfer", "repeat" or "final"
+    theta: list[float]
+    plan_hash: str
+    sim_touchdown: list[float] | None
+    lab_touchdown: list[float] | None
+    disparity: float
+    lab_target_distance: float
+    flags: list[str] = field(default_factory=list)
+
+
+@dataclass
+class TransferabilityResult:
+    """What the search found and how many lab trials it took."""
+
+    transfers: list[Transfer]
+    transfers_until_success: int | None  # lab trials up to and including the last of the 3/3 repetitions
+    plans_transferred_until_success: int | None
+    final: list[dict[str, Any]]
+    best_theta: np.ndarray | None
+    generations: int
+    sim_episodes: int
+    wall_time_s: float
+
+    def summary(self) -> dict[str, Any]:
+        reliable = [f for f in self.final if f["reliable"]]
+        return {
+            "lab_trials": len(self.transfers),
+            "transfers_until_success": self.transfers_until_success,
+            "plans_transferred_until_success": self.plans_transferred_until_success,
+            "generations": self.generations,
+            "sim_episodes": self.sim_episodes,
+            "final_candidates": self.final,
+            "n_reliable_final_candidates": len(reliable),
+            "median_disparity_m": float(np.median([t.disparity for t in self.transfers])) if self.transfers else None,
+            "best_lab_target_distance_m": min((t.lab_target_distance for t in self.transfers), default=None),
+            "wall_time_s": self.wall_time_s,
+        }
+
+
+class DisparitySurrogate:
+    """Gaussian-process regression from standardised behaviour descriptors to the measured disparity."""
+
+    def __init__(self) -> None:
+        self.X = np.zeros((0, N_FEATURES))
+        self.y = np.zeros(0)
+        self._gp = None
+
+    def add(self, descriptor: np.ndarray, disparity: float) -> None:
+        self.X = np.vstack([self.X, descriptor])
+        self.y = np.append(self.y, disparity)
+        self._gp = None
+
+    def _fit(self):
+        from sklearn.gaussian_process import GaussianProcessRegressor
+        from sklearn.gaussian_process.kernels import ConstantKernel, RBF, WhiteKernel
+
+        self._mean = self.X.mean(axis=0)
+        scale = self.X.std(axis=0)
+        scale[scale < 1e-9] = 1.0
+        self._scale = scale
+        kernel = ConstantKernel(1.0, (1e-2, 1e2)) * RBF(length_scale=3.0, length_scale_bounds=(0.3, 100.0)) + WhiteKernel(0.1, (1e-4, 1.0))
+        self._gp = GaussianProcessRegressor(kernel, normalize_y=True, random_state=0).fit((self.X - self._mean) / self._scale, self.y)
+
+    def predict(self, descriptors: np.ndarray) -> np.ndarray:
+        """Predicted disparity (m); before two transfers every behaviour gets the same prediction."""
+        if len(self.y) < 2:
+            return np.full(len(descriptors), float(self.y.mean()) if len(self.y) else 0.0)
+        if self._gp is None:
+            self._fit()
+        return self._gp.predict((descriptors - self._mean) / self._scale)
+
+
+def nondominated_ranks(F: np.ndarray) -> np.ndarray:
+    """Pareto rank (0 = non-dominated) of each row of the objective matrix ``F`` (minimised)."""
+    n = len(F)
+    le = (F[:, None, :] <= F[None, :, :]).all(axis=2)
+    lt = (F[:, None, :] < F[None, :, :]).any(axis=2)
+    dominates = le & lt  # dominates[i, j]: i dominates j
+    ranks = np.full(n, -1)
+    remaining = np.ones(n, dtype=bool)
+    rank = 0
+    while remaining.any():
+        dominated = (dominates[remaining][:, remaining]).any(axis=0)
+        front = np.flatnonzero(remaining)[~dominated]
+        ranks[front] = rank
+        remaining[front] = False
+        rank += 1
+    return ranks
+
+
+def crowding_distance(F: np.ndarray) -> np.ndarray:
+    """NSGA-II crowding distance of the rows of ``F`` (one front)."""
+    n, m = F.shape
+    dist = np.zeros(n)
+    if n <= 2:
+        return np.full(n, np.inf)
+    for k in range(m):
+        order = np.argsort(F[:, k])
+        span = F[order[-1], k] - F[order[0], k]
+        dist[order[0]] = dist[order[-1]] = np.inf
+        if span > 0:
+            dist[order[1:-1]] += (F[order[2:], k] - F[order[:-2], k]) / span
+    return dist
+
+
+def _novelty(D: np.ndarray, archive: np.ndarray, k: int) -> np.ndarray:
+    """Mean distance of each row of ``D`` to its ``k`` nearest neighbours in ``D`` and ``archive``."""
+    ref = np.vstack([D, archive]) if len(archive) else D
+    mean = ref.mean(axis=0)
+    scale = ref.std(axis=0)
+    scale[scale < 1e-9] = 1.0
+    a, b = (D - mean) / scale, (ref - mean) / scale
+    d = np.linalg.norm(a[:, None, :] - b[None, :, :], axis=2)
+    d.sort(axis=1)
+    return d[:, 1 : k + 1].mean(axis=1)  # column 0 is the distance to itself
+
+
+class TransferabilityApproach:
+    """Multi-objective search with transfers to a lab (see the module docstring).
+
+    Args:
+        to_plan: parameters -> :class:`MotionPlan` (e.g. ``DMPParameterization(dmp).motion_plan``).
+        seeds: ``(k, n)`` parameter vectors refined in simulation (the initial population's core).
+        scales: ``(n,)`` typical size of each parameter (mutations are ``mutation_sd * scales``).
+        bounds: ``(n, 2)`` lower and upper bounds of the parameters.
+        executor: evaluates plans in simulation (``.evaluate(plans) -> list[Outcome]``).
+        lab: executes plans in reality (``.execute(plan) -> Measurement``), a safety gate in front.
+        rng: the search's only source of randomness.
+        log: optional :class:`~besdrake.transfer.log.LabLog`; every lab trial is appended before use.
+        out_dir: optional folder for the resumable search state.
+    """
+
+    def __init__(
+        self,
+        to_plan: Callable[[np.ndarray], MotionPlan],
+        seeds: np.ndarray,
+        scales: np.ndarray,
+        bounds: np.ndarray,
+        executor,
+        lab,
+        rng: np.random.Generator,
+        config: TransferabilityConfig | None = None,
+        log=None,
+        out_dir: str | Path | None = None,
+        progress: Callable[[str], None] | None = None,
+    ) -> None:
+        self.to_plan = to_plan
+        self.seeds = np.atleast_2d(np.asarray(seeds, dtype=float))
+        self.scales = np.asarray(scales, dtype=float)
+        self.bounds = np.asarray(bounds, dtype=float)
+        if self.seeds.shape[1] != len(self.scales) or self.bounds.shape != (len(self.scales), 2):
+            raise ValueError("seeds, scales and bounds must agree on the number of parameters")
+        if not np.isfinite(self.seeds).all():
+            raise ValueError("seed parameters contain NaN or infinite values")
+        self.executor = executor
+        self.lab = lab
+        self.rng = rng
+        self.config = config or TransferabilityConfig()
+        self.log = log
+        self.out_dir = Path(out_dir) if out_dir is not None else None
+        self.progress = progress or (lambda msg: None)
+        self.target = np.asarray(self.config.target, dtype=float)
+        self.surrogate = DisparitySurrogate()
+        self.transfers: list[Transfer] = []
+        self.transferred_descriptors = np.zeros((0, N_FEATURES))
+        self.sim_episodes = 0
+        self.generation = 0
+        self.success_at: int | None = None
+        self.success_plans: int | None = None
+
+    # -- simulation ---------------------------------------------------------------------------
+    def _evaluate(self, thetas: np.ndarray) -> tuple[np.ndarray, np.ndarray, list]:
+        """Sim objective (distance + penalty), descriptors and outcomes of parameter vectors."""
+        plans, penalties = [], np.zeros(len(thetas))
+        for i, theta in enumerate(thetas):
+            plan = self.to_plan(theta)
+            lim = plan.check_limits()
+            penalties[i] = self.config.limit_penalty * float(lim.position.sum() + lim.velocity.sum() + lim.acceleration.sum())
+            plans.append(plan)
+        outcomes = self.executor.evaluate(plans)
+        self.sim_episodes += len(plans)
+        f1 = np.array([
+            (np.linalg.norm(o.touchdown - self.target) if o.touchdown is not None else NO_TOUCHDOWN_DISTANCE) for o in outcomes
+        ]) + penalties
+        D = np.array([behaviour_descriptor(p, o) for p, o in zip(plans, outcomes)])
+        return f1, D, outcomes
+
+    def _mutate(self, parents: np.ndarray) -> np.ndarray:
+        children = parents + self.config.mutation_sd * self.scales * self.rng.standard_normal(parents.shape)
+        return np.clip(children, self.bounds[:, 0], self.bounds[:, 1])
+
+    def _objectives(self, f1: np.ndarray, D: np.ndarray) -> np.ndarray:
+        f2 = self.surrogate.predict(D)
+        f3 = -_novelty(D, self.transferred_descriptors, self.config.diversity_neighbours)
+        return np.column_stack([f1, f2, f3])
+
+    def _select(self, F: np.ndarray, n: int) -> np.ndarray:
+        ranks = nondominated_ranks(F)
+        chosen: list[int] = []
+        for r in range(ranks.max() + 1):
+            front = np.flatnonzero(ranks == r)
+            if len(chosen) + len(front) <= n:
+                chosen += front.tolist()
+            else:
+                crowd = crowding_distance(F[front])
+                chosen += front[np.argsort(-crowd)][: n - len(chosen)].tolist()
+                break
+        return np.array(chosen)
+
+    def _tournament(self, F: np.ndarray, n: int) -> np.ndarray:
+        ranks = nondominated_ranks(F)
+        a, b = self.rng.integers(0, len(F), n), self.rng.integers(0, len(F), n)
+        return np.where(ranks[a] <= ranks[b], a, b)
+
+    # -- the lab --------------------------------------------------------------------------------
+    def _lab_trial(self, theta: np.ndarray, kind: str, sim_touchdown: np.ndarray | None, descriptor: np.ndarray | None) -> Transfer:
+        plan = self.to_plan(theta)
+        h = plan_hash(plan)
+        trial = len(self.transfers)
+        m: Measurement | None = None
+        if self.log is not None and trial < len(self.log):
+            logged = self.log.measurement(trial)
+            if plan_hash(logged.plan) != h:
+                raise RuntimeError(
+                    f"the log's trial {trial} holds another plan than the resumed search proposes: "
+                    "the log belongs to another run (use a new --out folder)"
+                )
+            m = logged
+        if m is None:
+            m = self.lab.execute(plan, trial=trial)
+            if self.log is not None:
+                self.log.append(m)  # written to disk before anything uses it
+        raised = [k for k, v in m.flags.items() if v]
+        lab_td = None if m.touchdown is None else np.asarray(m.touchdown, dtype=float)
+        if lab_td is None or sim_touchdown is None:
+            disparity = NO_TOUCHDOWN_DISTANCE
+        else:
+            disparity = float(np.linalg.norm(lab_td - sim_touchdown))
+        lab_dist = float(np.linalg.norm(lab_td - self.target)) if lab_td is not None else NO_TOUCHDOWN_DISTANCE
+        t = Transfer(
+            trial=trial, kind=kind, theta=theta.tolist(), plan_hash=h,
+            sim_touchdown=None if sim_touchdown is None else sim_touchdown.tolist(),
+            lab_touchdown=None if lab_td is None else lab_td.tolist(),
+            disparity=disparity, lab_target_distance=lab_dist, flags=raised,
+        )
+        self.transfers.append(t)
+        if descriptor is not None and "refused_by_safety_gate" not in raised:
+            self.surrogate.add(descriptor, disparity)
+            self.transferred_descriptors = np.vstack([self.transferred_descriptors, descriptor])
+        self.progress(f"lab trial {trial} ({kind}): target distance {lab_dist:.3f} m, disparity {disparity:.3f} m")
+        return t
+
+    def _choose_transfer(self, P: np.ndarray, f1: np.ndarray, F: np.ndarray, D: np.ndarray) -> int:
+        ranks = nondominated_ranks(F)
+        limits_ok = np.array([self.to_plan(p).check_limits().ok for p in P])
+        pool = np.flatnonzero((ranks == 0) & (f1 <= self.config.transfer_max_sim_distance) & limits_ok)
+        if len(pool) == 0:
+            pool = np.flatnonzero(limits_ok) if limits_ok.any() else np.arange(len(P))
+            return int(pool[np.argmin(f1[pool])])
+        if len(self.transferred_descriptors) == 0:
+            return int(pool[np.argmin(f1[pool])])
+        ref = np.vstack([D, self.transferred_descriptors])
+        scale = ref.std(axis=0)
+        scale[scale < 1e-9] = 1.0
+        d = np.linalg.norm((D[pool, None, :] - self.transferred_descriptors[None, :, :]) / scale, axis=2).min(axis=1)
+        return int(pool[np.argmax(d)])
+
+    # -- persistence ------------------------------------------------------------------------------
+    def _save(self, P: np.ndarray, f1: np.ndarray, D: np.ndarray, sim_td: np.ndarray) -> None:
+        if self.out_dir is None:
+            return
+        state = {
+            "generation": self.generation,
+            "sim_episodes": self.sim_episodes,
+            "population": P,
+            "f1": f1,
+            "descriptors": D,
+            "sim_touchdown": sim_td,
+            "transfers": [asdict(t) for t in self.transfers],
+            "surrogate_X": self.surrogate.X,
+            "surrogate_y": self.surrogate.y,
+            "transferred_descriptors": self.transferred_descriptors,
+            "success_at": self.success_at,
+            "success_plans": self.success_plans,
+            "rng": rng_state(self.rng),
+            "config": asdict(self.config),
+        }
+        save_state(state, self.out_dir / "transferability_state")
+
+    def _load(self):
+        if self.out_dir is None or not (self.out_dir / "transferability_state.json").is_file():
+            return None
+        s = load_state(self.out_dir / "transferability_state")
+        if s["config"] != json.loads(json.dumps(asdict(self.config))):
+            raise ValueError(f"{self.out_dir} holds a search with other settings: use a new output folder")
+        self.generation, self.sim_episodes = int(s["generation"]), int(s["sim_episodes"])
+        self.transfers = [Transfer(**t) for t in s["transfers"]]
+        self.surrogate.X, self.surrogate.y = np.atleast_2d(s["surrogate_X"]).reshape(-1, N_FEATURES), np.asarray(s["surrogate_y"])
+        self.transferred_descriptors = np.asarray(s["transferred_descriptors"]).reshape(-1, N_FEATURES)
+        self.success_at, self.success_plans = s["success_at"], s["success_plans"]
+        self.rng = rng_from_state(s["rng"])
+        return np.asarray(s["population"]), np.asarray(s["f1"]), np.asarray(s["descriptors"]), np.asarray(s["sim_touchdown"])
+
+    # -- the search -------------------------------------------------------------------------------
+    def run(self) -> TransferabilityResult:
+        cfg = self.config
+        t_start = time.perf_counter()
+        loaded = self._load()
+        if loaded is None:
+            n_seed = len(self.seeds)
+            extra = self.seeds[self.rng.integers(0, n_seed, max(cfg.population - n_seed, 0))]
+            P = np.vstack([self.seeds, self._mutate(extra)])[: max(cfg.population, n_seed)]
+            f1, D, outcomes = self._evaluate(P)
+            sim_td = np.array([o.touchdown if o.touchdown is not None else [np.nan, np.nan] for o in outcomes])
+        else:
+            P, f1, D, sim_td = loaded
+            self.progress(f"resumed at generation {self.generation} with {len(self.transfers)} lab trials")
+        n_plans = sum(1 for t in self.transfers if t.kind == "transfer")
+        while n_plans < cfg.max_transfers and not (cfg.stop_on_success and self.success_at is not None):
+            self.generation += 1
+            F = self._objectives(f1, D)
+            children = self._mutate(P[self._tournament(F, cfg.population)])
+            cf1, cD, couts = self._evaluate(children)
+            ctd = np.array([o.touchdown if o.touchdown is not None else [np.nan, np.nan] for o in couts])
+            P, f1, D, sim_td = np.vstack([P, children]), np.append(f1, cf1), np.vstack([D, cD]), np.vstack([sim_td, ctd])
+            F = self._objectives(f1, D)
+            keep = self._select(F, cfg.population)
+            P, f1, D, sim_td, F = P[keep], f1[keep], D[keep], sim_td[keep], F[keep]
+            i = self._choose_transfer(P, f1, F, D)
+            td = None if np.isnan(sim_td[i]).any() else sim_td[i]
+            t = self._lab_trial(P[i], "transfer", td, D[i])
+            n_plans += 1
+            if t.lab_target_distance < cfg.success_radius and self.success_at is None:
+                hits = 1
+                for _ in range(cfg.success_repetitions - 1):
+                    r = self._lab_trial(P[i], "repeat", td, None)
+                    hits += r.lab_target_distance < cfg.success_radius
+                if hits == cfg.success_repetitions:
+                    self.success_at = len(self.transfers)
+                    self.success_plans = n_plans
+            self._save(P, f1, D, sim_td)
+        final = self._final_evaluation(P, f1, D, sim_td)
+        best = None
+        if self.transfers:
+            best = np.asarray(min(self.transfers, key=lambda t: t.lab_target_distance).theta)
+        return TransferabilityResult(
+            transfers=self.transfers,
+            transfers_until_success=self.success_at,
+            plans_transferred_until_success=self.success_plans,
+            final=final,
+            best_theta=best,
+            generations=self.generation,
+            sim_episodes=self.sim_episodes,
+            wall_time_s=time.perf_counter() - t_start,
+        )
+
+    def _final_evaluation(self, P, f1, D, sim_td) -> list[dict[str, Any]]:
+        """2 best plans in the lab and 4 of the Pareto front, each repeated ``final_repetitions`` times."""
+        cfg = self.config
+        candidates: list[tuple[str, np.ndarray, np.ndarray | None]] = []
+        lab_plans = {}
+        for t in self.transfers:
+            if t.kind in ("transfer", "repeat"):
+                lab_plans.setdefault(t.plan_hash, []).append(t)
+        ranked = sorted(lab_plans.values(), key=lambda ts: np.mean([x.lab_target_distance for x in ts]))
+        for ts in ranked[: cfg.final_best_in_lab]:
+            td = None if ts[0].sim_touchdown is None else np.asarray(ts[0].sim_touchdown)
+            candidates.append(("best_in_lab", np.asarray(ts[0].theta), td))
+        F = self._objectives(f1, D)
+        front = np.flatnonzero(nondominated_ranks(F) == 0)
+        front = front[np.argsort(F[front, 0] + F[front, 1])][: cfg.final_pareto]
+        for i in front:
+            candidates.append(("pareto", P[i], None if np.isnan(sim_td[i]).any() else sim_td[i]))
+        out = []
+        for kind, theta, td in candidates:
+            dists = [self._lab_trial(theta, "final", td, None).lab_target_distance for _ in range(cfg.final_repetitions)]
+            out.append({
+                "kind": kind,
+                "lab_target_distances_m": dists,
+                "reliable": bool(all(d < cfg.success_radius for d in dists)),
+                "sim_target_distance_m": None if td is None else float(np.linalg.norm(td - self.target)),
+            })
+        return out

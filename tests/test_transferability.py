@@ -1,0 +1,120 @@
+"""The Transferability Approach: Pareto machinery, behaviour descriptor, transfers, success, resume."""
+
+from __future__ import annotations
+
+import gc
+
+import numpy as np
+import pytest
+
+from besdrake.sim import Rollout, make_executor
+from besdrake.sim.throws import default_throw
+from besdrake.transfer.descriptor import DESCRIPTOR_NAMES, behaviour_descriptor
+from besdrake.transfer.lab import SafetyGate
+from besdrake.transfer.log import LabLog
+from besdrake.transfer.measurement import plan_hash
+from besdrake.transfer.transferability import (
+    TransferabilityApproach,
+    TransferabilityConfig,
+    crowding_distance,
+    nondominated_ranks,
+)
+from besdrake.transfer.virtual_lab import VirtualLab
+
+
+def to_plan(theta: np.ndarray):
+    """A cheap 3-parameter stand-in for the 49 DMP parameters: the default throw."""
+    return default_throw(amplitude=float(theta[0]), yaw=float(theta[1]), accel=float(theta[2]))
+
+
+SCALES = np.array([0.02, 0.02, 0.5])
+BOUNDS = np.array([[0.1, 1.0], [-0.5, 0.5], [15.0, 19.5]])
+SMALL = dict(population=6, max_transfers=3, final_best_in_lab=1, final_pareto=1, final_repetitions=1)
+
+
+@pytest.fixture(scope="module")
+def seed_theta():
+    """Amplitude that lands the default throw 2 m out in the nominal simulation."""
+    rollout = Rollout("nominal")
+    amps = np.array([0.4, 0.45, 0.5])
+    xs = [rollout.rollout(default_throw(amplitude=a)).touchdown[0] for a in amps]
+    return np.array([[float(np.interp(2.0, xs, amps)), 0.0, 19.0]])
+
+
+def test_nondominated_ranks_and_crowding():
+    F = np.array([[0, 3], [1, 1], [3, 0], [2, 2], [3, 3]], dtype=float)
+    assert nondominated_ranks(F).tolist() == [0, 0, 0, 1, 2]
+    crowd = crowding_distance(F[:3])
+    assert np.isinf(crowd[0]) and np.isinf(crowd[2]) and np.isfinite(crowd[1])
+
+
+def test_descriptor_has_17_finite_features_also_when_the_ball_is_not_thrown():
+    rollout = Rollout("nominal")
+    plan = default_throw(amplitude=0.45)
+    d = behaviour_descriptor(plan, rollout.rollout(plan))
+    assert d.shape == (17,) == (len(DESCRIPTOR_NAMES),) and np.isfinite(d).all()
+    assert 0 < d[0] < plan.duration  # released during the plan
+    weak = default_throw(amplitude=0.05, accel=2.0)
+    assert np.isfinite(behaviour_descriptor(weak, rollout.rollout(weak, limits="flag"))).all()
+
+
+def test_with_a_faithful_simulation_the_first_transfer_succeeds_three_times(seed_theta):
+    lab = SafetyGate(VirtualLab("diagrams/labs/ideal_lab.yaml"))
+    with make_executor("serial", scenario="nominal") as executor:
+        result = TransferabilityApproach(
+            to_plan, seed_theta, SCALES, BOUNDS, executor, lab, np.random.default_rng(0), TransferabilityConfig(**SMALL)
+        ).run()
+    assert result.transfers_until_success == 3  # one transfer and two repetitions
+    first = result.transfers[0]
+    assert first.kind == "transfer" and first.disparity < 1e-6 and first.lab_target_distance < 0.1
+    assert [t.kind for t in result.transfers[:3]] == ["transfer", "repeat", "repeat"]
+    assert len(result.final) == 2 and all(f["reliable"] for f in result.final)
+
+
+def test_nan_seeds_are_refused():
+    with pytest.raises(ValueError, match="NaN"):
+        TransferabilityApproach(to_plan, np.array([[np.nan, 0, 19]]), SCALES, BOUNDS, None, None, np.random.default_rng(0))
+
+
+class _Interrupting:
+    """A lab that dies (KeyboardInterrupt) before its ``fail_at``-th execution, counting calls."""
+
+    def __init__(self, lab, fail_at: int | None) -> None:
+        self.lab, self.fail_at, self.calls = lab, fail_at, 0
+
+    def description(self):
+        return self.lab.description()
+
+    def execute(self, plan, trial=None):
+        if self.fail_at is not None and self.calls == self.fail_at:
+            raise KeyboardInterrupt
+        self.calls += 1
+        return self.lab.execute(plan, trial=trial)
+
+
+def _search(tmp, lab, seed_theta, executor):
+    log_dir = tmp / "log"
+    log = LabLog.open(log_dir) if (log_dir / "log.json").is_file() else LabLog.create(log_dir, lab.description())
+    cfg = TransferabilityConfig(**(SMALL | {"stop_on_success": False}))
+    return TransferabilityApproach(
+        to_plan, seed_theta, SCALES, BOUNDS, executor, lab, np.random.default_rng(1), cfg, log=log, out_dir=tmp
+    ), log
+
+
+def test_a_killed_search_resumes_without_repeating_or_losing_lab_trials(tmp_path, seed_theta):
+    with make_executor("serial", scenario="nominal") as executor:
+        ref, _ = _search(tmp_path / "ref", SafetyGate(VirtualLab("diagrams/labs/default_lab.yaml")), seed_theta, executor)
+        expected = [t.plan_hash for t in ref.run().transfers]
+
+        first = _Interrupting(SafetyGate(VirtualLab("diagrams/labs/default_lab.yaml")), fail_at=2)
+        search, first_log = _search(tmp_path / "run", first, seed_theta, executor)
+        with pytest.raises(KeyboardInterrupt) as killed:
+            search.run()
+        del killed, search, first_log  # the "killed process" lets go of its log and the log's writer lock
+        gc.collect()
+        second = _Interrupting(SafetyGate(VirtualLab("diagrams/labs/default_lab.yaml")), fail_at=None)
+        search, log = _search(tmp_path / "run", second, seed_theta, executor)
+        result = search.run()
+    assert [t.plan_hash for t in result.transfers] == expected
+    assert first.calls + second.calls == len(expected) == len(log)
+    assert [plan_hash(m.plan) for m in log.measurements()] == expected
