@@ -418,3 +418,18 @@ def test_cmaes_resume_right_after_a_restart_is_exact(tmp_path):
         np.testing.assert_array_equal(a, b)
         opt.tell(a, reward(a))
         resumed.tell(b, reward(b))
+
+
+@pytest.mark.parametrize("cls", [REPS, PI2])
+def test_episodic_search_respects_bounds_and_converges_to_the_boundary(cls, tmp_path):
+    bounds = np.tile([-1.0, 0.5], (3, 1))
+    reward = reward_of(lambda x: sphere(x - 2.0))  # unconstrained optimum outside the box
+    opt = cls(np.zeros(3), 0.25, np.random.default_rng(0), bounds=bounds)
+    for _ in range(100):
+        candidates = opt.ask()
+        assert (candidates >= bounds[:, 0]).all() and (candidates <= bounds[:, 1]).all()
+        opt.tell(candidates, reward(candidates))
+    np.testing.assert_allclose(opt.mean, 0.5, atol=1e-3)
+    np.testing.assert_array_equal(roundtrip(opt, tmp_path, cls).bounds, bounds)
+    with pytest.raises(ValueError, match="outside the bounds"):
+        cls(np.ones(3), 0.25, np.random.default_rng(0), bounds=bounds)

@@ -57,6 +57,7 @@ class PI2(GaussianSearch):
         covariance_learning_rate: float = 0.2,
         min_variance: float = 0.0,
         tol_std: float = 1e-12,
+        bounds: np.ndarray | None = None,
     ) -> None:
         if not (np.isfinite(h) and h > 0):
             raise ValueError(f"h must be positive, got {h!r}")
@@ -73,6 +74,7 @@ class PI2(GaussianSearch):
             covariance_learning_rate=covariance_learning_rate,
             min_variance=min_variance,
             tol_std=tol_std,
+            bounds=bounds,
         )
 
     def _config(self) -> dict[str, Any]:

@@ -92,6 +92,9 @@ class GaussianSearch(Optimizer):
         noisy reward); 0 lets the distribution converge.
     tol_std:
         :meth:`stop` turns true once every standard deviation of the search distribution is below it.
+    bounds:
+        ``None`` or ``(n_params, 2)`` lower/upper bounds; samples outside are clipped onto the box
+        (repair), and the update uses the clipped samples, so the mean stays inside the box.
     """
 
     def __init__(
@@ -104,11 +107,19 @@ class GaussianSearch(Optimizer):
         covariance_learning_rate: float = 0.2,
         min_variance: float = 0.0,
         tol_std: float = 1e-12,
+        bounds: np.ndarray | None = None,
     ) -> None:
         mean = np.asarray(mean, dtype=float).ravel()
         if mean.size == 0 or not np.isfinite(mean).all():
             raise ValueError(f"mean must be a non-empty finite vector, got {mean!r}")
         self.n_params = mean.size
+        self.bounds = None
+        if bounds is not None:
+            self.bounds = np.asarray(bounds, dtype=float)
+            if self.bounds.shape != (self.n_params, 2) or np.isnan(self.bounds).any() or (self.bounds[:, 0] >= self.bounds[:, 1]).any():
+                raise ValueError(f"bounds must be an ordered ({self.n_params}, 2) array without NaN")
+            if ((mean < self.bounds[:, 0]) | (mean > self.bounds[:, 1])).any():
+                raise ValueError("the initial mean lies outside the bounds")
         self.mean = mean.copy()
         self.cov = _initial_covariance(cov, self.n_params)
         self.rng = rng
@@ -135,7 +146,10 @@ class GaussianSearch(Optimizer):
         if self._pending is not None:
             return self._pending.copy()
         self._rng_before_ask = rng_state(self.rng)
-        self._pending = self.rng.multivariate_normal(self.mean, self.cov, size=self.n_samples_per_update, method="eigh")
+        samples = self.rng.multivariate_normal(self.mean, self.cov, size=self.n_samples_per_update, method="eigh")
+        if self.bounds is not None:
+            samples = np.clip(samples, self.bounds[:, 0], self.bounds[:, 1])
+        self._pending = samples
         return self._pending.copy()
 
     def tell(self, candidates: np.ndarray, rewards: np.ndarray) -> None:
@@ -188,6 +202,7 @@ class GaussianSearch(Optimizer):
             "covariance_learning_rate": self.covariance_learning_rate,
             "min_variance": self.min_variance,
             "tol_std": self.tol_std,
+            "bounds": self.bounds,
         }
 
     def state_dict(self) -> dict[str, Any]:
@@ -259,6 +274,7 @@ class REPS(GaussianSearch):
         covariance_learning_rate: float = 0.2,
         min_variance: float = 0.0,
         tol_std: float = 1e-12,
+        bounds: np.ndarray | None = None,
     ) -> None:
         if not (np.isfinite(epsilon) and epsilon > 0):
             raise ValueError(f"epsilon (KL bound) must be positive, got {epsilon!r}")
@@ -275,6 +291,7 @@ class REPS(GaussianSearch):
             covariance_learning_rate=covariance_learning_rate,
             min_variance=min_variance,
             tol_std=tol_std,
+            bounds=bounds,
         )
 
     def _config(self) -> dict[str, Any]:
