@@ -504,10 +504,17 @@ class MarkerLabeler:
             active[rows_of[t][0] : rows_of[t][-1] + 1] += 1
         f_seed = int(np.argmax(active))
         seed_group = [int(t) for t in long_ts if rows_of[t][0] <= f_seed <= rows_of[t][-1]]
-        self._seed_plates(seed_group, f_seed, rows_of, pts_of, occupied, assign)
+        self._seed_plates(seed_group, f_seed, rows_of, pts_of, label_pos, occupied, assign)
         if not occupied.any():
             # No plate found: fall back on the reference's initial pose.
             self._seed_initial_pose(seed_group, f_seed, rows_of, pts_of, assign)
+        # Plates again wherever long tracklets start (re-acquisition after occlusions), so that
+        # plate members are decided jointly rather than one by one.
+        if self.plates_:
+            for f in sorted({int(rows_of[t][0]) for t in long_ts}):
+                group = [int(t) for t in long_ts if label_of[t] == GHOST and rows_of[t][0] <= f <= rows_of[t][-1]]
+                if len(group) >= 2:
+                    self._seed_plates(group, f, rows_of, pts_of, label_pos, occupied, assign)
         # 2. The most certain decision first: repeatedly assign the pending tracklet whose best
         #    label beats its runner-up (or its threshold) by the widest margin; decisions
         #    change the neighbours' costs, so tracklets overlapping in time are re-scored.
@@ -611,9 +618,17 @@ class MarkerLabeler:
             if cost[r, c] <= max_error:
                 assign(group[r], int(labels[c]))
 
-    def _seed_plates(self, group, frame, rows_of, pts_of, occupied, assign) -> None:
-        """Assign whole plates among ``group`` (tracklets active at ``frame``), best-fitting
-        triples by learned distances around that frame; plates first, most rigid first."""
+    def _pair_cost(self, ia: int, ib: int, dd: np.ndarray) -> float:
+        """Mean learned cost of distances ``dd`` between labels ``ia`` and ``ib``."""
+        bins = np.minimum((dd / self.bin_m).astype(int), self.pair_cost_.shape[2] - 1)
+        pc = self._rigid_override(self.pair_cost_[ia, ib, bins], dd, self.rigid_mu_[ia, ib],
+                                  self.rigid_sigma_[ia, ib], self.rigid_pair_[ia, ib])
+        return float(pc.mean())
+
+    def _seed_plates(self, group, frame, rows_of, pts_of, label_pos, occupied, assign) -> None:
+        """Assign the free labels of each plate (at least two free at ``frame``) jointly among the
+        tracklets of ``group`` (active at ``frame``): the permutation that best fits the learned
+        distances among themselves and to the plate's labelled members, over ``window`` frames."""
         def window(t):
             rows = rows_of[t]
             i = int(np.searchsorted(rows, frame))
@@ -621,26 +636,39 @@ class MarkerLabeler:
 
         win = {t: window(t) for t in group}
         for plate in self.plates_:
-            cands = [t for t in group if not occupied[win[t][0]][:, plate].any()]
+            free = [lab for lab in plate if not occupied[frame, lab]]
+            fixed = [lab for lab in plate if occupied[frame, lab]]
+            if len(free) < 2:
+                continue
+            cands = {lab: [t for t in group if not occupied[rows_of[t], lab].any()] for lab in free}
+            pool = sorted(set().union(*cands.values()))
             best, best_cost = None, np.inf
-            for tri in itertools.permutations(cands, 3):
-                cost = 0.0
-                for (ia, ta), (ib, tb) in itertools.combinations(zip(plate, tri), 2):
+            for perm in itertools.permutations(pool, len(free)):
+                if any(t not in cands[lab] for lab, t in zip(free, perm)):
+                    continue
+                cost, terms = 0.0, 0
+                for (ia, ta), (ib, tb) in itertools.combinations(zip(free, perm), 2):
                     (ra, xa), (rb, xb) = win[ta], win[tb]
                     common = np.intersect1d(ra, rb)
                     if len(common) == 0:
                         cost = np.inf
                         break
-                    dd = np.linalg.norm(xa[np.searchsorted(ra, common)] - xb[np.searchsorted(rb, common)], axis=1)
-                    bins = np.minimum((dd / self.bin_m).astype(int), self.pair_cost_.shape[2] - 1)
-                    pc = self._rigid_override(self.pair_cost_[ia, ib, bins], dd, self.rigid_mu_[ia, ib],
-                                              self.rigid_sigma_[ia, ib], self.rigid_pair_[ia, ib])
-                    cost += float(pc.mean())
-                    if cost >= best_cost:
+                    cost += self._pair_cost(ia, ib, np.linalg.norm(xa[np.searchsorted(ra, common)] - xb[np.searchsorted(rb, common)], axis=1))
+                    terms += 1
+                for ia, ta in zip(free, perm):
+                    if not np.isfinite(cost):
                         break
+                    ra, xa = win[ta]
+                    for ib in fixed:
+                        other = label_pos[ra, ib]
+                        ok = ~np.isnan(other).any(axis=1)
+                        if ok.any():
+                            cost += self._pair_cost(ia, ib, np.linalg.norm(xa[ok] - other[ok], axis=1))
+                            terms += 1
+                cost = cost / max(terms, 1)
                 if cost < best_cost:
-                    best, best_cost = tri, cost
-            if best is not None and best_cost / 3 <= max(self.thresholds_[plate]):
-                for lab, t in zip(plate, best):
+                    best, best_cost = perm, cost
+            if best is not None and best_cost <= max(self.strict_thresholds_[plate]):
+                for lab, t in zip(free, best):
                     assign(t, lab)
                 group = [t for t in group if t not in best]
