@@ -101,7 +101,7 @@ def test_pathwise_fantasy_samples_match_exact_gp_conditioning():
     exact_mean = joint_mean[:-1] + cross * (y_new - joint_mean[-1]) / var_y
     exact_cov = joint_cov[:-1, :-1] - np.outer(cross, cross) / var_y
     np.testing.assert_allclose(m[0, node, 0], exact_mean, rtol=1e-9)
-    samples = f[0, node, 0]  # (R, S)
+    samples = f[0, node, :, 0, :].T  # (R, S)
     scale = np.sqrt(exact_cov.diagonal().max())
     np.testing.assert_allclose(samples.mean(axis=1), exact_mean, atol=0.03 * scale)
     assert np.max(np.abs(np.cov(samples) - exact_cov)) < 0.05 * scale**2

@@ -26,8 +26,8 @@ class ACES(BOCPS):
     """BO-CPS with entropy search and active context selection.
 
     ``n_context_candidates`` random contexts (plus the representative ones) are scored, each with
-    its best UCB parameters among a small random pool and one random parameter vector; the
-    representer points of every representative context are scored as well.
+    its best UCB parameters among a small random pool and one random parameter vector; the four most
+    probable maximisers of every representative context are scored as well.
     """
 
     def __init__(self, context_bounds: Any, param_bounds: Any, rng: np.random.Generator | None = None,
@@ -59,7 +59,9 @@ class ACES(BOCPS):
             ucb = upper_confidence_bound(self.gp, self._joint(s, pool), self.kappa)
             pairs.append(self._joint(s, pool[[int(np.argmax(ucb))]]))
             pairs.append(self._joint(s, self._random_params(1)))
-        flat = representers.reshape(-1, representers.shape[-1])
+        # per representative context, its most probable maximisers (top 4 of p_max)
+        top = np.argsort(-model.p_max(), axis=1)[:, :4]
+        flat = np.take_along_axis(representers, top[:, :, None], axis=1).reshape(-1, representers.shape[-1])
         inside = np.all((flat[:, :self.n_context] >= low) & (flat[:, :self.n_context] <= high), axis=1)
         candidates = np.vstack(pairs + [flat[inside]])
         gains = model.information_gain(candidates)

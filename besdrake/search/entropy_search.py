@@ -98,23 +98,26 @@ class RepresenterModel:
         n_rep = len(self.points)
         self.Z = rng.standard_normal((n_rep, n_samples))
         self.w = rng.standard_normal(n_samples)
-        self.LZ = self.chol @ self.Z
+        # (S, R): samples first, so that the maxima over representers are reductions along the
+        # contiguous last axis; float32 halves the memory traffic of the fantasies (the dominant cost)
+        self.LZ_T = np.ascontiguousarray((self.chol @ self.Z).T)
+        self._LZ_T32 = self.LZ_T.astype(np.float32)
         nodes, weights = hermegauss(n_fantasies)
         self.nodes, self.weights = nodes, weights / weights.sum()
 
     # ------------------------------------------------------------------ current state
     def current_samples(self) -> np.ndarray:
-        """Joint posterior samples ``(n_groups, n_per_group, n_samples)``."""
-        f = self.mean[:, None] + self.LZ
-        return f.reshape(self.n_groups, self.n_per_group, -1)
+        """Joint posterior samples ``(n_samples, n_groups, n_per_group)``."""
+        f = self.mean[None, :] + self.LZ_T
+        return f.reshape(-1, self.n_groups, self.n_per_group)
 
     def p_max(self) -> np.ndarray:
         """Current ``p_max`` per group, shape ``(n_groups, n_per_group)``."""
-        return self._p_max(self.current_samples()[None, None])[0, 0]
+        return self._p_max(self.current_samples())
 
     def _p_max(self, f: np.ndarray) -> np.ndarray:
-        # f: (..., n_groups, n_per_group, n_samples) -> frequencies (..., n_groups, n_per_group)
-        idx = np.argmax(f, axis=-2)  # (..., G, S)
+        # f: (..., n_samples, n_groups, n_per_group) -> frequencies (..., n_groups, n_per_group)
+        idx = np.moveaxis(np.argmax(f, axis=-1), -2, -1)  # (..., G, S)
         lead = idx.shape[:-1]
         flat = idx.reshape(-1, idx.shape[-1])
         offsets = (np.arange(flat.shape[0]) * self.n_per_group)[:, None]
@@ -125,7 +128,7 @@ class RepresenterModel:
     def fantasies(self, candidates: np.ndarray):
         """Yield ``(slice, f, m)`` per chunk of candidates.
 
-        ``f``: fantasised joint samples ``(c, n_fantasies, n_groups, n_per_group, n_samples)``;
+        ``f``: fantasised joint samples ``(c, n_fantasies, n_samples, n_groups, n_per_group)``, float32;
         ``m``: fantasised posterior means ``(c, n_fantasies, n_groups, n_per_group)``.
         """
         candidates = np.atleast_2d(np.asarray(candidates, dtype=float))
@@ -144,11 +147,11 @@ class RepresenterModel:
             y_dev = B[:, sl].T @ self.Z + resid_sd[sl, None] * self.w[None, :]  # (c, S) centred sample of y
             gain = (cross[:, sl] / var_y[sl]).T  # (c, R)
             shift = (cross[:, sl] / np.sqrt(var_y[sl])).T  # (c, R): mean change per unit node
-            resid = self.LZ[None] - gain[:, :, None] * y_dev[:, None, :]  # (c, R, S)
-            m = self.mean[None, None, :] + shift[:, None, :] * self.nodes[None, :, None]  # (c, Q, R)
-            f = m[..., None] + resid[:, None]  # (c, Q, R, S)
+            resid = self._LZ_T32[None] - (y_dev[:, :, None] * gain[:, None, :]).astype(np.float32)  # (c, S, R)
+            m = self.mean[None, None, :] + self.nodes[None, :, None] * shift[:, None, :]  # (c, Q, R)
+            f = m.astype(np.float32)[:, :, None, :] + resid[:, None]  # (c, Q, S, R)
             c = f.shape[0]
-            yield sl, f.reshape(c, len(self.nodes), *shape, n_samples), m.reshape(c, len(self.nodes), *shape)
+            yield sl, f.reshape(c, len(self.nodes), n_samples, *shape), m.reshape(c, len(self.nodes), *shape)
 
     def entropy(self) -> float:
         """Current entropy of ``p_max``, summed over groups."""
@@ -165,16 +168,16 @@ class RepresenterModel:
 
     def expected_regret(self) -> float:
         """Expected simple regret of recommending the posterior-mean maximiser (summed over groups)."""
-        f = self.current_samples()
+        f = self.current_samples()  # (S, G, R)
         m = self.mean.reshape(self.n_groups, self.n_per_group)
-        return float((f.max(axis=1).mean(axis=-1) - m.max(axis=1)).sum())
+        return float((f.max(axis=-1).mean(axis=0) - m.max(axis=-1)).sum())
 
     def regret_reduction(self, candidates: np.ndarray) -> np.ndarray:
         """Expected reduction of the expected regret (summed over groups) per candidate."""
         r0 = self.expected_regret()
         out = np.empty(len(np.atleast_2d(candidates)))
         for sl, f, m in self.fantasies(candidates):
-            regret = f.max(axis=-2).mean(axis=-1) - m.max(axis=-1)  # (c, Q, G)
+            regret = f.max(axis=-1).mean(axis=-2) - m.max(axis=-1)  # (c, Q, G)
             out[sl] = r0 - regret.sum(axis=-1) @ self.weights
         return out
 
