@@ -36,22 +36,10 @@ def min_jerk(tau: np.ndarray) -> np.ndarray:
     return t**3 * (10.0 + t * (-15.0 + 6.0 * t))
 
 
-def min_jerk_rate(tau: np.ndarray) -> np.ndarray:
-    """d/dtau of :func:`min_jerk` (zero outside [0, 1])."""
-    t = np.clip(tau, 0.0, 1.0)
-    return 30.0 * t**2 * (1.0 - t) ** 2
-
-
 def bump(tau: np.ndarray) -> np.ndarray:
     """A smooth there-and-back bump 16 t^2 (1 - t)^2 (0 at both ends, 1 in the middle)."""
     t = np.clip(tau, 0.0, 1.0)
     return 16.0 * t**2 * (1.0 - t) ** 2
-
-
-def bump_rate(tau: np.ndarray) -> np.ndarray:
-    t = np.clip(tau, 0.0, 1.0)
-    inside = (tau > 0.0) & (tau < 1.0)
-    return np.where(inside, 32.0 * t * (1.0 - t) * (1.0 - 2.0 * t), 0.0)
 
 
 def _unit(v: np.ndarray) -> np.ndarray:

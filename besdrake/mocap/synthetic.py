@@ -169,14 +169,10 @@ class _Sub:
     delta: np.ndarray  # change of every pose channel
     arc: np.ndarray  # bump added to the wrist (3,), in arm lengths
     label: str
-    throw: int
 
 
 # Pose channels: wrist (3, in arm lengths, trunk frame rel. to shoulder), elbow hint (3),
 # pronation, trunk yaw, trunk pitch, wrist flexion (rad).
-_NCH = 10
-
-
 def _pose_vector(wrist, hint, pron, yaw, pitch, flex=0.0) -> np.ndarray:
     return np.concatenate([wrist, hint, [pron, yaw, pitch, flex]])
 
@@ -225,12 +221,12 @@ class SyntheticSubject:
             d3 = st.swing_duration * rng.uniform(0.9, 1.1)
             ov = st.overlap * rng.uniform(0.7, 1.3)
             arc_throw = np.array([0.0, 0.0, st.throw_arc * rng.uniform(0.8, 1.2)])
-            subs.append(_Sub(t, d1, cock - rest, arc_strike, "strike_out", k))
+            subs.append(_Sub(t, d1, cock - rest, arc_strike, "strike_out"))
             t2 = t + d1 * (1 - ov)
-            subs.append(_Sub(t2, d2, front - cock, arc_throw, "throw", k))
+            subs.append(_Sub(t2, d2, front - cock, arc_throw, "throw"))
             release_times[k] = t2 + st.release_phase * d2
             t3 = t2 + d2 * (1 - ov)
-            subs.append(_Sub(t3, d3, rest - front, arc_swing, "swing_out", k))
+            subs.append(_Sub(t3, d3, rest - front, arc_swing, "swing_out"))
             t = t3 + d3 + st.idle_duration * rng.uniform(0.75, 1.3)
         rest0 = self._key_poses(np.random.default_rng([self.seed, self.index, 999]))[0]
         return subs, t + rng.uniform(0.5, 1.0), release_times, rest0
