@@ -98,3 +98,12 @@ def test_ray_backend_matches_serial(serial_out):
         out = ex.evaluate(_plans(), effects=EFFECTS)
     _same(out, serial_out)
     ray.shutdown()
+
+
+def test_worker_build_failure_is_reported(monkeypatch):
+    from besdrake.sim import load_scenario
+
+    scen = load_scenario("nominal")
+    broken = scen.with_overrides(models={**scen.models, "ball": "/nonexistent/ball.sdf"})
+    with pytest.raises(ExecutorError, match="could not build the simulation.*not found"):
+        make_executor("process", workers=1, scenario=broken)

@@ -127,23 +127,31 @@ class SerialExecutor(Executor):
 
 # ------------------------------------------------------------------------------------------ process pool
 _WORKER_ROLLOUT = None
+_WORKER_ERROR = ""
 
 
 def _init_worker(scenario: Scenario) -> None:
-    global _WORKER_ROLLOUT
+    """Pool initializer: build this worker's Diagram once. A failure is kept and reported, not raised
+    (a raising initializer would make the pool respawn workers forever)."""
+    global _WORKER_ROLLOUT, _WORKER_ERROR
     os.environ.setdefault("OMP_NUM_THREADS", "1")
-    from besdrake.sim.rollout import Rollout
+    try:
+        from besdrake.sim.rollout import Rollout
 
-    _WORKER_ROLLOUT = Rollout(scenario)
+        _WORKER_ROLLOUT = Rollout(scenario)
+    except Exception as err:  # noqa: BLE001
+        _WORKER_ERROR = f"{type(err).__name__}: {err}"
 
 
 def _worker_batch(args) -> list[Outcome]:
     items, limits = args
+    if _WORKER_ROLLOUT is None:
+        return [_failed(f"worker has no simulation: {_WORKER_ERROR}") for _ in items]
     return _run_batch(_WORKER_ROLLOUT, items, limits)
 
 
-def _worker_ready(_=None) -> int:
-    return os.getpid() if _WORKER_ROLLOUT is not None else -1
+def _worker_ready(_=None) -> str:
+    return "" if _WORKER_ROLLOUT is not None else (_WORKER_ERROR or "not initialised")
 
 
 class ProcessExecutor(Executor):
@@ -162,7 +170,11 @@ class ProcessExecutor(Executor):
             raise ValueError(f"workers must be >= 1, got {workers}")
         self._pool = mp.get_context(start_method).Pool(self.workers, initializer=_init_worker, initargs=(self.scenario,))
         # Wait until every worker has built its Diagram, so timings exclude start-up.
-        self._pool.map(_worker_ready, range(self.workers), chunksize=1)
+        errors = [e for e in self._pool.map(_worker_ready, range(self.workers), chunksize=1) if e]
+        if errors:
+            self._pool.terminate()
+            self._closed = True
+            raise ExecutorError(f"a worker could not build the simulation: {errors[0]}")
 
     def _evaluate(self, items):
         n_chunks = min(len(items), self.workers * 4)
@@ -205,10 +217,17 @@ class RayExecutor(Executor):
             def __init__(self, scenario):
                 _init_worker(scenario)
 
+            def ready(self):
+                return _worker_ready()
+
             def run(self, items, limits):
                 return _worker_batch((items, limits))
 
         self._actors = [_Actor.remote(self.scenario) for _ in range(self.workers)]
+        errors = [e for e in ray.get([a.ready.remote() for a in self._actors]) if e]
+        if errors:
+            self.close()
+            raise ExecutorError(f"a Ray worker could not build the simulation: {errors[0]}")
 
     def _evaluate(self, items):
         n_chunks = min(len(items), self.workers * 4)
