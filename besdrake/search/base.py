@@ -116,9 +116,13 @@ class ContextualOptimizer(ABC):
     def select_context(self, bounds: np.ndarray) -> np.ndarray:
         """Active learning: the context to explore next within ``bounds`` (shape ``(n_context, 2)``).
 
-        Optimizers without active context selection draw uniformly.
+        Optimizers without active context selection draw uniformly from their own seeded ``rng``.
         """
-        rng = getattr(self, "rng", np.random.default_rng())
+        rng = getattr(self, "rng", None)
+        if not isinstance(rng, np.random.Generator):
+            raise AttributeError(
+                f"{type(self).__name__} has no seeded `rng` (numpy.random.Generator) to draw contexts from"
+            )
         return rng.uniform(bounds[:, 0], bounds[:, 1])
 
     @abstractmethod
