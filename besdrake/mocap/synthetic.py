@@ -5,14 +5,17 @@ occlusion rates) performs experiments of overhand throws at a target about 2 m i
 Each throw is idle -> strike_out -> throw -> swing_out -> idle, made of minimum-jerk
 sub-movements (bell-shaped speed) that overlap a little. The hand is above the shoulder while
 throwing; the ball leaves the hand at release with a speed chosen so that it lands near the
-target (peak hand speeds of 2.5-5 m/s) and flies ballistically until it leaves the capture
-volume. Markers (the paper's set): ``Back top``, ``Back right``, ``Back left``, ``Shoulder``,
+target (peak hand speeds of about 3-6.5 m/s) and flies ballistically until it leaves the
+capture volume. Markers (the paper's set): ``Back top``, ``Back right``, ``Back left``, ``Shoulder``,
 ``Elbow``, ``Hand top``, ``Hand right``, ``Hand left``, ``Ball``.
 
 Recordings are sampled at :data:`FREQUENCY` = 100 Hz (a common Qualisys rate; keeps files
-small), carry about 1 mm of Gaussian noise, occlusion gaps (random and pose-dependent) and, in
-the unlabelled variant, ghost markers and shuffled identities (unnamed trajectory slots, the
-identity of a slot changing at every gap as a passive system delivers).
+small), carry about 1 mm of Gaussian noise and short occlusion gaps (random and pose-dependent,
+at most 0.2 s: the labelled files stand for recordings after labelling and gap filling). The
+unlabelled variant adds long occlusions (0.5-1 s), ghost markers and shuffled identities
+(unnamed trajectory slots, the identity of a slot changing at every gap as a passive system
+delivers). The ``_manually_segmented.json`` borders carry a 20 ms annotator jitter; the exact
+ones are in the truth.
 
 Everything is seeded: subject ``i`` draws from ``numpy.random.default_rng([seed, i])`` and its
 experiment ``j`` from ``default_rng([seed, i, j])``, so any single file can be regenerated.
@@ -26,7 +29,6 @@ from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
-
 from scipy.spatial.transform import Rotation
 
 from besdrake.mocap import arm_model as am
@@ -293,10 +295,10 @@ class SyntheticSubject:
         rng_seed = [self.seed, self.index, j]
         heading = float(np.random.default_rng(rng_seed + [7]).normal(0.0, 0.05))
         base = np.random.default_rng(rng_seed + [8]).normal(0.0, 0.05, size=3) * [1, 1, 0]
+        # The target is fixed in the room before the subject turns towards it.
         target = base + np.array([np.cos(heading), np.sin(heading), 0.0]) * (TARGET_DISTANCE + st.target_offset)
         # Pass 1: nominal throw durations, to measure release directions; pass 2: durations
         # that send the ball to the target (release velocity scales as 1 / duration).
-        # The target is fixed in the room before the subject turns towards it.
         # Pass 0 turns the subject so the throws head for the target (the arm's sweep and the
         # trunk rotation send the ball to the left of the facing direction).
         durations = None
