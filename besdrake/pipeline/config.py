@@ -1,0 +1,84 @@
+"""Configuration of ``besdrake learn``: the packaged defaults, a user's YAML, profiles and overrides.
+
+Precedence, lowest first: :file:`default_learn.yaml` (beside this module), the ``--quick`` profile,
+the user's ``--config`` file, then ``--set section.key=value`` flags.
+"""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+DEFAULT_CONFIG = Path(__file__).with_name("default_learn.yaml")
+
+#: The ``--quick`` profile: a smoke run of every stage in about a minute.
+QUICK: dict[str, Any] = {
+    "demonstrations": {"experiments": [0]},
+    "classifier": {"training_subjects": [5, 6]},
+    "imitation": {"max_throws": 2},
+    "refinement": {"plans": 1, "evaluations": 100, "population": 10},
+    "transfer": {"population": 12, "max_transfers": 3},
+    "templates": {"episodes": 12},
+}
+
+
+class ConfigError(ValueError):
+    """A configuration file or override that cannot be used (unknown key, bad YAML, wrong type)."""
+
+
+def deep_merge(base: dict[str, Any], extra: dict[str, Any], where: str = "") -> dict[str, Any]:
+    """``base`` updated by ``extra``; unknown keys are errors (a typo must not pass silently)."""
+    out = copy.deepcopy(base)
+    for key, value in extra.items():
+        path = f"{where}{key}"
+        if key not in out:
+            raise ConfigError(f"unknown configuration key {path!r}; known: {sorted(out)}")
+        if isinstance(out[key], dict) and isinstance(value, dict):
+            out[key] = deep_merge(out[key], value, f"{path}.")
+        elif isinstance(out[key], dict):
+            raise ConfigError(f"configuration key {path!r} must be a mapping, got {value!r}")
+        else:
+            out[key] = value
+    return out
+
+
+def parse_override(text: str) -> dict[str, Any]:
+    """``"refinement.evaluations=200"`` -> ``{"refinement": {"evaluations": 200}}`` (value parsed as YAML)."""
+    if "=" not in text:
+        raise ConfigError(f"override {text!r} must look like section.key=value")
+    key, raw = text.split("=", 1)
+    try:
+        value = yaml.safe_load(raw)
+    except yaml.YAMLError as err:
+        raise ConfigError(f"override {text!r}: {err}") from None
+    out: dict[str, Any] = {}
+    node = out
+    parts = key.strip().split(".")
+    for part in parts[:-1]:
+        node = node.setdefault(part, {})
+    node[parts[-1]] = value
+    return out
+
+
+def load_config(path: str | Path | None = None, quick: bool = False, overrides: list[str] = ()) -> dict[str, Any]:
+    """The effective configuration (see the module docstring)."""
+    config = yaml.safe_load(DEFAULT_CONFIG.read_text())
+    if quick:
+        config = deep_merge(config, QUICK)
+    if path is not None:
+        path = Path(path)
+        if not path.is_file():
+            raise ConfigError(f"configuration file {path} not found")
+        try:
+            user = yaml.safe_load(path.read_text()) or {}
+        except yaml.YAMLError as err:
+            raise ConfigError(f"{path}: not valid YAML: {err}") from None
+        if not isinstance(user, dict):
+            raise ConfigError(f"{path}: the configuration must be a mapping")
+        config = deep_merge(config, user)
+    for text in overrides:
+        config = deep_merge(config, parse_override(text))
+    return config

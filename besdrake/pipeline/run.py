@@ -1,0 +1,102 @@
+"""A run folder that a person can read and a program can resume.
+
+Layout::
+
+    RUN/
+      config.yaml          the effective configuration (written once; a resume must match it)
+      inputs.json          SHA-256 of every input file (recordings, lab, scenario)
+      NN_stage/            one folder per stage, in order
+        stage.json         written last: the stage's summary and wall time (its presence = done)
+        ...                the stage's outputs (JSON, CSV, NPZ, PNG, HTML)
+      report.md            written by the report stage
+
+A stage whose ``stage.json`` exists is skipped on a rerun: Ctrl-C leaves a resumable run, and stages
+that resume internally (policy search, lab logs) continue where they stopped.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+
+class RunError(ValueError):
+    """A run folder that belongs to another configuration."""
+
+
+def file_hash(path: str | Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _json_default(obj: Any):
+    import numpy as np
+
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, Path):
+        return str(obj)
+    raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
+
+
+def write_json(path: Path, data: Any) -> None:
+    """Write JSON atomically (temporary file, then rename)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(data, indent=1, default=_json_default))
+    tmp.replace(path)
+
+
+class RunFolder:
+    """The folder of one ``besdrake learn`` run."""
+
+    def __init__(self, root: str | Path, config: dict[str, Any]) -> None:
+        self.root = Path(root)
+        self.config = config
+        self.root.mkdir(parents=True, exist_ok=True)
+        path = self.root / "config.yaml"
+        text = yaml.safe_dump(config, sort_keys=False)
+        if path.is_file():
+            if yaml.safe_load(path.read_text()) != yaml.safe_load(text):
+                raise RunError(
+                    f"{self.root} holds a run with another configuration; resume it with the same options, "
+                    "or choose a new --out folder"
+                )
+        else:
+            path.write_text(text)
+
+    def record_inputs(self, files: dict[str, Path]) -> None:
+        """Hash the input files; a resume with changed inputs is refused."""
+        hashes = {name: file_hash(p) for name, p in files.items() if Path(p).is_file()}
+        path = self.root / "inputs.json"
+        if path.is_file():
+            before = json.loads(path.read_text())
+            changed = [k for k in hashes if k in before and before[k] != hashes[k]]
+            if changed:
+                raise RunError(f"input files changed since the run started: {changed}; use a new --out folder")
+            hashes = before | hashes
+        write_json(path, hashes)
+
+    def stage_dir(self, index: int, name: str) -> Path:
+        d = self.root / f"{index:02d}_{name}"
+        d.mkdir(parents=True, exist_ok=True)
+        return d
+
+    def done(self, index: int, name: str) -> dict[str, Any] | None:
+        path = self.root / f"{index:02d}_{name}" / "stage.json"
+        return json.loads(path.read_text()) if path.is_file() else None
+
+    def mark_done(self, index: int, name: str, summary: dict[str, Any], seconds: float) -> dict[str, Any]:
+        record = {"stage": name, "seconds": seconds, "finished": time.strftime("%Y-%m-%dT%H:%M:%S"), "summary": summary}
+        write_json(self.stage_dir(index, name) / "stage.json", record)
+        return record
