@@ -25,7 +25,7 @@ Design choices:
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -58,7 +58,6 @@ class SimHandles:
     visualizer: Any = None
     #: True while the actuators carry scaled gains (effect gain_scale); Rollout restores them on reset.
     gains_scaled: bool = False
-    arm_q_slice: slice = field(default_factory=lambda: slice(0, 6))
 
     def plant_context(self, context):
         return self.plant.GetMyMutableContextFromRoot(context)

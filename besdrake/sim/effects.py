@@ -396,7 +396,7 @@ class ScoopFriction(Effect):
         return out
 
     def apply(self, setup, values):
-        from pydrake.geometry import ProximityProperties, Role, RoleAssign
+        from pydrake.geometry import ProximityProperties, RoleAssign
         from pydrake.multibody.plant import CoulombFriction
 
         h = setup.handles
