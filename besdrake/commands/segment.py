@@ -52,13 +52,16 @@ def run(args: argparse.Namespace) -> int:
     except (OSError, ValueError) as err:
         raise UserError(f"classifier: {err}") from None
     out = []
-    for a, b in seg.segments_:
+    models = getattr(seg.result_, "segment_models", None) or [None] * len(seg.segments_)
+    for (a, b), model in zip(seg.segments_, models):
         item = {
             "start_frame": int(pre.frames[a]),
             "end_frame": int(pre.frames[b]),
             "start_time": float(pre.time[a]),
             "end_time": float(pre.time[b]),
         }
+        if model is not None:
+            item["model"] = model
         if clf is not None:
             try:
                 item["label"] = str(clf.predict([extract_segment(pre, a, b)])[0])

@@ -28,7 +28,7 @@ from besdrake.mocap.preprocess import HAND_MARKERS, Preprocessed, velocity
 
 PART_SUFFIX = "_part"
 #: Markers of manipulated objects that ``markers="auto"`` adds to the hand (box of the
-#: pick-and-place data, ball of the throwing data).
+#: pick-and-place data, ball of the throwing data) when they are visible throughout.
 OBJECT_MARKERS = ("Box back", "Ball")
 #: Feature settings chosen on the pick-and-place data (hand + object, normalised velocity).
 DEFAULT_VELOCITY_WEIGHT = 0.3
@@ -190,12 +190,23 @@ class SegmentClassifier(ClassifierMixin, BaseEstimator):
         self.part_policy = part_policy
 
     def _resolve_markers(self, segments) -> tuple[str, ...]:
+        """``markers="auto"``: the hand plus the object markers (:data:`OBJECT_MARKERS`) seen in
+        every sample of every training segment; without such a marker, the hand and the elbow."""
         if self.markers != "auto":
             return tuple(self.markers)
-        common = set(segments[0].marker_names)
-        for s in segments[1:]:
-            common &= set(s.marker_names)
-        return ("hand", *[m for m in OBJECT_MARKERS if m in common])
+
+        def usable(name: str) -> bool:
+            for seg in segments:
+                if name not in seg.marker_names:
+                    return False
+                if not np.isfinite(seg.positions_back[:, seg.marker_names.index(name), :]).all():
+                    return False
+            return True
+
+        objects = [m for m in OBJECT_MARKERS if usable(m)]
+        if objects:
+            return ("hand", *objects)
+        return ("hand", "Elbow") if usable("Elbow") else ("hand",)
 
     @property
     def features(self) -> SegmentFeatures:

@@ -1,11 +1,14 @@
 """Scoring segmentations against manual ones, and loading labelled recording folders.
 
-Interior borders of a manual segmentation (the definition used for scoring): the start and
-end frames of every labelled segment (``*_part`` sub-segments and ``idle`` included, so the
-ends of an unlabelled pause are two borders), without the recording's first and last frame;
-borders closer than ``merge_s`` (0.1 s, e.g. a part ending one frame before its parent) are
-merged into their mean. Predicted and manual borders are matched one-to-one (a maximum
-matching, ties broken by smallest total distance) within a tolerance.
+Interior borders of a manual segmentation (the definition used for scoring, mode
+``"starts_and_ends"``): the start and end frames of every labelled segment (``*_part``
+sub-segments and ``idle`` included, so the ends of an unlabelled pause are two borders),
+without the recording's first and last frame; borders closer than ``merge_s`` (0.1 s, e.g. a
+part ending one frame before its parent) are merged into their mean. Two looser definitions
+are reported beside it: ``"starts"`` (segment starts only: a pause belongs to the movement
+before it) and ``"midgap"`` (one border in the middle of each unlabelled pause). Predicted and
+manual borders are matched one-to-one (a maximum matching, ties broken by smallest total
+distance) within a tolerance.
 """
 
 from __future__ import annotations
@@ -178,20 +181,29 @@ def pre_index(frames: np.ndarray, frame: int) -> int:
 
 @dataclass
 class SegmentationEvaluation:
-    """Border scores of a segmenter over labelled recordings, with its CPU time."""
+    """Border scores of a segmenter over labelled recordings, with its CPU time.
+
+    ``scores[mode][tolerance_s]`` for every border definition in :data:`BORDER_MODES`.
+    """
 
     method: str
     params: dict
-    scores: dict  # tolerance (s) -> BorderScore
+    scores: dict
     cpu_s: float
     data_s: float
+
+    def f1(self, tolerance_s: float, mode: str = "starts_and_ends") -> float:
+        return self.scores[mode][float(tolerance_s)].f1
 
     def to_dict(self) -> dict:
         return {
             "method": self.method,
             "params": self.params,
             "border_definition": BORDER_DEFINITION,
-            "scores": {str(t): s.to_dict() for t, s in self.scores.items()},
+            "scores": {str(t): s.to_dict() for t, s in self.scores["starts_and_ends"].items()},
+            "scores_other_definitions": {
+                m: {str(t): s.to_dict() for t, s in v.items()} for m, v in self.scores.items() if m != "starts_and_ends"
+            },
             "cpu_s": self.cpu_s,
             "data_s": self.data_s,
             "times_faster_than_real_time": self.data_s / self.cpu_s if self.cpu_s > 0 else None,
@@ -200,12 +212,16 @@ class SegmentationEvaluation:
 
 def evaluate_segmenter(segmenter, recordings: list[LabelledRecording], tolerances=(0.1, 0.2),
                        preprocessed: dict | None = None) -> SegmentationEvaluation:
-    """Fit ``segmenter`` on every recording and score its interior borders (CPU time of ``fit`` only)."""
+    """Fit ``segmenter`` on every recording and score its interior borders (CPU time of ``fit`` only).
+
+    ``preprocessed`` may map ``str(path)`` to a :class:`~besdrake.mocap.preprocess.Preprocessed`
+    recording to skip preprocessing.
+    """
     import time
 
     from besdrake.mocap.preprocess import preprocess
 
-    scores = {float(t): BorderScore(float(t), 0, 0, 0) for t in tolerances}
+    scores = {m: {float(t): BorderScore(float(t), 0, 0, 0) for t in tolerances} for m in BORDER_MODES}
     cpu = data = 0.0
     for rec in recordings:
         pre = preprocessed[str(rec.path)] if preprocessed else preprocess(rec.recording)
@@ -214,9 +230,10 @@ def evaluate_segmenter(segmenter, recordings: list[LabelledRecording], tolerance
         cpu += time.process_time() - t0
         data += pre.n_frames / pre.frequency
         pred = pre.frames[segmenter.borders_]
-        true = manual_borders(rec.segments, int(pre.frames[0]), int(pre.frames[-1]), pre.frequency)
-        for t in scores:
-            scores[t] = scores[t] + score_borders(pred, true, pre.frequency, t)
+        for mode in BORDER_MODES:
+            true = manual_borders(rec.segments, int(pre.frames[0]), int(pre.frames[-1]), pre.frequency, mode=mode)
+            for t in scores[mode]:
+                scores[mode][t] = scores[mode][t] + score_borders(pred, true, pre.frequency, t)
     return SegmentationEvaluation(type(segmenter).__name__, segmenter.get_params(), scores, cpu, data)
 
 
