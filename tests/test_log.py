@@ -177,6 +177,21 @@ def test_resume_refuses_other_plans_and_append_checks_the_order(tmp_path, lab):
         run_plans(SafetyGate(lab), ps[:1], LabLog.open(tmp_path / "run"))
     with pytest.raises(LogError, match="next is 2"):
         log.append(Measurement(trial=5, plan=ps[0]))
+    import subprocess
+    import sys
+
+    # another process holding the writer's lock blocks appends (one writer per log)
+    fresh = LabLog.create(tmp_path / "locked", lab.description())  # not yet written by this process
+    holder = subprocess.Popen([sys.executable, "-c", (
+        "import fcntl, sys, time; f = open(sys.argv[1], 'a+'); fcntl.flock(f.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB); "
+        "print('locked', flush=True); time.sleep(30)"), str(tmp_path / "locked" / ".writer.lock")], stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "locked"
+        with pytest.raises(LogError, match="another process"):
+            fresh.append(Measurement(trial=0, plan=ps[0]))
+    finally:
+        holder.kill()
+        holder.wait()
     with pytest.raises(LogError, match="already exists"):
         LabLog.create(tmp_path / "run", "again")
     # a create killed before log.json was written leaves a skeleton that may be created again

@@ -43,6 +43,10 @@ BALL_MARKER = "ball"
 DEFAULT_BALL_RATE_HZ = 100.0
 
 
+#: Writer locks this process holds, by lock-file path (kept until the process ends).
+_HELD_LOCKS: dict[Path, Any] = {}
+
+
 class LogError(ValueError):
     """A log folder is missing, of another format or version, corrupt, or used inconsistently."""
 
@@ -82,6 +86,28 @@ class LabLog:
         self.root = root
         self.header = header
         self._rows = rows
+        self._lock = None  # file object holding the writer's lock, taken on the first append
+
+    def _take_writer_lock(self) -> None:
+        """One writer per log: an exclusive ``flock`` on ``LOGDIR/.writer.lock`` (released when the process
+        ends, also when it is killed). :class:`LogError` if another process holds it."""
+        if self._lock is not None:
+            return
+        key = (self.root / ".writer.lock").resolve()
+        if key in _HELD_LOCKS:  # this process already writes this log (e.g. a reopened LabLog)
+            self._lock = _HELD_LOCKS[key]
+            return
+        f = open(key, "a+")
+        try:
+            import fcntl
+
+            fcntl.flock(f.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except ImportError:  # pragma: no cover - no flock (Windows): single writer by convention
+            pass
+        except OSError:
+            f.close()
+            raise LogError(f"another process is writing the log {self.root}") from None
+        _HELD_LOCKS[key] = self._lock = f
 
     # ------------------------------------------------------------------ open / create
     @classmethod
@@ -117,6 +143,8 @@ class LabLog:
         """True for an empty folder or one left by a :meth:`create` killed before log.json was written
         (at most an empty ``trials/`` and a header-only ``trials.csv``): it may be created again."""
         for p in root.iterdir():
+            if p.name == ".writer.lock":
+                continue
             if p.name == "trials" and p.is_dir() and not any(p.iterdir()):
                 continue
             if p.name == "trials.csv" and p.is_file() and p.read_text(encoding="utf-8", errors="replace").count("\n") <= 1:
@@ -209,6 +237,7 @@ class LabLog:
         if not isinstance(m, Measurement):
             raise LogError(f"LabLog.append needs a Measurement, got {type(m).__name__}")
         m.validate()
+        self._take_writer_lock()
         if m.trial != len(self._rows):
             raise LogError(f"cannot append trial {m.trial}: the log {self.root} holds {len(self._rows)} trials, so the next is {len(self._rows)}")
         d = _trial_dir(self.root, m.trial)
