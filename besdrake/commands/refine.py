@@ -39,7 +39,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print the summary as one JSON object")
 
 
-def _collect_dmps(sources: list[str], out: Path) -> list[Path]:
+def collect_imitated(sources: list[str], out: Path) -> list[Path]:
+    """The *.dmp.json files named by ``sources`` (folders, files, synthetic:S[:E] imitated into ``out/imitation``)."""
     from besdrake.cli import UserError
 
     files: list[Path] = []
@@ -105,7 +106,7 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--target must be finite, got {args.target}")
     t_start = time.perf_counter()
     args.out.mkdir(parents=True, exist_ok=True)
-    files = _collect_dmps(args.imitated, args.out)
+    files = collect_imitated(args.imitated, args.out)
     if not files:
         raise UserError("no imitated throws to refine")
     try:

@@ -111,7 +111,10 @@ class ThrowReward:
     never_released_penalty: float = 1.0
 
     def __post_init__(self) -> None:
-        target = np.asarray(self.target, dtype=float).ravel()
+        try:
+            target = np.asarray(self.target, dtype=float).ravel()
+        except (TypeError, ValueError):
+            target = np.full(1, np.nan)
         if target.shape != (2,) or not np.isfinite(target).all():
             raise RefinementError(f"target must be two finite numbers (x forward, y lateral; m), got {self.target!r}")
         self.target = (float(target[0]), float(target[1]))

@@ -1,0 +1,220 @@
+"""Refinement in simulation: reward and penalties, normalised space, CMA-ES runs, failures, resume, CLI."""
+
+from __future__ import annotations
+
+import json
+import logging
+
+import numpy as np
+import pytest
+
+from besdrake.imitation import DMPParameterization
+from besdrake.plan import MotionPlan
+from besdrake.search.refinement import (
+    MAX_EXECUTION_TIME,
+    MIN_EXECUTION_TIME,
+    SUCCESS_DISTANCE,
+    ParameterScaling,
+    RefinementError,
+    RefinementProblem,
+    ThrowReward,
+    best_start,
+    read_details,
+    refine,
+)
+from besdrake.search.templates import fitted_default_throw
+from besdrake.sim.outcome import FLAG_NAMES, Outcome
+
+logging.getLogger("drake").setLevel(logging.ERROR)
+
+
+def outcome(touchdown=None, ball_end=None, **flags) -> Outcome:
+    f = {k: False for k in FLAG_NAMES} | flags
+    o = Outcome(flags=f)
+    if touchdown is not None:
+        o.touchdown = np.asarray(touchdown, dtype=float)
+    if ball_end is not None:
+        o.ball_path = np.asarray([[0.0, 0.0, 1.0], ball_end], dtype=float)
+    return o
+
+
+@pytest.fixture(scope="module")
+def base():
+    return fitted_default_throw()
+
+
+@pytest.fixture(scope="module")
+def plan_ok(base):
+    return DMPParameterization(base).motion_plan(DMPParameterization(base).to_vector(), dt=0.01)
+
+
+class StandIn:
+    """Cheap stand-in for the simulation: x = goal of joint 2 + 1 m, y = goal of joint 1 (no physics)."""
+
+    def __init__(self, fail_every: int = 0, raise_every: int = 0) -> None:
+        self.calls = 0
+        self.fail_every, self.raise_every = fail_every, raise_every
+
+    def evaluate(self, plans):
+        out = []
+        for p in plans:
+            self.calls += 1
+            if self.raise_every and self.calls % self.raise_every == 0:
+                raise RuntimeError("worker died")
+            if self.fail_every and self.calls % self.fail_every == 0:
+                out.append(outcome(sim_failed=True))
+            else:
+                out.append(outcome([p.q[-1, 1] + 1.0, p.q[-1, 0]]))
+        return out
+
+
+# ------------------------------------------------------------------------------------------ reward
+def test_reward_is_minus_distance_within_limits(plan_ok):
+    assert plan_ok.check_limits().ok
+    r = ThrowReward(target=(2.0, 0.0))(plan_ok, outcome([1.7, 0.4]))
+    assert r.reward == pytest.approx(-0.5) and r.distance == pytest.approx(0.5) and r.penalty == 0.0
+    assert not r.success
+    near = ThrowReward()(plan_ok, outcome([1.95, 0.05]))
+    assert near.success and near.reward > r.reward
+
+
+def test_reward_decreases_with_distance(plan_ok):
+    rew = ThrowReward(target=(2.0, 0.5))
+    values = [rew(plan_ok, outcome([2.0 - d, 0.5])).reward for d in (0.0, 0.1, 0.5, 1.5)]
+    assert all(a > b for a, b in zip(values, values[1:]))
+
+
+def test_limit_penalties_make_a_hit_worse_than_a_near_miss(plan_ok):
+    fast = MotionPlan(plan_ok.t * 0.5, plan_ok.q, None if plan_ok.qd is None else plan_ok.qd * 2.0)
+    rep = fast.check_limits()
+    assert not rep.ok
+    rew = ThrowReward()
+    hit_fast = rew(fast, outcome([2.0, 0.0]))
+    assert hit_fast.penalty >= rew.violation_offset and not hit_fast.success
+    assert hit_fast.reward < rew(plan_ok, outcome([2.0 - SUCCESS_DISTANCE, 0.0])).reward
+    # more violation, more penalty
+    faster = MotionPlan(plan_ok.t * 0.4, plan_ok.q, None if plan_ok.qd is None else plan_ok.qd * 2.5)
+    assert rew.penalty(faster) > rew.penalty(fast)
+
+
+def test_never_released_is_shaped_and_penalised(plan_ok):
+    rew = ThrowReward()
+    kept = rew(plan_ok, outcome(None, ball_end=[0.5, 0.0, 1.0], never_released=True))
+    dropped = rew(plan_ok, outcome([0.5, 0.0], dropped_early=True))
+    assert np.isfinite(kept.reward) and kept.reward == pytest.approx(dropped.reward - rew.never_released_penalty)
+    closer = rew(plan_ok, outcome(None, ball_end=[1.0, 0.0, 1.0], never_released=True))
+    assert closer.reward > kept.reward
+
+
+def test_failed_simulation_gives_nan(plan_ok):
+    r = ThrowReward()(plan_ok, outcome(sim_failed=True))
+    assert np.isnan(r.reward) and r.failed
+
+
+@pytest.mark.parametrize("target", [(np.nan, 0.0), (1.0,), "far"])
+def test_bad_target_is_rejected(target):
+    with pytest.raises(RefinementError, match="target"):
+        ThrowReward(target=target)
+
+
+# ------------------------------------------------------------------------------------------ scaling
+def test_scaling_round_trip_and_bounds(base):
+    sc = ParameterScaling.for_dmp(base)
+    assert sc.theta0.size == 49
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=49)
+    theta = sc.to_theta(x)
+    assert np.all(theta >= sc.bounds[:, 0]) and np.all(theta <= sc.bounds[:, 1])
+    assert np.allclose(sc.to_x(theta), x)
+    assert np.allclose(sc.to_theta(np.zeros(49)), DMPParameterization(base).to_vector())
+    assert sc.bounds[-1].tolist() == [MIN_EXECUTION_TIME, MAX_EXECUTION_TIME]
+    w = sc.scale[12:48].reshape(6, 6)
+    assert np.all(np.diff(w, axis=1) > 0)  # late weights act through a smaller phase: larger steps
+    xb = sc.x_bounds
+    assert np.all(xb[:, 0] < 0) and np.all(xb[:, 1] > 0)
+
+
+def test_scaling_rejects_bad_input(base):
+    with pytest.raises(RefinementError):
+        ParameterScaling(np.zeros(3), np.array([1.0, 0.0, 1.0]), np.tile([-1.0, 1.0], (3, 1)))
+    with pytest.raises(RefinementError):
+        ParameterScaling.for_dmp(base, acceleration_unit=float("nan"))
+
+
+# ------------------------------------------------------------------------------------------ search
+def test_cma_refines_stand_in_problem_to_success(base):
+    problem = RefinementProblem(base)
+    start = problem.evaluate(np.zeros((1, 49)), StandIn())[0]
+    assert start.distance > 0.9
+    result = refine(problem, StandIn(), n_episodes=1500, seed=1)
+    assert result.success, result.summary()
+    assert result.episodes_to_success <= result.n_episodes <= 1500
+    assert result.best_distance < SUCCESS_DISTANCE
+    assert np.nanmin(result.best_so_far()) < SUCCESS_DISTANCE
+
+
+def test_failed_episodes_are_recorded_and_search_goes_on(base, tmp_path):
+    problem = RefinementProblem(base)
+    ex = StandIn(fail_every=3, raise_every=37)
+    result = refine(problem, ex, n_episodes=80, seed=0, popsize=8, out_dir=tmp_path, stop_on_success=False)
+    assert result.n_episodes == 80
+    assert result.n_failed >= 80 // 3
+    rows = (tmp_path / "episodes.csv").read_text().splitlines()
+    assert len(rows) == 81  # header + every episode, failed ones included
+    assert np.isfinite(result.best_reward)
+
+
+def test_nan_candidate_is_a_failed_episode(base):
+    problem = RefinementProblem(base)
+    X = np.zeros((3, 49))
+    X[1, 5] = np.nan
+    res = problem.evaluate(X, StandIn())
+    assert [r.failed for r in res] == [False, True, False]
+    assert "NaN" in res[1].message
+
+
+def test_resume_continues_without_repeating(base, tmp_path):
+    problem = RefinementProblem(base)
+    first = refine(problem, StandIn(), n_episodes=24, seed=3, popsize=8, out_dir=tmp_path, stop_on_success=False)
+    assert first.n_episodes == 24 and not first.resumed
+    ex = StandIn()
+    again = refine(RefinementProblem(base), ex, n_episodes=48, seed=3, popsize=8, out_dir=tmp_path, stop_on_success=False)
+    assert again.resumed and again.n_episodes == 48 and ex.calls == 24
+    assert np.isfinite(again.distances).all()  # per-episode records of the first part were read back
+    assert len(read_details(tmp_path / "details.csv")) == 48
+    with pytest.raises(RefinementError, match="another refinement"):
+        refine(RefinementProblem(base, ThrowReward(target=(1.5, 0.0))), StandIn(), n_episodes=60, seed=3, popsize=8, out_dir=tmp_path)
+
+
+def test_a_few_generations_on_the_real_simulation_improve_the_distance(base):
+    from besdrake.sim import make_executor
+
+    slow = base.copy()
+    slow.execution_time = 2.3  # the fitted throw, slowed down: lands ~0.8 m short of the target
+    problem = RefinementProblem(slow)
+    with make_executor("serial") as ex:
+        index, start = best_start([problem], ex)
+        assert index == 0 and start.distance > 0.5
+        result = refine(problem, ex, n_episodes=24, seed=0, popsize=8, sigma0=1.0)
+    assert result.n_failed == 0
+    assert np.nanmin(result.distances) < start.distance - 0.05
+
+
+def test_refine_cli_writes_summary_figure_and_resumes(base, tmp_path):
+    from besdrake.cli import main
+    from besdrake.imitation import save_dmp
+
+    slow = base.copy()
+    slow.execution_time = 2.3
+    dmp_file = save_dmp(slow, tmp_path / "throw.dmp.json")
+    out = tmp_path / "run"
+    argv = [ "refine", str(dmp_file), "--out", str(out), "--episodes", "8", "--popsize", "4", "--backend", "serial", "--quiet", "--json"]
+    assert main(argv) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["runs"][0]["n_episodes"] == 8 and (out / "learning_curve.png").stat().st_size > 0
+    assert (out / "run0" / "refined.dmp.json").is_file()
+    argv[argv.index("8")] = "12"
+    assert main(argv) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["runs"][0]["resumed"] and summary["runs"][0]["n_episodes"] == 12
+    assert main(["refine", str(tmp_path / "missing.dmp.json"), "--out", str(out), "--backend", "serial"]) == 2
