@@ -1,1 +1,28 @@
-"""Sim-to-real: the lab interface, measured-data logs, the Transferability Approach."""
+"""Sim-to-real: the lab interface, measured-data logs, the Transferability Approach.
+
+* :class:`~besdrake.transfer.lab.Lab` -- ``execute(plan) -> Measurement``: where a real robot plugs in;
+  :class:`~besdrake.transfer.lab.SafetyGate` refuses plans beyond the joint limits before any lab runs them;
+* :class:`~besdrake.transfer.virtual_lab.VirtualLab` -- the simulation plus hidden effects and noise;
+  :class:`~besdrake.transfer.recorded_lab.RecordedLab` replays a log;
+* :class:`~besdrake.transfer.log.LabLog` -- the measured-data log (format: ``LOG_FORMAT.md``);
+* :class:`~besdrake.transfer.transferability.TransferabilityApproach` -- multi-objective search with
+  transfers to a lab.
+"""
+
+from besdrake.transfer.lab import Lab, SafetyGate
+from besdrake.transfer.log import LabLog, read_log
+from besdrake.transfer.measurement import Measurement, plan_hash
+from besdrake.transfer.recorded_lab import RecordedLab
+from besdrake.transfer.virtual_lab import VirtualLab, load_lab_config
+
+__all__ = [
+    "Lab",
+    "LabLog",
+    "Measurement",
+    "RecordedLab",
+    "SafetyGate",
+    "VirtualLab",
+    "load_lab_config",
+    "plan_hash",
+    "read_log",
+]
