@@ -9,7 +9,8 @@ markers, ``n_points`` samples evenly spaced in normalised time of
 
 * the position in the back frame (``position_weight``),
 * the position relative to the segment's first sample (``relative_weight``),
-* the velocity divided by the segment's peak hand speed (``velocity_weight``),
+* the velocity in normalised time divided by the segment's peak hand speed
+  (``velocity_weight``; duration-free, so only the shape of the speed profile counts),
 
 and the segment duration in seconds (``duration_weight``). Positions are in metres; the
 weights make the parts commensurable. ``*_part`` labels (a movement a labeller split in two)
@@ -120,30 +121,28 @@ class SegmentFeatures:
             raise ClassificationError(
                 f"segment {seg.start_frame}..{seg.end_frame} has {len(seg.positions_back)} samples; at least 3 are needed"
             )
-        parts = []
-        hand_speed_peak = None
-        if self.velocity_weight:
-            if self.velocity_normalisation == "peak":
-                hv = velocity(seg.marker("hand"), seg.frequency, 0.1)
-                hand_speed_peak = max(float(np.max(np.linalg.norm(hv, axis=1))), 1e-3)
-            elif self.velocity_normalisation == "none":
-                hand_speed_peak = 1.0
-            else:
-                raise ValueError(f"velocity_normalisation must be 'peak' or 'none', got {self.velocity_normalisation!r}")
-        for name in self.markers:
-            x = seg.marker(name)
-            if not np.isfinite(x).all():
+        for name in set(self.markers) | ({"hand"} if self.velocity_weight else set()):
+            if not np.isfinite(seg.marker(name)).all():
                 raise ClassificationError(
                     f"marker {name!r} has missing samples in segment {seg.start_frame}..{seg.end_frame}"
                 )
+        parts = []
+        scale = 1.0
+        if self.velocity_weight:
+            if self.velocity_normalisation == "peak":
+                hv = self._velocity(seg.marker("hand"), seg)
+                scale = max(float(np.max(np.linalg.norm(hv, axis=1))), 1e-6)
+            elif self.velocity_normalisation != "none":
+                raise ValueError(f"velocity_normalisation must be 'peak' or 'none', got {self.velocity_normalisation!r}")
+        for name in self.markers:
+            x = seg.marker(name)
             xs = _resample(x, self.n_points)
             if self.position_weight:
                 parts.append(self.position_weight * xs.ravel())
             if self.relative_weight:
                 parts.append(self.relative_weight * (xs - xs[0]).ravel())
             if self.velocity_weight:
-                v = velocity(x, seg.frequency, 0.1) / hand_speed_peak
-                parts.append(self.velocity_weight * _resample(v, self.n_points).ravel())
+                parts.append(self.velocity_weight * (self._velocity(x, seg) / scale).ravel())
         if self.duration_weight:
             parts.append(np.array([self.duration_weight * seg.duration]))
         if self.path_length_weight:
@@ -151,6 +150,15 @@ class SegmentFeatures:
             length = float(np.sum(np.linalg.norm(np.diff(hand, axis=0), axis=1)))
             parts.append(np.array([self.path_length_weight * length]))
         return np.concatenate(parts)
+
+    def _velocity(self, x: np.ndarray, seg: MovementSegment) -> np.ndarray:
+        """Velocity at the ``n_points`` normalised times: per unit normalised time for
+        ``"peak"`` normalisation (duration-free), in m/s for ``"none"``."""
+        fine = _resample(x, 4 * self.n_points)
+        v = np.gradient(fine, axis=0) * (len(fine) - 1)  # d x / d tau
+        if self.velocity_normalisation == "none":
+            v = v / max(seg.duration, 1e-9)
+        return _resample(v, self.n_points)
 
     def transform(self, segments) -> np.ndarray:
         segments = list(segments)
