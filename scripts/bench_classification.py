@@ -51,7 +51,9 @@ def pick_and_place(directory: Path) -> dict:
     out = {}
     for a, b in itertools.permutations(subjects, 2):
         ours = evaluate_classifier(SegmentClassifier(), by[a], by[b])
-        hand = evaluate_classifier(SegmentClassifier(markers=("hand",), velocity_weight=0.0), by[a], by[b])
+        hand = evaluate_classifier(
+            SegmentClassifier(markers=("hand",), velocity_weight=0.0, path_length_weight=0.0), by[a], by[b]
+        )
         out[f"train_{a}_test_{b}"] = {
             "default": short(ours),
             "hand_path_only_measured": short(hand),

@@ -12,8 +12,10 @@ markers, ``n_points`` samples evenly spaced in normalised time of
 * the velocity in normalised time divided by the segment's peak hand speed
   (``velocity_weight``; duration-free, so only the shape of the speed profile counts),
 
-and the segment duration in seconds (``duration_weight``). Positions are in metres; the
-weights make the parts commensurable. ``*_part`` labels (a movement a labeller split in two)
+the segment duration in seconds (``duration_weight``) and the logarithm of the hand's path
+length in metres (``path_length_weight``: an idle segment moves centimetres, a movement tens
+of centimetres, wherever it happens). Positions are in metres; the weights make the parts
+commensurable. ``*_part`` labels (a movement a labeller split in two)
 are mapped to their parent class by :func:`normalise_label` when ``part_policy="parent"``.
 """
 
@@ -33,6 +35,8 @@ PART_SUFFIX = "_part"
 OBJECT_MARKERS = ("Box back", "Ball")
 #: Feature settings chosen on the pick-and-place data (hand + object, normalised velocity).
 DEFAULT_VELOCITY_WEIGHT = 0.3
+#: Weight of the log hand path length (separates idle from movements).
+DEFAULT_PATH_LENGTH_WEIGHT = 3.0
 
 
 class ClassificationError(ValueError):
@@ -148,7 +152,7 @@ class SegmentFeatures:
         if self.path_length_weight:
             hand = seg.marker("hand")
             length = float(np.sum(np.linalg.norm(np.diff(hand, axis=0), axis=1)))
-            parts.append(np.array([self.path_length_weight * length]))
+            parts.append(np.array([self.path_length_weight * np.log(max(length, 1e-3))]))
         return np.concatenate(parts)
 
     def _velocity(self, x: np.ndarray, seg: MovementSegment) -> np.ndarray:
@@ -184,7 +188,7 @@ class SegmentClassifier(ClassifierMixin, BaseEstimator):
         velocity_weight: float = DEFAULT_VELOCITY_WEIGHT,
         duration_weight: float = 0.0,
         velocity_normalisation: str = "peak",
-        path_length_weight: float = 0.0,
+        path_length_weight: float = DEFAULT_PATH_LENGTH_WEIGHT,
         part_policy: str = "parent",
     ) -> None:
         self.markers = markers
