@@ -102,3 +102,11 @@ def test_bench_rollout_quick_json(tmp_path, capsys):
     assert d["max_landing_error_m"] <= 0.03
     assert d["landing_monotonic"] and d["backends_identical"]
     assert (tmp_path / "landing_sweep.png").stat().st_size > 10_000
+
+
+def test_simulate_with_record(tmp_path, capsys):
+    out = tmp_path / "runs" / "default" / "throw.html"
+    assert main(["simulate", "--record", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "touchdown" in text and "replay" in text
+    assert out.stat().st_size > 100_000

@@ -17,6 +17,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--full", action="store_true", help="with --json: the whole Outcome (trajectories too)")
     parser.add_argument("--limits", choices=("raise", "flag"), default="raise", help="plans beyond the position limits: error (default) or simulate and flag")
     parser.add_argument("--list-effects", action="store_true", help="list the registered effects and their parameters, then exit")
+    parser.add_argument("--record", metavar="FILE.html", help="also write a self-contained meshcat HTML replay of the throw")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -38,9 +39,16 @@ def run(args: argparse.Namespace) -> int:
     try:
         effects = effects_from_args(args.effect)
         plan = plan_from_args(args)
-        from besdrake.sim.rollout import Rollout
+        if args.record:
+            if not str(args.record).endswith((".html", ".htm")):
+                raise ValueError(f"--record must be an .html file, got {args.record}")
+            from besdrake.sim.record import record_html
 
-        outcome = Rollout(args.scenario).rollout(plan, effects=effects, limits=args.limits)
+            _, outcome = record_html(plan, args.record, scenario=args.scenario, effects=effects, limits=args.limits)
+        else:
+            from besdrake.sim.rollout import Rollout
+
+            outcome = Rollout(args.scenario).rollout(plan, effects=effects, limits=args.limits)
     except (PlanError, EffectError, ScenarioError, ValueError) as err:
         raise UserError(str(err)) from err
     if args.json:
@@ -56,4 +64,6 @@ def run(args: argparse.Namespace) -> int:
     print(f"flags          {', '.join(s['flags']) or 'none'}")
     if outcome.message:
         print(f"message        {outcome.message}")
+    if args.record:
+        print(f"replay         {args.record}")
     return 0 if not outcome.flags.get("sim_failed") else 1
