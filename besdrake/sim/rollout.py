@@ -135,20 +135,23 @@ class Rollout:
         """
         h = self.handles
         plant = h.plant
-        x = plant.GetPositionsAndVelocities(self.plant_context)
-        if not np.all(np.isfinite(x)):
-            return False, False, True
-        p = x[self._ball_q0 + 4 : self._ball_q0 + 7]
-        v = x[self._ball_v0 + 3 : self._ball_v0 + 6]
-        if np.linalg.norm(v) > DIVERGENCE_SPEED:
-            return False, False, True
-        on_floor = bool(p[2] <= radius + 1e-3)
         contacts = plant.get_contact_results_output_port().Eval(self.plant_context)
         ball = h.ball_body.index()
+        touching = False
         for i in range(contacts.num_point_pair_contacts()):
             info = contacts.point_pair_contact_info(i)
             if ball in (info.bodyA_index(), info.bodyB_index()):
-                return False, on_floor, False
+                touching = True
+                break
+        x = plant.GetPositionsAndVelocities(self.plant_context)
+        p = x[self._ball_q0 + 4 : self._ball_q0 + 7]
+        v = x[self._ball_v0 + 3 : self._ball_v0 + 6]
+        speed = float(np.sqrt(v @ v))
+        if not (speed <= DIVERGENCE_SPEED) or not np.isfinite(x).all():  # NaN fails the comparison too
+            return False, False, True
+        on_floor = bool(p[2] <= radius + 1e-3)
+        if touching:
+            return False, on_floor, False
         return self._no_recatch(p, v, radius), on_floor, False
 
     def _no_recatch(self, p: np.ndarray, v: np.ndarray, radius: float) -> bool:
