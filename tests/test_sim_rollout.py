@@ -155,3 +155,17 @@ def test_initial_hold_is_skipped_but_reported_in_plan_time(sim):
     assert np.all(np.diff(long.joint_t) > 0)
     # the reported measured joints hold still during the skipped part and track the plan afterwards
     assert np.max(np.abs(long.q_measured - long.q_commanded)) < 0.05
+
+
+def test_diverging_state_is_a_flagged_outcome(sim, monkeypatch):
+    place = type(sim)._place_ball
+
+    def kicked(self, q0, v0, radius):  # an absurd ball speed stands in for a numerical blow-up
+        place(self, q0, v0, radius)
+        self.handles.plant.SetVelocities(self.plant_context, self.handles.ball_instance, [0, 0, 0, 0, 0, 80.0])
+
+    monkeypatch.setattr(type(sim), "_place_ball", kicked)
+    o = sim.rollout(default_throw())
+    assert o.flags["sim_failed"] and "diverged" in o.message and not o.ok
+    monkeypatch.undo()
+    assert sim.rollout(default_throw()).ok
