@@ -153,8 +153,8 @@ class BehaviorTemplate:
     provenance: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        if not re.fullmatch(r"[A-Za-z0-9_.-]+", self.name or ""):
-            raise TemplateError(f"template name must use letters, digits, '_', '-', '.', got {self.name!r}")
+        if not isinstance(self.name, str) or not re.fullmatch(r"[A-Za-z0-9_-]+", self.name):
+            raise TemplateError(f"template name must use letters, digits, '_' and '-' only, got {self.name!r}")
         self.meta_bounds = np.asarray(self.meta_bounds, dtype=float).reshape(2, 2)
 
     def meta_parameters(self, context: Any) -> np.ndarray:
@@ -189,10 +189,10 @@ class BehaviorTemplate:
         }
 
     def save(self, folder: str | Path) -> Path:
-        """Write ``<name>.template.json`` and the policy state ``<name>.policy.json/.npz``; returns the first."""
+        """Write ``<name>.template.json`` and the policy state ``<name>-policy.json/.npz``; returns the first."""
         folder = Path(folder)
         folder.mkdir(parents=True, exist_ok=True)
-        save_state(self.optimizer.state_dict(), folder / f"{self.name}.policy")
+        save_state(self.optimizer.state_dict(), folder / f"{self.name}-policy")
         path = folder / f"{self.name}.template.json"
         tmp = path.with_suffix(".tmp")
         tmp.write_text(json.dumps(self.to_record(), indent=1, default=_json_default))
@@ -212,7 +212,7 @@ class BehaviorTemplate:
             name = rec["name"]
             base = DMP.from_dict(rec["base_dmp"])
             meta = MetaDMP(base, rec["joint1_mode"], float(rec["dt"]))
-            state_path = path.parent / f"{name}.policy"
+            state_path = path.parent / f"{name}-policy"
             if not state_path.with_suffix(".json").is_file() or not state_path.with_suffix(".npz").is_file():
                 raise TemplateError(f"{path}: the policy files {state_path}.json/.npz are missing")
             optimizer = _optimizer_from_state(load_state(state_path))
