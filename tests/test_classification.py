@@ -160,3 +160,34 @@ def test_cli_eval_classification_and_segment_labels(shared_data, tmp_path, capsy
     for expected in ("move_obj_table", "move_to_rest_right", "approach_right", "move_obj_shelf", "move_to_rest_down"):
         assert expected in labels
     assert labels.index("move_obj_table") < labels.index("approach_right") < labels.index("move_obj_shelf")
+
+
+@pytest.mark.slow
+def test_synthetic_throws_new_subjects(tmp_path):
+    """Train on synthetic subjects 1-5, test on 6-10 (measured: 100%, every throw found)."""
+    from besdrake.mocap.preprocess import preprocess
+    from besdrake.mocap.synthetic import generate_dataset
+    from besdrake.segmentation import VMCI, extract_segment
+    from besdrake.segmentation.evaluation import evaluate_classifier, labelled_recordings
+
+    generate_dataset(tmp_path, n_subjects=10, n_experiments=1, n_throws=6, seed=3, unlabeled=False)
+    recs = labelled_recordings(tmp_path)
+    number = lambda r: int(r.path.name.split("_")[0][len("subject"):])  # noqa: E731
+    train = [r for r in recs if number(r) <= 5]
+    test = [r for r in recs if number(r) > 5]
+    clf = SegmentClassifier()
+    res = evaluate_classifier(clf, train, test)
+    assert res["accuracy"] >= 0.95
+    assert res["per_class_accuracy"]["throw"] >= 0.99
+    for rec in test:
+        pre = preprocess(rec.recording)
+        seg = VMCI().fit(pre)
+        starts = pre.frames[[a for a, _ in seg.segments_]]
+        ends = pre.frames[[b for _, b in seg.segments_]]
+        for s in rec.segments:
+            if s.label == "throw":
+                tol = 0.2 * pre.frequency
+                hit = np.flatnonzero((np.abs(starts - s.start_frame) <= tol) & (np.abs(ends - s.end_frame) <= tol))
+                assert len(hit) == 1, f"{rec.path.name}: throw {s} not found"
+                a, b = seg.segments_[hit[0]]
+                assert clf.predict([extract_segment(pre, a, b)])[0] == "throw"

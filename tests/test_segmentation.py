@@ -225,3 +225,32 @@ def test_cli_eval_segmentation(shared_data, tmp_path, capsys):
             assert 0.0 <= s["precision"] <= 1.0 and 0.0 <= s["recall"] <= 1.0
         assert out[method]["scores"]["0.2"]["f1"] >= out[method]["scores"]["0.1"]["f1"]
     assert out["vmci"]["scores"]["0.2"]["f1"] > 0.7
+
+
+def test_cli_segment_reports_unusable_recordings(tmp_path, capsys):
+    from besdrake.mocap.qualisys import write_tsv
+    from besdrake.mocap.recording import MocapRecording
+
+    x, _ = min_jerk_sequence([0.8, 1.0], [0.0, 0.0], freq=60.0)
+    names = ["Back top", "Back right", "Back left", "Hand top", "Hand right", "Hand left"]
+    back = np.array([[0, 0, 1.4], [0, -0.1, 1.2], [0, 0.1, 1.2]])
+    pos = np.concatenate([np.broadcast_to(back, (len(x), 3, 3)),
+                          np.stack([x + [0.5, 0, 1.0]] * 3, axis=1) + [[0, 0, 0.02], [0, -0.02, 0], [0, 0.02, 0]]], axis=1)
+    never = pos.copy()
+    never[:, names.index("Hand left")] = np.nan
+    write_tsv(MocapRecording(names, never, 60.0), tmp_path / "never.tsv")
+    assert main(["segment", str(tmp_path / "never.tsv"), "--json"]) == 2
+    assert "Hand left" in capsys.readouterr().err
+    gap = pos.copy()
+    gap[30:90, names.index("Hand top")] = np.nan  # a 1 s gap: too long to fill
+    write_tsv(MocapRecording(names, gap, 60.0), tmp_path / "gap.tsv")
+    assert main(["segment", str(tmp_path / "gap.tsv"), "--json"]) == 2
+    assert "Hand top" in capsys.readouterr().err
+    short = pos[:10]
+    write_tsv(MocapRecording(names, short, 60.0), tmp_path / "short.tsv")
+    assert main(["segment", str(tmp_path / "short.tsv"), "--json"]) == 2
+    assert "too short" in capsys.readouterr().err
+    write_tsv(MocapRecording(names, pos, 60.0), tmp_path / "ok.tsv")
+    assert main(["segment", str(tmp_path / "ok.tsv"), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert len(out["segments"]) >= 2

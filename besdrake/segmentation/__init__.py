@@ -1,7 +1,32 @@
-"""Behaviour segmentation (vMCI and baselines) and 1-NN movement classification."""
+"""Behaviour segmentation (vMCI and baselines) and 1-NN movement classification.
+
+* :class:`VMCI`: velocity-based multiple changepoint inference (Senger et al. 2014 on
+  Fearnhead & Liu 2007), ``VMCI().fit(recording).segments_``.
+* :class:`ZeroVelocitySegmenter`: the zero-velocity-crossing baseline.
+* :class:`SegmentClassifier`: 1-NN classifier of segments (``fit(segments, labels)``, ``predict``).
+* :mod:`besdrake.segmentation.evaluation`: border scoring and labelled-folder loading.
+"""
 
 from besdrake.segmentation.base import SegmentationError, SegmentationResult
+from besdrake.segmentation.classification import (
+    ClassificationError,
+    MovementSegment,
+    SegmentClassifier,
+    SegmentFeatures,
+    extract_segment,
+)
 from besdrake.segmentation.vmci import VMCI, VMCIResult
 from besdrake.segmentation.zvc import ZeroVelocitySegmenter
 
-__all__ = ["VMCI", "VMCIResult", "SegmentationError", "SegmentationResult", "ZeroVelocitySegmenter"]
+__all__ = [
+    "VMCI",
+    "VMCIResult",
+    "ClassificationError",
+    "MovementSegment",
+    "SegmentClassifier",
+    "SegmentFeatures",
+    "SegmentationError",
+    "SegmentationResult",
+    "ZeroVelocitySegmenter",
+    "extract_segment",
+]
