@@ -9,7 +9,7 @@ from besdrake.sim.effects import Effect, EffectError, Param, get_effect, list_ef
 from besdrake.sim.rollout import shared_rollout
 from besdrake.sim.throws import default_throw
 
-BUILT_IN = ["base_offset", "joint_offset", "actuator_lag", "gain_scale", "air_drag", "ball", "scoop_friction"]
+BUILT_IN = ["base_offset", "joint_offset", "actuator_lag", "gain_scale", "air_drag", "ball_placement", "ball", "scoop_friction"]
 
 
 @pytest.fixture(scope="module")
@@ -151,3 +151,11 @@ def test_user_registered_effect(sim, base):
     finally:
         unregister_effect("tail_wind_test")
     assert "tail_wind_test" not in list_effects()
+
+
+def test_an_off_centre_ball_lands_elsewhere_and_the_centred_one_is_unchanged(sim):
+    plan = default_throw()
+    centred = sim.rollout(plan, effects={"ball_placement": {"x": 0.0, "y": 0.0}})
+    assert np.allclose(centred.touchdown, sim.rollout(plan).touchdown)
+    off = sim.rollout(plan, effects={"ball_placement": {"x": 0.004, "y": 0.0}})
+    assert off.ok and np.linalg.norm(off.touchdown - centred.touchdown) > 0.005

@@ -73,6 +73,7 @@ class RolloutSetup:
     air_density: float = 1.2
     wind: np.ndarray = field(default_factory=lambda: np.zeros(3))
     measurement_offset: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    ball_offset: np.ndarray = field(default_factory=lambda: np.zeros(2))
 
 
 class Effect:
@@ -337,6 +338,29 @@ class AirDrag(Effect):
     def apply(self, setup, values):
         setup.drag_coefficient = values["cd"]
         setup.air_density = values["rho"]
+
+
+@register_effect
+class BallPlacement(Effect):
+    """Where the ball sits in the scoop at the start: off-centre by (x, y) in the scoop's plane.
+
+    A person puts the ball into the scoop by hand, so its start varies from throw to throw by a few
+    millimetres (the virtual lab draws it per trial); a constant offset is a systematic placement
+    habit. The ball rests against the 45-degree funnel walls, so moving its centre sideways by d
+    lifts it by d per wall it moves towards. Off-centre balls leave the rim earlier or later and
+    land noticeably elsewhere (about 1-2 cm on the floor per 2 mm). Applied where the ball is
+    placed; no rebuild.
+    """
+
+    name = "ball_placement"
+    applied_via = "initial state"
+    params = {
+        "x": Param(0.0, -0.008, 0.008, "m", "offset along the scoop frame's x axis"),
+        "y": Param(0.0, -0.008, 0.008, "m", "offset along the scoop frame's y axis"),
+    }
+
+    def apply(self, setup, values):
+        setup.ball_offset = np.array([values["x"], values["y"]], dtype=float)
 
 
 @register_effect

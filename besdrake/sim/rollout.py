@@ -96,9 +96,9 @@ class Rollout:
         h = self.handles
         return h.plant.CalcRelativeTransform(self.plant_context, h.plant.world_frame(), h.scoop_frame)
 
-    def _place_ball(self, q0: np.ndarray, v0: np.ndarray, radius: float) -> None:
+    def _place_ball(self, q0: np.ndarray, v0: np.ndarray, radius: float, offset: np.ndarray | None = None) -> None:
         """Put the arm at the plan's start (sagged under gravity to where its PD servos hold it, when at rest)
-        and the ball at rest in the scoop's funnel."""
+        and the ball at rest in the scoop's funnel, ``offset`` (m, scoop plane) off-centre."""
         h = self.handles
         plant = h.plant
         plant.SetPositions(self.plant_context, h.arm, q0)
@@ -113,7 +113,11 @@ class Rollout:
                     q = q0 + tau_g / kp
                     plant.SetPositions(self.plant_context, h.arm, q)
         X_WS = self._scoop_pose()
-        p = X_WS.multiply(np.array([0.0, 0.0, robot.ball_rest_height(radius)]))
+        dx, dy = (0.0, 0.0) if offset is None else (float(v) for v in offset)
+        # 45-degree walls: a centre moved sideways by d towards a wall must rise by d to keep touching it.
+        lift = (abs(dx) + abs(dy)) * np.tan(robot.SCOOP_WALL_ANGLE)
+        p_S = np.array([dx, dy, robot.ball_rest_height(radius) + (1e-4 + lift if lift else 0.0)])
+        p = X_WS.multiply(p_S)
         plant.SetFreeBodyPose(self.plant_context, h.ball_body, RigidTransform(X_WS.rotation(), p))
         plant.SetVelocities(self.plant_context, h.ball_instance, np.zeros(6))
 
@@ -214,7 +218,7 @@ class Rollout:
         h.plan_source.UpdateTrajectory(cmd_src.trajectory(time_shift=-self.reference_lead - skip))
         q0 = cmd.q[0]
         v0 = cmd.knot_velocities()[0]
-        self._place_ball(q0, v0, setup.ball_radius)
+        self._place_ball(q0, v0, setup.ball_radius, setup.ball_offset)
         self.logger_log.Clear()
 
         out = Outcome(effects=effects_done, scenario=self.scenario.name)

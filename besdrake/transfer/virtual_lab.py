@@ -59,7 +59,6 @@ from typing import Any
 import numpy as np
 import yaml
 
-from besdrake import robot
 from besdrake.plan import MotionPlan, PlanError
 from besdrake.transfer.lab import TrialCounter
 from besdrake.transfer.measurement import Measurement
@@ -272,34 +271,6 @@ def load_lab_config(path: str | Path) -> LabConfig:
 # ---------------------------------------------------------------------------------------- simulation
 
 
-def _placement_rollout_class():
-    """A :class:`besdrake.sim.Rollout` that puts the ball ``ball_offset`` (scoop-plane m) off-centre.
-
-    Built lazily so that importing this module does not import pydrake."""
-    from pydrake.math import RigidTransform
-
-    from besdrake.sim.rollout import Rollout
-
-    class PlacementRollout(Rollout):
-        """Rollout whose ball starts off-centre in the scoop, resting against the funnel walls."""
-
-        ball_offset: np.ndarray = np.zeros(2)
-
-        def _place_ball(self, q0, v0, radius):  # extends the sim's placement (see module docstring)
-            super()._place_ball(q0, v0, radius)
-            dx, dy = (float(v) for v in self.ball_offset)
-            if dx == 0.0 and dy == 0.0:
-                return
-            h = self.handles
-            X_WS = self._scoop_pose()
-            # 45-degree walls: moving the centre sideways by d towards a wall needs it d higher to keep contact.
-            lift = abs(dx) * np.tan(robot.SCOOP_WALL_ANGLE) + abs(dy) * np.tan(robot.SCOOP_WALL_ANGLE)
-            p_S = np.array([dx, dy, robot.ball_rest_height(radius) + 1e-4 + lift])
-            h.plant.SetFreeBodyPose(self.plant_context, h.ball_body, RigidTransform(X_WS.rotation(), X_WS.multiply(p_S)))
-
-    return PlacementRollout
-
-
 class VirtualLab(TrialCounter):
     """A simulated lab with hidden effects and a real lab's measurement process (module docstring).
 
@@ -330,7 +301,9 @@ class VirtualLab(TrialCounter):
     def rollout(self):
         """The (lazily built) simulation."""
         if self._rollout is None:
-            self._rollout = _placement_rollout_class()(self.config.scenario)
+            from besdrake.sim.rollout import Rollout
+
+            self._rollout = Rollout(self.config.scenario)
         return self._rollout
 
     def execute(self, plan: MotionPlan, trial: int | None = None) -> Measurement:
@@ -364,14 +337,14 @@ class VirtualLab(TrialCounter):
                 message="aborted: the plan drove a joint beyond its limits and the robot switched itself off: " + "; ".join(over),
                 meta=meta,
             )
-        sim = self.rollout
-        sim.ball_offset = offset
+        # This trial's placement adds to any systematic placement offset among the hidden effects.
+        effects = {name: dict(values) for name, values in c.effects.items()}
+        habit = effects.get("ball_placement", {})
+        effects["ball_placement"] = {"x": habit.get("x", 0.0) + offset[0], "y": habit.get("y", 0.0) + offset[1]}
         try:
-            out = sim.rollout(plan, effects=c.effects, limits="flag")
+            out = self.rollout.rollout(plan, effects=effects, limits="flag")
         except PlanError as err:
             return Measurement(trial=trial, plan=plan, flags={"aborted": True}, message=f"aborted: malformed plan: {err}", meta=meta)
-        finally:
-            sim.ball_offset = np.zeros(2)
 
         flags = {
             "dropped_early": bool(out.flags.get("dropped_early")),
