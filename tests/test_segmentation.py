@@ -254,3 +254,17 @@ def test_cli_segment_reports_unusable_recordings(tmp_path, capsys):
     assert main(["segment", str(tmp_path / "ok.tsv"), "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert len(out["segments"]) >= 2
+
+
+def test_rest_border_refinement_moves_borders_to_the_speed_level():
+    from besdrake.segmentation.vmci import VMCIResult, refine_rest_borders
+
+    t = np.arange(100)
+    speed = np.where(t < 60, np.exp(-0.5 * ((t - 30) / 10.0) ** 2), 0.0)  # bell, then rest
+    res = VMCIResult(borders=np.array([70]), n_samples=100, segment_models=["movement", "rest"])
+    out = refine_rest_borders(res, speed, level=0.1, max_shift=30)
+    # the speed falls below 10% of the peak at t = 52 (30 + 10 * sqrt(2 ln 10) = 51.5)
+    assert out.borders[0] == 52
+    # a movement -> movement border is never moved
+    res = VMCIResult(borders=np.array([70]), n_samples=100, segment_models=["movement", "movement"])
+    assert refine_rest_borders(res, speed, 0.1, 30).borders[0] == 70

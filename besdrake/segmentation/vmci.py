@@ -140,6 +140,9 @@ class VMCI(SegmenterMixin):
         open_ends: let the first / last segment start / end at a non-zero velocity.
         rest_noise_ratio: prior mean noise level of rest segments, as a fraction of the RMS
             speed (None: ``noise_ratio``).
+        rest_border_level: if set, a border between a movement and a rest segment is moved
+            to where the speed crosses this fraction of the movement's peak speed
+            (:func:`refine_rest_borders`); None keeps the model's borders.
         max_particles: particles kept after each step.
         prune_log_ratio: particles whose path log-probability is lower than the best by more
             than this are pruned.
@@ -150,6 +153,10 @@ class VMCI(SegmenterMixin):
 
     After :meth:`fit`: ``result_`` (:class:`VMCIResult`), ``borders_`` (interior border sample
     indices), ``segments_`` (``(start, end)`` index pairs, adjacent segments share a border).
+
+    The defaults (noise_ratio 0.3, min_length_s 0.4, nu 10, rest_noise_ratio 0.25) were chosen
+    on subject 1 of the real pick-and-place data (``scripts/bench_segmentation.py`` re-runs the
+    choice on each subject and scores the other).
     """
 
     def __init__(
@@ -166,6 +173,7 @@ class VMCI(SegmenterMixin):
         rest_log_prior: float | None = 0.0,
         open_ends: bool = True,
         rest_noise_ratio: float | None = 0.25,
+        rest_border_level: float | None = None,
         max_particles: int = 60,
         prune_log_ratio: float = 60.0,
         frequency: float = 60.0,
@@ -184,6 +192,7 @@ class VMCI(SegmenterMixin):
         self.rest_log_prior = rest_log_prior
         self.open_ends = open_ends
         self.rest_noise_ratio = rest_noise_ratio
+        self.rest_border_level = rest_border_level
         self.max_particles = max_particles
         self.prune_log_ratio = prune_log_ratio
         self.frequency = frequency
@@ -350,4 +359,45 @@ class VMCI(SegmenterMixin):
         )
 
     def _segment(self, V: np.ndarray, frequency: float) -> VMCIResult:
-        return self.segment_velocity(V, frequency)
+        result = self.segment_velocity(V, frequency)
+        if self.rest_border_level is not None and "rest" in result.segment_models:
+            result = refine_rest_borders(result, np.linalg.norm(V, axis=1), self.rest_border_level,
+                                         int(round(self.min_length_s * frequency)))
+        return result
+
+
+def refine_rest_borders(result: VMCIResult, speed: np.ndarray, level: float, max_shift: int) -> VMCIResult:
+    """Move each border between a movement and a rest segment to where the speed crosses
+    ``level`` times the movement segment's peak speed (the nearest crossing on the movement's
+    side, at most ``max_shift`` samples away); other borders are kept.
+
+    The segment model puts a movement's end where its bell has decayed to (almost) zero; a
+    human annotator ends it where the speed has dropped to a fraction of its peak.
+    """
+    edges = [0, *[int(b) for b in result.borders], result.n_samples - 1]
+    models = list(result.segment_models)
+    new = list(edges)
+    for i in range(1, len(edges) - 1):
+        left, right = models[i - 1], models[i]
+        if left == right:
+            continue
+        b = edges[i]
+        if left == "movement":  # movement -> rest: last sample above the level, scanning back
+            a0 = edges[i - 1]
+            thr = level * speed[a0:b + 1].max()
+            j = b
+            while j > max(a0 + 1, b - max_shift) and speed[j] < thr:
+                j -= 1
+            new[i] = j + 1 if j < b else b
+        else:  # rest -> movement: first sample above the level, scanning forward
+            c = edges[i + 1]
+            thr = level * speed[b:c + 1].max()
+            j = b
+            while j < min(c - 1, b + max_shift) and speed[j] < thr:
+                j += 1
+            new[i] = j
+    # keep the borders strictly increasing
+    for i in range(1, len(new) - 1):
+        new[i] = min(max(new[i], new[i - 1] + 1), new[i + 1] - 1) if new[i + 1] - new[i - 1] > 1 else edges[i]
+    result.borders = np.array(new[1:-1], dtype=int)
+    return result
