@@ -7,11 +7,11 @@ import json
 from pathlib import Path
 
 COMMAND = ("segment",)
-HELP = "segment a recording (Qualisys TSV) into movement building blocks with vMCI"
+HELP = "segment a recording (Qualisys TSV or C3D) into movement building blocks with vMCI"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("file", type=Path, help="recording (.tsv)")
+    parser.add_argument("file", type=Path, help="recording (.tsv Qualisys export or .c3d)")
     parser.add_argument("--json", action="store_true", help="print the segments as one JSON object")
     parser.add_argument("--method", choices=("vmci", "zvc"), default="vmci",
                         help="vmci (default) or the zero-velocity-crossing baseline")
@@ -25,7 +25,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from besdrake.cli import UserError
     from besdrake.mocap.preprocess import PreprocessError, preprocess
-    from besdrake.mocap.qualisys import read_tsv
+    from besdrake.mocap.qualisys import read_recording
     from besdrake.mocap.recording import MocapFormatError
     from besdrake.segmentation import VMCI, SegmentationError, ZeroVelocitySegmenter
     from besdrake.segmentation.classification import ClassificationError, SegmentClassifier, extract_segment
@@ -35,7 +35,7 @@ def run(args: argparse.Namespace) -> int:
     if args.classifier and args.train:
         raise UserError("give either --classifier or --train, not both")
     try:
-        rec = read_tsv(args.file)
+        rec = read_recording(args.file)
         pre = preprocess(rec, max_gap_s=args.max_gap)
         seg = VMCI() if args.method == "vmci" else ZeroVelocitySegmenter()
         seg.fit(pre)
