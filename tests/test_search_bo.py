@@ -6,7 +6,7 @@ import pytest
 from besdrake.search.acquisition import expected_improvement, upper_confidence_bound
 from besdrake.search.base import load_state, save_state
 from besdrake.search.bayesopt import BayesianOptimizer
-from besdrake.search.entropy_search import RepresenterModel, discrete_entropy, select_representers
+from besdrake.search.entropy_search import RepresenterModel, discrete_entropy, entropy_search, select_representers
 from besdrake.search.gp import GaussianProcess
 from besdrake.search.mrs import minimum_regret_search
 
@@ -128,6 +128,10 @@ def test_p_max_is_a_distribution_and_information_gain_prefers_uncertain_candidat
     assert abs(gains[0]) < 0.05  # observing an observed point again teaches (almost) nothing
     regret = minimum_regret_search(gp, reps, np.vstack([at_data, uncertain]), np.random.default_rng(1))
     assert regret[1] > regret[0]
+    # the functional form gives the same numbers for the same generator state
+    np.testing.assert_allclose(
+        entropy_search(gp, reps, np.vstack([at_data, uncertain]), np.random.default_rng(5), n_samples=512),
+        RepresenterModel(gp, reps, np.random.default_rng(5), n_samples=512).information_gain(np.vstack([at_data, uncertain])))
 
 
 # ---------------------------------------------------------------------------- the optimizer
