@@ -155,6 +155,10 @@ def test_bayesopt_solves_branin_in_30_evaluations(acquisition):
 
 def test_failed_episode_is_penalised_and_search_goes_on():
     opt = BayesianOptimizer(BRANIN_BOUNDS, "es", rng=np.random.default_rng(0), n_initial=3, n_samples=64)
+    opt.tell(opt.ask(), np.array([np.nan]))  # a failed first episode is kept but never the best
+    assert opt.failed.tolist() == [True] and np.isfinite(opt.y).all()
+    assert opt.best[1] == -np.inf
+    opt = BayesianOptimizer(BRANIN_BOUNDS, "es", rng=np.random.default_rng(0), n_initial=3, n_samples=64)
     for reward in (-10.0, -20.0, np.nan, -5.0, np.inf):
         opt.tell(opt.ask(), np.array([reward]))
     assert np.isfinite(opt.y).all()

@@ -145,10 +145,14 @@ class BayesianOptimizer(Optimizer):
     # ------------------------------------------------------------------ results
     @property
     def best(self) -> tuple[np.ndarray, float]:
-        """Best evaluated parameters and their (sanitised) reward."""
-        if not self.y.size:
-            raise RuntimeError("no evaluations yet")
-        i = int(np.argmax(self.y))
+        """Best successful evaluation and its reward; a failed episode is never the best.
+
+        Before any successful evaluation: the centre of the box and ``-inf``.
+        """
+        ok = np.flatnonzero(~self.failed)
+        if not ok.size:
+            return self.bounds.mean(axis=1), -np.inf
+        i = int(ok[np.argmax(self.y[ok])])
         return self.X[i].copy(), float(self.y[i])
 
     @single_threaded
