@@ -123,3 +123,33 @@ def test_bocps_over_seeds_60_episodes(acquisition):
             CONTEXT_BOUNDS, PARAM_BOUNDS, acquisition, rng=rng)
         errors.append(policy_error(train(opt, 60)))
     assert np.median(errors) < (0.06 if acquisition == "ucb" else 0.04), errors
+
+
+def test_bocps_runs_and_resumes_in_the_search_loop(tmp_path):
+    """Driven by the shared loop: a crashed evaluation is a failed episode, and a resumed run
+    continues exactly like an uninterrupted one (the loop checks the re-asked parameters)."""
+    from besdrake.search.loop import run_contextual_search
+
+    def evaluate(s, theta):
+        if len(calls) == 5:
+            calls.append(1)
+            raise RuntimeError("simulated rollout crash")
+        calls.append(1)
+        return reward(s, theta)
+
+    def make():
+        return BOCPS(CONTEXT_BOUNDS, PARAM_BOUNDS, "es", rng=np.random.default_rng(4), n_initial=4, n_samples=64)
+
+    calls: list[int] = []
+    full = run_contextual_search(make(), evaluate, 10, CONTEXT_BOUNDS)
+    calls = []
+    run_contextual_search(make(), evaluate, 10, CONTEXT_BOUNDS, tmp_path / "run",
+                          callback=lambda info: info.n_evaluations >= 7)
+    resumed = run_contextual_search(make(), evaluate, 10, CONTEXT_BOUNDS, tmp_path / "run")
+    assert resumed.resumed and resumed.n_evaluations == full.n_evaluations == 10
+    np.testing.assert_array_equal(resumed.params, full.params)
+    np.testing.assert_array_equal(resumed.contexts, full.contexts)
+    assert resumed.failed.tolist() == full.failed.tolist() == [i == 5 for i in range(10)]
+    restored = BOCPS.from_state(load_state(tmp_path / "run" / "optimizer")["optimizer"])
+    assert restored.failed.tolist() == [i == 5 for i in range(10)]
+    np.testing.assert_allclose(restored.policy(TEST_CONTEXTS[0]), full.optimizer.policy(TEST_CONTEXTS[0]))
