@@ -196,3 +196,21 @@ def test_bayesopt_state_roundtrip_continues_identically(tmp_path, acquisition):
 def test_bayesopt_branin_over_seeds(acquisition):
     regrets = [branin(run_branin(acquisition, seed=seed).recommend())[0] - BRANIN_MIN for seed in range(5)]
     assert np.median(regrets) < 0.01 and max(regrets) < 0.1, regrets
+
+
+def test_bayesopt_runs_and_resumes_in_the_search_loop(tmp_path):
+    from besdrake.search.loop import run_search
+
+    def make():
+        return BayesianOptimizer(BRANIN_BOUNDS, "ei", rng=np.random.default_rng(3), n_initial=4)
+
+    def evaluate(x):
+        return -float(branin(x)[0])
+
+    full = run_search(make(), evaluate_episode=evaluate, n_evaluations=10)
+    run_search(make(), evaluate_episode=evaluate, n_evaluations=10, out_dir=tmp_path,
+               callback=lambda info: info.n_evaluations >= 6)
+    resumed = run_search(make(), evaluate_episode=evaluate, n_evaluations=10, out_dir=tmp_path)
+    assert resumed.resumed and resumed.n_evaluations == 10
+    np.testing.assert_array_equal(resumed.params, full.params)
+    assert resumed.best_reward == full.best_reward == max(full.rewards)
