@@ -37,7 +37,8 @@ def run(args: argparse.Namespace) -> int:
     from besdrake.embodiment import EmbodimentMapping
     from besdrake.mocap.preprocess import PreprocessError
     from besdrake.mocap.recording import MocapFormatError
-    from besdrake.pipeline.imitation import find_throws, imitate_recording, load_demonstration, prepare, reports_to_json, write_summary
+    from besdrake.pipeline.imitation import find_throws, imitate_recording, load_demonstration, prepare, reports_to_json
+    from besdrake.pipeline.run import write_json
 
     t_start = time.perf_counter()
     try:
@@ -101,7 +102,7 @@ def run(args: argparse.Namespace) -> int:
         "wall_time_s": time.perf_counter() - t_start,
         "recordings": recordings,
     }
-    write_summary(args.out / "summary.json", summary)
+    write_json(args.out / "summary.json", summary)
     if args.json:
         print(json.dumps(summary, default=float))
     else:

@@ -9,9 +9,7 @@ unreachable) is reported with its error and the others go on.
 
 from __future__ import annotations
 
-import json
 import time
-import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -180,18 +178,3 @@ def reports_to_json(reports: list[ThrowReport]) -> list[dict[str, Any]]:
         }
         for r in reports
     ]
-
-
-def write_summary(path: Path, data: dict[str, Any]) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(json.dumps(data, indent=1, default=_json_default))
-    tmp.replace(path)
-
-
-def _json_default(obj):
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, np.generic):
-        return obj.item()
-    raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
