@@ -50,12 +50,7 @@ def read_c3d(path: str | Path, check_units: bool = True) -> MocapRecording:
     labels = labels[:n_labels] + [f"Marker {k + 1}" for k in range(len(labels), n_labels)]
     frames = first + np.arange(len(pts))
     rec = MocapRecording(labels, positions, rate, frames, (frames - 1) / rate, {"C3D_POINT_UNITS": units})
-    problem = rec.units_problem()
-    if problem is not None:
-        if check_units:
-            raise MocapUnitsError(f"{path}: {problem}")
-        rec.metadata["units_warning"] = problem
-    return rec
+    return rec.check_units(path, strict=check_units)
 
 
 def write_c3d(rec: MocapRecording, path: str | Path) -> None:

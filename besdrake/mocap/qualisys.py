@@ -218,13 +218,7 @@ def read_tsv(path: str | Path, check_units: bool = True) -> MocapRecording:
                 f"{path}: NO_OF_FRAMES says {declared_frames} but the file has {len(rows)} data rows"
             )
     metadata["HAS_FRAME_TIME"] = bool(has_frame_time)
-    rec = MocapRecording(marker_names, positions, frequency, frames, time, metadata)
-    problem = rec.units_problem()
-    if problem is not None:
-        if check_units:
-            raise MocapUnitsError(f"{path}: {problem}")
-        rec.metadata["units_warning"] = problem
-    return rec
+    return MocapRecording(marker_names, positions, frequency, frames, time, metadata).check_units(path, strict=check_units)
 
 
 def _fmt_header_value(value) -> str:

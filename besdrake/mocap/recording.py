@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import copy
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -171,6 +172,16 @@ class MocapRecording:
                 "already in metres (or centimetres), not millimetres"
             )
         return None
+
+    def check_units(self, source: str | Path, strict: bool = True) -> "MocapRecording":
+        """Apply :meth:`units_problem` after reading ``source``: raise :class:`MocapUnitsError`
+        naming the file (``strict``) or record the problem as ``metadata["units_warning"]``."""
+        problem = self.units_problem()
+        if problem is not None:
+            if strict:
+                raise MocapUnitsError(f"{source}: {problem}")
+            self.metadata["units_warning"] = problem
+        return self
 
     def missing_markers(self) -> list[str]:
         """Names of markers that are never visible."""
