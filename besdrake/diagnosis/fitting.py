@@ -122,6 +122,7 @@ class CandidateFit:
     unobservable: list[str] = field(default_factory=list)
     y_fit: np.ndarray | None = None  # simulated features at theta (N, F) when refined
     jac: np.ndarray | None = None  # weighted Jacobian rows (used for the covariance)
+    fresh_jacobian: bool = False  # stderr from a finite-difference Jacobian at the optimum (else Broyden's)
 
     @property
     def bic(self) -> float:
@@ -135,8 +136,12 @@ class CandidateFit:
         return effects_from(self.specs, self.theta)
 
     def parameter_table(self) -> list[dict]:
+        """Fitted values with standard errors; ``constrained`` is False when the data add little to the weak
+        prior (standard error above half the prior SD): the value is then not determined by the log."""
         return [
-            {"effect": s.effect, "parameter": s.name, "value": float(v), "stderr": float(e), "nominal": s.nominal, "low": s.low, "high": s.high, "unit": s.unit, "at_bound": bool(np.isclose(v, s.low) or np.isclose(v, s.high))}
+            {"effect": s.effect, "parameter": s.name, "value": float(v), "stderr": float(e), "nominal": s.nominal, "low": s.low, "high": s.high, "unit": s.unit,
+             "at_bound": bool(np.isclose(v, s.low) or np.isclose(v, s.high)), "constrained": bool(e < 0.5 * PRIOR_FRACTION * (s.high - s.low)),
+             "stderr_source": "finite differences at the optimum" if self.fresh_jacobian else "quasi-Newton (Broyden) Jacobian"}
             for s, v, e in zip(self.specs, self.theta, self.stderr)
         ]
 
@@ -289,6 +294,30 @@ def refine(
             break
     fit.theta, fit.chi2, fit.refined, fit.y_fit, fit.jac = theta, float(r @ r), True, y, A
     fit.stderr = stderr_from(A, specs)
+    return fit
+
+
+def jacobian_at(prob: Problem, fit: CandidateFit, simulate: Callable[[list[dict]], np.ndarray]) -> CandidateFit:
+    """Replace the (Broyden-updated) Jacobian of a refined fit by a fresh finite-difference one at its optimum
+    (one batch of rollouts per parameter) and recompute the standard errors from it."""
+    if not fit.specs or fit.y_fit is None:
+        return fit
+    effs, steps = [], []
+    for j, s in enumerate(fit.specs):
+        th = fit.theta.copy()
+        h = 0.5 * abs(s.step)
+        h = h if th[j] + h <= s.high else -h
+        if s.effect == "scoop_friction" and s.name == "mu_dynamic":
+            h = -abs(h)
+        th[j] += h
+        effs.append(effects_from(fit.specs, th))
+        steps.append(h)
+    ys = simulate(effs)
+    dy = (ys - fit.y_fit[None]) / np.array(steps)[:, None, None]
+    dy[~np.isfinite(dy)] = 0.0
+    fit.jac = prob.weighted_jac(dy)
+    fit.stderr = stderr_from(fit.jac, fit.specs)
+    fit.fresh_jacobian = True
     return fit
 
 

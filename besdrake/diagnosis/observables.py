@@ -148,6 +148,27 @@ def simulated_features(outcome, layout: ThrowLayout) -> np.ndarray:
     return f
 
 
+def release_state(features: np.ndarray, layout: ThrowLayout) -> tuple[np.ndarray, np.ndarray] | None:
+    """Ball position and velocity extrapolated from the flight fit back to the nominal release time."""
+    sl = group_slices()
+    if layout.release_time_nominal is None or not np.isfinite(features[sl["ball_acc"]]).all():
+        return None
+    dt = layout.release_time_nominal - layout.ball_center
+    p0, v, a = features[sl["ball_pos"]], features[sl["ball_vel"]], features[sl["ball_acc"]]
+    return p0 + v * dt + 0.5 * a * dt * dt, v + a * dt
+
+
+def tracking_lag(features: np.ndarray, layout: ThrowLayout, plan) -> float | None:
+    """Time (s) by which the joints lag the command: least squares of error = -lag * commanded velocity."""
+    sl = group_slices()
+    if layout.joint_times is None or not np.isfinite(features[sl["joints"]]).all():
+        return None
+    err = features[sl["joints"]].reshape(6, N_JOINT_TIMES).T
+    qd = plan.sample(layout.joint_times, 1)
+    den = float(np.sum(qd * qd))
+    return None if den < 1e-9 else float(-np.sum(err * qd) / den)
+
+
 def usable(measurement) -> tuple[bool, str]:
     """Whether a trial can be compared with the simulation, and why not."""
     raised = [k for k in UNUSABLE_FLAGS if measurement.flags.get(k, False)]

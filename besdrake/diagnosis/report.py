@@ -19,6 +19,8 @@ from besdrake.diagnosis.core import Diagnosis
 
 def _fmt_param(p: dict) -> str:
     bound = " (at its bound)" if p["at_bound"] else ""
+    if not p.get("constrained", True):
+        bound += " (not determined by these data)"
     return f"{p['effect']}.{p['parameter']} = {p['value']:.4g} +- {p['stderr']:.2g} {p['unit']}{bound}"
 
 
@@ -111,6 +113,20 @@ def _markdown(diag: Diagnosis, figures: list[str], scenario_path: Path | None) -
     for g in diag.comparison:
         mean = ", ".join(f"{v:.3g}" for v in g.mean[:3]) + (" ..." if len(g.mean) > 3 else "")
         L.append(f"| {g.group} ({g.unit}) | {g.n_throws} | {mean} | {g.stderr[0]:.2g} | {g.rms:.3g} | {g.noise_sd:.3g} | {'yes' if g.systematic else 'no'} |")
+    L.append("")
+    L.append("Per throw (lab vs nominal simulation; release state extrapolated from the flight fit, tracking lag by least squares):")
+    L.append("")
+    L.append("| trial | touchdown disparity nominal (m) | after fit (m) | held out (m) | release speed lab / sim (m/s) | release elevation lab / sim (deg) | tracking lag lab / sim (ms) |")
+    L.append("|---|---|---|---|---|---|---|")
+
+    def f(r, k, scale=1.0, fmt=".3f"):
+        v = r.get(k)
+        return "-" if v is None else format(v * scale, fmt)
+
+    for r in diag.per_throw:
+        L.append(f"| {r['trial']} | {f(r, 'touchdown_error_before')} | {f(r, 'touchdown_error_after_fit')} | {f(r, 'touchdown_heldout_disparity_after')} | "
+                 f"{f(r, 'release_speed_lab', fmt='.2f')} / {f(r, 'release_speed_nominal', fmt='.2f')} | {f(r, 'release_elevation_deg_lab', fmt='.1f')} / {f(r, 'release_elevation_deg_nominal', fmt='.1f')} | "
+                 f"{f(r, 'tracking_lag_s_lab', 1000, '.1f')} / {f(r, 'tracking_lag_s_nominal', 1000, '.1f')} |")
     L.append("")
     L.append("Measurement noise per signal (never read from the lab's configuration):")
     for g, src in diag.noise.source.items():
