@@ -22,16 +22,16 @@ from typing import Any
 import numpy as np
 
 from .acquisition import expected_improvement, maximize_on_box, upper_confidence_bound
-from .base import Optimizer, rng_from_state, rng_state, sanitize_rewards
+from .base import Optimizer
 from .entropy_search import RepresenterModel, select_representers
-from .gp import GaussianProcess, check_bounds, single_threaded
+from .gp import GaussianProcess, GPEpisodes, check_bounds, single_threaded
 
 __all__ = ["BayesianOptimizer", "ACQUISITIONS"]
 
 ACQUISITIONS = ("ucb", "ei", "es", "mrs")
 
 
-class BayesianOptimizer(Optimizer):
+class BayesianOptimizer(GPEpisodes, Optimizer):
     """GP-based maximiser of an expensive reward on a box.
 
     Parameters
@@ -84,10 +84,7 @@ class BayesianOptimizer(Optimizer):
         self.n_representers, self.n_samples, self.n_fantasies = int(n_representers), int(n_samples), int(n_fantasies)
         self.pool_size = int(pool_size)
         self.gp = GaussianProcess(self.bounds, nu=nu, n_restarts=n_restarts, seed=int(self.rng.integers(2**31 - 1)))
-        self.X = np.zeros((0, self.n_params))
-        self.y = np.zeros(0)
-        self.failed = np.zeros(0, dtype=bool)
-        self._fitted = False
+        self._init_episodes(self.n_params)
 
     # ------------------------------------------------------------------ ask / tell
     @single_threaded
@@ -131,16 +128,7 @@ class BayesianOptimizer(Optimizer):
             raise ValueError(f"candidates must have shape ({rewards.size}, {self.n_params}), got {candidates.shape}")
         if not np.isfinite(candidates).all():
             raise ValueError("candidates contain NaN or inf")
-        clean, failed = sanitize_rewards(rewards, float(self.y.min()) if self.y.size else None)
-        self.X = np.vstack([self.X, candidates])
-        self.y = np.concatenate([self.y, clean])
-        self.failed = np.concatenate([self.failed, failed])
-        self._fitted = False
-
-    def _fit(self) -> None:
-        if not self._fitted:
-            self.gp.fit(self.X, self.y)
-            self._fitted = True
+        self._add_episodes(candidates, rewards)
 
     # ------------------------------------------------------------------ results
     @property
@@ -181,22 +169,11 @@ class BayesianOptimizer(Optimizer):
             "type": type(self).__name__,
             "bounds": self.bounds.copy(),
             "settings": self._settings(),
-            "X": self.X.copy(),
-            "y": self.y.copy(),
-            "failed": self.failed.astype(np.int8),
-            "fitted": self._fitted,
-            "gp": self.gp.state_dict(),
-            "rng": rng_state(self.rng),
+            **self._episodes_state(),
         }
 
     @classmethod
     def from_state(cls, state: dict[str, Any]) -> "BayesianOptimizer":
         opt = cls(state["bounds"], **state["settings"])
-        opt.rng = rng_from_state(state["rng"])  # after construction, which draws the GP seed
-        opt.X = np.asarray(state["X"], dtype=float).reshape(-1, opt.n_params)
-        opt.y = np.asarray(state["y"], dtype=float).ravel()
-        opt.failed = np.asarray(state["failed"]).astype(bool).ravel()
-        gp = GaussianProcess.from_state(state["gp"])
-        opt.gp = gp
-        opt._fitted = bool(state["fitted"]) and gp.y_.size == opt.y.size
+        opt._restore_episodes(state)
         return opt

@@ -24,16 +24,16 @@ import numpy as np
 from scipy.stats import qmc
 
 from .acquisition import maximize_on_box, upper_confidence_bound
-from .base import ContextualOptimizer, rng_from_state, rng_state, sanitize_rewards
+from .base import ContextualOptimizer
 from .entropy_search import RepresenterModel, select_representers
-from .gp import GaussianProcess, check_bounds, single_threaded
+from .gp import GaussianProcess, GPEpisodes, check_bounds, single_threaded
 
 __all__ = ["BOCPS", "CONTEXTUAL_ACQUISITIONS"]
 
 CONTEXTUAL_ACQUISITIONS = ("ucb", "es")
 
 
-class BOCPS(ContextualOptimizer):
+class BOCPS(GPEpisodes, ContextualOptimizer):
     """BO-CPS with UCB or contextual entropy-search acquisition.
 
     Parameters
@@ -92,10 +92,7 @@ class BOCPS(ContextualOptimizer):
         # Deterministic parameter grid for the (randomness-free) policy.
         self._policy_grid = self._scale(self.param_bounds,
                                         qmc.Sobol(self.n_params, scramble=False).random(256))
-        self.X = np.zeros((0, self.n_context + self.n_params))
-        self.y = np.zeros(0)
-        self.failed = np.zeros(0, dtype=bool)
-        self._fitted = False
+        self._init_episodes(self.n_context + self.n_params)
 
     # ------------------------------------------------------------------ helpers
     @staticmethod
@@ -116,11 +113,6 @@ class BOCPS(ContextualOptimizer):
 
     def _random_params(self, n: int) -> np.ndarray:
         return self.rng.uniform(self.param_bounds[:, 0], self.param_bounds[:, 1], size=(n, self.n_params))
-
-    def _fit(self) -> None:
-        if not self._fitted:
-            self.gp.fit(self.X, self.y)
-            self._fitted = True
 
     @property
     def n_episodes(self) -> int:
@@ -175,11 +167,7 @@ class BOCPS(ContextualOptimizer):
         reward_arr = np.asarray(reward, dtype=float).ravel()
         if reward_arr.size != 1:
             raise ValueError(f"reward must be one number, got shape {np.shape(reward)}")
-        clean, failed = sanitize_rewards(reward_arr, float(self.y.min()) if self.y.size else None)
-        self.X = np.vstack([self.X, np.concatenate([context, params])])
-        self.y = np.append(self.y, clean[0])
-        self.failed = np.append(self.failed, failed[0])
-        self._fitted = False
+        self._add_episodes(np.concatenate([context, params])[None, :], reward_arr)
 
     # ------------------------------------------------------------------ policy
     @single_threaded
@@ -218,24 +206,12 @@ class BOCPS(ContextualOptimizer):
             "param_bounds": self.param_bounds.copy(),
             "settings": self._settings(),
             "rep_contexts": self.rep_contexts.copy(),
-            "X": self.X.copy(),
-            "y": self.y.copy(),
-            "failed": self.failed.astype(np.int8),
-            "fitted": self._fitted,
-            "gp": self.gp.state_dict(),
-            "rng": rng_state(self.rng),
+            **self._episodes_state(),
         }
 
     @classmethod
     def from_state(cls, state: dict[str, Any]) -> "BOCPS":
         opt = cls(state["context_bounds"], state["param_bounds"], **state["settings"])
-        opt.rng = rng_from_state(state["rng"])  # after construction, which draws from its own generator
         opt.rep_contexts = np.asarray(state["rep_contexts"], dtype=float).reshape(-1, opt.n_context)
-        opt.X = np.asarray(state["X"], dtype=float).reshape(-1, opt.n_context + opt.n_params)
-        opt.y = np.asarray(state["y"], dtype=float).ravel()
-        if not (np.isfinite(opt.X).all() and np.isfinite(opt.y).all()) or len(opt.X) != len(opt.y):
-            raise ValueError("stored BO-CPS data is corrupt: X and y must be finite and of equal length")
-        opt.failed = np.asarray(state["failed"]).astype(bool).ravel()
-        opt.gp = GaussianProcess.from_state(state["gp"])
-        opt._fitted = bool(state["fitted"]) and opt.gp.y_.size == opt.y.size
+        opt._restore_episodes(state)
         return opt

@@ -25,7 +25,9 @@ from sklearn.exceptions import ConvergenceWarning
 from sklearn.gaussian_process import GaussianProcessRegressor
 from sklearn.gaussian_process.kernels import ConstantKernel, Kernel, Matern, WhiteKernel
 
-__all__ = ["GaussianProcess", "check_bounds", "single_threaded"]
+from .base import rng_from_state, rng_state, sanitize_rewards
+
+__all__ = ["GaussianProcess", "GPEpisodes", "check_bounds", "single_threaded"]
 
 _F = TypeVar("_F", bound=Callable[..., Any])
 _THREADPOOLS: Any = None
@@ -224,3 +226,56 @@ class GaussianProcess:
         if y.size:
             gp.fit(X.reshape(y.size, gp.n_dims), y, optimize=False)
         return gp
+
+
+class GPEpisodes:
+    """The evaluated episodes of a GP-based optimizer and its lazily refitted model (mixin).
+
+    Shared by :class:`~besdrake.search.bayesopt.BayesianOptimizer` and
+    :class:`~besdrake.search.bocps.BOCPS`: GP inputs ``X`` (one row per episode), rewards ``y``
+    (failed episodes penalised by :func:`~besdrake.search.base.sanitize_rewards`), the mask
+    ``failed``, the model ``gp`` (refitted only when asked after new data) and their persistence.
+    """
+
+    gp: GaussianProcess
+    rng: np.random.Generator
+
+    def _init_episodes(self, n_dims: int) -> None:
+        self.X = np.zeros((0, n_dims))
+        self.y = np.zeros(0)
+        self.failed = np.zeros(0, dtype=bool)
+        self._fitted = False
+
+    def _add_episodes(self, X: np.ndarray, rewards: np.ndarray) -> None:
+        """Append GP inputs ``X`` and their rewards; NaN/inf rewards count as failed (penalised)."""
+        clean, failed = sanitize_rewards(rewards, float(self.y.min()) if self.y.size else None)
+        self.X = np.vstack([self.X, X])
+        self.y = np.concatenate([self.y, clean])
+        self.failed = np.concatenate([self.failed, failed])
+        self._fitted = False
+
+    def _fit(self) -> None:
+        if not self._fitted:
+            self.gp.fit(self.X, self.y)
+            self._fitted = True
+
+    def _episodes_state(self) -> dict[str, Any]:
+        return {
+            "X": self.X.copy(),
+            "y": self.y.copy(),
+            "failed": self.failed.astype(np.int8),
+            "fitted": self._fitted,
+            "gp": self.gp.state_dict(),
+            "rng": rng_state(self.rng),
+        }
+
+    def _restore_episodes(self, state: dict[str, Any]) -> None:
+        """Inverse of :meth:`_episodes_state`; call after construction, which draws from ``rng``."""
+        self.rng = rng_from_state(state["rng"])
+        self.X = np.asarray(state["X"], dtype=float).reshape(-1, self.X.shape[1])
+        self.y = np.asarray(state["y"], dtype=float).ravel()
+        if not (np.isfinite(self.X).all() and np.isfinite(self.y).all()) or len(self.X) != len(self.y):
+            raise ValueError(f"stored {type(self).__name__} data is corrupt: X and y must be finite and of equal length")
+        self.failed = np.asarray(state["failed"]).astype(bool).ravel()
+        self.gp = GaussianProcess.from_state(state["gp"])
+        self._fitted = bool(state["fitted"]) and self.gp.y_.size == self.y.size
