@@ -38,7 +38,6 @@ sub-steps at once and the linear recursion runs in :func:`scipy.signal.lfilter`.
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -382,19 +381,17 @@ class DMP:
         return dmp
 
     def save(self, path: str | Path) -> None:
-        """Write the DMP as JSON."""
-        Path(path).write_text(json.dumps(self.to_dict(), indent=1))
+        """Write the DMP as JSON (:func:`besdrake.imitation.io.save_dmp`)."""
+        from besdrake.imitation.io import save_dmp  # io imports this module
+
+        save_dmp(self, path)
 
     @classmethod
     def load(cls, path: str | Path) -> "DMP":
-        """Read a DMP written by :meth:`save`."""
-        try:
-            data = json.loads(Path(path).read_text())
-        except json.JSONDecodeError as err:
-            raise DMPParameterError(f"{path} is not valid JSON: {err}") from err
-        if not isinstance(data, dict):
-            raise DMPParameterError(f"{path} does not hold a DMP description")
-        return cls.from_dict(data)
+        """Read a DMP written by :meth:`save`; :class:`DMPParameterError` for a missing or corrupt file."""
+        from besdrake.imitation.io import _read_dmp_json  # io imports this module
+
+        return cls.from_dict(_read_dmp_json(path))
 
 
 _VECTOR_FIELDS = (

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 from besdrake.imitation._validation import DMPParameterError
 from besdrake.imitation.cartesian import CartesianDMP
@@ -21,8 +22,8 @@ def save_dmp(dmp: DMP | QuaternionDMP | CartesianDMP, path: str | Path) -> Path:
     return path
 
 
-def load_dmp(path: str | Path) -> DMP | QuaternionDMP | CartesianDMP:
-    """Read a DMP written by :func:`save_dmp`; :class:`DMPParameterError` for a missing or corrupt file."""
+def _read_dmp_json(path: str | Path) -> dict[str, Any]:
+    """The JSON object in ``path``; :class:`DMPParameterError` for a missing, corrupt or non-object file."""
     path = Path(path)
     if not path.is_file():
         raise DMPParameterError(f"DMP file not found: {path}")
@@ -30,7 +31,14 @@ def load_dmp(path: str | Path) -> DMP | QuaternionDMP | CartesianDMP:
         data = json.loads(path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as err:
         raise DMPParameterError(f"DMP file {path} is not valid JSON: {err}") from err
-    if not isinstance(data, dict) or data.get("type") not in _CLASSES:
-        kind = data.get("type") if isinstance(data, dict) else type(data).__name__
-        raise DMPParameterError(f"DMP file {path} does not describe a DMP (type {kind!r}; expected one of {sorted(_CLASSES)})")
+    if not isinstance(data, dict):
+        raise DMPParameterError(f"DMP file {path} does not describe a DMP (a JSON {type(data).__name__}, not an object)")
+    return data
+
+
+def load_dmp(path: str | Path) -> DMP | QuaternionDMP | CartesianDMP:
+    """Read a DMP written by :func:`save_dmp`; :class:`DMPParameterError` for a missing or corrupt file."""
+    data = _read_dmp_json(path)
+    if data.get("type") not in _CLASSES:
+        raise DMPParameterError(f"DMP file {path} does not describe a DMP (type {data.get('type')!r}; expected one of {sorted(_CLASSES)})")
     return _CLASSES[data["type"]].from_dict(data)
