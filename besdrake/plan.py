@@ -160,9 +160,10 @@ class MotionPlan:
         acc = robot.ACCELERATION_LIMITS if acceleration_limits is None else np.asarray(acceleration_limits, float)
         n = max(2, int(np.ceil(self.duration / resolution)) + 1)
         ts = np.unique(np.concatenate([np.linspace(0.0, self.duration, n), self.t]))
-        q, qd, qdd = self._hermite(ts)
+        knot_qd = self.knot_velocities()  # one spline fit (when qd is not given) for both evaluations
+        q, qd, qdd = self._hermite(ts, knot_qd)
         # Accelerations jump at knots: evaluate both one-sided values there.
-        _, _, qdd_left = self._hermite(self.t[1:] - 1e-12)
+        _, _, qdd_left = self._hermite(self.t[1:] - 1e-12, knot_qd)
         qdd = np.vstack([qdd, qdd_left])
         p_viol = np.maximum(np.max(pos[:, 0] - q, axis=0), np.max(q - pos[:, 1], axis=0))
         v_viol = np.max(np.abs(qd) - vel, axis=0)

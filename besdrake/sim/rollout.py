@@ -83,8 +83,7 @@ class Rollout:
     def _check_plan(self, plan: MotionPlan, limits: str):
         if not isinstance(plan, MotionPlan):
             raise PlanError(f"rollout needs a MotionPlan, got {type(plan).__name__}")
-        plan.validate()
-        report = plan.check_limits()
+        report = plan.check_limits()  # validates the plan first
         if limits not in ("raise", "flag"):
             raise ValueError(f"limits must be 'raise' or 'flag', got {limits!r}")
         exceeded = bool(np.any(report.position > 0) or np.any(report.velocity > 0))
@@ -121,9 +120,9 @@ class Rollout:
         plant.SetFreeBodyPose(self.plant_context, h.ball_body, RigidTransform(X_WS.rotation(), p))
         plant.SetVelocities(self.plant_context, h.ball_instance, np.zeros(6))
 
-    def _initial_hold(self, plan: MotionPlan) -> float:
-        """Seconds of the plan's initial hold (still at its first sample) that need not be simulated."""
-        qd = plan.knot_velocities()
+    def _initial_hold(self, plan: MotionPlan, qd: np.ndarray) -> float:
+        """Seconds of the plan's initial hold (still at its first sample) that need not be simulated;
+        ``qd``: the plan's knot velocities."""
         moving = np.any(np.abs(plan.q - plan.q[0]) > 1e-12, axis=1) | np.any(qd != 0.0, axis=1)
         if not np.any(moving):
             return 0.0
@@ -213,11 +212,11 @@ class Rollout:
         # A plan that starts by holding still: the arm and the ball start at their static equilibrium, so
         # only the last ``settle_time`` s of that hold are simulated (the simulation clock runs ``skip`` s
         # behind the plan's; all reported times are plan times).
-        skip = self._initial_hold(cmd)
+        skip = self._initial_hold(cmd, qd_all)
         self._skip = skip
         h.plan_source.UpdateTrajectory(cmd_src.trajectory(time_shift=-self.reference_lead - skip))
         q0 = cmd.q[0]
-        v0 = cmd.knot_velocities()[0]
+        v0 = qd_all[0]
         self._place_ball(q0, v0, setup.ball_radius, setup.ball_offset)
         self.logger_log.Clear()
 
