@@ -161,10 +161,7 @@ class LabLog:
         hp = root / "log.json"
         if not hp.is_file():
             raise LogError(f"{root} is not a besdrake lab log: no log.json")
-        try:
-            header = json.loads(hp.read_text(encoding="utf-8"))
-        except (json.JSONDecodeError, UnicodeDecodeError) as err:
-            raise LogError(f"{hp} is not valid JSON: {err}") from err
+        header = _load_json(hp)
         if not isinstance(header, dict) or header.get("format") != LOG_FORMAT:
             raise LogError(f"{hp}: format is {header.get('format') if isinstance(header, dict) else None!r}, expected {LOG_FORMAT!r}")
         if header.get("version") != LOG_VERSION:
