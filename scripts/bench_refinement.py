@@ -31,7 +31,7 @@ import numpy as np  # noqa: E402
 def main(argv: list[str] | None = None) -> int:
     from besdrake.commands.refine import collect_imitated
     from besdrake.imitation import load_dmp
-    from besdrake.search.refinement import RefinementProblem, best_start, refine
+    from besdrake.search.refinement import RefinementProblem, ThrowReward, best_start, refine
     from besdrake.sim import make_executor
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
@@ -45,6 +45,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--first-seed", type=int, default=0)
     parser.add_argument("--popsize", type=int, default=20)
     parser.add_argument("--sigma0", type=float, default=1.0)
+    parser.add_argument("--penalty-scale", type=float, default=1.0, help="multiply the limit-penalty weights of ThrowReward")
     args = parser.parse_args(argv)
     logging.getLogger("drake").setLevel(logging.ERROR)
 
@@ -56,7 +57,11 @@ def main(argv: list[str] | None = None) -> int:
             files = sorted(folder.glob("*.dmp.json")) if folder.is_dir() else []
             if not files:
                 files = collect_imitated([f"synthetic:{s}"], folder)
-            problems = [RefinementProblem(load_dmp(f)) for f in files]
+            d = ThrowReward()
+            k = args.penalty_scale
+            reward = ThrowReward(position_weight=k * d.position_weight, velocity_weight=k * d.velocity_weight,
+                                 acceleration_weight=k * d.acceleration_weight, violation_offset=k * d.violation_offset)
+            problems = [RefinementProblem(load_dmp(f), reward) for f in files]
             index, start = best_start(problems, ex)
             runs = []
             for k in range(args.runs):
@@ -74,7 +79,7 @@ def main(argv: list[str] | None = None) -> int:
     eps = [r["episodes_to_success"] for r in all_runs if r["success"]]
     out = {
         "subjects_run": args.subjects, "runs_per_subject": args.runs, "episode_budget": args.episodes,
-        "population": args.popsize, "sigma0": args.sigma0, "target_m": [2.0, 0.0], "backend": args.backend,
+        "population": args.popsize, "sigma0": args.sigma0, "penalty_scale": args.penalty_scale, "target_m": [2.0, 0.0], "backend": args.backend,
         "success_rate": float(np.mean([r["success"] for r in all_runs])),
         "subjects_with_success_in_every_run": sum(v["success_rate"] == 1.0 for v in subjects.values()),
         "subjects_with_success_in_some_run": sum(v["success_rate"] > 0.0 for v in subjects.values()),
