@@ -172,9 +172,24 @@ class _EpisodeLog:
             handle.flush()
             os.fsync(handle.fileno())
 
-    def pending(self, generation: int) -> dict[int, _Row]:
-        """Rows of ``generation`` read from disk (evaluated before a restart, maybe never told), by index."""
-        return self._logged.pop(generation, {})
+    def replay(
+        self, generation: int, params: np.ndarray, contexts: np.ndarray | None, where: Path | None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Raw rewards, failed and done masks for a batch of ``len(params)`` episodes of ``generation``,
+        filled from its rows read from disk (evaluated before a restart, maybe never told).
+
+        :class:`ResumeError` when a logged row is not an episode of this batch (another run's folder).
+        """
+        n = len(params)
+        raw = np.full(n, np.nan)
+        failed = np.zeros(n, dtype=bool)
+        done = np.zeros(n, dtype=bool)
+        for index, row in self._logged.pop(generation, {}).items():
+            if index >= n:
+                raise ResumeError(f"{where}: episode {generation}/{index} does not exist in the optimizer's batch of {n}")
+            _check_match(row, params[index], None if contexts is None else contexts[index], where)
+            raw[index], failed[index], done[index] = row.reward, row.failed, True
+        return raw, failed, done
 
     def result(self, optimizer: Any, resumed: bool, stop_reason: str, contextual: bool) -> LoopResult:
         rewards = np.array([row.reward for row in self.rows], dtype=float)
@@ -434,14 +449,7 @@ def run_search(
                 break
             candidates = np.atleast_2d(np.asarray(optimizer.ask(), dtype=float))
             n = candidates.shape[0]
-            raw = np.full(n, np.nan)
-            failed = np.zeros(n, dtype=bool)
-            done = np.zeros(n, dtype=bool)
-            for index, row in log.pending(generation).items():
-                if index >= n:
-                    raise ResumeError(f"{out}: episode {generation}/{index} does not exist in the optimizer's batch of {n}")
-                _check_match(row, candidates[index], None, out)
-                raw[index], failed[index], done[index] = row.reward, row.failed, True
+            raw, failed, done = log.replay(generation, candidates, None, out)
 
             def record(results: list[tuple[int, float, str]]) -> None:
                 for i, reward, error in results:
@@ -509,14 +517,7 @@ def run_contextual_search(
         for i in range(k):
             contexts[i] = np.asarray(optimizer.select_context(bounds), dtype=float).ravel()
             params[i] = np.asarray(optimizer.ask(contexts[i]), dtype=float).ravel()
-        raw = np.full(k, np.nan)
-        failed = np.zeros(k, dtype=bool)
-        done = np.zeros(k, dtype=bool)
-        for index, row in log.pending(generation).items():
-            if index >= k:
-                raise ResumeError(f"{out}: episode {generation}/{index} does not exist in a batch of {k}")
-            _check_match(row, params[index], contexts[index], out)
-            raw[index], failed[index], done[index] = row.reward, row.failed, True
+        raw, failed, done = log.replay(generation, params, contexts, out)
         todo = [i for i in range(k) if not done[i]]
         results: list[tuple[int, float, str]] = []
         if evaluate_batch is not None and todo:
