@@ -95,6 +95,47 @@ class Optimizer(ABC):
         """Rebuild an optimizer from :meth:`state_dict`."""
 
 
+class BestAndWorst:
+    """Bookkeeping of the batch optimizers (mixin): the best successful episode and the worst reward
+    seen, against which failed episodes are penalised (:func:`sanitize_rewards`), with their persistence."""
+
+    _best_params: np.ndarray
+    _best_reward: float
+    _worst_reward: float | None
+
+    def _init_best(self, params: np.ndarray) -> None:
+        """Start with ``params`` as the best guess (reward ``-inf``) and no reward seen."""
+        self._best_params = np.array(params, dtype=float)
+        self._best_reward = -np.inf
+        self._worst_reward = None
+
+    def _record_batch(self, candidates: np.ndarray, rewards: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Sanitised rewards and the failed mask of a told batch; updates the worst reward and the best episode."""
+        rewards, failed = sanitize_rewards(np.asarray(rewards, dtype=float).ravel(), self._worst_reward)
+        if rewards.size != candidates.shape[0]:
+            raise ValueError(f"got {rewards.size} rewards for {candidates.shape[0]} candidates")
+        low = float(rewards.min())
+        self._worst_reward = low if self._worst_reward is None else min(self._worst_reward, low)
+        best = int(np.argmax(np.where(failed, -np.inf, rewards)))  # a failed episode is never the best
+        if not failed[best] and rewards[best] > self._best_reward:
+            self._best_reward = float(rewards[best])
+            self._best_params = candidates[best].copy()
+        return rewards, failed
+
+    @property
+    def best(self) -> tuple[np.ndarray, float]:
+        """Best successful parameters told so far and their reward (the initial guess and ``-inf`` before one)."""
+        return self._best_params.copy(), self._best_reward
+
+    def _best_state(self) -> dict[str, Any]:
+        return {"best_params": self._best_params, "best_reward": float(self._best_reward), "worst_reward": self._worst_reward}
+
+    def _restore_best(self, state: dict[str, Any]) -> None:
+        self._best_params = np.asarray(state["best_params"], dtype=float)
+        self._best_reward = float(state["best_reward"])
+        self._worst_reward = None if state["worst_reward"] is None else float(state["worst_reward"])
+
+
 class ContextualOptimizer(ABC):
     """Contextual policy search: learns an upper-level policy ``theta = pi(s)``."""
 

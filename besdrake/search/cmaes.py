@@ -38,7 +38,7 @@ from typing import Any
 import cma
 import numpy as np
 
-from besdrake.search.base import Optimizer, rng_from_state, rng_state, sanitize_rewards
+from besdrake.search.base import BestAndWorst, Optimizer, rng_from_state, rng_state
 
 _RESTART_STRATEGIES = ("none", "ipop", "bipop")
 
@@ -99,7 +99,7 @@ class _Run:
     regime: str  # "large" or "small"
 
 
-class CMAES(Optimizer):
+class CMAES(BestAndWorst, Optimizer):
     """CMA-ES maximiser with optional bounds and IPOP/BIPOP restarts.
 
     Parameters
@@ -169,9 +169,7 @@ class CMAES(Optimizer):
         self.restart_history: list[dict[str, Any]] = []
         self._run_evaluations = 0
         self._run_best = -np.inf
-        self._best_params = x0.copy()
-        self._best_reward = -np.inf
-        self._worst_reward: float | None = None
+        self._init_best(x0)
         self._pending: np.ndarray | None = None
         self._rng_before_ask: dict[str, Any] | None = None
         self._finished = False
@@ -220,14 +218,7 @@ class CMAES(Optimizer):
         candidates = np.asarray(candidates, dtype=float)
         if self._pending is None or candidates.shape != self._pending.shape:
             raise ValueError("tell() needs the candidates returned by the last ask()")
-        rewards, failed = sanitize_rewards(np.asarray(rewards, dtype=float).ravel(), self._worst_reward)
-        if rewards.size != candidates.shape[0]:
-            raise ValueError(f"got {rewards.size} rewards for {candidates.shape[0]} candidates")
-        self._worst_reward = float(rewards.min()) if self._worst_reward is None else min(self._worst_reward, float(rewards.min()))
-        best = int(np.argmax(np.where(failed, -np.inf, rewards)))  # a failed episode is never the best
-        if not failed[best] and rewards[best] > self._best_reward:
-            self._best_reward = float(rewards[best])
-            self._best_params = candidates[best].copy()
+        rewards, _ = self._record_batch(candidates, rewards)
         self.es.tell(list(candidates), list(-rewards))
         self._pending = None
         self._rng_before_ask = None
@@ -267,10 +258,6 @@ class CMAES(Optimizer):
             self.n_large_restarts += 1
             self.run = _Run(self.popsize0 * 2**self.n_large_restarts, self.sigma0, "large")
         self.es = self._new_strategy(self.run)
-
-    @property
-    def best(self) -> tuple[np.ndarray, float]:
-        return self._best_params.copy(), self._best_reward
 
     @property
     def mean(self) -> np.ndarray:
@@ -315,9 +302,7 @@ class CMAES(Optimizer):
                 "run_best": float(self._run_best),
             },
             "restart_history": self.restart_history,
-            "best_params": self._best_params,
-            "best_reward": float(self._best_reward),
-            "worst_reward": self._worst_reward,
+            **self._best_state(),
             "rng": self._rng_before_ask if self._rng_before_ask is not None else rng_state(self.rng),
             "es_arrays": arrays,
             "es_scalars": scalars,
@@ -367,7 +352,5 @@ class CMAES(Optimizer):
             opt.es.timer = cma.utilities.utils.ElapsedWCTime()
             opt.es.timer.pause()
             opt.es._stoptolxstagnation.update(opt.es.mean)
-        opt._best_params = np.asarray(state["best_params"], dtype=float)
-        opt._best_reward = float(state["best_reward"])
-        opt._worst_reward = None if state["worst_reward"] is None else float(state["worst_reward"])
+        opt._restore_best(state)
         return opt

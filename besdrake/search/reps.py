@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from besdrake.search.base import Optimizer, rng_from_state, rng_state, sanitize_rewards
+from besdrake.search.base import BestAndWorst, Optimizer, rng_from_state, rng_state
 
 
 def _initial_covariance(cov: float | np.ndarray, n_params: int) -> np.ndarray:
@@ -66,7 +66,7 @@ def weighted_gaussian_fit(samples: np.ndarray, weights: np.ndarray, center: np.n
     return mean, 0.5 * (cov + cov.T)
 
 
-class GaussianSearch(Optimizer):
+class GaussianSearch(BestAndWorst, Optimizer):
     """Episodic search with a Gaussian search distribution ``N(mean, cov)`` (abstract).
 
     Parameters
@@ -135,9 +135,7 @@ class GaussianSearch(Optimizer):
         self.tol_std = float(tol_std)
         self.n_evaluations = 0
         self.generation = 0
-        self._best_params = self.mean.copy()
-        self._best_reward = -np.inf
-        self._worst_reward: float | None = None
+        self._init_best(self.mean)
         self._pending: np.ndarray | None = None
         self._rng_before_ask: dict[str, Any] | None = None
 
@@ -158,15 +156,7 @@ class GaussianSearch(Optimizer):
             raise ValueError(f"candidates must have shape (n >= 2, {self.n_params}), got {candidates.shape}")
         if not np.isfinite(candidates).all():
             raise ValueError("candidates contain NaN or infinite values")
-        rewards, failed = sanitize_rewards(np.asarray(rewards, dtype=float).ravel(), self._worst_reward)
-        if rewards.size != candidates.shape[0]:
-            raise ValueError(f"got {rewards.size} rewards for {candidates.shape[0]} candidates")
-        low = float(rewards.min())
-        self._worst_reward = low if self._worst_reward is None else min(self._worst_reward, low)
-        best = int(np.argmax(np.where(failed, -np.inf, rewards)))  # a failed episode is never the best
-        if not failed[best] and rewards[best] > self._best_reward:
-            self._best_reward = float(rewards[best])
-            self._best_params = candidates[best].copy()
+        rewards, _ = self._record_batch(candidates, rewards)
         mean, cov = self._update(candidates, rewards)
         if self.min_variance > 0:
             eigval, eigvec = np.linalg.eigh(cov)
@@ -187,10 +177,6 @@ class GaussianSearch(Optimizer):
         """Mix a fitted covariance into the current one with the covariance learning rate."""
         c = self.covariance_learning_rate
         return (1.0 - c) * self.cov + c * cov_fit
-
-    @property
-    def best(self) -> tuple[np.ndarray, float]:
-        return self._best_params.copy(), self._best_reward
 
     def stop(self) -> bool:
         return bool(np.sqrt(np.max(np.linalg.eigvalsh(self.cov))) < self.tol_std)
@@ -214,9 +200,7 @@ class GaussianSearch(Optimizer):
             "cov": self.cov,
             "n_evaluations": self.n_evaluations,
             "generation": self.generation,
-            "best_params": self._best_params,
-            "best_reward": float(self._best_reward),
-            "worst_reward": self._worst_reward,
+            **self._best_state(),
             "rng": self._rng_before_ask if self._rng_before_ask is not None else rng_state(self.rng),
         }
 
@@ -227,9 +211,7 @@ class GaussianSearch(Optimizer):
         opt = cls(np.asarray(state["mean"]), np.asarray(state["cov"]), rng_from_state(state["rng"]), **state["config"])
         opt.n_evaluations = int(state["n_evaluations"])
         opt.generation = int(state["generation"])
-        opt._best_params = np.asarray(state["best_params"], dtype=float)
-        opt._best_reward = float(state["best_reward"])
-        opt._worst_reward = None if state["worst_reward"] is None else float(state["worst_reward"])
+        opt._restore_best(state)
         return opt
 
 
