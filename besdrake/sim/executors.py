@@ -150,6 +150,12 @@ def _worker_batch(args) -> list[Outcome]:
     return _run_batch(_WORKER_ROLLOUT, items, limits)
 
 
+def _chunks(items: list, workers: int) -> list[list]:
+    """``items`` in consecutive chunks, about four per worker (load balance against per-chunk overhead)."""
+    size = math.ceil(len(items) / min(len(items), workers * 4))
+    return [items[i : i + size] for i in range(0, len(items), size)]
+
+
 def _worker_ready(_=None) -> str:
     return "" if _WORKER_ROLLOUT is not None else (_WORKER_ERROR or "not initialised")
 
@@ -177,9 +183,7 @@ class ProcessExecutor(Executor):
             raise ExecutorError(f"a worker could not build the simulation: {errors[0]}")
 
     def _evaluate(self, items):
-        n_chunks = min(len(items), self.workers * 4)
-        size = math.ceil(len(items) / n_chunks)
-        chunks = [items[i : i + size] for i in range(0, len(items), size)]
+        chunks = _chunks(items, self.workers)
         results = self._pool.map(_worker_batch, [(c, self.limits) for c in chunks], chunksize=1)
         return [o for chunk in results for o in chunk]
 
@@ -230,10 +234,7 @@ class RayExecutor(Executor):
             raise ExecutorError(f"a Ray worker could not build the simulation: {errors[0]}")
 
     def _evaluate(self, items):
-        n_chunks = min(len(items), self.workers * 4)
-        size = math.ceil(len(items) / n_chunks)
-        chunks = [items[i : i + size] for i in range(0, len(items), size)]
-        refs = [self._actors[i % self.workers].run.remote(c, self.limits) for i, c in enumerate(chunks)]
+        refs = [self._actors[i % self.workers].run.remote(c, self.limits) for i, c in enumerate(_chunks(items, self.workers))]
         return [o for chunk in self._ray.get(refs) for o in chunk]
 
     def close(self) -> None:
