@@ -197,13 +197,15 @@ class Rollout:
         )
         apply_effects(setup, effects_done)
         cmd = setup.plan
+        qd_all = cmd.knot_velocities()
+        if cmd.qd is None:  # the same interpolation, with the spline fitted once instead of at every sample()
+            cmd = MotionPlan(t=cmd.t, q=cmd.q, qd=qd_all, meta=cmd.meta)
         self._cmd = cmd
         # The discrete plant's implicit PD acts on the state at the end of each step, but the source is
         # sampled at its start: lead the reference by one step so that the logged joint angles at time t
         # track the plan at t for every step size (a pure time shift: it does not change where the ball lands).
         # After its end a plan holds its last position at rest (a 1 ms stop segment if it ends moving;
         # Drake's PiecewisePolynomial would otherwise keep commanding the final velocity).
-        qd_all = cmd.knot_velocities()
         if np.any(qd_all[-1] != 0.0):
             t_ext = np.append(cmd.t, cmd.duration + 1e-3)
             cmd_src = MotionPlan(t=t_ext, q=np.vstack([cmd.q, cmd.q[-1]]), qd=np.vstack([qd_all, np.zeros(6)]))
