@@ -510,6 +510,13 @@ def run_contextual_search(
     log = _EpisodeLog(None if out is None else out / EPISODES_FILE, optimizer.n_params, optimizer.n_context)
     resumed = loop is not None or bool(log.rows)
     stop_reason = "budget"
+    # the shared evaluation of run_search, on joint rows (context, params)
+    nc = optimizer.n_context
+    evaluator = _Evaluator(
+        None if evaluate_batch is None else lambda rows: evaluate_batch(rows[:, :nc], rows[:, nc:]),
+        None if evaluate is None else lambda row: evaluate(row[:nc], row[nc:]),
+        None,
+    )
     while told < n_episodes:
         k = min(batch_size, n_episodes - told)
         contexts = np.zeros((k, optimizer.n_context))
@@ -518,27 +525,13 @@ def run_contextual_search(
             contexts[i] = np.asarray(optimizer.select_context(bounds), dtype=float).ravel()
             params[i] = np.asarray(optimizer.ask(contexts[i]), dtype=float).ravel()
         raw, failed, done = log.replay(generation, params, contexts, out)
-        todo = [i for i in range(k) if not done[i]]
-        results: list[tuple[int, float, str]] = []
-        if evaluate_batch is not None and todo:
-            try:
-                values = list(evaluate_batch(contexts[todo], params[todo]))
-            except Exception as err:
-                values = [err] * len(todo)
-            if len(values) != len(todo):
-                raise ValueError(f"evaluate_batch returned {len(values)} rewards for {len(todo)} episodes")
-            results = [(i, *_as_reward(value)) for i, value in zip(todo, values)]
-            log.append(*(_Row(generation, i, r, bool(e), e, contexts[i], params[i]) for i, r, e in results))
-        elif evaluate is not None:
-            for i in todo:
-                try:
-                    reward, error = _as_reward(evaluate(contexts[i], params[i]))
-                except Exception as err:
-                    reward, error = np.nan, _error_text(err)
-                results.append((i, reward, error))
-                log.append(_Row(generation, i, reward, bool(error), error, contexts[i], params[i]))
-        for i, reward, error in results:
-            raw[i], failed[i] = reward, bool(error)
+
+        def record(results: list[tuple[int, float, str]]) -> None:
+            for i, reward, error in results:
+                raw[i], failed[i] = reward, bool(error)
+            log.append(*(_Row(generation, i, reward, bool(error), error, contexts[i], params[i]) for i, reward, error in results))
+
+        evaluator.run(np.hstack([contexts, params]), [i for i in range(k) if not done[i]], record)
         for i in range(k):
             optimizer.tell(contexts[i], params[i], np.nan if failed[i] else float(raw[i]))
         generation += 1
