@@ -49,6 +49,9 @@ def _draw(effect: str, rng: np.random.Generator) -> dict:
         if rng.random() < 0.5:
             return {effect: {"mass": round(rng.uniform(0.09, 0.15), 3)}}
         return {effect: {"radius": round(rng.uniform(0.040, 0.045), 4)}}
+    if effect == "ball_placement":
+        p = str(rng.choice(["x", "y"]))
+        return {effect: {p: round(sign * rng.uniform(0.002, 0.005), 4)}}
     if effect == "scoop_friction":
         mu = rng.uniform(0.12, 0.3)
         return {effect: {"mu_static": round(mu, 3), "mu_dynamic": round(0.8 * mu, 3)}}
@@ -100,6 +103,57 @@ def _strip(ms):
     return [Measurement(trial=m.trial, plan=m.plan, touchdown=m.touchdown, flags=dict(m.flags), message=m.message, meta=dict(m.meta)) for m in ms]
 
 
+def _summarize(results: list[dict], modes: list[str], args, t_bench: float) -> dict:
+    """Rates, confusion tables, gain against the noise floor and wall times per mode."""
+
+    def rate(rows, key):
+        return float(np.mean([r[key] for r in rows])) if rows else None
+
+    out = {"config": vars(args), "machine_note": "2 shared cores (other jobs running): wall times are noisy", "bench_wall_s": time.perf_counter() - t_bench}
+    for mode in modes:
+        known = [r for r in results if r["mode"] == mode and not r["unknown"] and "error" not in r]
+        conf: dict[str, dict[str, int]] = {}
+        for r in known:
+            t = " + ".join(sorted(r["hidden"]))
+            p = " + ".join(r["best"]) or "none"
+            conf.setdefault(t, {}).setdefault(p, 0)
+            conf[t][p] += 1
+        ok_or_honest = [r["correct"] or r["honest_cannot_tell"] for r in known]
+        # Touchdown-only logs cannot show an effect that does not move the touchdown: there "the nominal
+        # simulation agrees within the noise" is the honest answer.
+        detect = [r for r in known if r.get("touchdown_detectable", True)]
+        undetect = [r for r in known if not r.get("touchdown_detectable", True)]
+        ratios = [r["after_over_floor"] for r in known if r["correct"] and r["after_over_floor"] is not None]
+        unk = [r for r in results if r["mode"] == mode and r["unknown"] and "error" not in r]
+        walls = [r["wall_s"] for r in results if r["mode"] == mode and "error" not in r]
+        gb = [r["gain_before_m"] for r in known if r["gain_before_m"] is not None]
+        ga = [r["gain_after_m"] for r in known if r["gain_after_m"] is not None]
+        out[mode] = {
+            "n_known_trials": len(known),
+            "right_cause_rate": rate(known, "correct"),
+            "right_or_honest_cannot_tell_rate": float(np.mean(ok_or_honest)) if ok_or_honest else None,
+            "explained_rate_known": rate(known, "explained"),
+            "n_touchdown_detectable": len(detect),
+            "right_or_honest_rate_touchdown_detectable": float(np.mean([r["correct"] or r["honest_cannot_tell"] for r in detect])) if detect else None,
+            "undetectable_answered_nominal_agrees_or_honest": int(sum(r["nominal_agrees"] or r["correct"] or r["honest_cannot_tell"] for r in undetect)),
+            "n_touchdown_undetectable": len(undetect),
+            "confusion": conf,
+            "heldout_after_over_noise_floor_median": float(np.median(ratios)) if ratios else None,
+            "heldout_after_over_noise_floor_max": float(np.max(ratios)) if ratios else None,
+            "heldout_before_median_m": float(np.median(gb)) if gb else None,
+            "heldout_after_median_m": float(np.median(ga)) if ga else None,
+            "noise_floor_median_m": float(np.median([r["noise_floor_m"] for r in known])) if known else None,
+            "unknown_trials": len(unk),
+            "unknown_explained_with_high_confidence": int(sum(r["explained"] and r["confidence"] == "high" for r in unk)),
+            "unknown_explained_any": int(sum(r["explained"] for r in unk)),
+            "wall_s_median": float(np.median(walls)) if walls else None,
+            "wall_s_max": float(np.max(walls)) if walls else None,
+            "errors": [r for r in results if r["mode"] == mode and "error" in r],
+        }
+    out["trials"] = results
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--trials", type=int, default=40, help="hidden-effect trials (known effects)")
@@ -110,6 +164,7 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--modes", default="full,touchdown")
     ap.add_argument("--progress", action="store_true", help="one line per diagnosis on stderr")
+    ap.add_argument("--out", default=None, help="also (re)write the summary JSON to this file after every diagnosis")
     args = ap.parse_args(argv)
 
     from besdrake.diagnosis import diagnose, diagnosis_plans
@@ -126,20 +181,35 @@ def main(argv=None) -> int:
     t_bench = time.perf_counter()
     with make_executor("process", workers=args.workers, scenario="nominal", limits="flag") as ex:
         n_total = args.trials + args.unknown
+        # Unknown-effect trials interleaved evenly with the known ones (a cut-short run still has some).
+        every = max(1, n_total // max(args.unknown, 1))
+        unknown_at = {every * (j + 1) - 1 for j in range(args.unknown)}
+        k_known = k_unknown = 0
         for i in range(n_total):
             rng = np.random.default_rng([args.seed, i])
-            unknown = i >= args.trials
-            hidden = draw_unknown(i - args.trials, rng) if unknown else _draw(registry[i % len(registry)], rng)
+            unknown = i in unknown_at
+            if unknown:
+                hidden = draw_unknown(k_unknown, rng)
+                k_unknown += 1
+            else:
+                hidden = _draw(registry[k_known % len(registry)], rng)
+                k_known += 1
             plans = diagnosis_plans(args.throws, args.repeats, seed=1000 * args.seed + i)
             lab = VirtualLab({"name": "bench_lab", "effects": hidden, "seed": 1000 * args.seed + i})
             ms = [lab.execute(p) for p in plans]
             # The lab's noise floor: median touchdown disparity of the TRUE model on the same throws.
-            floor_d = []
+            # Detectability from the touchdown alone: chi-square of the true effect's touchdown shift against the
+            # lab's touchdown noise (about 5.4 cm per axis with placement), > 20 = detectable with this log.
+            floor_d, shift2 = [], 0.0
             for m in ms:
                 o = truth_roll.rollout(m.plan, effects=hidden, limits="flag")
+                o0 = truth_roll.rollout(m.plan, limits="flag")
                 if m.touchdown is not None and o.touchdown is not None:
                     floor_d.append(float(np.linalg.norm(m.touchdown - o.touchdown)))
+                    if o0.touchdown is not None:
+                        shift2 += float(np.sum((o.touchdown - o0.touchdown) ** 2))
             floor = float(np.median(floor_d)) if floor_d else float("nan")
+            td_detectable = shift2 / 0.054**2 > 20.0
             cache: dict = {}
             for mode in modes:
                 log = ms if mode == "full" else _strip(ms)
@@ -162,48 +232,19 @@ def main(argv=None) -> int:
                     "gain_before_m": d.gain.median_disparity_before_m if d.gain else None,
                     "gain_after_m": d.gain.median_disparity_after_m if d.gain else None,
                     "noise_floor_m": floor,
+                    "touchdown_detectable": td_detectable,
+                    "nominal_agrees": not d.best.effects if d.best else True,
                     "after_over_floor": (d.gain.median_disparity_after_m / floor) if d.gain and floor > 0 else None,
                     "wall_s": wall, "rollouts": d.n_rollouts,
                 }
                 results.append(row)
+                if args.out:
+                    with open(args.out, "w") as fh:
+                        json.dump(_summarize(results, modes, args, t_bench), fh, indent=1, default=float)
                 if args.progress:
                     print(json.dumps({k: row[k] for k in ("trial", "mode", "hidden", "best", "explained", "confidence", "correct", "honest_cannot_tell", "after_over_floor", "wall_s")}), file=sys.stderr, flush=True)
 
-    def rate(rows, key):
-        return float(np.mean([r[key] for r in rows])) if rows else None
-
-    out = {"config": vars(args), "machine_note": "2 shared cores (other jobs running): wall times are noisy", "bench_wall_s": time.perf_counter() - t_bench}
-    for mode in modes:
-        known = [r for r in results if r["mode"] == mode and not r["unknown"] and "error" not in r]
-        conf: dict[str, dict[str, int]] = {}
-        for r in known:
-            t = " + ".join(sorted(r["hidden"]))
-            p = " + ".join(r["best"]) or "none"
-            conf.setdefault(t, {}).setdefault(p, 0)
-            conf[t][p] += 1
-        ok_or_honest = [r["correct"] or r["honest_cannot_tell"] for r in known]
-        ratios = [r["after_over_floor"] for r in known if r["correct"] and r["after_over_floor"] is not None]
-        unk = [r for r in results if r["mode"] == mode and r["unknown"] and "error" not in r]
-        walls = [r["wall_s"] for r in results if r["mode"] == mode and "error" not in r]
-        out[mode] = {
-            "n_known_trials": len(known),
-            "right_cause_rate": rate(known, "correct"),
-            "right_or_honest_cannot_tell_rate": float(np.mean(ok_or_honest)) if ok_or_honest else None,
-            "explained_rate_known": rate(known, "explained"),
-            "confusion": conf,
-            "heldout_after_over_noise_floor_median": float(np.median(ratios)) if ratios else None,
-            "heldout_after_over_noise_floor_max": float(np.max(ratios)) if ratios else None,
-            "heldout_before_median_m": float(np.median([r["gain_before_m"] for r in known if r["gain_before_m"] is not None])) if known else None,
-            "heldout_after_median_m": float(np.median([r["gain_after_m"] for r in known if r["gain_after_m"] is not None])) if known else None,
-            "noise_floor_median_m": float(np.median([r["noise_floor_m"] for r in known])) if known else None,
-            "unknown_trials": len(unk),
-            "unknown_explained_with_high_confidence": int(sum(r["explained"] and r["confidence"] == "high" for r in unk)),
-            "unknown_explained_any": int(sum(r["explained"] for r in unk)),
-            "wall_s_median": float(np.median(walls)) if walls else None,
-            "wall_s_max": float(np.max(walls)) if walls else None,
-            "errors": [r for r in results if r["mode"] == mode and "error" in r],
-        }
-    out["trials"] = results
+    out = _summarize(results, modes, args, t_bench)
     print(json.dumps(out, indent=1, default=float))
     return 0
 

@@ -510,7 +510,14 @@ def diagnose(
                                  + ", ".join(f"{g} {v:.2f} noise SD" for g, v in size.items()) + f" (median): not claimed, below the {MATERIAL} SD materiality threshold")
                     best_fit, changed = sub_fit, True
                     break
+        # Rivals that were not refined but whose linear fit is about as likely as the chosen cause: refine them
+        # too, so that "cannot tell apart" is judged on real rollouts.
+        rivals = [f for f in fits if not f.refined and f.effects and not set(best_fit.effects) <= set(f.effects)
+                  and f.chi2 < best_fit.chi2 + INDISTINGUISHABLE_DBIC]
+        for f in sorted(rivals, key=lambda f: f.chi2)[:3]:
+            fitting.refine(prob, f, lambda e: sim.one(e), iterations=refine_iterations)
         fits.remove(best_fit)
+        fits.sort(key=lambda f: (f.bic if f.refined else np.inf, f.bic))
         fits.insert(0, best_fit)
         fitting.jacobian_at(prob, best_fit, lambda effs: sim.features(effs))
         groups_used = [g for g in measured_groups]
@@ -527,7 +534,9 @@ def diagnose(
         none_c = next(c for c in causes if not c.effects)
         indist = []
         for f, c in zip(fits[1:], causes[1:]):
-            if not f.refined or c.delta_bic >= INDISTINGUISHABLE_DBIC or not c.effects:
+            # Indistinguishable: about as likely (|delta chi2| < threshold, whatever the parameter count) or as good by BIC.
+            same_likelihood = abs(c.chi2 - best.chi2) < INDISTINGUISHABLE_DBIC
+            if not f.refined or not c.effects or not (c.delta_bic < INDISTINGUISHABLE_DBIC or same_likelihood):
                 continue
             if set(best.effects) <= set(c.effects):
                 continue  # the best plus an effect it does not need
