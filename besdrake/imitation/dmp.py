@@ -124,7 +124,60 @@ def substeps(dt: float, int_dt: float) -> int:
     return max(1, math.ceil(dt / int_dt - 1e-9))
 
 
-class DMP:
+class _WeightedDMP:
+    """What the DMPs of this package share (base class): forcing-term weights ``(n_dims, n_weights_per_dim)``
+    on a radial basis and the meta-parameters ``execution_time``, ``int_dt``, ``alpha_y``, ``beta_y``,
+    validated on assignment."""
+
+    n_dims: int
+    basis: RadialBasis
+    weights: np.ndarray
+    alpha_y: np.ndarray
+    beta_y: np.ndarray
+    int_dt: float
+    execution_time: float
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        if name in ("execution_time", "int_dt"):
+            value = positive_float(name, value)
+        elif name in ("alpha_y", "beta_y"):
+            value = finite_array(name, value, (self.n_dims,))
+            if np.any(value <= 0.0):
+                raise DMPParameterError(f"{name} must be > 0, got {value}")
+        elif name == "weights":
+            value = finite_array("weights", value, (self.n_dims, self.n_weights_per_dim))
+        object.__setattr__(self, name, value)
+
+    @property
+    def n_weights_per_dim(self) -> int:
+        return self.basis.n_weights
+
+    @property
+    def n_weights(self) -> int:
+        """Total number of forcing-term weights."""
+        return self.n_dims * self.n_weights_per_dim
+
+    def get_weights(self) -> np.ndarray:
+        """Flat copy of the weights, dimension-major (all weights of dim 0 first)."""
+        return self.weights.ravel().copy()
+
+    def set_weights(self, weights: np.ndarray) -> None:
+        """Set the weights from a flat vector of length ``n_weights``."""
+        flat = finite_array("weights", weights, (self.n_weights,))
+        self.weights = flat.reshape(self.n_dims, self.n_weights_per_dim)
+
+    def _meta_dict(self) -> dict[str, Any]:
+        """The shared part of ``to_dict`` (SI units)."""
+        return {
+            "n_weights_per_dim": self.n_weights_per_dim,
+            "alpha_y": self.alpha_y.tolist(),
+            "beta_y": self.beta_y.tolist(),
+            "int_dt": self.int_dt,
+            "execution_time": self.execution_time,
+        }
+
+
+class DMP(_WeightedDMP):
     """Joint-space (or any vector-space) DMP with start, goal, goal velocity and execution time.
 
     Meta-parameters are attributes (validated on assignment): ``start``, ``goal``,
@@ -159,37 +212,11 @@ class DMP:
         self.goal_acceleration = zeros
         self.weights = np.zeros((self.n_dims, self.n_weights_per_dim))
 
-    # -- validated meta-parameters ------------------------------------------------------------
+    # -- validated meta-parameters (the shared ones in _WeightedDMP) ----------------------------
     def __setattr__(self, name: str, value: Any) -> None:
-        if name in ("execution_time", "int_dt"):
-            value = positive_float(name, value)
-        elif name in ("alpha_y", "beta_y"):
+        if name in _VECTOR_FIELDS:
             value = finite_array(name, value, (self.n_dims,))
-            if np.any(value <= 0.0):
-                raise DMPParameterError(f"{name} must be > 0, got {value}")
-        elif name in _VECTOR_FIELDS:
-            value = finite_array(name, value, (self.n_dims,))
-        elif name == "weights":
-            value = finite_array("weights", value, (self.n_dims, self.n_weights_per_dim))
-        object.__setattr__(self, name, value)
-
-    @property
-    def n_weights_per_dim(self) -> int:
-        return self.basis.n_weights
-
-    @property
-    def n_weights(self) -> int:
-        """Total number of forcing-term weights."""
-        return self.n_dims * self.n_weights_per_dim
-
-    def get_weights(self) -> np.ndarray:
-        """Flat copy of the weights, dimension-major (all weights of dim 0 first)."""
-        return self.weights.ravel().copy()
-
-    def set_weights(self, weights: np.ndarray) -> None:
-        """Set the weights from a flat vector of length ``n_weights``."""
-        flat = finite_array("weights", weights, (self.n_weights,))
-        self.weights = flat.reshape(self.n_dims, self.n_weights_per_dim)
+        super().__setattr__(name, value)
 
     def copy(self) -> "DMP":
         """Independent copy."""
@@ -350,11 +377,7 @@ class DMP:
         return {
             "type": "DMP",
             "n_dims": self.n_dims,
-            "n_weights_per_dim": self.n_weights_per_dim,
-            "alpha_y": self.alpha_y.tolist(),
-            "beta_y": self.beta_y.tolist(),
-            "int_dt": self.int_dt,
-            "execution_time": self.execution_time,
+            **self._meta_dict(),
             **{name: getattr(self, name).tolist() for name in _VECTOR_FIELDS},
             "weights": self.weights.tolist(),
         }

@@ -36,7 +36,7 @@ import numpy as np
 from besdrake.imitation import quaternion as quat
 from besdrake.imitation._validation import DMPParameterError, demonstration, finite_array, positive_float
 from besdrake.imitation.basis import RadialBasis, phase
-from besdrake.imitation.dmp import DEFAULT_ALPHA_Y, DEFAULT_BETA_Y, DEFAULT_INT_DT, END_TOLERANCE, MAX_SUBSTEPS, substeps
+from besdrake.imitation.dmp import DEFAULT_ALPHA_Y, DEFAULT_BETA_Y, DEFAULT_INT_DT, END_TOLERANCE, MAX_SUBSTEPS, _WeightedDMP, substeps
 
 
 @dataclass
@@ -54,8 +54,11 @@ class OrientationTrajectory:
     omega: np.ndarray
 
 
-class QuaternionDMP:
+class QuaternionDMP(_WeightedDMP):
     """Orientation DMP on unit quaternions; ``fit``, ``open_loop``, ``step``, weights get/set."""
+
+    #: Dimensions of the forcing term (angular, in the tangent space of the quaternions).
+    n_dims = 3
 
     def __init__(
         self,
@@ -73,17 +76,6 @@ class QuaternionDMP:
         self._start = np.array([1.0, 0.0, 0.0, 0.0])
         self._goal = np.array([1.0, 0.0, 0.0, 0.0])
         self.weights = np.zeros((3, self.n_weights_per_dim))
-
-    def __setattr__(self, name: str, value: Any) -> None:
-        if name in ("execution_time", "int_dt"):
-            value = positive_float(name, value)
-        elif name in ("alpha_y", "beta_y"):
-            value = finite_array(name, value, (3,))
-            if np.any(value <= 0.0):
-                raise DMPParameterError(f"{name} must be > 0, got {value}")
-        elif name == "weights":
-            value = finite_array("weights", value, (3, self.n_weights_per_dim))
-        object.__setattr__(self, name, value)
 
     @property
     def start(self) -> np.ndarray:
@@ -110,23 +102,9 @@ class QuaternionDMP:
         object.__setattr__(self, "_start", quat.unit("start", start))
         object.__setattr__(self, "_goal", quat.unit("goal", goal))
 
-    @property
-    def n_weights_per_dim(self) -> int:
-        return self.basis.n_weights
-
-    @property
-    def n_weights(self) -> int:
-        return 3 * self.n_weights_per_dim
-
     def copy(self) -> "QuaternionDMP":
         """Independent copy."""
         return QuaternionDMP.from_dict(self.to_dict())
-
-    def get_weights(self) -> np.ndarray:
-        return self.weights.ravel().copy()
-
-    def set_weights(self, weights: np.ndarray) -> None:
-        self.weights = finite_array("weights", weights, (self.n_weights,)).reshape(3, -1)
 
     # -- imitation ----------------------------------------------------------------------------
     def fit(self, t: np.ndarray, q: np.ndarray, regularization: float = 0.0) -> "QuaternionDMP":
@@ -235,11 +213,7 @@ class QuaternionDMP:
     def to_dict(self) -> dict[str, Any]:
         return {
             "type": "QuaternionDMP",
-            "n_weights_per_dim": self.n_weights_per_dim,
-            "alpha_y": self.alpha_y.tolist(),
-            "beta_y": self.beta_y.tolist(),
-            "int_dt": self.int_dt,
-            "execution_time": self.execution_time,
+            **self._meta_dict(),
             "start": self._start.tolist(),
             "goal": self._goal.tolist(),
             "weights": self.weights.tolist(),
