@@ -37,7 +37,7 @@ LINKS = [
     ("link5", 1.2, 0.346, "y", 0.04),
     ("link6", 0.3, 0.05, "z", 0.035),
 ]
-# name, parent, child, xyz, rpy, axis, limits, effort (N m)
+# name, parent, child, xyz, rpy, axis, effort (N m); position limits come from robot.POSITION_LIMITS
 JOINTS = [
     ("joint1", "linkmount", "link1", (0, 0, 0), (0, 0, 0), (0, 0, 1), 60),
     ("joint2", "link1", "link2", (0, 0, 0.158), (np.pi / 2, 0, 0), (0, 0, -1), 150),
