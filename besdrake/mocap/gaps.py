@@ -66,11 +66,8 @@ def _axis_frame(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray, n
 
 
 def _rigid_fill(pos: np.ndarray, c: int, a_idx: int, b_idx: int, g0: int, g1: int) -> np.ndarray | None:
-    """Fill rows g0..g1-1 of marker ``c`` from plate partners ``a_idx``, ``b_idx``; None if impossible."""
-    n = len(pos)
-    if g0 == 0 or g1 >= n:
-        return None
-    rows = np.arange(g0 - 1, g1 + 1)
+    """Fill rows g0..g1-1 (an inner gap) of marker ``c`` from plate partners ``a_idx``, ``b_idx``; None if impossible."""
+    rows = np.arange(g0 - 1, g1 + 1)  # an inner gap and its two edge samples (fill_gaps skips edge gaps)
     pa, pb, pc = pos[rows, a_idx], pos[rows, b_idx], pos[rows, c]
     if np.isnan(pa).any() or np.isnan(pb).any():
         return None
@@ -92,10 +89,9 @@ def _rigid_fill(pos: np.ndarray, c: int, a_idx: int, b_idx: int, g0: int, g1: in
     return filled[1:-1]
 
 
-def _spline_fill(t: np.ndarray, x: np.ndarray, g0: int, g1: int, context: int = 5) -> tuple[np.ndarray | None, str]:
+def _spline_fill(t: np.ndarray, x: np.ndarray, g0: int, g1: int, context: int = 5) -> tuple[np.ndarray, str]:
+    """Values for rows g0..g1-1 of ``x`` (an inner gap: 0 < g0, g1 < len(x)) and the method used."""
     n = len(x)
-    if g0 == 0 or g1 >= n:
-        return None, "at edge"
     lo = [i for i in range(g0 - 1, max(-1, g0 - 1 - context), -1) if not np.isnan(x[i]).any()]
     hi = [i for i in range(g1, min(n, g1 + context)) if not np.isnan(x[i]).any()]
     # Only use the contiguous visible run next to the gap.
