@@ -130,3 +130,30 @@ def test_diagnose_rejects_bad_input():
     refused = [Measurement(trial=i, plan=p, flags={"refused_by_safety_gate": True}) for i, p in enumerate(diagnosis_plans(8, 0))]
     with pytest.raises(DiagnosisError, match="usable"):
         diagnose(refused)
+
+
+def test_lack_of_fit_flags_a_residual_above_the_pure_error():
+    from besdrake.diagnosis.core import _lack_of_fit_p, _material_change
+
+    rng = np.random.default_rng(4)
+    N = 25
+    sd = noise.NoiseModel(sd={"touchdown": 0.05, "ball_pos": 0.01, "ball_vel": 0.05, "ball_acc": 0.3, "joints": 1e-3},
+                          dof={"touchdown": 16, "ball_pos": 0, "ball_vel": 0, "ball_acc": 0, "joints": 0}, source={})
+    y_fit = rng.normal(0, 1, (N, N_FEATURES))
+    y_meas = np.full_like(y_fit, np.nan)
+    sl = group_slices()
+    y_meas[:, sl["touchdown"]] = y_fit[:, sl["touchdown"]] + rng.normal(0, 0.05, (N, 2))
+    prob = fitting.Problem(y_meas, y_fit, sd.vector())
+    p_ok, _ = _lack_of_fit_p(prob, y_fit, 2, sd, ["touchdown"])
+    assert p_ok > 0.01
+    # A systematic 6 cm offset left over (what an unknown effect leaves): rejected.
+    biased = y_fit.copy()
+    biased[:, sl["touchdown"]] -= 0.06
+    p_bad, groups = _lack_of_fit_p(prob, biased, 2, sd, ["touchdown"])
+    assert p_bad < 0.01 and groups["touchdown:mean"] < 0.01
+    # Materiality: predictions 1 cm apart are 0.2 noise SD (not material), 5 cm apart are 1 SD.
+    other = y_fit.copy()
+    other[:, sl["touchdown"]] += 0.01
+    assert _material_change(y_fit, other, sd, ["touchdown"])["touchdown"] == pytest.approx(0.2)
+    other[:, sl["touchdown"]] += 0.04
+    assert _material_change(y_fit, other, sd, ["touchdown"])["touchdown"] == pytest.approx(1.0)

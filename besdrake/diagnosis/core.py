@@ -595,6 +595,11 @@ def diagnose(
             if len(a):
                 gain = Gain(float(np.median(b)), float(np.median(a)), _bootstrap_median_ci(b, rng), _bootstrap_median_ci(a, rng),
                             float(np.median(a) / max(np.median(b), 1e-12)), int(len(a)), folds, b.tolist(), a.tolist())
+        if gain is None and have_td.sum() >= 1 and not best_fit.effects:
+            # Nothing to refine: the refined model is the nominal one, before = after.
+            b = np.linalg.norm(y_meas[have_td][:, td] - y0[have_td][:, td], axis=1)
+            ci = _bootstrap_median_ci(b, rng)
+            gain = Gain(float(np.median(b)), float(np.median(b)), ci, ci, 1.0, int(len(b)), 0, b.tolist(), b.tolist())
         timings["heldout"] = time.perf_counter() - t0
 
         # ---------------------------------------------------------------- per-throw table

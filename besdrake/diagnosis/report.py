@@ -158,7 +158,11 @@ def _markdown(diag: Diagnosis, figures: list[str], scenario_path: Path | None) -
     L += ["", "## 4. The gain (throws held out from the fit)", ""]
     if diag.gain:
         g = diag.gain
-        L.append(f"{g.folds}-fold cross-validation by plan: every throw is predicted by a model fitted without its plan ({g.n_heldout} throws).")
+        if g.folds:
+            L.append(f"{g.folds}-fold cross-validation by plan: every throw is predicted by a model fitted without its plan ({g.n_heldout} throws); "
+                     "each fold's fit starts from the all-data optimum and is refitted on its training throws.")
+        else:
+            L.append("No effect fitted: the refined model is the nominal one (before = after).")
         L.append("")
         L.append("| | median touchdown disparity | 95% CI (bootstrap) |")
         L.append("|---|---|---|")
