@@ -2,7 +2,8 @@
 """Benchmark refinement in simulation: CMA-ES on the 49 DMP parameters of imitated throws; prints JSON.
 
 For each default synthetic subject (seed 0, subjects 0-9, all three experiments, given segmentation)
-all imitated throws are simulated once and every run starts CMA-ES (population 20) from the best of
+all imitated throws are simulated once and every run starts CMA-ES (population 10; the paper's 20 with
+``--popsize 20``) from the best of
 them (the paper: "all available motion plans"). A run stops at the first generation with a throw
 that lands within 0.1 m of the target (2, 0) m with no joint limit violated, or at ``--episodes``.
 
@@ -43,7 +44,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--backend", choices=["serial", "process"], default="serial")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--first-seed", type=int, default=0)
-    parser.add_argument("--popsize", type=int, default=20)
+    parser.add_argument("--popsize", type=int, default=10, help="CMA-ES population (the paper: 20)")
     parser.add_argument("--sigma0", type=float, default=1.0)
     parser.add_argument("--penalty-scale", type=float, default=1.0, help="multiply the limit-penalty weights of ThrowReward")
     args = parser.parse_args(argv)

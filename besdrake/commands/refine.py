@@ -27,7 +27,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--target", nargs=2, type=float, default=[2.0, 0.0], metavar=("X", "Y"), help="target on the floor, m (x forward, y lateral); default 2 0")
     parser.add_argument("--runs", type=int, default=1, help="independent CMA-ES runs (seeds SEED, SEED+1, ...); the paper: 6")
     parser.add_argument("--episodes", type=int, default=2000, help="episode budget per run (the paper: at most 10000)")
-    parser.add_argument("--popsize", type=int, default=20, help="CMA-ES population (the paper: 20)")
+    parser.add_argument("--popsize", type=int, default=10, help="CMA-ES population (default 10, measured better here; the paper: 20)")
     parser.add_argument("--sigma0", type=float, default=1.0, help="initial step size in normalised units")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--continue-after-success", action="store_true", help="use the whole budget instead of stopping at the first success")
