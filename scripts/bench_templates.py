@@ -36,7 +36,7 @@ def main(argv: list[str] | None = None) -> int:
     from besdrake.sim import make_executor
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--methods", nargs="+", default=["es", "ucb"], choices=["es", "ucb", "aces"])
+    parser.add_argument("--methods", nargs="+", default=["es", "ucb"], choices=["es", "ucb", "aces", "creps"])
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--first-seed", type=int, default=0)
     parser.add_argument("--episodes", type=int, default=80)

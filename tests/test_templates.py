@@ -174,3 +174,12 @@ def test_template_cli_train_list_instantiate(tmp_path):
     assert main(["template", "instantiate", "t1", *common]) == 2  # no --target
     assert main(["template", "eval", "missing", *common]) == 2
     assert json.loads((pool / "pool.json").read_text())["templates"]["t1"]["provenance"]["method"] == "ucb"
+
+
+def test_creps_baseline_trains_saves_and_loads(base, tmp_path):
+    tr = train_template(base, PolarStandIn(), "creps", 40, seed=0, name="creps")
+    assert tr.loop.n_evaluations == 40 and tr.loop.optimizer.n_updates == 2
+    pool = TemplatePool(tmp_path)
+    pool.add(tr.template)
+    s = [1.9, 0.4]
+    assert np.array_equal(pool.instantiate("creps", s).q, tr.template.instantiate(s).q)

@@ -28,7 +28,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("name_or_base", nargs="?", help="train: base DMP file or 'default'; eval/instantiate: template name")
     parser.add_argument("--pool", type=Path, default=Path("runs/templates"), help="template pool folder")
     parser.add_argument("--name", default=None, help="train: name of the new template (default: method_seed)")
-    parser.add_argument("--method", choices=("es", "ucb", "aces"), default="es", help="es: BO-CPS entropy search; ucb: upper confidence bound; aces: active context selection")
+    parser.add_argument("--method", choices=("es", "ucb", "aces", "creps"), default="es", help="es: BO-CPS entropy search; ucb: upper confidence bound; aces: active context selection; creps: C-REPS baseline")
     parser.add_argument("--episodes", type=int, default=80)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--joint1-mode", choices=("rotate", "goal"), default="rotate", help="rotate: the joint-1 start moves with its goal (default); goal: the paper-literal goal only")

@@ -20,7 +20,8 @@ barely follows the goal (in our simulation a goal change of 0.4 rad moves the to
 
 :func:`train_template` learns the policy by contextual policy search through the resumable loop
 (:func:`besdrake.search.loop.run_contextual_search`): BO-CPS with entropy search (``"es"``) or upper
-confidence bound (``"ucb"``), ACES (``"aces"``, active context selection). Reward: minus the squared
+confidence bound (``"ucb"``), ACES (``"aces"``, active context selection), or C-REPS (``"creps"``, linear
+policy, 20 episodes per update; a baseline). Reward: minus the squared
 touchdown distance (m^2), as in the paper; a rollout without touchdown or a failed simulation is a
 failed episode. :meth:`BehaviorTemplate.instantiate` returns the :class:`~besdrake.plan.MotionPlan`
 for a target; :class:`TemplatePool` stores templates as JSON + npz with their provenance.
@@ -48,7 +49,7 @@ from besdrake.search.refinement import MIN_EXECUTION_TIME, PLAN_DT
 CONTEXT_BOUNDS = np.array([[1.0, 2.5], [-1.0, 1.0]])
 #: The paper's 16 test contexts as (x forward, y lateral) rows (never used for training).
 TEST_CONTEXTS = np.array([[x, y] for x in (1.3, 1.6, 1.9, 2.2) for y in (-0.7, -0.2, 0.2, 0.7)])
-METHODS = ("es", "ucb", "aces")
+METHODS = ("es", "ucb", "aces", "creps")
 JOINT1_MODES = ("rotate", "goal")
 META_NAMES = ("execution_time", "goal.joint1")
 #: Paper's results on the real robot after 80 episodes (mean distance over the test contexts, cm).
@@ -126,10 +127,16 @@ def _make_optimizer(method: str, meta_bounds: np.ndarray, seed: int, **kwargs: A
         return ACES(CONTEXT_BOUNDS, meta_bounds, rng=rng, **kwargs)
     if method in ("es", "ucb"):
         return BOCPS(CONTEXT_BOUNDS, meta_bounds, method, rng=rng, **kwargs)
+    if method == "creps":
+        from besdrake.search.creps import CREPS
+
+        width = meta_bounds[:, 1] - meta_bounds[:, 0]
+        settings = {"n_samples_per_update": 20, "context_bounds": CONTEXT_BOUNDS} | kwargs
+        return CREPS(meta_bounds.mean(axis=1), len(CONTEXT_BOUNDS), np.diag((width / 4.0) ** 2), rng, **settings)
     raise TemplateError(f"unknown method {method!r}; choose one of {METHODS}")
 
 
-_OPTIMIZER_TYPES = {"BOCPS": "besdrake.search.bocps", "ACES": "besdrake.search.aces"}
+_OPTIMIZER_TYPES = {"BOCPS": "besdrake.search.bocps", "ACES": "besdrake.search.aces", "CREPS": "besdrake.search.creps"}
 
 
 def _optimizer_from_state(state: dict[str, Any]):
@@ -384,7 +391,8 @@ def train_template(
     optimizer = _make_optimizer(method, bounds, seed, **(optimizer_kwargs or {}))
 
     def evaluate(context: np.ndarray, theta: np.ndarray) -> float:
-        td = touchdowns([meta.plan(theta)], executor)[0]
+        # C-REPS samples from a Gaussian: execute the nearest parameters inside the box
+        td = touchdowns([meta.plan(np.clip(theta, bounds[:, 0], bounds[:, 1]))], executor)[0]
         if not np.isfinite(td).all():
             raise RuntimeError("no touchdown (never released or simulation failed)")
         return -float(np.sum((td - context) ** 2))
