@@ -78,6 +78,7 @@ class Cause:
     p_value: float
     unobservable: list[str] = field(default_factory=list)
     p_groups: dict[str, float] = field(default_factory=dict)
+    k_eff: float = 0.0
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -89,6 +90,7 @@ class Cause:
             "chi2": self.chi2,
             "n": self.n,
             "k": self.k,
+            "k_effective": self.k_eff,
             "refined_with_rollouts": self.refined,
             "p_value": self.p_value,
             "p_value_by_group": self.p_groups,
@@ -527,7 +529,7 @@ def diagnose(
                 p, p_groups = _lack_of_fit_p(prob, f.y_fit, f.k, nm, groups_used)
             else:
                 p, p_groups = float("nan"), {}
-            causes.append(Cause(f.effects, f.parameter_table(), f.bic, f.bic - best_fit.bic, f.chi2, f.n, f.k, f.refined, p, f.unobservable, p_groups))
+            causes.append(Cause(f.effects, f.parameter_table(), f.bic, f.bic - best_fit.bic, f.chi2, f.n, f.k, f.refined, p, f.unobservable, p_groups, f.k_eff))
         best = causes[0]
 
         # ---------------------------------------------------------------- verdict

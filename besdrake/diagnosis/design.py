@@ -15,7 +15,7 @@ from besdrake.plan import MotionPlan
 from besdrake.sim.throws import default_throw
 
 #: Ranges of the default-throw parameters used for diagnosis plans.
-AMPLITUDE_RANGE = (0.2, 0.53)
+AMPLITUDE_RANGE = (0.25, 0.53)
 YAW_RANGE = (-0.35, 0.35)
 ACCEL_RANGE = (18.5, 19.0)
 

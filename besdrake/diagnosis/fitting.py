@@ -125,8 +125,23 @@ class CandidateFit:
     fresh_jacobian: bool = False  # stderr from a finite-difference Jacobian at the optimum (else Broyden's)
 
     @property
+    def k_eff(self) -> float:
+        """Effective number of parameters: trace of the hat matrix of the (weak-prior) Gauss-Newton fit, so a
+        parameter the data do not constrain (prior-dominated) counts ~0 and a well-determined one ~1."""
+        if not self.specs or self.jac is None or self.jac.shape[1] == 0:
+            return 0.0
+        A = self.jac
+        P, _ = _prior_rows(self.specs, self.theta)
+        AtA = A.T @ A
+        try:
+            return float(np.trace(np.linalg.solve(AtA + P.T @ P, AtA)))
+        except np.linalg.LinAlgError:
+            return float(self.k)
+
+    @property
     def bic(self) -> float:
-        return float(self.chi2 + self.k * np.log(max(self.n, 1)))
+        """BIC = chi2 + k_eff ln n (see :attr:`k_eff`)."""
+        return float(self.chi2 + self.k_eff * np.log(max(self.n, 1)))
 
     @property
     def name(self) -> str:
