@@ -103,8 +103,6 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _train(args, pool) -> int:
-    import numpy as np
-
     from besdrake.cli import UserError
     from besdrake.imitation import DMPParameterError, load_dmp
     from besdrake.search.loop import ResumeError

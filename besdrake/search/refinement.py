@@ -26,7 +26,13 @@ changes all 49 parameters so the ball lands within :data:`SUCCESS_DISTANCE` of a
   +-:data:`WEIGHT_BOUND_UNITS` units of the imitated value.
 * :class:`RefinementProblem` evaluates batches of normalised candidates through a rollout executor
   (:func:`besdrake.sim.make_executor`), keeps a per-episode record, and :func:`refine` runs CMA-ES
-  (population :data:`DEFAULT_POPSIZE` = 10; the paper used 20, see the constant's comment) through the resumable search loop (:func:`besdrake.search.loop.run_search`).
+  (population :data:`DEFAULT_POPSIZE` = 10; the paper used 20, see the constant's comment) through the
+  resumable search loop (:func:`besdrake.search.loop.run_search`). The per-episode record
+  (touchdown, distance, penalty, flags) goes to ``details.csv`` beside the loop's ``episodes.csv``,
+  keyed by :func:`params_key`, so a resumed run knows the distances of the episodes before the restart.
+
+Success of a run: the first episode whose touchdown is within :data:`SUCCESS_DISTANCE` of the target
+with no limit violated (``penalty == 0``); :func:`refine` stops after that generation by default.
 """
 
 from __future__ import annotations
