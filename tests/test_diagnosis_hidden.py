@@ -50,7 +50,7 @@ def test_cli_finds_a_hidden_effect_in_a_full_log(tmp_path, capsys):
     rng = np.random.default_rng(20261121)
     hidden = draw_effect(rng, [("base_offset", "z"), ("actuator_lag", "tau"), ("air_drag", "cd")])
     logdir = tmp_path / "log"
-    run_lab(hidden, n=10, repeats=3, seed=5, logdir=logdir)
+    run_lab(hidden, n=8, repeats=3, seed=5, logdir=logdir)
     out = tmp_path / "diag"
     rc = main(["diagnose", str(logdir), "--out", str(out), "--candidates", "base_offset,actuator_lag,air_drag", "--no-pairs",
                "--backend", "serial", "--folds", "2", "--json"])

@@ -38,6 +38,8 @@ MIN_THROWS = 6
 #: An effect is claimed only if it changes the predicted touchdowns or joint tracking by at least this many
 #: noise SDs (median over throws); smaller effects are reported in the notes as not material.
 MATERIAL = 0.25
+#: For the ball-path groups the materiality threshold is this many times higher (1 noise SD).
+MATERIAL_BALL_FACTOR = 4.0
 #: An explanation is "confident" when its lack-of-fit p-value is at least this and no rival is as good.
 CONFIDENT_P = 0.05
 
@@ -270,17 +272,21 @@ def _bootstrap_median_ci(x: np.ndarray, rng: np.random.Generator, n_boot: int = 
 
 
 def _material_change(y_a: np.ndarray, y_b: np.ndarray, nm: noise.NoiseModel, groups: list[str]) -> dict[str, float]:
-    """Median over throws of the RMS prediction difference of two fits, in noise SDs, for the touchdown and
-    joint-tracking groups that were measured (touchdown always: it is what a refined model is for)."""
+    """Median over throws of the RMS prediction difference of two fits, in units of the materiality scale: noise
+    SDs for the touchdown (always: it is what a refined model is for) and joint tracking, 4 noise SDs for the
+    ball-path groups (when measured)."""
     sl = group_slices()
     out = {}
-    for g in ("touchdown", "joints"):
+    for g in ("touchdown", "joints", "ball_pos", "ball_vel", "ball_acc"):
         if g != "touchdown" and g not in groups:
             continue
         d = y_a[:, sl[g]] - y_b[:, sl[g]]
         rms = np.sqrt(np.nanmean(d * d, axis=1))
         rms = rms[np.isfinite(rms)]
-        out[g] = float(np.median(rms) / nm.sd[g]) if rms.size else 0.0
+        # The ball path counts at 1/MATERIAL_BALL_FACTOR the weight: small systematic path differences (e.g. from
+        # how the ball is placed) that hardly move the touchdown are not worth an extra cause.
+        scale = MATERIAL_BALL_FACTOR if g.startswith("ball") else 1.0
+        out[g] = float(np.median(rms) / (nm.sd[g] * scale)) if rms.size else 0.0
     return out
 
 
