@@ -19,9 +19,10 @@ QUICK: dict[str, Any] = {
     "demonstrations": {"experiments": [0]},
     "classifier": {"training_subjects": [5, 6]},
     "imitation": {"max_throws": 2},
-    "refinement": {"plans": 1, "evaluations": 100, "population": 10},
-    "transfer": {"population": 12, "max_transfers": 3},
-    "templates": {"episodes": 12},
+    "refinement": {"plans": 1, "evaluations": 60, "population": 10},
+    "transfer": {"population": 8, "max_transfers": 2, "final_repetitions": 1},
+    "diagnosis": {"throws": 12, "repeats": 4, "pairs": False},
+    "templates": {"episodes": 10},
 }
 
 

@@ -180,6 +180,9 @@ def stage_segment(ctx: Context, out: Path) -> dict[str, Any]:
             found.append(Segment(int(pre.frames[a]), int(pre.frames[b]), label))
         cls_cpu = time.process_time() - t2
         write_segmentation(found, out / f"{tsv.stem}_segments.json")
+        if not results:  # one figure: the first recording's hand speed with the borders
+            _plot_segmentation(pre, found, read_segmentation(tsv.with_name(tsv.stem + "_manually_segmented.json"))
+                               if tsv.with_name(tsv.stem + "_manually_segmented.json").is_file() else None, out / f"{tsv.stem}_segments.png")
         entry = {"name": tsv.stem, "segments": len(found), "throws": sum(s.label == "throw" for s in found),
                  "segmentation_cpu_s": seg_cpu, "classification_cpu_s": cls_cpu, "duration_s": float(pre.time[-1] - pre.time[0])}
         manual = tsv.with_name(tsv.stem + "_manually_segmented.json")
@@ -201,6 +204,34 @@ def stage_segment(ctx: Context, out: Path) -> dict[str, Any]:
         "throws": sum(r["throws"] for r in results),
         "real_time_factor": sum(r["duration_s"] for r in results) / max(sum(r["segmentation_cpu_s"] for r in results), 1e-9),
     }
+
+
+def _plot_segmentation(pre, found, manual, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    speed = np.linalg.norm(pre.hand_velocity_back, axis=1)
+    fig, ax = plt.subplots(figsize=(12, 3.5))
+    ax.plot(pre.time, speed, "k-", lw=0.8, label="hand speed")
+    t_of = dict(zip(pre.frames.tolist(), pre.time.tolist()))
+    colors = {"throw": "tab:red", "strike_out": "tab:orange", "swing_out": "tab:blue", "idle": "tab:grey"}
+    for seg in found:
+        t0, t1 = t_of.get(seg.start_frame), t_of.get(seg.end_frame)
+        if t0 is not None and t1 is not None:
+            ax.axvspan(t0, t1, color=colors.get(seg.label, "tab:green"), alpha=0.25, lw=0)
+            ax.axvline(t0, color="tab:red", lw=0.6)
+    for seg in manual or []:
+        t0 = t_of.get(seg.start_frame)
+        if t0 is not None:
+            ax.axvline(t0, color="k", ls=":", lw=0.8)
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("m/s")
+    ax.set_title("vMCI borders (red lines), 1-NN labels (shading: throw red, strike_out orange, swing_out blue, idle grey), manual borders (dotted)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
 
 
 # --------------------------------------------------------------------------------------------
@@ -241,3 +272,358 @@ def stage_imitate(ctx: Context, out: Path) -> dict[str, Any]:
         "median_target_distance_m": float(np.median(dists)) if dists else None,
         "min_target_distance_m": float(min(dists)) if dists else None,
     }
+
+
+# --------------------------------------------------------------------------------------------
+# 4. refinement in simulation
+# --------------------------------------------------------------------------------------------
+def _executor(ctx: Context, scenario: str):
+    from besdrake.sim import make_executor
+
+    workers = int(ctx.config["workers"])
+    if workers > 1:
+        return make_executor("process", workers=workers, scenario=scenario)
+    return make_executor("serial", scenario=scenario)
+
+
+def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int, tag: str) -> dict[str, Any]:
+    """CMA-ES from the best of ``dmps`` (the paper uses all available plans) in ``scenario``."""
+    from besdrake.imitation import DMPParameterization
+    from besdrake.search.refinement import RefinementProblem, ThrowReward, best_start, refine
+
+    cfg = ctx.config["refinement"]
+    reward = ThrowReward(target=tuple(cfg["target"]))
+    problems = [RefinementProblem(d, reward) for d in dmps]
+    runs = []
+    with _executor(ctx, scenario) as executor:
+        index, start = best_start(problems, executor)
+        problem = problems[index]
+        for k in range(int(cfg["plans"])):
+            ctx.progress(f"{tag}: CMA-ES run {k + 1}/{cfg['plans']} from throw {index} ({start.distance:.2f} m from the target)")
+            result = refine(problem, executor, n_episodes=int(budget), seed=int(cfg["seed"]) + k,
+                            out_dir=out / f"run{k}", popsize=int(cfg["population"]))
+            dmp = DMPParameterization(problem.parameterization.template).from_vector(result.best_theta)
+            dmp.save(out / f"refined{k}.dmp.json")
+            DMPParameterization(dmp).motion_plan(DMPParameterization(dmp).to_vector(), dt=0.01).save(out / f"refined{k}.plan.json")
+            runs.append(result.summary() | {"dmp": f"refined{k}.dmp.json"})
+    best = min(runs, key=lambda r: r["best_distance_m"] if r["best_distance_m"] is not None else np.inf)
+    return {
+        "start_throw": int(index),
+        "start_distance_m": start.distance,
+        "runs": runs,
+        "success_runs": sum(bool(r["success"]) for r in runs),
+        "median_episodes_to_success": float(np.median([r["episodes_to_success"] for r in runs if r["episodes_to_success"]])) if any(r["episodes_to_success"] for r in runs) else None,
+        "best_distance_m": best["best_distance_m"],
+        "best_dmp": best["dmp"],
+    }
+
+
+def stage_refine(ctx: Context, out: Path) -> dict[str, Any]:
+    from besdrake.imitation import load_dmp
+
+    files = sorted((ctx.run.root / "03_imitate").glob("*.dmp.json"))
+    if not files:
+        raise RuntimeError("no imitated throw to refine (the imitation stage produced no plan)")
+    dmps = [load_dmp(f) for f in files]
+    return _refine_from(ctx, dmps, ctx.config["scenario"], out, int(ctx.config["refinement"]["evaluations"]), "refine")
+
+
+# --------------------------------------------------------------------------------------------
+# 5. and 7. the Transferability Approach
+# --------------------------------------------------------------------------------------------
+def _lab(ctx: Context):
+    from besdrake.transfer.lab import SafetyGate
+    from besdrake.transfer.virtual_lab import VirtualLab
+
+    if "lab" not in ctx.cache:
+        ctx.run.record_inputs({"lab": Path(ctx.config["lab"])})
+        ctx.cache["lab"] = SafetyGate(VirtualLab(ctx.config["lab"]))
+    return ctx.cache["lab"]
+
+
+def _open_log(folder: Path, lab):
+    from besdrake.transfer.log import LabLog
+
+    return LabLog.open(folder) if (folder / "log.json").is_file() else LabLog.create(folder, lab.description())
+
+
+def _transfer(ctx: Context, seed_files: list[Path], scenario: str, out: Path) -> dict[str, Any]:
+    from besdrake.imitation import DMPParameterization, load_dmp
+    from besdrake.search.refinement import ParameterScaling
+    from besdrake.transfer.transferability import TransferabilityApproach, TransferabilityConfig
+
+    cfg = ctx.config["transfer"]
+    dmps = [load_dmp(f) for f in seed_files]
+    param = DMPParameterization(dmps[0])
+    scaling = ParameterScaling.for_dmp(dmps[0])
+    lab = _lab(ctx)
+    log = _open_log(out / "lab_log", lab)
+    config = TransferabilityConfig(
+        target=tuple(ctx.config["refinement"]["target"]), population=int(cfg["population"]),
+        max_transfers=int(cfg["max_transfers"]), final_repetitions=int(cfg["final_repetitions"]),
+    )
+    with _executor(ctx, scenario) as executor:
+        search = TransferabilityApproach(
+            lambda theta: param.motion_plan(theta, dt=0.01), np.array([param.to_vector(d) for d in dmps]),
+            scaling.scale, scaling.bounds, executor, lab, np.random.default_rng(int(cfg["seed"])), config,
+            log=log, out_dir=out, progress=ctx.progress,
+        )
+        result = search.run()
+    summary = result.summary() | {"scenario": scenario}
+    if result.best_theta is not None:
+        best = param.from_vector(result.best_theta)
+        best.save(out / "best.dmp.json")
+        param.motion_plan(result.best_theta, dt=0.01).save(out / "best.plan.json")
+    write_json(out / "transfers.json", [t.__dict__ for t in result.transfers])
+    return summary
+
+
+def stage_transfer(ctx: Context, out: Path) -> dict[str, Any]:
+    refine_dir = ctx.run.root / "04_refine"
+    return _transfer(ctx, sorted(refine_dir.glob("refined*.dmp.json")), ctx.config["scenario"], out)
+
+
+# --------------------------------------------------------------------------------------------
+# 6. diagnosis
+# --------------------------------------------------------------------------------------------
+def stage_diagnose(ctx: Context, out: Path) -> dict[str, Any]:
+    """Run the diagnosis experiment in the lab, diagnose its log, write the refined scenario."""
+    from besdrake.diagnosis import diagnose, diagnosis_plans
+    from besdrake.diagnosis.report import write_report
+    from besdrake.transfer.log import run_plans
+
+    lab = _lab(ctx)
+    log = _open_log(out / "lab_log", lab)
+    cfg = ctx.config["diagnosis"]
+    plans = diagnosis_plans(n=int(cfg["throws"]), repeats=int(cfg["repeats"]), seed=int(ctx.config["transfer"]["seed"]))
+    run_plans(lab, plans, log)
+    t0 = time.perf_counter()
+    workers = int(ctx.config["workers"])
+    diag = diagnose(log.measurements(), scenario=ctx.config["scenario"], pairs=bool(cfg["pairs"]),
+                    backend="process" if workers > 1 else "serial", workers=workers)
+    seconds = time.perf_counter() - t0
+    paths = write_report(diag, out / "report")
+    summary = diag.summary()
+    return summary | {"diagnosis_s": seconds, "lab_trials": len(log), "refined_scenario": paths["scenario"], "report": paths["report"]}
+
+
+def _refined_scenario(ctx: Context) -> str:
+    done = ctx.run.done(6, "diagnose")
+    if not ctx.config["diagnosis"]["enabled"] or done is None:
+        return ctx.config["scenario"]
+    return done["summary"]["refined_scenario"] or ctx.config["scenario"]
+
+
+def stage_transfer_refined(ctx: Context, out: Path) -> dict[str, Any]:
+    """Re-refine the throws in the refined simulation, then the Transferability Approach again."""
+    from besdrake.imitation import load_dmp
+
+    scenario = _refined_scenario(ctx)
+    seeds = [load_dmp(f) for f in sorted((ctx.run.root / "04_refine").glob("refined*.dmp.json"))]
+    budget = max(int(ctx.config["refinement"]["evaluations"]) // 2, 20)
+    refined = _refine_from(ctx, seeds, scenario, out / "refine", budget, "re-refine")
+    summary = _transfer(ctx, sorted((out / "refine").glob("refined*.dmp.json")), scenario, out)
+    return summary | {"re_refinement": refined}
+
+
+# --------------------------------------------------------------------------------------------
+# 8. behaviour template, 9. pool
+# --------------------------------------------------------------------------------------------
+def _best_throw(ctx: Context) -> Path:
+    for candidate in (ctx.run.root / "07_transfer_refined" / "best.dmp.json", ctx.run.root / "05_transfer" / "best.dmp.json"):
+        if candidate.is_file():
+            return candidate
+    return ctx.run.root / "04_refine" / ctx.run.done(4, "refine")["summary"]["best_dmp"]
+
+
+def stage_template(ctx: Context, out: Path) -> dict[str, Any]:
+    """BO-CPS over (execution time, joint-1 goal) in the refined simulation; tested in simulation and in the lab."""
+    from besdrake.imitation import load_dmp
+    from besdrake.search.templates import TEST_CONTEXTS, evaluate_template, train_template
+
+    cfg = ctx.config["templates"]
+    method = {"entropy_search": "es", "ucb": "ucb"}.get(cfg["acquisition"], cfg["acquisition"])
+    base_file = _best_throw(ctx)
+    scenario = _refined_scenario(ctx)
+    with _executor(ctx, scenario) as executor:
+        training = train_template(
+            load_dmp(base_file), executor, method=method, n_episodes=int(cfg["episodes"]), seed=int(cfg["seed"]),
+            name="throw", out_dir=out / "training",
+            provenance={"base": str(base_file), "scenario": scenario, "lab": ctx.config["lab"], "demonstrations": ctx.config["demonstrations"]},
+        )
+        sim_eval = evaluate_template(training.template, executor)
+    training.template.save(out)
+    lab = _lab(ctx)
+    log = _open_log(out / "lab_log", lab)
+    from besdrake.transfer.log import run_plans
+
+    run_plans(lab, [training.template.instantiate(s) for s in TEST_CONTEXTS], log)
+    lab_td = np.array([m.touchdown if m.touchdown is not None else [np.nan, np.nan] for m in log.measurements()])
+    lab_dist = np.linalg.norm(lab_td - TEST_CONTEXTS, axis=1)
+    _plot_template(TEST_CONTEXTS, sim_eval.touchdowns, lab_td, out / "template_accuracy.png")
+    return {
+        "method": method,
+        "episodes": int(cfg["episodes"]),
+        "base": str(base_file),
+        "scenario": scenario,
+        "sim_mean_distance_m": float(sim_eval.mean_distance),
+        "lab_mean_distance_m": float(np.nanmean(lab_dist)),
+        "lab_not_measured": int(np.isnan(lab_dist).sum()),
+        "training_wall_time_s": training.wall_time,
+    }
+
+
+def _plot_template(contexts: np.ndarray, sim_td: np.ndarray, lab_td: np.ndarray, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 6))
+    ax.plot(contexts[:, 1], contexts[:, 0], "k+", ms=12, label="test targets")
+    ax.plot(sim_td[:, 1], sim_td[:, 0], "o", mfc="none", label="simulation (refined)")
+    ax.plot(lab_td[:, 1], lab_td[:, 0], "x", label="lab")
+    for c, t in zip(contexts, lab_td):
+        ax.plot([c[1], t[1]], [c[0], t[0]], "-", lw=0.5, color="grey")
+    ax.set_xlabel("y (lateral, m)")
+    ax.set_ylabel("x (forward, m)")
+    ax.set_aspect("equal")
+    ax.legend(fontsize=8)
+    ax.set_title("behaviour template on the 16 test contexts")
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def stage_pool(ctx: Context, out: Path) -> dict[str, Any]:
+    from besdrake.search.templates import BehaviorTemplate, TemplatePool
+
+    template = BehaviorTemplate.load(next((ctx.run.root / "08_template").glob("*.template.json")))
+    pool = TemplatePool(out)
+    pool.add(template, overwrite=True)
+    return {"pool": str(out), "templates": pool.names(), "instantiate": f"besdrake template instantiate --pool {out} --name {template.name} --context X Y"}
+
+
+# --------------------------------------------------------------------------------------------
+# 10. report
+# --------------------------------------------------------------------------------------------
+def _fmt_time(seconds: float | None) -> str:
+    if seconds is None:
+        return "-"
+    return f"{int(seconds // 60)}:{seconds % 60:04.1f} min" if seconds >= 60 else f"{seconds:.1f} s"
+
+
+def stage_report(ctx: Context, out: Path) -> dict[str, Any]:
+    """report.md: the paper's Table 1 with this run's times, every stage's figures, replays."""
+    from besdrake.plan import MotionPlan
+    from besdrake.sim.record import record_html
+
+    root = ctx.run.root
+    done = {name: ctx.run.done(i, name) for i, (name, _) in enumerate(STAGES[:-1], 1)}
+    n_exp = max(1, len(done["label"]["summary"]["recordings"])) if done.get("label") else 1
+    replays = []
+    for stage, folder in (("transfer_refined", "07_transfer_refined"), ("transfer", "05_transfer")):
+        plan_file = root / folder / "best.plan.json"
+        if plan_file.is_file():
+            scenario = _refined_scenario(ctx) if stage == "transfer_refined" else ctx.config["scenario"]
+            html, _ = record_html(MotionPlan.load(plan_file), out / f"best_throw_{stage}.html", scenario=scenario, limits="flag")
+            replays.append(html.name)
+    lines = [
+        "# besdrake learn: report",
+        "",
+        f"Run folder `{root}`; configuration in `config.yaml`. Times are wall-clock on this machine; the paper's are per "
+        f"experiment of 8 throws (this run: {n_exp} experiment(s)).",
+        "",
+        "## Table 1: each stage, its time, whether it ran without a person, what it needed",
+        "",
+        "| stage | this run | per experiment | paper (per experiment) | automated | required knowledge |",
+        "|---|---|---|---|---|---|",
+    ]
+    per_experiment = {"label", "segment", "imitate"}
+    for name, _ in STAGES[:-1]:
+        rec = done.get(name)
+        title, paper_s, automated, knowledge = PAPER_TABLE_1[name]
+        seconds = rec["seconds"] if rec else None
+        per = _fmt_time(seconds / n_exp) if (rec and name in per_experiment) else "-"
+        lines.append(f"| {title} | {_fmt_time(seconds) if rec else 'not run'} | {per} | {_fmt_time(paper_s)} | {automated} | {knowledge} |")
+    lines += ["", "Manual steps of the paper that a virtual lab needs no person for: attaching markers (0:55 min), motion capture "
+              "(1:08 min), manual marker labeling (9:19 min), labelling the classifier's training set (50 min, done once).", ""]
+    sections = {
+        "label": ("Automatic marker labeling", "01_label"),
+        "segment": ("Segmentation and classification", "02_segment"),
+        "imitate": ("Imitation (embodiment mapping, DMP)", "03_imitate"),
+        "refine": ("Policy search in simulation", "04_refine"),
+        "transfer": ("Transferability Approach, designed simulation", "05_transfer"),
+        "diagnose": ("Diagnosis: what the simulation gets wrong", "06_diagnose"),
+        "transfer_refined": ("Transferability Approach, refined simulation", "07_transfer_refined"),
+        "template": ("Behaviour template", "08_template"),
+        "pool": ("Template pool", "09_pool"),
+    }
+    for name, (title, folder) in sections.items():
+        rec = done.get(name)
+        lines += [f"## {title}", ""]
+        if rec is None:
+            lines += ["Not run.", ""]
+            continue
+        summary = {k: v for k, v in rec["summary"].items() if not isinstance(v, (list, dict)) or k in ("gain",)}
+        lines += ["| key | value |", "|---|---|"] + [f"| {k} | {_short(v)} |" for k, v in summary.items()] + [""]
+        for png in sorted((root / folder).glob("*.png"))[:2] + sorted((root / folder).glob("*/*.png"))[:3]:
+            lines.append(f"![{png.stem}]({png.relative_to(root).as_posix()})")
+        lines.append("")
+    if replays:
+        lines += ["## Replays", ""] + [f"- [{r}](10_report/{r}) (meshcat, self-contained HTML)" for r in replays] + [""]
+    (root / "report.md").write_text("\n".join(lines))
+    return {"report": str(root / "report.md"), "replays": replays}
+
+
+def _short(value: Any) -> str:
+    if isinstance(value, float):
+        return f"{value:.4g}"
+    if isinstance(value, dict):
+        return ", ".join(f"{k}: {_short(v)}" for k, v in value.items())
+    return str(value)
+
+
+STAGES: list[tuple[str, Callable[[Context, Path], dict[str, Any]]]] = [
+    ("label", stage_label),
+    ("segment", stage_segment),
+    ("imitate", stage_imitate),
+    ("refine", stage_refine),
+    ("transfer", stage_transfer),
+    ("diagnose", stage_diagnose),
+    ("transfer_refined", stage_transfer_refined),
+    ("template", stage_template),
+    ("pool", stage_pool),
+    ("report", stage_report),
+]
+
+
+def learn(
+    run: RunFolder,
+    progress: Callable[[str], None] = print,
+    stages: list[str] | None = None,
+    on_stage: Callable[[str, dict[str, Any]], None] | None = None,
+) -> dict[str, Any]:
+    """Run every stage not yet done (or only ``stages``); returns each stage's record.
+
+    ``progress`` receives messages; ``on_stage(name, record)`` is called after each stage, run or skipped."""
+    ctx = Context(run, run.config, progress)
+    records = {}
+    for i, (name, fn) in enumerate(STAGES, 1):
+        if name == "diagnose" and not run.config["diagnosis"]["enabled"]:
+            continue
+        if stages is not None and name not in stages:
+            continue
+        rec = run.done(i, name)
+        if rec is None:
+            progress(f"[{i}/{len(STAGES)}] {name} ...")
+            t0 = time.perf_counter()
+            summary = fn(ctx, run.stage_dir(i, name))
+            rec = run.mark_done(i, name, summary, time.perf_counter() - t0)
+            progress(f"[{i}/{len(STAGES)}] {name} done in {_fmt_time(rec['seconds'])}")
+        else:
+            progress(f"[{i}/{len(STAGES)}] {name}: done earlier, skipped")
+        records[name] = rec
+        if on_stage is not None:
+            on_stage(name, rec)
+    return records

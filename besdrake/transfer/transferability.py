@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import json
 import time
+import warnings
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Callable
@@ -121,6 +122,7 @@ class DisparitySurrogate:
         self._gp = None
 
     def _fit(self):
+        from sklearn.exceptions import ConvergenceWarning
         from sklearn.gaussian_process import GaussianProcessRegressor
         from sklearn.gaussian_process.kernels import ConstantKernel, RBF, WhiteKernel
 
@@ -129,7 +131,11 @@ class DisparitySurrogate:
         scale[scale < 1e-9] = 1.0
         self._scale = scale
         kernel = ConstantKernel(1.0, (1e-2, 1e2)) * RBF(length_scale=3.0, length_scale_bounds=(0.3, 100.0)) + WhiteKernel(0.1, (1e-4, 1.0))
-        self._gp = GaussianProcessRegressor(kernel, normalize_y=True, random_state=0).fit((self.X - self._mean) / self._scale, self.y)
+        with warnings.catch_warnings():
+            # A handful of transfers often puts a hyperparameter on its bound (all noise, or no signal
+            # yet): expected early in the search, not worth a warning per fit.
+            warnings.simplefilter("ignore", ConvergenceWarning)
+            self._gp = GaussianProcessRegressor(kernel, normalize_y=True, random_state=0).fit((self.X - self._mean) / self._scale, self.y)
 
     def predict(self, descriptors: np.ndarray) -> np.ndarray:
         """Predicted disparity (m); before two transfers every behaviour gets the same prediction."""

@@ -1,0 +1,83 @@
+"""``besdrake learn``: the main job, from demonstrations to a template pool (see :mod:`besdrake.pipeline.learn`)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+COMMAND = ("learn",)
+HELP = "the whole platform: labeling, segmentation, imitation, refinement, transfer, diagnosis, templates"
+
+#: Rough share of each stage in a default run's time (for the progress bar's estimate of the time left).
+_WEIGHTS = {"label": 1, "segment": 2, "imitate": 4, "refine": 10, "transfer": 20, "diagnose": 25,
+            "transfer_refined": 25, "template": 10, "pool": 1, "report": 2}
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--out", type=Path, default=Path("runs/learn"), help="run folder (rerun the same command to resume)")
+    parser.add_argument("--config", type=Path, default=None, help="YAML with any of the settings of besdrake/pipeline/default_learn.yaml")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="override one setting, e.g. --set refinement.evaluations=500 (repeatable)")
+    parser.add_argument("--quick", action="store_true", help="smoke profile: every stage on a small budget (about a minute or two)")
+    parser.add_argument("--demonstrations", default=None, help="folder of your own TSV/C3D recordings (default: the synthetic demonstrator)")
+    parser.add_argument("--lab", default=None, help="lab YAML (default: diagrams/labs/default_lab.yaml)")
+    parser.add_argument("--workers", type=int, default=None, help="simulation processes (default 2)")
+    parser.add_argument("--ray", default=None, metavar="ADDRESS", help="not yet supported by learn: use --workers")
+    parser.add_argument("--stage", action="append", default=None, help="run only these stages (repeatable)")
+    parser.add_argument("--json", action="store_true", help="print every stage's summary as one JSON object")
+
+
+def run(args: argparse.Namespace) -> int:
+    from besdrake.cli import UserError
+    from besdrake.pipeline.config import ConfigError, load_config
+    from besdrake.pipeline.learn import STAGES, learn
+    from besdrake.pipeline.run import RunError, RunFolder
+
+    if args.ray:
+        raise UserError("--ray is not supported by 'besdrake learn' yet; the rollout executors support it (backend='ray')")
+    overrides = list(args.set)
+    if args.demonstrations:
+        overrides.append(f"demonstrations.source={args.demonstrations}")
+    if args.lab:
+        overrides.append(f"lab={args.lab}")
+    if args.workers is not None:
+        overrides.append(f"workers={args.workers}")
+    try:
+        config = load_config(args.config, quick=args.quick, overrides=overrides)
+        run_folder = RunFolder(args.out, config)
+    except (ConfigError, RunError) as err:
+        raise UserError(str(err)) from None
+    known = [name for name, _ in STAGES]
+    for name in args.stage or []:
+        if name not in known:
+            raise UserError(f"unknown stage {name!r}; stages: {', '.join(known)}")
+
+    bar = None
+    if not args.json and sys.stderr.isatty():
+        from tqdm import tqdm
+
+        bar = tqdm(total=sum(_WEIGHTS.values()), desc="besdrake learn", unit="", bar_format="{l_bar}{bar}| {elapsed}<{remaining}", file=sys.stderr)
+
+    def progress(message: str) -> None:
+        if bar is not None:
+            bar.set_postfix_str(message[:60])
+        elif not args.json:
+            print(message, file=sys.stderr)
+
+    def on_stage(name: str, record: dict) -> None:
+        if bar is not None:
+            bar.update(_WEIGHTS.get(name, 1))
+
+    try:
+        records = learn(run_folder, progress=progress, stages=args.stage, on_stage=on_stage)
+    finally:
+        if bar is not None:
+            bar.close()
+    if args.json:
+        print(json.dumps({name: rec["summary"] | {"seconds": rec["seconds"]} for name, rec in records.items()}, default=str))
+    else:
+        report = run_folder.root / "report.md"
+        print(f"done: {len(records)} stages in {run_folder.root}" + (f"; report: {report}" if report.is_file() else ""))
+    return 0

@@ -1,0 +1,75 @@
+"""``besdrake learn``: configuration, the run folder, resuming, and the stages end to end."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import yaml
+
+from besdrake.cli import main
+from besdrake.pipeline.config import ConfigError, load_config, parse_override
+from besdrake.pipeline.run import RunError, RunFolder
+
+
+def test_quick_profile_user_file_and_overrides_layer_in_order(tmp_path):
+    user = tmp_path / "mine.yaml"
+    user.write_text(yaml.safe_dump({"refinement": {"evaluations": 321}, "workers": 1}))
+    cfg = load_config(user, quick=True, overrides=["refinement.evaluations=55", "lab=other.yaml"])
+    assert cfg["refinement"]["evaluations"] == 55  # flag beats file beats profile
+    assert cfg["refinement"]["plans"] == 1  # from the quick profile
+    assert cfg["workers"] == 1 and cfg["lab"] == "other.yaml"
+    assert load_config()["refinement"]["evaluations"] == 1000  # the packaged default
+
+
+def test_unknown_keys_and_bad_overrides_are_clear_errors(tmp_path):
+    with pytest.raises(ConfigError, match="refinment"):
+        load_config(overrides=["refinment.evaluations=5"])
+    with pytest.raises(ConfigError, match="section.key=value"):
+        parse_override("workers")
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("refinement: [1, 2")
+    with pytest.raises(ConfigError, match="not valid YAML"):
+        load_config(bad)
+
+
+def test_a_run_folder_refuses_another_configuration(tmp_path):
+    RunFolder(tmp_path, load_config(quick=True))
+    RunFolder(tmp_path, load_config(quick=True))  # the same: a resume
+    with pytest.raises(RunError, match="another configuration"):
+        RunFolder(tmp_path, load_config())
+
+
+def test_first_stages_run_resume_and_write_their_outputs(tmp_path, capsys):
+    out = tmp_path / "run"
+    args = ["learn", "--quick", "--out", str(out), "--json", "--stage", "label", "--stage", "segment", "--stage", "imitate"]
+    assert main(args) == 0
+    records = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert records["label"]["min_correct_share"] > 0.99
+    assert records["segment"]["throws"] == 8  # every demonstrated throw of the experiment found
+    assert records["imitate"]["throws"] == 2 and records["imitate"]["executable"] == 2
+    assert (out / "02_segment" / "synthetic_s0_e0_segments.png").is_file()
+    assert len(list((out / "03_imitate").glob("*.plan.json"))) == 2
+    first = json.loads((out / "01_label" / "stage.json").read_text())["finished"]
+    assert main(args) == 0  # rerun: every stage is skipped
+    capsys.readouterr()
+    assert json.loads((out / "01_label" / "stage.json").read_text())["finished"] == first
+
+
+def test_unknown_stage_is_refused(tmp_path, capsys):
+    assert main(["learn", "--quick", "--out", str(tmp_path), "--stage", "nope"]) == 2
+    assert "unknown stage" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_quick_run_goes_from_demonstrations_to_a_template_pool(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert main(["learn", "--quick", "--out", str(out), "--json"]) == 0
+    records = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert set(records) == {"label", "segment", "imitate", "refine", "transfer", "diagnose", "transfer_refined", "template", "pool", "report"}
+    assert (out / "report.md").read_text().count("| yes |") >= 5
+    assert records["pool"]["templates"] == ["throw"]
+    from besdrake.search.templates import TemplatePool
+
+    plan = TemplatePool(out / "09_pool").instantiate("throw", [1.9, 0.2])
+    assert plan.check_limits().ok
