@@ -499,9 +499,10 @@ def diagnose(
         # Rank: refined candidates by their real chi2; linear-only ones are never ranked above a refined one
         # with a better linear BIC (they were not refined because their linear fit was worse).
         fits.sort(key=lambda f: (f.bic if f.refined else np.inf, f.bic))
-        # Parsimony: drop an effect of the BIC-best candidate when it changes neither the predicted touchdowns
-        # nor the joint tracking materially (less than MATERIAL x the noise SD, median over throws); it then
-        # only absorbs small systematic differences of the ball path that no throw outcome depends on.
+        # Parsimony: drop an effect of the BIC-best candidate when the model without it is still adequate (passes
+        # the lack-of-fit test) and the effect changes neither the predicted touchdowns nor the joint tracking
+        # materially (less than MATERIAL x the noise SD, median over throws; the ball path at 4x that); it then
+        # only absorbs small systematic differences that no throw outcome depends on.
         best_fit = fits[0]
         by_effects = {f.effects: f for f in fits if f.refined}
         changed = True
@@ -513,7 +514,9 @@ def diagnose(
                 if sub_fit is None or sub_fit.y_fit is None or best_fit.y_fit is None:
                     continue
                 size = _material_change(best_fit.y_fit, sub_fit.y_fit, nm, measured_groups)
-                if all(v < MATERIAL for v in size.values()):
+                # Drop only if the smaller model is still adequate (lack-of-fit test): an effect the data need is kept.
+                sub_adequate = _lack_of_fit_p(prob, sub_fit.y_fit, sub_fit.k, nm, measured_groups)[0] >= ALPHA
+                if sub_adequate and all(v < MATERIAL for v in size.values()):
                     notes.append(f"{best_fit.name} fits better by BIC ({sub_fit.bic - best_fit.bic:.1f}) but {e} changes the predictions by only "
                                  + ", ".join(f"{g} {v:.2f} noise SD" for g, v in size.items()) + f" (median): not claimed, below the {MATERIAL} SD materiality threshold")
                     best_fit, changed = sub_fit, True
