@@ -24,7 +24,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--demonstrations", default=None, help="folder of your own TSV/C3D recordings (default: the synthetic demonstrator)")
     parser.add_argument("--lab", default=None, help="lab YAML (default: diagrams/labs/default_lab.yaml)")
     parser.add_argument("--workers", type=int, default=None, help="simulation processes (default 2)")
-    parser.add_argument("--ray", default=None, metavar="ADDRESS", help="not yet supported by learn: use --workers")
+    parser.add_argument("--ray", default=None, metavar="ADDRESS", help="run rollouts on a Ray cluster (e.g. 'auto'; needs besdrake[cluster])")
     parser.add_argument("--stage", action="append", default=None, help="run only these stages (repeatable)")
     parser.add_argument("--json", action="store_true", help="print every stage's summary as one JSON object")
 
@@ -35,9 +35,9 @@ def run(args: argparse.Namespace) -> int:
     from besdrake.pipeline.learn import STAGES, learn
     from besdrake.pipeline.run import RunError, RunFolder
 
-    if args.ray:
-        raise UserError("--ray is not supported by 'besdrake learn' yet; the rollout executors support it (backend='ray')")
     overrides = list(args.set)
+    if args.ray:
+        overrides.append(f"ray_address={args.ray}")
     if args.demonstrations:
         overrides.append(f"demonstrations.source={args.demonstrations}")
     if args.lab:

@@ -278,9 +278,12 @@ def stage_imitate(ctx: Context, out: Path) -> dict[str, Any]:
 # 4. refinement in simulation
 # --------------------------------------------------------------------------------------------
 def _executor(ctx: Context, scenario: str):
+    """The rollout backend the configuration asks for: Ray, a process pool, or this process."""
     from besdrake.sim import make_executor
 
     workers = int(ctx.config["workers"])
+    if ctx.config.get("ray_address"):
+        return make_executor("ray", workers=workers, scenario=scenario, address=ctx.config["ray_address"])
     if workers > 1:
         return make_executor("process", workers=workers, scenario=scenario)
     return make_executor("serial", scenario=scenario)
@@ -398,9 +401,8 @@ def stage_diagnose(ctx: Context, out: Path) -> dict[str, Any]:
     plans = diagnosis_plans(n=int(cfg["throws"]), repeats=int(cfg["repeats"]), seed=int(ctx.config["transfer"]["seed"]))
     run_plans(lab, plans, log)
     t0 = time.perf_counter()
-    workers = int(ctx.config["workers"])
-    diag = diagnose(log.measurements(), scenario=ctx.config["scenario"], pairs=bool(cfg["pairs"]),
-                    backend="process" if workers > 1 else "serial", workers=workers)
+    with _executor(ctx, ctx.config["scenario"]) as executor:
+        diag = diagnose(log.measurements(), scenario=ctx.config["scenario"], pairs=bool(cfg["pairs"]), executor=executor)
     seconds = time.perf_counter() - t0
     paths = write_report(diag, out / "report")
     summary = diag.summary()
