@@ -73,6 +73,17 @@ def test_cli_finds_a_hidden_effect_in_a_full_log(tmp_path, capsys):
     assert "cannot tell" in (out / "report.md").read_text() or s["indistinguishable"] == []
 
 
+def test_cli_design_writes_a_plan_set_the_lab_runner_reads(tmp_path):
+    from besdrake.commands.lab_run import load_plans
+
+    assert main(["diagnose", "--design", str(tmp_path / "plans"), "--throws", "10", "--repeats", "3"]) == 0
+    plans = load_plans(tmp_path / "plans")
+    assert len(plans) == 10
+    from besdrake.transfer.measurement import plan_hash
+
+    assert len({plan_hash(p) for p in plans}) == 7
+
+
 def test_cli_reports_a_missing_log_clearly(tmp_path, capsys):
     rc = main(["diagnose", str(tmp_path / "nope")])
     assert rc == 2

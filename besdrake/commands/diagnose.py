@@ -11,7 +11,11 @@ HELP = "compare a lab log with the simulation, name the cause (effect fit + BIC)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("logdir", type=Path, help="a measured-data log folder (besdrake lab run --out ...)")
+    parser.add_argument("logdir", type=Path, nargs="?", default=None, help="a measured-data log folder (besdrake lab run --out ...)")
+    parser.add_argument("--design", type=Path, default=None, metavar="DIR",
+                        help="instead of diagnosing: write a diagnosis plan set (diverse throws with repeats) as DIR/NNN_*.plan.json for 'besdrake lab run --plans DIR'")
+    parser.add_argument("--throws", type=int, default=25, help="with --design: number of throws (default 25)")
+    parser.add_argument("--repeats", type=int, default=8, help="with --design: how many of them repeat an earlier plan (default 8)")
     parser.add_argument("--out", type=Path, default=None, help="folder for report.md, diagnosis.json, refined_scenario.yaml, figures (default: runs/diagnosis/<log name>)")
     parser.add_argument("--scenario", default="nominal", help="the simulation the lab is compared with (name or YAML path)")
     parser.add_argument("--candidates", default=None, help="comma-separated effect names to consider (default: every registered effect)")
@@ -32,6 +36,20 @@ def run(args: argparse.Namespace) -> int:
     from besdrake.sim.effects import EffectError, get_effect
     from besdrake.sim.scenario import ScenarioError, load_scenario
 
+    if args.design is not None:
+        from besdrake.diagnosis import diagnosis_plans
+
+        try:
+            plans = diagnosis_plans(args.throws, args.repeats, seed=args.seed)
+        except ValueError as err:
+            raise UserError(str(err)) from None
+        args.design.mkdir(parents=True, exist_ok=True)
+        for i, p in enumerate(plans):
+            p.save(args.design / f"{i:03d}_{p.meta['name']}.plan.json")
+        print(f"wrote {len(plans)} plans ({args.repeats} repeats) to {args.design}")
+        return 0
+    if args.logdir is None:
+        raise UserError("give a log folder to diagnose (or --design DIR to write a plan set)")
     if args.workers < 1:
         raise UserError(f"--workers must be >= 1, got {args.workers}")
     if args.folds < 2:
