@@ -170,6 +170,7 @@ def test_template_cli_train_list_instantiate(tmp_path):
     assert main(["template", "instantiate", "t1", "--target", "1.8", "0.3", "--plan-out", str(plan_file), *common]) == 0
     plan = MotionPlan.load(plan_file)
     assert plan.meta["template"] == "t1"
+    assert main(["template", "instantiate", "--name", "t1", "--context", "1.8", "0.3", *common]) == 0  # alias form
     assert main(["template", "list", *common]) == 0
     assert main(["template", "instantiate", "t1", *common]) == 2  # no --target
     assert main(["template", "eval", "missing", *common]) == 2

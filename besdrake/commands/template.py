@@ -27,13 +27,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("action", choices=("train", "eval", "instantiate", "list"))
     parser.add_argument("name_or_base", nargs="?", help="train: base DMP file or 'default'; eval/instantiate: template name")
     parser.add_argument("--pool", type=Path, default=Path("runs/templates"), help="template pool folder")
-    parser.add_argument("--name", default=None, help="train: name of the new template (default: method_seed)")
+    parser.add_argument("--name", default=None, help="train: name of the new template (default: method_seed); eval/instantiate: the template (instead of the positional name)")
     parser.add_argument("--method", choices=("es", "ucb", "aces", "creps"), default="es", help="es: BO-CPS entropy search; ucb: upper confidence bound; aces: active context selection; creps: C-REPS baseline")
     parser.add_argument("--episodes", type=int, default=80)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--joint1-mode", choices=("rotate", "goal"), default="rotate", help="rotate: the joint-1 start moves with its goal (default); goal: the paper-literal goal only")
     parser.add_argument("--overwrite", action="store_true", help="train: replace a template of the same name")
-    parser.add_argument("--target", nargs=2, type=float, metavar=("X", "Y"), help="instantiate: target (x forward, y lateral), m")
+    parser.add_argument("--target", "--context", dest="target", nargs=2, type=float, metavar=("X", "Y"), help="instantiate: target (x forward, y lateral), m")
     parser.add_argument("--plan-out", type=Path, default=None, help="instantiate: write the motion plan JSON here")
     parser.add_argument("--backend", choices=("serial", "process"), default="process")
     parser.add_argument("--workers", type=int, default=2)
@@ -73,6 +73,8 @@ def run(args: argparse.Namespace) -> int:
             data = {"pool": str(args.pool), "templates": {n: pool.provenance(n) for n in pool.names()}}
             _emit(args, data, "\n".join(f"{n}: {json.dumps(p)}" for n, p in data["templates"].items()) or f"{args.pool}: empty pool")
             return 0
+        if not args.name_or_base and args.action != "train" and args.name:
+            args.name_or_base = args.name
         if not args.name_or_base:
             raise UserError(f"template {args.action} needs a {'base DMP' if args.action == 'train' else 'template name'}")
         if args.action == "train":
