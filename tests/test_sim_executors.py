@@ -107,3 +107,29 @@ def test_worker_build_failure_is_reported(monkeypatch):
     broken = scen.with_overrides(models={**scen.models, "ball": "/nonexistent/ball.sdf"})
     with pytest.raises(ExecutorError, match="could not build the simulation.*not found"):
         make_executor("process", workers=1, scenario=broken)
+
+
+def test_a_worker_that_dies_fails_its_batch_and_the_pool_recovers():
+    import os
+
+    from besdrake.sim.effects import Effect, register_effect, unregister_effect
+
+    class Crash(Effect):
+        """Test-only: kills the worker process that simulates it (a crash inside the simulator)."""
+
+        name = "test_crash"
+        params = {}
+
+        def apply(self, setup, values):
+            os._exit(3)
+
+    register_effect(Crash)  # before the pool forks, so the workers know it
+    try:
+        with make_executor("process", workers=2) as ex:
+            plans = [default_throw(amplitude=a) for a in (0.4, 0.45, 0.5)]
+            crashed = ex.evaluate(plans, effects=[None, {"test_crash": {}}, None])
+            assert crashed[1].flags["sim_failed"] and "worker died" in crashed[1].message
+            after = ex.evaluate(plans)  # the pool was rebuilt
+            assert all(o.ok for o in after)
+    finally:
+        unregister_effect("test_crash")

@@ -309,14 +309,15 @@ def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int
             dmp.save(out / f"refined{k}.dmp.json")
             DMPParameterization(dmp).motion_plan(DMPParameterization(dmp).to_vector(), dt=0.01).save(out / f"refined{k}.plan.json")
             runs.append(result.summary() | {"dmp": f"refined{k}.dmp.json"})
-    best = min(runs, key=lambda r: r["best_distance_m"] if r["best_distance_m"] is not None else np.inf)
+    # The best run is judged by throws within every joint limit: a closer throw that breaks a limit is no plan.
+    best = min(runs, key=lambda r: r["best_distance_within_limits_m"] if r["best_distance_within_limits_m"] is not None else np.inf)
     return {
         "start_throw": int(index),
         "start_distance_m": start.distance,
         "runs": runs,
         "success_runs": sum(bool(r["success"]) for r in runs),
         "median_episodes_to_success": float(np.median([r["episodes_to_success"] for r in runs if r["episodes_to_success"]])) if any(r["episodes_to_success"] for r in runs) else None,
-        "best_distance_m": best["best_distance_m"],
+        "best_distance_within_limits_m": best["best_distance_within_limits_m"],
         "best_dmp": best["dmp"],
     }
 

@@ -161,7 +161,12 @@ def _worker_ready(_=None) -> str:
 
 
 class ProcessExecutor(Executor):
-    """A local process pool; each worker builds its Diagram once (pool initializer) and reuses it."""
+    """A local process pool; each worker builds its Diagram once (pool initializer) and reuses it.
+
+    A worker that dies (killed, out of memory, a crash inside the simulator) does not hang the
+    caller: every episode of the batch in flight comes back as a failed Outcome (``sim_failed``,
+    with the reason), the pool is rebuilt, and the next batch runs normally.
+    """
 
     backend = "process"
 
@@ -171,26 +176,49 @@ class ProcessExecutor(Executor):
         super().__init__(scenario, limits)
         if start_method is None:
             start_method = "fork" if "fork" in mp.get_all_start_methods() else "spawn"
+        self._context = mp.get_context(start_method)
         self.workers = int(workers or os.cpu_count() or 1)
         if self.workers < 1:
             raise ValueError(f"workers must be >= 1, got {workers}")
-        self._pool = mp.get_context(start_method).Pool(self.workers, initializer=_init_worker, initargs=(self.scenario,))
+        self._start()
+
+    def _start(self) -> None:
+        from concurrent.futures import ProcessPoolExecutor
+
+        self._pool = ProcessPoolExecutor(self.workers, mp_context=self._context, initializer=_init_worker, initargs=(self.scenario,))
         # Wait until every worker has built its Diagram, so timings exclude start-up.
-        errors = [e for e in self._pool.map(_worker_ready, range(self.workers), chunksize=1) if e]
+        errors = [e for e in self._pool.map(_worker_ready, range(self.workers)) if e]
         if errors:
-            self._pool.terminate()
+            self._pool.shutdown(cancel_futures=True)
             self._closed = True
             raise ExecutorError(f"a worker could not build the simulation: {errors[0]}")
 
     def _evaluate(self, items):
+        from concurrent.futures.process import BrokenProcessPool
+
         chunks = _chunks(items, self.workers)
-        results = self._pool.map(_worker_batch, [(c, self.limits) for c in chunks], chunksize=1)
-        return [o for chunk in results for o in chunk]
+        out: list[Outcome] = []
+        broken = False
+        try:
+            futures = [self._pool.submit(_worker_batch, (c, self.limits)) for c in chunks]
+        except BrokenProcessPool:
+            futures, broken = [None] * len(chunks), True
+        for chunk, future in zip(chunks, futures):
+            try:
+                if future is None:
+                    raise BrokenProcessPool("the pool was broken before the batch started")
+                out += future.result()
+            except BrokenProcessPool:
+                broken = True
+                out += [_failed("a simulation worker died (killed or crashed) during this batch") for _ in chunk]
+        if broken:
+            self._pool.shutdown(wait=False, cancel_futures=True)
+            self._start()
+        return out
 
     def close(self) -> None:
         if not self._closed:
-            self._pool.close()
-            self._pool.join()
+            self._pool.shutdown()
         super().close()
 
 
