@@ -166,7 +166,9 @@ def run(args: argparse.Namespace) -> int:
         "wall_time_s": time.perf_counter() - t_start,
     }
     if not args.no_figures:
-        summary["learning_curve"] = str(_plot(runs, args.out / "learning_curve.png"))
+        from besdrake.search.refinement import plot_learning_curves
+
+        summary["learning_curve"] = str(plot_learning_curves(runs, args.out / "learning_curve.png"))
     tmp = args.out / "summary.tmp"
     tmp.write_text(json.dumps(summary, indent=1, default=float))
     tmp.replace(args.out / "summary.json")
@@ -178,27 +180,3 @@ def run(args: argparse.Namespace) -> int:
             print(f"run {k}: {state}; best distance {r.best_distance:.3f} m; {r.wall_time:.0f} s")
         print(f"summary: {args.out / 'summary.json'}")
     return 0
-
-
-def _plot(runs, path: Path) -> Path:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import numpy as np
-
-    from besdrake.search.refinement import SUCCESS_DISTANCE
-
-    fig, ax = plt.subplots(figsize=(6, 4))
-    for k, r in enumerate(runs):
-        best = r.best_so_far()
-        ax.plot(np.arange(1, best.size + 1), best, label=f"run {k}")
-    ax.axhline(SUCCESS_DISTANCE, color="gray", lw=1, ls="--", label="goal 0.1 m")
-    ax.set_xlabel("episode")
-    ax.set_ylabel("best distance within limits so far (m)")
-    ax.set_yscale("log")
-    ax.legend()
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path

@@ -292,12 +292,12 @@ def _executor(ctx: Context, scenario: str):
 def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int, tag: str) -> dict[str, Any]:
     """CMA-ES from the best of ``dmps`` (the paper uses all available plans) in ``scenario``."""
     from besdrake.imitation import DMPParameterization
-    from besdrake.search.refinement import RefinementProblem, ThrowReward, best_start, refine
+    from besdrake.search.refinement import RefinementProblem, ThrowReward, best_start, plot_learning_curves, refine
 
     cfg = ctx.config["refinement"]
     reward = ThrowReward(target=tuple(cfg["target"]))
     problems = [RefinementProblem(d, reward) for d in dmps]
-    runs = []
+    runs, results = [], []
     with _executor(ctx, scenario) as executor:
         index, start = best_start(problems, executor)
         problem = problems[index]
@@ -309,6 +309,8 @@ def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int
             dmp.save(out / f"refined{k}.dmp.json")
             DMPParameterization(dmp).motion_plan(DMPParameterization(dmp).to_vector(), dt=0.01).save(out / f"refined{k}.plan.json")
             runs.append(result.summary() | {"dmp": f"refined{k}.dmp.json"})
+            results.append(result)
+    plot_learning_curves(results, out / "learning_curve.png")
     # The best run is judged by throws within every joint limit: a closer throw that breaks a limit is no plan.
     best = min(runs, key=lambda r: r["best_distance_within_limits_m"] if r["best_distance_within_limits_m"] is not None else np.inf)
     return {

@@ -579,3 +579,26 @@ __all__ = [
     "RefinementError", "RewardBreakdown", "ThrowReward", "ParameterScaling", "RefinementProblem",
     "RefinementResult", "best_start", "make_optimizer", "refine", "read_details", "params_key", "failed_breakdown",
 ]
+
+
+def plot_learning_curves(results: Sequence[RefinementResult], path: str | Path) -> Path:
+    """PNG of the best target distance within limits over the episodes, one line per run."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for k, r in enumerate(results):
+        best = r.best_so_far()
+        ax.plot(np.arange(1, best.size + 1), best, label=f"run {k}")
+    ax.axhline(SUCCESS_DISTANCE, color="gray", lw=1, ls="--", label="goal 0.1 m")
+    ax.set_xlabel("episode")
+    ax.set_ylabel("best distance within limits so far (m)")
+    ax.set_yscale("log")
+    ax.legend()
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
