@@ -164,11 +164,14 @@ class ProcessExecutor(Executor):
     """A local process pool; each worker builds its Diagram once (pool initializer) and reuses it.
 
     A worker that dies (killed, out of memory, a crash inside the simulator) does not hang the
-    caller: every episode of the batch in flight comes back as a failed Outcome (``sim_failed``,
-    with the reason), the pool is rebuilt, and the next batch runs normally.
+    caller: ``multiprocessing.Pool`` replaces it but loses its task, so the executor watches the
+    workers' process ids while it waits; when one changes, every episode of the batch comes back
+    as a failed Outcome (``sim_failed``, with the reason), the pool is rebuilt, and the next batch
+    runs normally.
     """
 
     backend = "process"
+    poll_s = 0.2
 
     def __init__(self, scenario: Scenario | str = "nominal", workers: int | None = None, limits: str = "flag", start_method: str | None = None) -> None:
         import multiprocessing as mp
@@ -183,42 +186,33 @@ class ProcessExecutor(Executor):
         self._start()
 
     def _start(self) -> None:
-        from concurrent.futures import ProcessPoolExecutor
-
-        self._pool = ProcessPoolExecutor(self.workers, mp_context=self._context, initializer=_init_worker, initargs=(self.scenario,))
+        self._pool = self._context.Pool(self.workers, initializer=_init_worker, initargs=(self.scenario,))
         # Wait until every worker has built its Diagram, so timings exclude start-up.
-        errors = [e for e in self._pool.map(_worker_ready, range(self.workers)) if e]
+        errors = [e for e in self._pool.map(_worker_ready, range(self.workers), chunksize=1) if e]
         if errors:
-            self._pool.shutdown(cancel_futures=True)
+            self._pool.terminate()
             self._closed = True
             raise ExecutorError(f"a worker could not build the simulation: {errors[0]}")
 
-    def _evaluate(self, items):
-        from concurrent.futures.process import BrokenProcessPool
+    def _pids(self) -> set[int]:
+        return {p.pid for p in self._pool._pool}  # Pool keeps its worker processes here
 
+    def _evaluate(self, items):
         chunks = _chunks(items, self.workers)
-        out: list[Outcome] = []
-        broken = False
-        try:
-            futures = [self._pool.submit(_worker_batch, (c, self.limits)) for c in chunks]
-        except BrokenProcessPool:
-            futures, broken = [None] * len(chunks), True
-        for chunk, future in zip(chunks, futures):
-            try:
-                if future is None:
-                    raise BrokenProcessPool("the pool was broken before the batch started")
-                out += future.result()
-            except BrokenProcessPool:
-                broken = True
-                out += [_failed("a simulation worker died (killed or crashed) during this batch") for _ in chunk]
-        if broken:
-            self._pool.shutdown(wait=False, cancel_futures=True)
-            self._start()
-        return out
+        pids = self._pids()
+        pending = self._pool.map_async(_worker_batch, [(c, self.limits) for c in chunks], chunksize=1)
+        while not pending.ready():
+            pending.wait(self.poll_s)
+            if not pending.ready() and self._pids() != pids:  # a worker died and was replaced
+                self._pool.terminate()
+                self._start()
+                return [_failed("a simulation worker died (killed or crashed) during this batch") for _ in items]
+        return [o for chunk in pending.get() for o in chunk]
 
     def close(self) -> None:
         if not self._closed:
-            self._pool.shutdown()
+            self._pool.close()
+            self._pool.join()
         super().close()
 
 
