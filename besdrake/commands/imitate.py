@@ -38,7 +38,7 @@ def run(args: argparse.Namespace) -> int:
     from besdrake.mocap.preprocess import PreprocessError
     from besdrake.mocap.recording import MocapFormatError
     from besdrake.pipeline.imitation import find_throws, imitate_recording, load_demonstration, prepare, reports_to_json
-    from besdrake.pipeline.run import write_json
+    from besdrake._io import write_json
 
     t_start = time.perf_counter()
     try:

@@ -25,7 +25,8 @@ from typing import Any, Callable
 
 import numpy as np
 
-from besdrake.pipeline.run import RunFolder, write_json
+from besdrake._io import write_json
+from besdrake.pipeline.run import RunFolder
 
 #: Paper Table 1, per experiment of 8 throws: (stage, time in s, automated, required knowledge).
 PAPER_TABLE_1: dict[str, tuple[str, float | None, str, str]] = {

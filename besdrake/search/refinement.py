@@ -49,6 +49,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from besdrake import robot
+from besdrake._io import write_json
 from besdrake.imitation import DMP, DMPParameterError, DMPParameterization
 from besdrake.plan import MotionPlan, PlanError
 
@@ -517,9 +518,7 @@ def refine(
             if json.dumps(old, sort_keys=True) != json.dumps(json.loads(json.dumps(desc)), sort_keys=True):
                 raise RefinementError(f"{out} holds another refinement run (different template, target, seed or settings); use another folder")
         else:
-            tmp = desc_path.with_suffix(".tmp")
-            tmp.write_text(json.dumps(desc))
-            tmp.replace(desc_path)
+            write_json(desc_path, desc)
         details_path = out / DETAILS_FILE
         problem.records.update(read_details(details_path))
     opt = optimizer if optimizer is not None else make_optimizer(problem, seed, sigma0, popsize)

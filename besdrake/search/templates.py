@@ -40,6 +40,7 @@ from typing import Any, Callable
 import numpy as np
 
 from besdrake import robot
+from besdrake._io import write_json
 from besdrake.imitation import DMP, DMPParameterError
 from besdrake.plan import MotionPlan
 from besdrake.search.base import load_state, save_state
@@ -201,9 +202,7 @@ class BehaviorTemplate:
         folder.mkdir(parents=True, exist_ok=True)
         save_state(self.optimizer.state_dict(), folder / f"{self.name}-policy")
         path = folder / f"{self.name}.template.json"
-        tmp = path.with_suffix(".tmp")
-        tmp.write_text(json.dumps(self.to_record(), indent=1, default=_json_default))
-        tmp.replace(path)
+        write_json(path, self.to_record())
         return path
 
     @classmethod
@@ -231,14 +230,6 @@ class BehaviorTemplate:
         except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError, ValueError, OSError) as err:
             raise TemplateError(f"{path}: corrupt template ({type(err).__name__}: {err})") from err
         return cls(name, meta, bounds, optimizer, dict(rec.get("provenance") or {}))
-
-
-def _json_default(obj):
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, np.generic):
-        return obj.item()
-    raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
 
 
 class TemplatePool:
@@ -291,9 +282,7 @@ class TemplatePool:
     def _write_index(self) -> None:
         self.folder.mkdir(parents=True, exist_ok=True)
         path = self.folder / self.INDEX
-        tmp = path.with_suffix(".tmp")
-        tmp.write_text(json.dumps({"format": "besdrake.template_pool/1", "templates": self._index}, indent=1, default=_json_default))
-        tmp.replace(path)
+        write_json(path, {"format": "besdrake.template_pool/1", "templates": self._index})
 
 
 # ---------------------------------------------------------------------------------------------
