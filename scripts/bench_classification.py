@@ -28,7 +28,7 @@ import numpy as np
 from besdrake.mocap.preprocess import preprocess
 from besdrake.segmentation import VMCI
 from besdrake.segmentation.classification import SegmentClassifier, extract_segment
-from besdrake.segmentation.evaluation import evaluate_classifier, labelled_recordings
+from besdrake.segmentation.evaluation import evaluate_classifier, labelled_recordings, matching_segments
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_DATA = REPO.parent / "shared" / "data" / "pick_and_place"
@@ -77,17 +77,12 @@ def synthetic(directory: Path) -> dict:
     for rec in test:
         pre = preprocess(rec.recording)
         seg.fit(pre)
-        starts = pre.frames[[a for a, _ in seg.segments_]]
-        ends = pre.frames[[b for _, b in seg.segments_]]
-        tol = 0.2 * pre.frequency
-        for s in rec.segments:
-            if s.label != "throw":
-                continue
+        frames = pre.frames[np.array(seg.segments_)]
+        for _, i in matching_segments(frames, rec.segments, pre.frequency, 0.2, label="throw"):
             total += 1
-            hit = np.flatnonzero((np.abs(starts - s.start_frame) <= tol) & (np.abs(ends - s.end_frame) <= tol))
-            if len(hit):
+            if i is not None:
                 found += 1
-                a, b = seg.segments_[hit[0]]
+                a, b = seg.segments_[i]
                 labelled_throw += clf.predict([extract_segment(pre, a, b)])[0] == "throw"
     return {
         "manual_segments": short(res),

@@ -42,6 +42,7 @@ from besdrake.segmentation.evaluation import (  # noqa: E402
     evaluate_segmenter,
     labelled_recordings,
     manual_borders,
+    matching_segments,
 )
 
 REPO = Path(__file__).resolve().parents[1]
@@ -135,14 +136,9 @@ def synthetic_figures(directory: Path) -> dict:
     for rec in recs:
         p = pre[str(rec.path)]
         seg.fit(p)
-        starts = p.frames[[a for a, _ in seg.segments_]]
-        ends = p.frames[[b for _, b in seg.segments_]]
-        tol = 0.2 * p.frequency
-        for s in rec.segments:
-            if s.label != "throw":
-                continue
-            total += 1
-            found += bool(np.any((np.abs(starts - s.start_frame) <= tol) & (np.abs(ends - s.end_frame) <= tol)))
+        matches = matching_segments(p.frames[np.array(seg.segments_)], rec.segments, p.frequency, 0.2, label="throw")
+        total += len(matches)
+        found += sum(i is not None for _, i in matches)
     return {"n_recordings": len(recs), "vmci": summary(ev), "throws": total, "throws_found": found,
             "throws_found_fraction": found / total if total else float("nan"),
             "times_faster_than_real_time": ev.data_s / ev.cpu_s}

@@ -171,6 +171,23 @@ def labelled_segments(recordings: list[LabelledRecording], include_parts: bool =
     return segments, labels
 
 
+def matching_segments(found_frames: np.ndarray, true: list[Segment], frequency: float, tolerance_s: float = 0.2,
+                      label: str | None = None) -> list[tuple[Segment, int | None]]:
+    """For each manual segment (only those labelled ``label`` when given): the index of the first found
+    segment whose start and end frames both lie within ``tolerance_s`` of it, or None.
+
+    ``found_frames``: ``(k, 2)`` start and end frame numbers of the found segments."""
+    found_frames = np.asarray(found_frames, dtype=float).reshape(-1, 2)
+    tol = tolerance_s * frequency
+    out = []
+    for s in true:
+        if label is not None and s.label != label:
+            continue
+        hit = np.flatnonzero((np.abs(found_frames[:, 0] - s.start_frame) <= tol) & (np.abs(found_frames[:, 1] - s.end_frame) <= tol))
+        out.append((s, int(hit[0]) if len(hit) else None))
+    return out
+
+
 def pre_index(frames: np.ndarray, frame: int) -> int:
     """Row of ``frame`` in a frame-number array (nearest row, clipped, for labels on dropped frames)."""
     i = int(np.searchsorted(frames, frame))
