@@ -14,6 +14,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from besdrake.mocap.preprocess import rotation_to_quaternion
+
 #: Back plate marker coordinates in the trunk frame, relative to the plate origin (metres).
 #: Pairwise distances 58 / 65 / 29 mm (top-right / top-left / right-left), like the real plates.
 BACK_PLATE = {
@@ -115,17 +117,6 @@ def fit_plate_pose(points: np.ndarray, plate: dict[str, np.ndarray]) -> tuple[np
     origin[bad] = np.nan
     quat[bad] = np.nan
     return origin, quat
-
-
-def rotation_to_quaternion(rot: np.ndarray) -> np.ndarray:
-    """Rotation matrices ``(n,3,3)`` -> quaternions ``(n,4)`` (w, x, y, z), w >= 0, continuous sign."""
-    q = Rotation.from_matrix(rot).as_quat()  # x, y, z, w
-    q = np.concatenate([q[:, 3:], q[:, :3]], axis=1)
-    # Make consecutive quaternions agree in sign (no jumps from the double cover).
-    flips = np.sign(np.sum(q[1:] * q[:-1], axis=1))
-    flips[flips == 0] = 1
-    q[1:] *= np.cumprod(flips)[:, None]
-    return q
 
 
 def quaternion_to_rotation(q: np.ndarray) -> np.ndarray:
