@@ -14,6 +14,7 @@ from besdrake.transfer.lab import SafetyGate
 from besdrake.transfer.log import LabLog
 from besdrake.transfer.measurement import plan_hash
 from besdrake.transfer.transferability import (
+    OffsetSurrogate,
     TransferabilityApproach,
     TransferabilityConfig,
     crowding_distance,
@@ -118,3 +119,42 @@ def test_a_killed_search_resumes_without_repeating_or_losing_lab_trials(tmp_path
     assert [t.plan_hash for t in result.transfers] == expected
     assert first.calls + second.calls == len(expected) == len(log)
     assert [plan_hash(m.plan) for m in log.measurements()] == expected
+
+
+def test_offset_surrogate_learns_a_behaviour_dependent_offset():
+    rng = np.random.default_rng(0)
+    X = rng.normal(size=(30, 17))
+    offsets = np.column_stack([-0.1 - 0.05 * X[:, 0], 0.02 * X[:, 1]])
+    surrogate = OffsetSurrogate()
+    assert np.allclose(surrogate.predict(X[:2]), 0.0)  # nothing measured: no offset
+    surrogate.add(X[0], offsets[0])
+    assert np.allclose(surrogate.predict(X[1:3]), offsets[0])  # one trial: its offset everywhere
+    for x, o in zip(X[1:], offsets[1:]):
+        surrogate.add(x, o)
+    Xt = rng.normal(size=(20, 17))
+    truth = np.column_stack([-0.1 - 0.05 * Xt[:, 0], 0.02 * Xt[:, 1]])
+    err = np.abs(surrogate.predict(Xt) - truth)
+    assert err[:, 0].mean() < 0.5 * np.abs(truth[:, 0] - truth[:, 0].mean()).mean() + 0.01
+
+
+def test_unknown_transfer_choice_is_refused():
+    with pytest.raises(ValueError, match="transfer_choice"):
+        TransferabilityConfig(transfer_choice="random")
+
+
+def test_predicted_choice_aims_past_the_target_when_the_lab_throws_short(seed_theta):
+    """The default lab's hidden effects land throws short of the nominal simulation: once the offset
+    surrogate has seen that, the transferred plans land beyond the target in simulation."""
+    lab = SafetyGate(VirtualLab("diagrams/labs/default_lab.yaml"))
+    cfg = TransferabilityConfig(**(SMALL | {"max_transfers": 4, "stop_on_success": False, "final_pareto": 0, "final_best_in_lab": 0,
+                                            "population": 8, "transfer_choice": "predicted"}))
+    with make_executor("serial", scenario="nominal") as executor:
+        search = TransferabilityApproach(to_plan, seed_theta, SCALES, BOUNDS, executor, lab, np.random.default_rng(0), cfg)
+        result = search.run()
+    transfers = [t for t in result.transfers if t.kind == "transfer"]
+    assert len(transfers) == 4
+    measured = np.array([np.subtract(t.lab_touchdown, t.sim_touchdown) for t in result.transfers])
+    assert measured[:, 0].mean() < -0.03  # the lab is short
+    assert len(search.offsets.Y) == len(result.transfers)  # repetitions train the offset model too
+    assert transfers[0].sim_touchdown[0] == pytest.approx(2.0, abs=0.03)  # nothing measured yet: closest in simulation
+    assert max(t.sim_touchdown[0] for t in transfers[1:]) > transfers[0].sim_touchdown[0] + 0.02

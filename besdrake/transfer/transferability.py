@@ -12,9 +12,21 @@ simulation, minimises three objectives at once:
 
 Selection is NSGA-II (non-dominated sorting, crowding distance). After every generation (the paper:
 one transfer per 50 simulated episodes, the population size) the update heuristic transfers one
-plan to the lab: among the non-dominated plans that land within ``transfer_max_sim_distance`` of
-the target in simulation and break no limit, the one whose behaviour differs most from everything
-transferred before. Its measured disparity trains the surrogate. When a transferred plan lands
+plan to the lab, chosen by ``transfer_choice``:
+
+* ``"diverse"`` (the paper's heuristic): among the non-dominated plans that land within
+  ``transfer_max_sim_distance`` of the target in simulation and break no limit, the one whose
+  behaviour differs most from everything transferred before (the first transfer: the plan closest
+  to the target in simulation).
+* ``"predicted"``: the plan of the population (within every limit) whose touchdown **predicted for
+  the lab** is closest to the target. The prediction is the simulated touchdown plus the
+  sim-to-lab touchdown offset (a vector, m) that a second Gaussian process (:class:`OffsetSurrogate`,
+  same descriptors) learns from every lab trial, repetitions included; a plan already thrown is
+  predicted from its own measurements, so the best plan in the lab is re-tried when nothing else is
+  predicted closer. It spends the transfers on the task instead of on exploration: with a
+  faithful-enough simulation the paper's diverse choice sends plans 0.1-0.3 m off target on purpose.
+
+Its measured disparity trains the surrogate. When a transferred plan lands
 within ``success_radius`` of the target, it is repeated until ``success_repetitions`` lab trials
 say whether it does so reliably (the issue's success criterion: 3 of 3). At the end, the 2 best
 plans in the lab and 4 plans of the Pareto front are evaluated ``final_repetitions`` times.
@@ -43,6 +55,8 @@ from besdrake.transfer.measurement import Measurement, plan_hash
 
 #: Touchdown "distance" given to a throw that never lands (m): worse than any real throw.
 NO_TOUCHDOWN_DISTANCE = 5.0
+#: How the update heuristic picks the plan to transfer (see the module docstring).
+TRANSFER_CHOICES = ("diverse", "predicted")
 
 
 @dataclass
@@ -62,6 +76,11 @@ class TransferabilityConfig:
     transfer_max_sim_distance: float = 0.3
     limit_penalty: float = 1.0  # m of objective per rad (rad/s, rad/s^2) of limit violation
     diversity_neighbours: int = 5
+    transfer_choice: str = "diverse"  # "diverse" (the paper) or "predicted" (closest predicted lab touchdown)
+
+    def __post_init__(self) -> None:
+        if self.transfer_choice not in TRANSFER_CHOICES:
+            raise ValueError(f"transfer_choice must be one of {TRANSFER_CHOICES}, got {self.transfer_choice!r}")
 
 
 @dataclass
@@ -144,6 +163,46 @@ class DisparitySurrogate:
         if self._gp is None:
             self._fit()
         return self._gp.predict((descriptors - self._mean) / self._scale)
+
+
+class OffsetSurrogate:
+    """Gaussian-process regression from standardised behaviour descriptors to the lab-minus-simulation
+    touchdown offset (x, y; m). Before any lab trial the offset is predicted as zero, with one trial as
+    that trial's offset; the GP's prior mean is the mean measured offset (``normalize_y``), so behaviours
+    far from every transferred one get the average offset."""
+
+    def __init__(self) -> None:
+        self.X = np.zeros((0, N_FEATURES))
+        self.Y = np.zeros((0, 2))
+        self._gp = None
+
+    def add(self, descriptor: np.ndarray, offset: np.ndarray) -> None:
+        self.X = np.vstack([self.X, descriptor])
+        self.Y = np.vstack([self.Y, np.asarray(offset, dtype=float).reshape(1, 2)])
+        self._gp = None
+
+    def _fit(self):
+        from sklearn.exceptions import ConvergenceWarning
+        from sklearn.gaussian_process import GaussianProcessRegressor
+        from sklearn.gaussian_process.kernels import ConstantKernel, RBF, WhiteKernel
+
+        self._mean = self.X.mean(axis=0)
+        scale = self.X.std(axis=0)
+        scale[scale < 1e-9] = 1.0
+        self._scale = scale
+        kernel = ConstantKernel(1.0, (1e-2, 1e2)) * RBF(length_scale=3.0, length_scale_bounds=(0.3, 100.0)) + WhiteKernel(0.5, (1e-3, 10.0))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", ConvergenceWarning)
+            self._gp = GaussianProcessRegressor(kernel, normalize_y=True, random_state=0).fit((self.X - self._mean) / self._scale, self.Y)
+
+    def predict(self, descriptors: np.ndarray) -> np.ndarray:
+        """Predicted offsets ``(n, 2)`` (m)."""
+        n = len(descriptors)
+        if len(self.Y) < 3:
+            return np.tile(self.Y.mean(axis=0) if len(self.Y) else np.zeros(2), (n, 1))
+        if self._gp is None:
+            self._fit()
+        return np.asarray(self._gp.predict((descriptors - self._mean) / self._scale)).reshape(n, 2)
 
 
 def nondominated_ranks(F: np.ndarray) -> np.ndarray:
@@ -237,6 +296,7 @@ class TransferabilityApproach:
         self.progress = progress or (lambda msg: None)
         self.target = np.asarray(self.config.target, dtype=float)
         self.surrogate = DisparitySurrogate()
+        self.offsets = OffsetSurrogate()
         self.transfers: list[Transfer] = []
         self.transferred_descriptors = np.zeros((0, N_FEATURES))
         self.sim_episodes = 0
@@ -290,6 +350,8 @@ class TransferabilityApproach:
 
     # -- the lab --------------------------------------------------------------------------------
     def _lab_trial(self, theta: np.ndarray, kind: str, sim_touchdown: np.ndarray | None, descriptor: np.ndarray | None) -> Transfer:
+        """One lab trial of ``theta``; with ``descriptor`` its measurement trains the surrogates
+        (a ``kind == "transfer"`` trial also enters the archive of transferred behaviours)."""
         plan = self.to_plan(theta)
         h = plan_hash(plan)
         trial = len(self.transfers)
@@ -322,13 +384,18 @@ class TransferabilityApproach:
         self.transfers.append(t)
         if descriptor is not None and "refused_by_safety_gate" not in raised:
             self.surrogate.add(descriptor, disparity)
-            self.transferred_descriptors = np.vstack([self.transferred_descriptors, descriptor])
+            if kind == "transfer":
+                self.transferred_descriptors = np.vstack([self.transferred_descriptors, descriptor])
+            if lab_td is not None and sim_touchdown is not None:
+                self.offsets.add(descriptor, lab_td - sim_touchdown)
         self.progress(f"lab trial {trial} ({kind}): target distance {lab_dist:.3f} m, disparity {disparity:.3f} m")
         return t
 
-    def _choose_transfer(self, P: np.ndarray, f1: np.ndarray, F: np.ndarray, D: np.ndarray) -> int:
-        ranks = nondominated_ranks(F)
+    def _choose_transfer(self, P: np.ndarray, f1: np.ndarray, F: np.ndarray, D: np.ndarray, sim_td: np.ndarray) -> int:
         limits_ok = np.array([self.to_plan(p).check_limits().ok for p in P])
+        if self.config.transfer_choice == "predicted":
+            return self._closest_predicted(limits_ok, f1, D, sim_td)
+        ranks = nondominated_ranks(F)
         pool = np.flatnonzero((ranks == 0) & (f1 <= self.config.transfer_max_sim_distance) & limits_ok)
         if len(pool) == 0:
             pool = np.flatnonzero(limits_ok) if limits_ok.any() else np.arange(len(P))
@@ -340,6 +407,19 @@ class TransferabilityApproach:
         scale[scale < 1e-9] = 1.0
         d = np.linalg.norm((D[pool, None, :] - self.transferred_descriptors[None, :, :]) / scale, axis=2).min(axis=1)
         return int(pool[np.argmax(d)])
+
+    def predicted_lab_touchdowns(self, D: np.ndarray, sim_td: np.ndarray) -> np.ndarray:
+        """Simulated touchdowns ``(n, 2)`` plus the offsets the :class:`OffsetSurrogate` predicts (m)."""
+        return np.asarray(sim_td, dtype=float) + self.offsets.predict(np.atleast_2d(D))
+
+    def _closest_predicted(self, limits_ok: np.ndarray, f1: np.ndarray, D: np.ndarray, sim_td: np.ndarray) -> int:
+        landed = limits_ok & np.isfinite(sim_td).all(axis=1)
+        if not landed.any():
+            pool = np.flatnonzero(limits_ok) if limits_ok.any() else np.arange(len(f1))
+            return int(pool[np.argmin(f1[pool])])
+        pool = np.flatnonzero(landed)
+        predicted = self.predicted_lab_touchdowns(D[pool], sim_td[pool])
+        return int(pool[np.argmin(np.linalg.norm(predicted - self.target, axis=1))])
 
     # -- persistence ------------------------------------------------------------------------------
     def _save(self, P: np.ndarray, f1: np.ndarray, D: np.ndarray, sim_td: np.ndarray) -> None:
@@ -356,6 +436,8 @@ class TransferabilityApproach:
             "surrogate_X": self.surrogate.X,
             "surrogate_y": self.surrogate.y,
             "transferred_descriptors": self.transferred_descriptors,
+            "offset_X": self.offsets.X,
+            "offset_Y": self.offsets.Y,
             "success_at": self.success_at,
             "success_plans": self.success_plans,
             "rng": rng_state(self.rng),
@@ -367,12 +449,16 @@ class TransferabilityApproach:
         if self.out_dir is None or not (self.out_dir / "transferability_state.json").is_file():
             return None
         s = load_state(self.out_dir / "transferability_state")
-        if s["config"] != json.loads(json.dumps(asdict(self.config))):
+        saved = json.loads(json.dumps(asdict(TransferabilityConfig()))) | s["config"]  # fields added since: defaults
+        if saved != json.loads(json.dumps(asdict(self.config))):
             raise ValueError(f"{self.out_dir} holds a search with other settings: use a new output folder")
         self.generation, self.sim_episodes = int(s["generation"]), int(s["sim_episodes"])
         self.transfers = [Transfer(**t) for t in s["transfers"]]
         self.surrogate.X, self.surrogate.y = np.atleast_2d(s["surrogate_X"]).reshape(-1, N_FEATURES), np.asarray(s["surrogate_y"])
         self.transferred_descriptors = np.asarray(s["transferred_descriptors"]).reshape(-1, N_FEATURES)
+        if "offset_X" in s:
+            self.offsets.X = np.asarray(s["offset_X"], dtype=float).reshape(-1, N_FEATURES)
+            self.offsets.Y = np.asarray(s["offset_Y"], dtype=float).reshape(-1, 2)
         self.success_at, self.success_plans = s["success_at"], s["success_plans"]
         self.rng = rng_from_state(s["rng"])
         return np.asarray(s["population"]), np.asarray(s["f1"]), np.asarray(s["descriptors"]), np.asarray(s["sim_touchdown"])
@@ -402,14 +488,14 @@ class TransferabilityApproach:
             F = self._objectives(f1, D)
             keep = self._select(F, cfg.population)
             P, f1, D, sim_td, F = P[keep], f1[keep], D[keep], sim_td[keep], F[keep]
-            i = self._choose_transfer(P, f1, F, D)
+            i = self._choose_transfer(P, f1, F, D, sim_td)
             td = None if np.isnan(sim_td[i]).any() else sim_td[i]
             t = self._lab_trial(P[i], "transfer", td, D[i])
             n_plans += 1
             if t.lab_target_distance < cfg.success_radius and self.success_at is None:
                 hits = 1
                 for _ in range(cfg.success_repetitions - 1):
-                    r = self._lab_trial(P[i], "repeat", td, None)
+                    r = self._lab_trial(P[i], "repeat", td, D[i])
                     hits += r.lab_target_distance < cfg.success_radius
                 if hits == cfg.success_repetitions:
                     self.success_at = len(self.transfers)
