@@ -103,7 +103,7 @@ def _strip(ms):
     return [Measurement(trial=m.trial, plan=m.plan, touchdown=m.touchdown, flags=dict(m.flags), message=m.message, meta=dict(m.meta)) for m in ms]
 
 
-def _summarize(results: list[dict], modes: list[str], args, t_bench: float) -> dict:
+def _summarize(results: list[dict], modes: list[str], args, t_bench: float, registry: list[str]) -> dict:
     """Rates, confusion tables, gain against the noise floor and wall times per mode."""
 
     def rate(rows, key):
@@ -116,6 +116,8 @@ def _summarize(results: list[dict], modes: list[str], args, t_bench: float) -> d
         for r in known:
             t = " + ".join(sorted(r["hidden"]))
             p = " + ".join(r["best"]) or "none"
+            if r.get("cannot_tell_size"):
+                p = "cannot tell nominal from a set " + ("holding the hidden effect" if r.get("honest_undetected") else "WITHOUT the hidden effect")
             conf.setdefault(t, {}).setdefault(p, 0)
             conf[t][p] += 1
         ok_or_honest = [r["correct"] or r["honest_cannot_tell"] for r in known]
@@ -137,6 +139,13 @@ def _summarize(results: list[dict], modes: list[str], args, t_bench: float) -> d
             "right_or_honest_rate_touchdown_detectable": float(np.mean([r["correct"] or r["honest_cannot_tell"] for r in detect])) if detect else None,
             "undetectable_answered_nominal_agrees_or_honest": int(sum(r["nominal_agrees"] or r["correct"] or r["honest_cannot_tell"] for r in undetect)),
             "n_touchdown_undetectable": len(undetect),
+            "n_answered_cannot_tell_nominal_from": int(sum(r.get("cannot_tell_size", 0) > 0 for r in known)),
+            "honest_undetected_answers": int(sum(r.get("honest_undetected", False) for r in known)),
+            "honest_undetected_hidden_value_within_allowed": int(sum(r.get("hidden_within_allowed", False) for r in known)),
+            "mean_cannot_tell_set_size": float(np.mean([r["cannot_tell_size"] for r in known if r.get("cannot_tell_size", 0) > 0])) if any(r.get("cannot_tell_size", 0) for r in known) else None,
+            "registry_size": len(registry),
+            "mean_answer_set_size_of_honest_answers": float(np.mean([r["answer_set_size"] for r in known if r["honest_cannot_tell"] and not r["correct"]])) if any(r["honest_cannot_tell"] and not r["correct"] for r in known) else None,
+            "unknown_listed_as_cannot_tell": int(sum(r.get("cannot_tell_size", 0) > 0 for r in unk)),
             "confusion": conf,
             "heldout_after_over_noise_floor_median": float(np.median(ratios)) if ratios else None,
             "heldout_after_over_noise_floor_max": float(np.max(ratios)) if ratios else None,
@@ -223,11 +232,20 @@ def main(argv=None) -> int:
                 truth = tuple(sorted(hidden))
                 best = tuple(sorted(d.best.effects)) if d.best else ()
                 alt = [tuple(sorted(a["b"].split(" + "))) for a in d.indistinguishable]
+                # "No discrepancy beyond the noise; cannot tell nominal from X, Y, Z": honest only if every hidden effect is
+                # in the reported set (the set sizes are printed, so listing everything cannot pass unnoticed).
+                ct = {a.effect: a for a in d.cannot_tell}
+                honest_undetected = bool(ct) and all(e in ct for e in hidden)
+                hidden_within_allowed = honest_undetected and all(
+                    ct[e].allowed[k][0] - 1e-9 <= v <= ct[e].allowed[k][1] + 1e-9 for e, vals in hidden.items() for k, v in vals.items() if k in ct[e].allowed)
                 row = {
                     "trial": i, "mode": mode, "hidden": hidden, "unknown": unknown,
                     "best": list(best), "explained": d.explained, "confidence": d.confidence, "verdict": d.verdict,
-                    "correct": best == truth, "honest_cannot_tell": truth in alt,
+                    "correct": best == truth, "honest_cannot_tell": truth in alt or honest_undetected,
+                    "honest_undetected": honest_undetected, "hidden_within_allowed": hidden_within_allowed,
                     "alternatives": [list(a) for a in alt],
+                    "cannot_tell": sorted(ct), "cannot_tell_size": len(ct),
+                    "answer_set_size": len(ct) if ct else (1 + len(alt) if alt else 1),
                     "fitted": d.refined_effects(),
                     "gain_before_m": d.gain.median_disparity_before_m if d.gain else None,
                     "gain_after_m": d.gain.median_disparity_after_m if d.gain else None,
@@ -240,11 +258,11 @@ def main(argv=None) -> int:
                 results.append(row)
                 if args.out:
                     with open(args.out, "w") as fh:
-                        json.dump(_summarize(results, modes, args, t_bench), fh, indent=1, default=float)
+                        json.dump(_summarize(results, modes, args, t_bench, registry), fh, indent=1, default=float)
                 if args.progress:
-                    print(json.dumps({k: row[k] for k in ("trial", "mode", "hidden", "best", "explained", "confidence", "correct", "honest_cannot_tell", "after_over_floor", "wall_s")}), file=sys.stderr, flush=True)
+                    print(json.dumps({k: row[k] for k in ("trial", "mode", "hidden", "best", "explained", "confidence", "correct", "honest_cannot_tell", "cannot_tell", "after_over_floor", "wall_s")}), file=sys.stderr, flush=True)
 
-    out = _summarize(results, modes, args, t_bench)
+    out = _summarize(results, modes, args, t_bench, registry)
     print(json.dumps(out, indent=1, default=float))
     return 0
 

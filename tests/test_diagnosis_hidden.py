@@ -73,6 +73,27 @@ def test_cli_finds_a_hidden_effect_in_a_full_log(tmp_path, capsys):
     assert "cannot tell" in (out / "report.md").read_text() or s["indistinguishable"] == []
 
 
+def test_touchdown_only_log_with_an_undetectable_effect_says_what_it_cannot_tell():
+    """A tiny hidden lag in a touchdown-only log: never "the nominal model is right with high confidence", but "no
+    discrepancy beyond the noise; cannot tell nominal from ..." listing the lag with an interval that holds its value."""
+    hidden = {"actuator_lag": {"tau": 0.004}}
+    d = diagnose(run_lab(hidden, n=8, repeats=3, seed=3, full=False), candidates=["actuator_lag", "base_offset", "air_drag"], pairs=False,
+                 backend="serial", folds=2)
+    assert d.groups_measured == ["touchdown"]
+    assert not (d.confidence == "high" and not d.cannot_tell), d.verdict
+    assert not d.best.effects, d.verdict  # nothing claimed
+    assert d.confidence == "low" and "cannot tell" in d.verdict
+    listed = {a.effect: a for a in d.cannot_tell}
+    assert "actuator_lag" in listed, d.verdict
+    lo, hi = listed["actuator_lag"].allowed["tau"]
+    assert lo <= 0.004 <= hi and hi >= 0.01  # the data still allow lags well beyond the hidden one
+    assert all(a.recommendation for a in d.cannot_tell)
+    s = d.summary()
+    assert s["explained"] is True and s["cannot_tell"][0]["allowed"] and "excluded" in s
+    # The recommendation for a touchdown-only log points to a recording that would show the lag.
+    assert any("record" in a.recommendation or "throws" in a.recommendation for a in d.cannot_tell)
+
+
 def test_cli_design_writes_a_plan_set_the_lab_runner_reads(tmp_path):
     from besdrake.commands.lab_run import load_plans
 

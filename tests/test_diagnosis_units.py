@@ -157,3 +157,58 @@ def test_lack_of_fit_flags_a_residual_above_the_pure_error():
     assert _material_change(y_fit, other, sd, ["touchdown"])["touchdown"] == pytest.approx(0.2)
     other[:, sl["touchdown"]] += 0.04
     assert _material_change(y_fit, other, sd, ["touchdown"])["touchdown"] == pytest.approx(1.0)
+
+
+def _sparse_world(seed: int, truth: float = 0.03):
+    """Linear world with a 6-parameter effect (encoder offsets) of which ONE parameter is off, and a 1-parameter
+    catch-all whose signature overlaps that parameter's (correlation ~0.8), plus an unrelated effect."""
+    rng = np.random.default_rng(seed)
+    specs = [fitting.ParamSpec("joint_offset", f"joint{j}", 0.0, -0.1, 0.1, 0.01, "rad") for j in range(1, 7)]
+    specs += [fitting.ParamSpec("ball_placement", "x", 0.0, -0.008, 0.008, 0.0008, "m"), fitting.ParamSpec("air_drag", "cd", 0.0, 0.0, 1.0, 0.05, "1")]
+    N, F, sd = 25, N_FEATURES, 0.05
+    dy = rng.normal(0, 1, (len(specs), N, F))
+    # The catch-all reproduces 80% of joint3's signature (per unit of its own range).
+    dy[6] = (0.8 * dy[2] * 0.2 + 0.6 * rng.normal(0, 1, (N, F)) * 0.2) / 0.016
+    y0 = rng.normal(0, 1, (N, F))
+    y_meas = y0 + truth * dy[2] + rng.normal(0, sd, (N, F))
+    return specs, fitting.Sensitivity(specs, y0, dy), fitting.Problem(y_meas, y0, np.full(F, sd))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_sparse_multi_parameter_effect_beats_a_catch_all_and_pairs(seed):
+    specs, sens, prob = _sparse_world(seed, truth=0.01)
+    effects = ["joint_offset", "ball_placement", "air_drag"]
+    fits = sorted((fitting.linear_fit(prob, sens, c) for c in fitting.candidate_sets(effects)), key=lambda f: f.bic)
+    # The single effect wins over the catch-all alone and over every pair (which contain it plus a spare effect).
+    assert fits[0].effects == ("joint_offset",), [(f.effects, round(f.bic, 1)) for f in fits[:4]]
+    # Only the moved parameter is active; the other five stay nominal and are charged 2 ln C(6, 1) for the choice.
+    assert [s.key for s in fits[0].specs] == ["joint_offset.joint3"]
+    assert len(fits[0].inactive) == 5
+    assert fits[0].selection_penalty == pytest.approx(2 * np.log(6))
+    assert fits[0].theta[0] == pytest.approx(0.01, abs=4 * fits[0].stderr[0])
+    # Fitting all six parameters (plain BIC) would have charged 5 more ln n and lost to the catch-all.
+    full = fitting.linear_fit(prob, sens, ("joint_offset",), select=False)
+    catch_all = next(f for f in fits if f.effects == ("ball_placement",))
+    assert full.k == 6 and full.bic > catch_all.bic
+
+
+def test_allowed_effects_excludes_what_the_data_would_show_and_lists_what_they_cannot():
+    from besdrake.diagnosis.core import EXCLUDE_FRACTION, _allowed_effects, _Sim
+
+    rng = np.random.default_rng(7)
+    specs = [fitting.ParamSpec("base_offset", "z", 0.0, -0.2, 0.2, 0.02, "m"), fitting.ParamSpec("scoop_friction", "mu_static", 0.6, 0.05, 1.5, -0.07, "1")]
+    N, F, sd = 25, N_FEATURES, 0.05
+    dy = np.zeros((2, N, F))
+    dy[0] = rng.normal(0, 1, (N, F))  # the base height shows strongly in every feature
+    y0 = rng.normal(0, 1, (N, F))
+    prob = fitting.Problem(y0 + rng.normal(0, sd, (N, F)), y0, np.full(F, sd))  # nominal world: no effect at all
+    sim = _Sim(None, [], [], [], [])
+    allowed = {a.effect: a for a in _allowed_effects(prob, fitting.Sensitivity(specs, y0, dy), ["base_offset", "scoop_friction"], sim, ["touchdown"], N)}
+    base, fric = allowed["base_offset"], allowed["scoop_friction"]
+    assert base.excluded and base.max_fraction < EXCLUDE_FRACTION
+    lo, hi = base.allowed["z"]
+    assert lo < 0.0 < hi and hi - lo < 0.01  # a tight interval around nominal
+    # Friction does not move any signal: every value in its realistic range stays allowed, no number of throws helps.
+    assert not fric.excluded
+    assert fric.allowed["mu_static"] == pytest.approx((0.05, 1.5))
+    assert fric.throws_needed is None and fric.recommendation

@@ -3,11 +3,14 @@
 1. *Comparison*: every usable logged plan is replayed in the nominal simulation and compared throw by throw
    (touchdown, the ball's flight state, joint tracking; :mod:`~besdrake.diagnosis.observables`); the mean
    residual of each group is tested against the measurement noise (systematic vs noise).
-2. *Cause*: every candidate effect of the registry and every pair is fitted (:mod:`~besdrake.diagnosis.fitting`)
-   and ranked by BIC; candidates within :data:`INDISTINGUISHABLE_DBIC` of the best that are not merely the
+2. *Cause*: every candidate effect of the registry and every pair is fitted (:mod:`~besdrake.diagnosis.fitting`;
+   only the parameters a forward selection activates, the rest stay nominal) and ranked by the extended BIC; candidates within :data:`INDISTINGUISHABLE_DBIC` of the best that are not merely the
    best plus an unneeded effect are reported as "cannot tell apart", with the recording or throw that would
    separate them (predicted by simulating both fitted candidates). When even the best candidate leaves a
-   residual above the noise (lack-of-fit test at :data:`ALPHA`), the result is "not explained".
+   residual above the noise (lack-of-fit test at :data:`ALPHA`), the result is "not explained". When no candidate
+   improves significantly on the nominal simulation, the answer is "no discrepancy beyond the noise" together with
+   the effects the log cannot exclude and the magnitudes it still allows (``cannot_tell``), never a confident "the
+   nominal model is right".
 3. *Refined model*: the scenario with the fitted effects (:meth:`Diagnosis.refined_scenario`).
 4. *Gain*: touchdown disparity before/after on throws held out from the fit (K-fold: each throw is predicted
    by a model fitted without it), medians with bootstrap confidence intervals.
@@ -42,6 +45,10 @@ MATERIAL = 0.25
 MATERIAL_BALL_FACTOR = 4.0
 #: An explanation is "confident" when its lack-of-fit p-value is at least this and no rival is as good.
 CONFIDENT_P = 0.05
+#: When the nominal simulation agrees with the log, an effect counts as *excluded* only if the data rule out (at
+#: level ALPHA, profile likelihood) every deviation of at least this fraction of its realistic range (the registry's
+#: bounds); otherwise the log "cannot tell the nominal simulation from" it.
+EXCLUDE_FRACTION = 0.1
 
 
 class DiagnosisError(ValueError):
@@ -81,6 +88,8 @@ class Cause:
     unobservable: list[str] = field(default_factory=list)
     p_groups: dict[str, float] = field(default_factory=dict)
     k_eff: float = 0.0
+    left_nominal: list[str] = field(default_factory=list)
+    selection_penalty: float = 0.0
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -97,7 +106,43 @@ class Cause:
             "p_value": self.p_value,
             "p_value_by_group": self.p_groups,
             "unobservable": self.unobservable,
+            "left_nominal": self.left_nominal,
+            "selection_penalty": self.selection_penalty,
         }
+
+
+@dataclass
+class AllowedEffect:
+    """What a log without a detectable discrepancy still allows of one candidate effect.
+
+    ``allowed``: per parameter the interval (in its unit) not ruled out at level :data:`ALPHA` (profile likelihood on
+    the linearised model, clipped to the realistic bounds); ``max_fraction``: the largest allowed deviation from
+    nominal as a fraction of the parameter's realistic range; ``excluded``: every deviation of at least
+    :data:`EXCLUDE_FRACTION` of the range is ruled out; ``throws_needed``: about how many throws like the logged ones
+    would exclude it (None: the logged signals do not respond to it at all); ``recommendation``: the recording or
+    experiment that would show it.
+    """
+
+    effect: str
+    allowed: dict[str, tuple[float, float]]
+    nominal: dict[str, float]
+    units: dict[str, str]
+    max_fraction: float
+    excluded: bool
+    throws_needed: int | None
+    recommendation: str
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"effect": self.effect, "allowed": {k: [float(a), float(b)] for k, (a, b) in self.allowed.items()}, "nominal": dict(self.nominal),
+                "units": dict(self.units), "max_allowed_fraction_of_range": self.max_fraction, "excluded": self.excluded,
+                "throws_needed": self.throws_needed, "recommendation": self.recommendation}
+
+    def describe(self) -> str:
+        """``effect (p in [lo, hi] unit, ...)`` for the allowed parameters that reach the exclusion threshold."""
+        parts = []
+        for k, (a, b) in self.allowed.items():
+            parts.append(f"{k} {a:.3g}..{b:.3g} {self.units.get(k, '')}".rstrip())
+        return f"{self.effect} ({'; '.join(parts)})"
 
 
 @dataclass
@@ -122,7 +167,14 @@ class Gain:
 
 @dataclass
 class Diagnosis:
-    """Everything :func:`diagnose` found (JSON via :meth:`summary`)."""
+    """Everything :func:`diagnose` found (JSON via :meth:`summary`).
+
+    ``explained``: the chosen model (the best cause, or the nominal simulation when no candidate improves on it
+    significantly) passes the lack-of-fit test against the measured noise. When the chosen model is the nominal one,
+    that means only "no discrepancy beyond the noise": ``cannot_tell`` then lists the candidate effects the log
+    cannot exclude (with the magnitudes it still allows and what would show them) and ``excluded`` those it rules
+    out; ``confidence`` is "high" only if every candidate is excluded. Both lists are empty when a cause was named.
+    """
 
     explained: bool
     confidence: str
@@ -143,6 +195,8 @@ class Diagnosis:
     n_rollouts: int
     notes: list[str] = field(default_factory=list)
     refined_scenario_path: str | None = None
+    cannot_tell: list[AllowedEffect] = field(default_factory=list)
+    excluded: list[AllowedEffect] = field(default_factory=list)
 
     def refined_effects(self) -> dict[str, dict[str, float]]:
         if not self.best or not self.best.effects:
@@ -172,6 +226,8 @@ class Diagnosis:
             "causes": [c.to_dict() for c in self.causes],
             "best": self.best.to_dict() if self.best else None,
             "indistinguishable": self.indistinguishable,
+            "cannot_tell": [a.to_dict() for a in self.cannot_tell],
+            "excluded": [a.to_dict() for a in self.excluded],
             "gain": self.gain.to_dict() if self.gain else None,
             "noise": self.noise.to_dict(),
             "comparison": [vars(g) for g in self.comparison],
@@ -356,6 +412,81 @@ def _separation_advice(a: fitting.CandidateFit, b: fitting.CandidateFit, sim: _S
     return advice
 
 
+_RECORD = {"ball_pos": "record the ball path (motion capture)", "ball_vel": "record the ball path (motion capture): the release speed/direction",
+           "ball_acc": "record the ball path (motion capture): the in-flight deceleration", "joints": "record the joint encoders (tracking error)",
+           "touchdown": "measure the touchdown"}
+
+
+def _allowed_effects(prob: fitting.Problem, sens: fitting.Sensitivity, effects: Sequence[str], sim: _Sim, measured: list[str],
+                     n_throws: int) -> list[AllowedEffect]:
+    """For a log in which no candidate improves on the nominal simulation: per candidate effect, the parameter
+    intervals the data still allow (linearised profile likelihood at level ALPHA, within the realistic bounds),
+    whether every deviation of EXCLUDE_FRACTION of the range is ruled out, and what would show the effect."""
+    q = float(stats.chi2.ppf(1.0 - ALPHA, 1))
+    r0 = prob.weighted(sens.y0)
+    y_nom_full = sim.full_cache.get(sim.key({}))
+    out = []
+    for e in effects:
+        idx = [j for j, s_ in enumerate(sens.specs) if s_.effect == e]
+        if not idx:
+            continue
+        specs = [sens.specs[j] for j in idx]
+        A = prob.weighted_jac(sens.dy[idx])
+        P, _ = fitting._prior_rows(specs, np.array([s_.nominal for s_ in specs]))
+        H = A.T @ A + P.T @ P
+        cov = np.linalg.inv(H)
+        theta = np.array([s_.nominal for s_ in specs]) + cov @ (A.T @ r0)
+        try:  # data-only covariance for the throws needed (None where the log does not respond at all)
+            cov_data = np.diag(np.linalg.pinv(A.T @ A, rcond=1e-10))
+        except np.linalg.LinAlgError:
+            cov_data = np.full(len(specs), np.inf)
+        allowed, nominal, units, fracs, needed = {}, {}, {}, [], []
+        for j, s_ in enumerate(specs):
+            half = np.sqrt(q * max(cov[j, j], 0.0))
+            lo, hi = max(s_.low, theta[j] - half), min(s_.high, theta[j] + half)
+            if lo > hi:  # the estimate lies beyond a bound: only the bound itself is allowed
+                lo = hi = s_.low if theta[j] < s_.low else s_.high
+            rng_ = s_.high - s_.low
+            fracs.append(max(abs(lo - s_.nominal), abs(hi - s_.nominal)) / rng_)
+            allowed[s_.name], nominal[s_.name], units[s_.name] = (float(lo), float(hi)), float(s_.nominal), s_.unit
+            cd = cov_data[j]
+            if np.isfinite(cd) and cd > 0 and np.linalg.norm(A[:, j]) > 0:
+                needed.append(n_throws * q * cd / (EXCLUDE_FRACTION * rng_) ** 2)
+            else:
+                needed.append(np.inf)
+        max_frac = float(max(fracs))
+        excluded = max_frac < EXCLUDE_FRACTION
+        n_need = float(max(needed)) if needed else np.inf
+        throws_needed = int(np.ceil(n_need)) if np.isfinite(n_need) and n_need < 1e6 else None
+        # Which signal would show a deviation of EXCLUDE_FRACTION of the range (finite-difference rollouts of the
+        # sensitivity, evaluated for every signal).
+        shows = []
+        for s_ in specs:
+            y_step = sim.full_cache.get(sim.key(fitting.effects_from([s_], [s_.nominal + s_.step])))
+            if y_step is None or y_nom_full is None:
+                continue
+            d = (y_step - y_nom_full) * (EXCLUDE_FRACTION * (s_.high - s_.low) / abs(s_.step))
+            for g, sl_ in group_slices().items():
+                rms = np.sqrt(np.nanmean(d[:, sl_] ** 2, axis=1))
+                rms = rms[np.isfinite(rms)]
+                if rms.size:
+                    shows.append((float(np.median(rms) / noise.TYPICAL[g]), g, s_.key))
+        shows.sort(reverse=True)
+        unmeasured = [x for x in shows if x[1] not in measured and x[0] > 1.0]
+        if excluded:
+            rec = ""
+        elif unmeasured:
+            sc, g, key = unmeasured[0]
+            rec = f"{_RECORD[g]}: {key} at {EXCLUDE_FRACTION:.0%} of its range would show there as ~{sc:.1f} x typical noise per throw"
+        elif throws_needed is not None:
+            rec = (f"about {throws_needed} throws like the logged ones (with repeats) would exclude {e} beyond {EXCLUDE_FRACTION:.0%} of its range; "
+                   "plans that spread release speed and height more widely need fewer")
+        else:
+            rec = "none of the signals a lab log holds responds to it for these throws: it does not matter for them"
+        out.append(AllowedEffect(e, allowed, nominal, units, max_frac, excluded, throws_needed, rec))
+    return out
+
+
 # ---------------------------------------------------------------------------------------------- main
 def diagnose(
     measurements: Sequence,
@@ -538,7 +669,8 @@ def diagnose(
                 p, p_groups = _lack_of_fit_p(prob, f.y_fit, f.k, nm, groups_used)
             else:
                 p, p_groups = float("nan"), {}
-            causes.append(Cause(f.effects, f.parameter_table(), f.bic, f.bic - best_fit.bic, f.chi2, f.n, f.k, f.refined, p, f.unobservable, p_groups, f.k_eff))
+            causes.append(Cause(f.effects, f.parameter_table(), f.bic, f.bic - best_fit.bic, f.chi2, f.n, f.k, f.refined, p, f.unobservable, p_groups, f.k_eff,
+                                list(f.inactive), f.selection_penalty))
         best = causes[0]
 
         # ---------------------------------------------------------------- verdict
@@ -557,11 +689,25 @@ def diagnose(
         explained = bool(best.effects) and best.p_value >= ALPHA
         confidence = "high" if explained and not indist and best.p_value >= CONFIDENT_P else "low"
         nothing_wrong = not best.effects or (none_c.p_value >= ALPHA and none_c.delta_bic < INDISTINGUISHABLE_DBIC)
+        cannot_tell: list[AllowedEffect] = []
+        excluded: list[AllowedEffect] = []
         if nothing_wrong:
-            explained, confidence = True, "high" if none_c.p_value >= CONFIDENT_P else "low"
-            verdict = "the nominal simulation agrees with the lab within the measurement noise"
+            # No discrepancy beyond the noise is NOT evidence that the nominal model is right: say which effects
+            # (and how large) the data still allow.
+            allowed = _allowed_effects(prob, sens, cands, sim, measured_groups, len(used))
+            cannot_tell = sorted([a for a in allowed if not a.excluded], key=lambda a: -a.max_fraction)
+            excluded = [a for a in allowed if a.excluded]
+            explained = True
+            confidence = "high" if none_c.p_value >= CONFIDENT_P and not cannot_tell else "low"
+            if cannot_tell:
+                verdict = ("no discrepancy beyond the measurement noise, but the log cannot tell the nominal simulation from "
+                           + ", ".join(a.describe() for a in cannot_tell)
+                           + (f"; excluded beyond {EXCLUDE_FRACTION:.0%} of their range: " + ", ".join(a.effect for a in excluded) if excluded else ""))
+            else:
+                verdict = (f"the nominal simulation agrees with the lab within the measurement noise; every candidate effect is excluded "
+                           f"beyond {EXCLUDE_FRACTION:.0%} of its realistic range")
             if none_c.p_value < ALPHA:
-                explained, confidence = False, "low"
+                explained, confidence, cannot_tell, excluded = False, "low", [], []
                 verdict = ("not explained: the simulation differs from the lab beyond the noise, but no candidate effect changes the "
                            "predicted outcomes materially")
         elif not explained:
@@ -648,8 +794,8 @@ def diagnose(
     return Diagnosis(
         explained=explained, confidence=confidence, verdict=verdict, causes=causes, best=best, indistinguishable=indist, noise=nm, comparison=comparison,
         gain=gain, groups_measured=measured_groups, n_trials=len(measurements), n_used=len(used), skipped=skipped, per_throw=per_throw,
-        scenario=scen, timings=timings, n_rollouts=sim.n_rollouts, notes=notes,
+        scenario=scen, timings=timings, n_rollouts=sim.n_rollouts, notes=notes, cannot_tell=cannot_tell, excluded=excluded,
     )
 
 
-__all__ = ["diagnose", "Diagnosis", "Cause", "Gain", "GroupComparison", "DiagnosisError", "ALPHA", "INDISTINGUISHABLE_DBIC"]
+__all__ = ["diagnose", "Diagnosis", "Cause", "Gain", "AllowedEffect", "EXCLUDE_FRACTION", "GroupComparison", "DiagnosisError", "ALPHA", "INDISTINGUISHABLE_DBIC"]

@@ -6,8 +6,12 @@ serves every candidate (single effects and pairs): each candidate is first fitte
 (bounded least squares, :func:`scipy.optimize.lsq_linear`), then the best few are refined with real rollouts
 (Gauss-Newton steps on a Broyden-updated Jacobian, within the effect's realistic bounds). The weighted
 residuals use the measurement noise per feature group, so ``chi2`` is -2 log-likelihood up to a constant
-and candidates are compared by BIC = chi2 + k ln n. Parameter standard errors come from the Gauss-Newton
-covariance sigma^2 (J^T W J)^-1 at the optimum.
+and candidates are compared by an extended BIC = chi2 + k ln n + 2 ln C(m, k) per effect (Chen & Chen 2008):
+a realistic deviation usually moves one or two of an effect's m parameters (one joint's encoder zero, the base's
+height), so each candidate fits only the parameters a forward selection on the linear model activates (the others
+stay nominal), and choosing k of m parameters is charged 2 ln C(m, k). A six-parameter effect of which one parameter
+is off then costs about what a one-parameter effect costs, instead of losing to a small catch-all effect.
+Parameter standard errors come from the Gauss-Newton covariance sigma^2 (J^T W J)^-1 at the optimum.
 """
 
 from __future__ import annotations
@@ -123,6 +127,8 @@ class CandidateFit:
     y_fit: np.ndarray | None = None  # simulated features at theta (N, F) when refined
     jac: np.ndarray | None = None  # weighted Jacobian rows (used for the covariance)
     fresh_jacobian: bool = False  # stderr from a finite-difference Jacobian at the optimum (else Broyden's)
+    selection_penalty: float = 0.0  # 2 sum_e ln C(m_e, k_e): the cost of choosing the active parameters
+    inactive: list[str] = field(default_factory=list)  # observable parameters left at nominal by the selection
 
     @property
     def k_eff(self) -> float:
@@ -140,8 +146,8 @@ class CandidateFit:
 
     @property
     def bic(self) -> float:
-        """BIC = chi2 + k_eff ln n (see :attr:`k_eff`)."""
-        return float(self.chi2 + self.k_eff * np.log(max(self.n, 1)))
+        """Extended BIC = chi2 + k_eff ln n + the parameter-selection penalty (see :attr:`k_eff`, :func:`linear_fit`)."""
+        return float(self.chi2 + self.k_eff * np.log(max(self.n, 1)) + self.selection_penalty)
 
     @property
     def name(self) -> str:
@@ -229,24 +235,63 @@ def chi2_by_group(prob: Problem, y_sim: np.ndarray, slices: dict[str, slice]) ->
     return out
 
 
-def linear_fit(prob: Problem, sens: Sensitivity, effects: tuple[str, ...], observable_tol: float = 1e-3) -> CandidateFit:
-    """Fit a candidate on the linear model at nominal (no rollouts)."""
+def selection_penalty(specs: Sequence[ParamSpec], n_params: dict[str, int]) -> float:
+    """2 sum over effects of ln C(m_e, k_e): the cost of having chosen k_e of an effect's m_e parameters."""
+    from math import comb, log
+
+    k: dict[str, int] = {}
+    for s_ in specs:
+        k[s_.effect] = k.get(s_.effect, 0) + 1
+    return float(sum(2.0 * log(comb(n_params[e], c)) for e, c in k.items() if n_params.get(e, 0) >= c))
+
+
+def linear_fit(prob: Problem, sens: Sensitivity, effects: tuple[str, ...], observable_tol: float = 1e-3, select: bool = True) -> CandidateFit:
+    """Fit a candidate on the linear model at nominal (no rollouts).
+
+    ``select``: forward selection of the active parameters (at least one per effect), ranked by the extended BIC
+    chi2 + k ln n + 2 sum ln C(m_e, k_e); unselected parameters stay nominal (``inactive``). Without it every
+    observable parameter is fitted.
+    """
     idx = [i for i, s in enumerate(sens.specs) if s.effect in effects]
     A_all = prob.weighted_jac(sens.dy[idx]) if idx else np.zeros((prob.n, 0))
     scale = np.array([abs(s.high - s.low) for s in (sens.specs[i] for i in idx)])
     norms = np.linalg.norm(A_all, axis=0) * scale if idx else np.zeros(0)
     keep = [j for j, nrm in enumerate(norms) if nrm > observable_tol * max(1.0, np.sqrt(prob.n))]
     unobs = [sens.specs[idx[j]].key for j in range(len(idx)) if j not in keep]
-    specs = [sens.specs[idx[j]] for j in keep]
-    A = A_all[:, keep]
+    n_params = {e: sum(1 for j in keep if sens.specs[idx[j]].effect == e) for e in effects}
     r0 = prob.weighted(sens.y0)
-    theta0 = np.array([s.nominal for s in specs])
-    if specs:
-        delta = _solve_step(A, r0, specs, theta0)
+    ln_n = np.log(max(prob.n, 1))
+
+    def solve(cols: list[int]):
+        sp = [sens.specs[idx[j]] for j in cols]
+        A = A_all[:, cols]
+        th0 = np.array([s_.nominal for s_ in sp])
+        if not sp:
+            return sp, A, th0, np.zeros(0), float(r0 @ r0)
+        delta = _solve_step(A, r0, sp, th0)
         r = r0 - A @ delta
-    else:
-        delta, r = np.zeros(0), r0
-    return CandidateFit(effects=effects, specs=specs, theta=theta0 + delta, stderr=stderr_from(A, specs), chi2=float(r @ r), n=prob.n, k=len(specs), unobservable=unobs, jac=A)
+        return sp, A, th0, delta, float(r @ r)
+
+    chosen = list(keep)
+    if select and len(keep) > 1:
+        active: list[int] = []
+        best_crit, best_set = np.inf, list(keep)
+        remaining = list(keep)
+        while remaining:
+            trials = [(solve(active + [j])[4], j) for j in remaining]
+            c2, j = min(trials)
+            active.append(j)
+            remaining.remove(j)
+            sp = [sens.specs[idx[x]] for x in active]
+            if all(any(s_.effect == e for s_ in sp) for e in effects if n_params.get(e, 0) > 0):
+                crit = c2 + len(active) * ln_n + selection_penalty(sp, n_params)
+                if crit < best_crit - 1e-9:
+                    best_crit, best_set = crit, list(active)
+        chosen = sorted(best_set)
+    specs, A, theta0, delta, c2 = solve(chosen)
+    inactive = [sens.specs[idx[j]].key for j in keep if j not in chosen]
+    return CandidateFit(effects=effects, specs=specs, theta=theta0 + delta, stderr=stderr_from(A, specs), chi2=c2, n=prob.n, k=len(specs),
+                        unobservable=unobs, jac=A, selection_penalty=selection_penalty(specs, n_params) if select else 0.0, inactive=inactive)
 
 
 def refine(
@@ -345,4 +390,4 @@ def candidate_sets(effects: Sequence[str], pairs: bool = True) -> list[tuple[str
     return out
 
 
-__all__ = ["ParamSpec", "param_specs", "effects_from", "Sensitivity", "compute_sensitivity", "CandidateFit", "Problem", "linear_fit", "refine", "candidate_sets", "chi2_by_group"]
+__all__ = ["ParamSpec", "param_specs", "selection_penalty", "effects_from", "Sensitivity", "compute_sensitivity", "CandidateFit", "Problem", "linear_fit", "refine", "candidate_sets", "chi2_by_group"]

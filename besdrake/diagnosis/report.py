@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from besdrake.diagnosis.core import Diagnosis
+from besdrake.diagnosis.core import EXCLUDE_FRACTION, Diagnosis
 
 
 def _fmt_param(p: dict) -> str:
@@ -145,6 +145,21 @@ def _markdown(diag: Diagnosis, figures: list[str], scenario_path: Path | None) -
         for a in diag.indistinguishable:
             L.append(f"- cannot tell **{a['a']}** from **{a['b']}** (delta BIC {a['delta_bic']:.1f}). To separate them: {a.get('recommendation', '')}.")
         L.append("")
+    if diag.cannot_tell:
+        L.append("### No discrepancy beyond the noise: what the log cannot exclude")
+        L.append("")
+        L.append("The nominal simulation passes the lack-of-fit test, but that does not show it is right: these effects are still allowed "
+                 "(99% profile-likelihood intervals on the linearised model, within the realistic bounds):")
+        L.append("")
+        L.append("| effect | allowed values | largest allowed deviation (share of the range) | throws to exclude it | what would show it |")
+        L.append("|---|---|---|---|---|")
+        for a in diag.cannot_tell:
+            vals = "; ".join(f"{k} {lo:.3g}..{hi:.3g} {a.units.get(k, '')}" for k, (lo, hi) in a.allowed.items())
+            L.append(f"| {a.effect} | {vals} | {a.max_fraction:.0%} | {a.throws_needed if a.throws_needed is not None else 'no number'} | {a.recommendation} |")
+        L.append("")
+        if diag.excluded:
+            L.append(f"Excluded (every deviation of {EXCLUDE_FRACTION:.0%} of the realistic range or more is ruled out): " + ", ".join(a.effect for a in diag.excluded) + ".")
+            L.append("")
     unobs = diag.best.unobservable if diag.best else []
     if unobs:
         L.append(f"Parameters of the best candidate the data do not constrain (left at nominal): {', '.join(unobs)}.")
