@@ -83,6 +83,27 @@ def test_meta_bounds_respect_minimum_execution_time(base):
     assert b[1, 0] < base.goal[0] < b[1, 1]
 
 
+def test_meta_bounds_keep_every_plan_within_the_joint_limits(base):
+    free = default_meta_bounds(base, respect_limits=False)
+    safe = default_meta_bounds(base)
+    m = MetaDMP(base)
+    assert not m.plan([free[0, 0], base.goal[0]]).check_limits().ok  # the free box allows too fast throws
+    assert free[0, 0] < safe[0, 0] < base.execution_time * 1.05
+    assert not m.plan([safe[0, 0] - 0.02, base.goal[0]]).check_limits().ok  # the bound is tight
+    for tau in safe[0]:
+        for goal in safe[1]:
+            assert m.plan([tau, goal]).check_limits().ok
+
+    class Fastest:
+        def policy(self, s):
+            return np.array([0.0, base.goal[0]])  # asks for an impossibly fast throw
+
+    plan = BehaviorTemplate("fast", m, safe, Fastest()).instantiate([2.4, 0.0])
+    assert plan.meta["within_limits"] and plan.duration == pytest.approx(safe[0, 0])
+    flagged = BehaviorTemplate("fast", m, free, Fastest()).instantiate([2.4, 0.0])
+    assert flagged.meta["within_limits"] is False
+
+
 @pytest.fixture(scope="module")
 def trained(base):
     return train_template(base, PolarStandIn(), method="ucb", n_episodes=25, seed=0, name="polar",

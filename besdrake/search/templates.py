@@ -25,6 +25,13 @@ policy, 20 episodes per update; a baseline). Reward: minus the squared
 touchdown distance (m^2), as in the paper; a rollout without touchdown or a failed simulation is a
 failed episode. :meth:`BehaviorTemplate.instantiate` returns the :class:`~besdrake.plan.MotionPlan`
 for a target; :class:`TemplatePool` stores templates as JSON + npz with their provenance.
+
+Joint limits. Only the execution time changes the joint velocities and accelerations (by 1/k and
+1/k^2 for a k-times faster execution), so :func:`default_meta_bounds` raises the lower execution-time
+bound to the fastest execution that keeps the base within the robot's limits: a template never
+instantiates a plan that the lab's safety gate would refuse (``plan.meta["within_limits"]`` says so
+for templates with hand-set bounds). Targets beyond the base's reach at that speed are missed by
+the shortfall instead.
 """
 
 from __future__ import annotations
@@ -61,14 +68,49 @@ class TemplateError(ValueError):
     """Bad template input: context out of shape, NaN, corrupt template file, unknown method or name."""
 
 
-def default_meta_bounds(base: DMP) -> np.ndarray:
-    """Execution time in [0.7, 1.6] x the base's (at least 0.95 s), joint-1 goal within +-0.9 rad of the base's."""
+def default_meta_bounds(base: DMP, respect_limits: bool = True, joint1_mode: str = "rotate") -> np.ndarray:
+    """Execution time in [0.7, 1.6] x the base's (at least 0.95 s), joint-1 goal within +-0.9 rad of the base's.
+
+    With ``respect_limits`` the lower execution-time bound is raised to :func:`limit_safe_execution_time`:
+    a faster execution scales joint velocities by 1/k and accelerations by 1/k^2, so a template may not
+    speed the base up beyond the robot's limits (the lab's safety gate would refuse those plans). When no
+    execution time in the box keeps the base within the limits, the box is returned unchanged (the
+    template's plans are then flagged by :meth:`BehaviorTemplate.instantiate`).
+    """
     tau = float(base.execution_time)
     g1 = float(base.goal[0])
     lo = max(MIN_EXECUTION_TIME, 0.7 * tau)
     hi = max(lo + 0.1, 1.6 * tau)
     jl = robot.POSITION_LIMITS[0]
-    return np.array([[lo, hi], [max(jl[0], g1 - 0.9), min(jl[1], g1 + 0.9)]])
+    bounds = np.array([[lo, hi], [max(jl[0], g1 - 0.9), min(jl[1], g1 + 0.9)]])
+    if respect_limits:
+        safe = limit_safe_execution_time(MetaDMP(base, joint1_mode), bounds)
+        if safe is not None and safe < hi - 0.05:
+            bounds[0, 0] = max(lo, safe)
+    return bounds
+
+
+def limit_safe_execution_time(meta: "MetaDMP", bounds: np.ndarray, tol: float = 0.005) -> float | None:
+    """Smallest execution time in ``bounds[0]`` whose plans stay within the robot's joint limits, or None.
+
+    Checked at the joint-1 goals ``bounds[1]`` (ends and middle; in ``"rotate"`` mode the goal only
+    shifts joint 1, so the derivatives do not depend on it). Bisection: the limits are monotone in the
+    execution time for a time-scaled DMP (velocities scale with 1/tau, accelerations with 1/tau^2).
+    """
+    goals = np.linspace(bounds[1, 0], bounds[1, 1], 3) if meta.joint1_mode == "goal" else [float(meta.base.goal[0])]
+
+    def ok(tau: float) -> bool:
+        return all(meta.plan(np.array([tau, g])).check_limits().ok for g in goals)
+
+    lo, hi = float(bounds[0, 0]), float(bounds[0, 1])
+    if ok(lo):
+        return lo
+    if not ok(hi):
+        return None
+    while hi - lo > tol:
+        mid = 0.5 * (lo + hi)
+        lo, hi = (lo, mid) if ok(mid) else (mid, hi)
+    return hi
 
 
 def _check_context(context: Any) -> np.ndarray:
@@ -177,7 +219,10 @@ class BehaviorTemplate:
         lo, hi = CONTEXT_BOUNDS[:, 0], CONTEXT_BOUNDS[:, 1]
         outside = (s < lo - 1e-9) | (s > hi + 1e-9)
         plan = self.meta.plan(self.meta_parameters(s))
-        plan.meta.update({"template": self.name, "context_m": s.tolist(), "extrapolated": bool(outside.any())})
+        within = bool(plan.check_limits().ok)
+        plan.meta.update({
+            "template": self.name, "context_m": s.tolist(), "extrapolated": bool(outside.any()), "within_limits": within,
+        })
         return plan
 
     # -------------------------------------------------------------- persistence
@@ -372,7 +417,7 @@ def train_template(
     if method not in METHODS:
         raise TemplateError(f"unknown method {method!r}; choose one of {METHODS}")
     meta = MetaDMP(base, joint1_mode)
-    bounds = default_meta_bounds(base) if meta_bounds is None else np.asarray(meta_bounds, dtype=float)
+    bounds = default_meta_bounds(base, joint1_mode=joint1_mode) if meta_bounds is None else np.asarray(meta_bounds, dtype=float)
     if bounds.shape != (2, 2) or not np.isfinite(bounds).all() or (bounds[:, 0] >= bounds[:, 1]).any():
         raise TemplateError(f"meta_bounds must be a finite 2x2 array with lower < upper, got {bounds.tolist()}")
     if bounds[0, 0] <= 0:
@@ -425,5 +470,5 @@ def fitted_default_throw(amplitude: float = 0.6, n_weights_per_dim: int = 6) -> 
 __all__ = [
     "CONTEXT_BOUNDS", "TEST_CONTEXTS", "METHODS", "JOINT1_MODES", "META_NAMES", "PAPER_MEAN_CM",
     "TemplateError", "MetaDMP", "BehaviorTemplate", "TemplatePool", "TemplateEvaluation", "TemplateTraining",
-    "default_meta_bounds", "evaluate_template", "train_template", "touchdowns", "fitted_default_throw",
+    "default_meta_bounds", "limit_safe_execution_time", "evaluate_template", "train_template", "touchdowns", "fitted_default_throw",
 ]
