@@ -7,12 +7,13 @@ diagnoses the log twice: full (ball path + joints) and touchdown only (the same 
 removed). ``--unknown`` more trials hide an effect the registry does not know (registered for the lab only).
 
 Figures (targets of issue 6): right cause named on full logs (>= 95%), right cause or an honest "cannot tell
-X from Y" on touchdown-only logs (>= 95%), unknown effects never explained with high confidence, held-out
+X from Y" on touchdown-only logs (>= 95%; "no discrepancy beyond the noise, cannot tell nominal from {...}" counts
+as honest only if every hidden effect is in the set; the mean set size is printed next to the registry size), unknown effects never explained with high confidence, held-out
 median touchdown disparity after refinement / the lab's noise floor (<= 1.2; the floor is the median
 disparity of the true model on the same throws, measured in the same run), and diagnosis wall time per log
 (<= 120 s on 2 cores). Prints the confusion tables.
 
-    python3 scripts/bench_diagnosis.py --trials 40 --unknown 4 --workers 2 > bench_diagnosis.json
+    python3 scripts/bench_diagnosis.py --trials 40 --unknown 5 --workers 1 --progress --out /tmp/diag_bench/partial.json > bench_diagnosis.json
 """
 
 from __future__ import annotations

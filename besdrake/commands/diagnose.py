@@ -90,6 +90,8 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(f"{diag.verdict}")
         print(f"explained: {diag.explained} (confidence {diag.confidence}); best: {diag.best.to_dict()['effect'] if diag.best else 'none'}")
+        for a in diag.cannot_tell:
+            print(f"cannot tell nominal from {a.describe()}: {a.recommendation}")
         if diag.gain:
             g = diag.gain
             print(f"held-out median touchdown disparity: {g.median_disparity_before_m:.3f} m -> {g.median_disparity_after_m:.3f} m "
