@@ -706,6 +706,16 @@ def diagnose(
             else:
                 verdict = (f"the nominal simulation agrees with the lab within the measurement noise; every candidate effect is excluded "
                            f"beyond {EXCLUDE_FRACTION:.0%} of its realistic range")
+            if best.effects and none_c.p_value >= ALPHA:
+                # The BIC-best candidate is not significantly better than nominal: it is named, not claimed (the refined
+                # scenario stays nominal and the ranked causes start with the nominal model).
+                what = ", ".join(f"{p_['effect']}.{p_['parameter']} = {p_['value']:.3g} {p_['unit']}" for p_ in best.parameters)
+                verdict += (f"; the best-fitting candidate, {fits[0].name} ({what}), is not significantly better than the nominal "
+                            f"simulation (delta BIC {none_c.delta_bic:.1f} < {INDISTINGUISHABLE_DBIC:g}) and is not claimed")
+                j = causes.index(none_c)
+                causes.insert(0, causes.pop(j))
+                fits.insert(0, fits.pop(j))
+                best, best_fit, indist = none_c, none_fit, []
             if none_c.p_value < ALPHA:
                 explained, confidence, cannot_tell, excluded = False, "low", [], []
                 verdict = ("not explained: the simulation differs from the lab beyond the noise, but no candidate effect changes the "
