@@ -3,10 +3,13 @@
 
 Prints one JSON object:
 
-* ``cross_subject``: hyperparameters chosen on one subject (best interior-border F1 within
-  +-0.2 s, ties by +-0.1 s, over a small grid) and scored on the other, both directions, for
-  vMCI and the zero-velocity-crossing baseline (grid-tuned the same way); the public reference
-  vMCI figures are quoted constants (not measured here).
+* ``cross_subject``: segmenters chosen on one subject and scored on the other, both
+  directions: ``vmci_rules`` (vMCI priors, then border placement rules, both chosen on the
+  training subject by :func:`besdrake.segmentation.tune_vmci`), ``vmci`` (the priors alone)
+  and the zero-velocity-crossing baseline, each chosen by the best mean interior-border F1
+  over +-0.1 s and +-0.2 s on a small grid; the public reference vMCI figures are quoted
+  constants (not measured here). ``vmci_rules_full_grid``: the same with the pause-merging
+  rule (``min_rest_s``) in the rule grid, which the default leaves out.
 * ``defaults``: the shipped default vMCI on each subject.
 * ``border_at_speed_minimum``: fraction of borders within +-0.1 s of a local minimum of the
   hand speed (manual, vMCI, baseline).
@@ -36,7 +39,9 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 from besdrake.mocap.preprocess import preprocess  # noqa: E402
-from besdrake.segmentation import VMCI, ZeroVelocitySegmenter  # noqa: E402
+from besdrake.segmentation import VMCI, ZeroVelocitySegmenter, tune_vmci  # noqa: E402
+from besdrake.segmentation.placement import DEFAULT_RULE_GRID  # noqa: E402
+from besdrake.segmentation.tuning import DEFAULT_VMCI_GRID  # noqa: E402
 from besdrake.segmentation.evaluation import (  # noqa: E402
     BORDER_DEFINITION,
     evaluate_segmenter,
@@ -51,9 +56,7 @@ QUOTED_REFERENCE_VMCI = {"f1_0.2": 0.41, "f1_0.1": 0.15, "cpu_s_per_data_s": 0.8
                          "note": "quoted constants (public reference vMCI run as its example runs it), not measured here"}
 QUOTED_TUNED_ZVC = {"f1_0.2": 0.88, "f1_0.1": 0.69, "note": "quoted, border definition unknown"}
 
-VMCI_GRID = {"noise_ratio": [0.2, 0.3, 0.4, 0.5], "min_length_s": [0.25, 0.4]}
-# rest_border_level in {None, 0.1} was tried in this grid too: chosen on subject 1 (0.1, with
-# noise_ratio 0.5, min_length_s 0.25) it scored 0.744 / 0.535 on subject 2, so it is left out.
+VMCI_GRID = DEFAULT_VMCI_GRID
 ZVC_GRID = {"threshold": [0.1, 0.2, 0.3, 0.4], "min_gap_s": [0.2, 0.3, 0.5]}
 
 
@@ -63,15 +66,15 @@ def grid(spec: dict):
         yield dict(zip(keys, vals))
 
 
-def score(evaluation) -> tuple[float, float]:
-    return evaluation.f1(0.2), evaluation.f1(0.1)
+def score(evaluation) -> float:
+    return 0.5 * (evaluation.f1(0.2) + evaluation.f1(0.1))
 
 
 def tune(cls, spec, recs, pre):
     best = None
     for params in grid(spec):
         ev = evaluate_segmenter(cls(**params), recs, (0.1, 0.2), pre)
-        if best is None or score(ev) > score(best[1]):
+        if best is None or score(ev) > score(best[1]) + 1e-12:
             best = (params, ev)
     return best[0]
 
@@ -160,10 +163,26 @@ def main() -> None:
     cross = {}
     for a, b in itertools.permutations(subjects, 2):
         entry = {}
-        for name, cls, spec in (("vmci", VMCI, VMCI_GRID), ("zero_velocity", ZeroVelocitySegmenter, ZVC_GRID)):
-            params = tune(cls, spec, by_subject[a], pre)
-            ev = evaluate_segmenter(cls(**params), by_subject[b], (0.1, 0.2), pre)
-            entry[name] = {"params_chosen_on_" + a: params, "scores_on_" + b: summary(ev)}
+        t0 = time.process_time()
+        tuned = tune_vmci(by_subject[a], VMCI_GRID, preprocessed=pre)
+        tune_cpu = time.process_time() - t0
+        # the priors alone (stage 1 of tune_vmci) and the baseline, chosen the same way
+        params = {"vmci": tuned.params, "zero_velocity": tune(ZeroVelocitySegmenter, ZVC_GRID, by_subject[a], pre)}
+        for name, cls in (("vmci", VMCI), ("zero_velocity", ZeroVelocitySegmenter)):
+            ev = evaluate_segmenter(cls(**params[name]), by_subject[b], (0.1, 0.2), pre)
+            entry[name] = {"params_chosen_on_" + a: params[name], "scores_on_" + b: summary(ev)}
+        ev = evaluate_segmenter(tuned.segmenter(), by_subject[b], (0.1, 0.2), pre)
+        entry["vmci_rules"] = {"chosen_on_" + a: tuned.to_dict(), "scores_on_" + b: summary(ev),
+                               "tuning_cpu_s": tune_cpu}
+        full = tune_vmci(by_subject[a], VMCI_GRID, DEFAULT_RULE_GRID, preprocessed=pre)
+        ev = evaluate_segmenter(full.segmenter(), by_subject[b], (0.1, 0.2), pre)
+        entry["vmci_rules_full_grid"] = {"chosen_on_" + a: full.to_dict(), "scores_on_" + b: summary(ev)}
+        entry["f1_on_" + b] = {
+            name: {t: entry[name]["scores_on_" + b]["starts_and_ends"][f"f1_{t}"] for t in (0.2, 0.1)}
+            for name in ("vmci_rules", "vmci", "zero_velocity", "vmci_rules_full_grid")
+        }
+        entry["f1_on_" + b]["reference_vmci_quoted"] = {0.2: QUOTED_REFERENCE_VMCI["f1_0.2"], 0.1: QUOTED_REFERENCE_VMCI["f1_0.1"]}
+        entry["f1_on_" + b]["zero_velocity_tuned_quoted"] = {0.2: QUOTED_TUNED_ZVC["f1_0.2"], 0.1: QUOTED_TUNED_ZVC["f1_0.1"]}
         entry["reference_vmci_quoted"] = QUOTED_REFERENCE_VMCI
         entry["zero_velocity_tuned_quoted"] = QUOTED_TUNED_ZVC
         cross[f"tuned_on_{a}_scored_on_{b}"] = entry

@@ -3,6 +3,8 @@
 * :class:`VMCI`: velocity-based multiple changepoint inference (Senger et al. 2014 on
   Fearnhead & Liu 2007), ``VMCI().fit(recording).segments_``.
 * :class:`ZeroVelocitySegmenter`: the zero-velocity-crossing baseline.
+* :class:`BorderRules`: border placement conventions applied after vMCI
+  (``VMCI(rules=...)``), learned on a labelled subject by :func:`tune_vmci`.
 * :class:`SegmentClassifier`: 1-NN classifier of segments (``fit(segments, labels)``, ``predict``).
 * :mod:`besdrake.segmentation.evaluation`: border scoring and labelled-folder loading.
 """
@@ -15,10 +17,14 @@ from besdrake.segmentation.classification import (
     SegmentFeatures,
     extract_segment,
 )
+from besdrake.segmentation.placement import BorderRules, apply_rules, learn_rules
+from besdrake.segmentation.tuning import TunedVMCI, tune_vmci
 from besdrake.segmentation.vmci import VMCI, VMCIResult
 from besdrake.segmentation.zvc import ZeroVelocitySegmenter
 
 __all__ = [
+    "BorderRules",
+    "TunedVMCI",
     "VMCI",
     "VMCIResult",
     "ClassificationError",
@@ -28,5 +34,8 @@ __all__ = [
     "SegmentationError",
     "SegmentationResult",
     "ZeroVelocitySegmenter",
+    "apply_rules",
     "extract_segment",
+    "learn_rules",
+    "tune_vmci",
 ]

@@ -143,6 +143,10 @@ class VMCI(SegmenterMixin):
         rest_border_level: if set, a border between a movement and a rest segment is moved
             to where the speed crosses this fraction of the movement's peak speed
             (:func:`refine_rest_borders`); None keeps the model's borders.
+        rules: border placement rules applied after inference
+            (:class:`~besdrake.segmentation.placement.BorderRules` or its dict; None: none),
+            e.g. learned on a labelled subject by
+            :func:`~besdrake.segmentation.tuning.tune_vmci`.
         max_particles: particles kept after each step.
         prune_log_ratio: particles whose path log-probability is lower than the best by more
             than this are pruned.
@@ -174,6 +178,7 @@ class VMCI(SegmenterMixin):
         open_ends: bool = True,
         rest_noise_ratio: float | None = 0.25,
         rest_border_level: float | None = None,
+        rules=None,
         max_particles: int = 60,
         prune_log_ratio: float = 60.0,
         frequency: float = 60.0,
@@ -193,6 +198,7 @@ class VMCI(SegmenterMixin):
         self.open_ends = open_ends
         self.rest_noise_ratio = rest_noise_ratio
         self.rest_border_level = rest_border_level
+        self.rules = rules
         self.max_particles = max_particles
         self.prune_log_ratio = prune_log_ratio
         self.frequency = frequency
@@ -217,6 +223,16 @@ class VMCI(SegmenterMixin):
             raise ValueError(f"noise_model must be 'segment' or 'shared', got {self.noise_model!r}")
         if self.input not in ("position", "velocity"):
             raise ValueError(f"input must be 'position' or 'velocity', got {self.input!r}")
+        self._rules()
+
+    def _rules(self):
+        from besdrake.segmentation.placement import BorderRules
+
+        if self.rules is None or isinstance(self.rules, BorderRules):
+            return self.rules
+        if isinstance(self.rules, dict):
+            return BorderRules.from_dict(self.rules)
+        raise ValueError(f"rules must be a BorderRules, a dict of its fields or None, got {type(self.rules).__name__}")
 
     # ------------------------------------------------------------------ core
     def segment_velocity(self, V: np.ndarray, frequency: float) -> VMCIResult:
@@ -363,6 +379,11 @@ class VMCI(SegmenterMixin):
         if self.rest_border_level is not None and "rest" in result.segment_models:
             result = refine_rest_borders(result, np.linalg.norm(V, axis=1), self.rest_border_level,
                                          int(round(self.min_length_s * frequency)))
+        rules = self._rules()
+        if rules is not None and not rules.is_identity:
+            from besdrake.segmentation.placement import apply_rules
+
+            result = apply_rules(result, np.linalg.norm(V, axis=1), frequency, rules)
         return result
 
 

@@ -1,0 +1,135 @@
+"""Choosing a segmenter on labelled recordings (one subject), to be applied unchanged to others.
+
+:func:`tune_vmci` works in two stages, both on the training recordings only:
+
+1. the vMCI priors: every point of a small grid of :class:`~besdrake.segmentation.VMCI`
+   parameters is scored (interior border F1, mean over the tolerances) and the best is kept
+   (ties, frequent on a few dozen borders, go to the point closest to the VMCI defaults);
+2. the border placement rules (:mod:`besdrake.segmentation.placement`): with those priors, the
+   rule set of a grid with the best mean F1 is kept.
+
+Two stages rather than one joint search: the joint search chooses among many more candidates
+on the same few dozen borders and overfits the training subject (measured on the
+pick-and-place data: ``scripts/bench_segmentation.py``).
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+
+import numpy as np
+
+from besdrake.segmentation.evaluation import LabelledRecording, evaluate_segmenter, manual_borders
+from besdrake.segmentation.placement import BorderRules, LearnedRules, RuleCase, learn_rules
+from besdrake.segmentation.vmci import VMCI
+
+#: vMCI priors searched by :func:`tune_vmci` by default.
+DEFAULT_VMCI_GRID = {"noise_ratio": [0.2, 0.3, 0.4, 0.5], "min_length_s": [0.25, 0.4]}
+
+#: Border rules searched by :func:`tune_vmci` by default: the placement conventions of
+#: :data:`~besdrake.segmentation.placement.DEFAULT_RULE_GRID` except ``min_rest_s``. Merging a
+#: short pause into one border contradicts the scored border definition (both ends of a pause
+#: are borders, :data:`~besdrake.segmentation.evaluation.BORDER_DEFINITION`); on the
+#: pick-and-place data one annotator merges pauses under ~0.45 s and the other never does, so
+#: the rule learned on the one cost 0.08-0.25 F1 on the other.
+DEFAULT_TUNING_RULE_GRID = {
+    "merge_end_rests": [False, True],
+    "dip_ratio": [0.0, 0.3, 0.5, 0.7],
+    "snap_s": [0.0, 0.1, 0.2],
+    "end_level": [0.0, 0.05, 0.1, 0.15, 0.2],
+    "start_level": [0.0, 0.05, 0.1, 0.2],
+}
+
+
+@dataclass
+class TunedVMCI:
+    """The outcome of :func:`tune_vmci`: priors, rules and the training scores."""
+
+    params: dict
+    rules: BorderRules
+    train_f1_priors: dict  # tolerance_s -> F1 of the chosen priors without rules
+    train_f1: dict  # tolerance_s -> F1 with the rules
+    n_prior_candidates: int
+    n_rule_candidates: int
+
+    def segmenter(self) -> VMCI:
+        """A :class:`VMCI` with the chosen priors and rules."""
+        return VMCI(**self.params, rules=self.rules)
+
+    def to_dict(self) -> dict:
+        return {
+            "params": dict(self.params),
+            "rules": self.rules.to_dict(),
+            "train_f1_priors": {str(k): v for k, v in self.train_f1_priors.items()},
+            "train_f1": {str(k): v for k, v in self.train_f1.items()},
+            "n_prior_candidates": self.n_prior_candidates,
+            "n_rule_candidates": self.n_rule_candidates,
+        }
+
+
+def _grid(spec: dict, base: dict | None = None) -> list[dict]:
+    """The grid points, those closest to the VMCI defaults (relative distance) first, so that
+    ties in the score go to the default priors."""
+    defaults = VMCI(**(base or {})).get_params()
+    keys = list(spec)
+    points = [dict(zip(keys, vals)) for vals in itertools.product(*spec.values())]
+
+    def distance(p: dict) -> float:
+        d = 0.0
+        for k, v in p.items():
+            ref = defaults.get(k)
+            if isinstance(v, (int, float)) and isinstance(ref, (int, float)) and not isinstance(v, bool):
+                d += abs(v - ref) / max(abs(ref), 1e-9)
+            else:
+                d += float(v != ref)
+        return d
+
+    return sorted(points, key=distance)
+
+
+def rule_cases(segmenter: VMCI, recordings: list[LabelledRecording], preprocessed: dict) -> list[RuleCase]:
+    """Fit ``segmenter`` (its rules switched off) on every recording: the cases :func:`learn_rules` needs."""
+    bare = VMCI(**{**segmenter.get_params(), "rules": None})
+    out = []
+    for rec in recordings:
+        pre = preprocessed[str(rec.path)]
+        bare.fit(pre)
+        V = getattr(pre, bare.signal)
+        true = manual_borders(rec.segments, int(pre.frames[0]), int(pre.frames[-1]), pre.frequency) - pre.frames[0]
+        out.append(RuleCase(bare.result_, np.linalg.norm(V, axis=1), pre.frequency, true))
+    return out
+
+
+def tune_vmci(recordings: list[LabelledRecording], vmci_grid: dict | None = None, rule_grid: dict | None = None,
+              tolerances=(0.1, 0.2), preprocessed: dict | None = None, base: dict | None = None) -> TunedVMCI:
+    """Choose vMCI priors, then border rules, on ``recordings`` (see the module docstring).
+
+    ``base``: fixed VMCI parameters the grid points are added to. ``preprocessed`` may map
+    ``str(path)`` to a preprocessed recording (as for
+    :func:`~besdrake.segmentation.evaluation.evaluate_segmenter`).
+    """
+    from besdrake.mocap.preprocess import preprocess
+
+    if not recordings:
+        raise ValueError("tune_vmci needs at least one labelled recording")
+    vmci_grid = DEFAULT_VMCI_GRID if vmci_grid is None else vmci_grid
+    rule_grid = DEFAULT_TUNING_RULE_GRID if rule_grid is None else rule_grid
+    pre = dict(preprocessed or {})
+    for rec in recordings:
+        if str(rec.path) not in pre:
+            pre[str(rec.path)] = preprocess(rec.recording)
+    best = None
+    n = 0
+    for point in _grid(vmci_grid, base):
+        n += 1
+        params = {**(base or {}), **point}
+        ev = evaluate_segmenter(VMCI(**params), recordings, tolerances, pre)
+        f1 = {float(t): ev.f1(t) for t in tolerances}
+        obj = float(np.mean(list(f1.values())))
+        if best is None or obj > best[0] + 1e-12:
+            best = (obj, params, f1)
+    _, params, f1_priors = best
+    learned: LearnedRules = learn_rules(rule_cases(VMCI(**params), recordings, pre), rule_grid, tolerances)
+    n_rules = learned.n_candidates
+    return TunedVMCI(params, learned.rules, f1_priors, learned.f1, n, n_rules)
