@@ -130,13 +130,23 @@ _WORKER_ROLLOUT = None
 _WORKER_ERROR = ""
 
 
-def _init_worker(scenario: Scenario) -> None:
-    """Pool initializer: build this worker's Diagram once. A failure is kept and reported, not raised
-    (a raising initializer would make the pool respawn workers forever)."""
+def _plugin_paths() -> list[str]:
+    """The effect plugins loaded in this process (their effects must exist in every worker too)."""
+    from besdrake.transfer.plugins import loaded_plugin_paths
+
+    return [str(p) for p in loaded_plugin_paths()]
+
+
+def _init_worker(scenario: Scenario, plugins: tuple[str, ...] = ()) -> None:
+    """Pool initializer: load the caller's effect plugins and build this worker's Diagram once. A failure
+    is kept and reported, not raised (a raising initializer would make the pool respawn workers forever)."""
     global _WORKER_ROLLOUT, _WORKER_ERROR
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     try:
         from besdrake.sim.rollout import Rollout
+        from besdrake.transfer.plugins import load_plugins
+
+        load_plugins(list(plugins))  # once per process: a forked worker has them already
 
         _WORKER_ROLLOUT = Rollout(scenario)
     except Exception as err:  # noqa: BLE001
@@ -186,7 +196,7 @@ class ProcessExecutor(Executor):
         self._start()
 
     def _start(self) -> None:
-        self._pool = self._context.Pool(self.workers, initializer=_init_worker, initargs=(self.scenario,))
+        self._pool = self._context.Pool(self.workers, initializer=_init_worker, initargs=(self.scenario, tuple(_plugin_paths())))
         # Wait until every worker has built its Diagram, so timings exclude start-up.
         errors = [e for e in self._pool.map(_worker_ready, range(self.workers), chunksize=1) if e]
         if errors:
@@ -240,8 +250,8 @@ class RayExecutor(Executor):
 
         @ray.remote(num_cpus=1)
         class _Actor:
-            def __init__(self, scenario):
-                _init_worker(scenario)
+            def __init__(self, scenario, plugins):
+                _init_worker(scenario, plugins)
 
             def ready(self):
                 return _worker_ready()
@@ -249,7 +259,8 @@ class RayExecutor(Executor):
             def run(self, items, limits):
                 return _worker_batch((items, limits))
 
-        self._actors = [_Actor.remote(self.scenario) for _ in range(self.workers)]
+        plugins = tuple(_plugin_paths())
+        self._actors = [_Actor.remote(self.scenario, plugins) for _ in range(self.workers)]
         errors = [e for e in ray.get([a.ready.remote() for a in self._actors]) if e]
         if errors:
             self.close()

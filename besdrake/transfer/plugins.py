@@ -2,7 +2,8 @@
 
 A plugin is an ordinary module; importing it runs its ``@register_effect`` decorators
 (see :mod:`besdrake.sim.effects`). Each file is loaded once per process, so a lab config and the
-command line may both name it.
+command line may both name it. The process and Ray executors load the plugins of the process that
+creates them in each worker, so plugin effects simulate in parallel too.
 """
 
 from __future__ import annotations
@@ -48,9 +49,14 @@ def load_plugin(path: str | Path) -> ModuleType:
     return module
 
 
+def loaded_plugin_paths() -> list[Path]:
+    """Absolute paths of the plugins loaded in this process, in load order (executors hand them to their workers)."""
+    return list(_LOADED)
+
+
 def load_plugins(paths: list[str | Path]) -> list[ModuleType]:
     """:func:`load_plugin` for each path, in order."""
     return [load_plugin(p) for p in paths]
 
 
-__all__ = ["PluginError", "load_plugin", "load_plugins"]
+__all__ = ["PluginError", "load_plugin", "load_plugins", "loaded_plugin_paths"]
