@@ -142,6 +142,8 @@ def _summarize(results: list[dict], modes: list[str], args, t_bench: float, regi
             "n_touchdown_undetectable": len(undetect),
             "n_answered_cannot_tell_nominal_from": int(sum(r.get("cannot_tell_size", 0) > 0 for r in known)),
             "honest_undetected_answers": int(sum(r.get("honest_undetected", False) for r in known)),
+            "cannot_tell_sets_holding_hidden_any_size": int(sum(bool(r.get("cannot_tell")) and all(e in r["cannot_tell"] for e in r["hidden"]) for r in known)),
+            "cannot_tell_sets_of_whole_registry": int(sum(r.get("cannot_tell_size", 0) == len(registry) for r in known)),
             "honest_undetected_hidden_value_within_allowed": int(sum(r.get("hidden_within_allowed", False) for r in known)),
             "mean_cannot_tell_set_size": float(np.mean([r["cannot_tell_size"] for r in known if r.get("cannot_tell_size", 0) > 0])) if any(r.get("cannot_tell_size", 0) for r in known) else None,
             "registry_size": len(registry),
@@ -234,9 +236,9 @@ def main(argv=None) -> int:
                 best = tuple(sorted(d.best.effects)) if d.best else ()
                 alt = [tuple(sorted(a["b"].split(" + "))) for a in d.indistinguishable]
                 # "No discrepancy beyond the noise; cannot tell nominal from X, Y, Z": honest only if every hidden effect is
-                # in the reported set (the set sizes are printed, so listing everything cannot pass unnoticed).
+                # in the reported set and the set is not the whole registry (the set sizes are printed as well).
                 ct = {a.effect: a for a in d.cannot_tell}
-                honest_undetected = bool(ct) and all(e in ct for e in hidden)
+                honest_undetected = bool(ct) and len(ct) < len(registry) and all(e in ct for e in hidden)
                 hidden_within_allowed = honest_undetected and all(
                     ct[e].allowed[k][0] - 1e-9 <= v <= ct[e].allowed[k][1] + 1e-9 for e, vals in hidden.items() for k, v in vals.items() if k in ct[e].allowed)
                 row = {
@@ -246,6 +248,7 @@ def main(argv=None) -> int:
                     "honest_undetected": honest_undetected, "hidden_within_allowed": hidden_within_allowed,
                     "alternatives": [list(a) for a in alt],
                     "cannot_tell": sorted(ct), "cannot_tell_size": len(ct),
+                    "allowed_fraction": {a.effect: a.max_fraction for a in [*d.cannot_tell, *d.excluded]},
                     "answer_set_size": len(ct) if ct else (1 + len(alt) if alt else 1),
                     "fitted": d.refined_effects(),
                     "gain_before_m": d.gain.median_disparity_before_m if d.gain else None,

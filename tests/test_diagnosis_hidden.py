@@ -59,6 +59,8 @@ def test_cli_finds_a_hidden_effect_in_a_full_log(tmp_path, capsys):
     (effect,) = hidden
     assert s["causes"][0]["effects"] == [effect], (hidden, s["verdict"])
     assert s["explained"] is True, s["verdict"]
+    # A named cause: the "cannot tell nominal from" lists are there (JSON contract) and empty.
+    assert s["cannot_tell"] == [] and s["excluded"] == []
     # Fitted value within 4 standard errors (or 15 %) of the hidden one.
     (param, value), = hidden[effect].items()
     got = s["causes"][0]["parameters"][f"{effect}.{param}"]

@@ -115,8 +115,8 @@ class Cause:
 class AllowedEffect:
     """What a log without a detectable discrepancy still allows of one candidate effect.
 
-    ``allowed``: per parameter the interval (in its unit) not ruled out at level :data:`ALPHA` (profile likelihood on
-    the linearised model, clipped to the realistic bounds); ``max_fraction``: the largest allowed deviation from
+    ``allowed``: per parameter the interval (in its unit) not ruled out at level :data:`ALPHA` when that parameter
+    alone deviates (likelihood ratio on the linearised model, clipped to the realistic bounds); ``max_fraction``: the largest allowed deviation from
     nominal as a fraction of the parameter's realistic range; ``excluded``: every deviation of at least
     :data:`EXCLUDE_FRACTION` of the range is ruled out; ``throws_needed``: about how many throws like the logged ones
     would exclude it (None: the logged signals do not respond to it at all); ``recommendation``: the recording or
@@ -420,7 +420,8 @@ _RECORD = {"ball_pos": "record the ball path (motion capture)", "ball_vel": "rec
 def _allowed_effects(prob: fitting.Problem, sens: fitting.Sensitivity, effects: Sequence[str], sim: _Sim, measured: list[str],
                      n_throws: int) -> list[AllowedEffect]:
     """For a log in which no candidate improves on the nominal simulation: per candidate effect, the parameter
-    intervals the data still allow (linearised profile likelihood at level ALPHA, within the realistic bounds),
+    intervals the data still allow (each parameter on its own with the effect's others at nominal, linearised
+    likelihood-ratio interval at level ALPHA with the fit's weak prior, within the realistic bounds),
     whether every deviation of EXCLUDE_FRACTION of the range is ruled out, and what would show the effect."""
     q = float(stats.chi2.ppf(1.0 - ALPHA, 1))
     r0 = prob.weighted(sens.y0)
@@ -433,25 +434,24 @@ def _allowed_effects(prob: fitting.Problem, sens: fitting.Sensitivity, effects: 
         specs = [sens.specs[j] for j in idx]
         A = prob.weighted_jac(sens.dy[idx])
         P, _ = fitting._prior_rows(specs, np.array([s_.nominal for s_ in specs]))
-        H = A.T @ A + P.T @ P
-        cov = np.linalg.inv(H)
-        theta = np.array([s_.nominal for s_ in specs]) + cov @ (A.T @ r0)
-        try:  # data-only covariance for the throws needed (None where the log does not respond at all)
-            cov_data = np.diag(np.linalg.pinv(A.T @ A, rcond=1e-10))
-        except np.linalg.LinAlgError:
-            cov_data = np.full(len(specs), np.inf)
         allowed, nominal, units, fracs, needed = {}, {}, {}, [], []
         for j, s_ in enumerate(specs):
-            half = np.sqrt(q * max(cov[j, j], 0.0))
-            lo, hi = max(s_.low, theta[j] - half), min(s_.high, theta[j] + half)
+            # Each parameter on its own, the effect's others at nominal: the same sparse view as the fit (a realistic
+            # deviation moves one or two of an effect's parameters; the joint profile of e.g. six encoder offsets
+            # would allow almost anything through their trade-offs and tell nothing).
+            a = A[:, j]
+            info = float(a @ a)
+            var = 1.0 / (info + P[j, j] ** 2)
+            est = s_.nominal + var * float(a @ r0)
+            half = np.sqrt(q * var)
+            lo, hi = max(s_.low, est - half), min(s_.high, est + half)
             if lo > hi:  # the estimate lies beyond a bound: only the bound itself is allowed
-                lo = hi = s_.low if theta[j] < s_.low else s_.high
+                lo = hi = s_.low if est < s_.low else s_.high
             rng_ = s_.high - s_.low
             fracs.append(max(abs(lo - s_.nominal), abs(hi - s_.nominal)) / rng_)
             allowed[s_.name], nominal[s_.name], units[s_.name] = (float(lo), float(hi)), float(s_.nominal), s_.unit
-            cd = cov_data[j]
-            if np.isfinite(cd) and cd > 0 and np.linalg.norm(A[:, j]) > 0:
-                needed.append(n_throws * q * cd / (EXCLUDE_FRACTION * rng_) ** 2)
+            if info > 0:  # the half-width shrinks as 1/sqrt(throws)
+                needed.append(n_throws * q / info / (EXCLUDE_FRACTION * rng_) ** 2)
             else:
                 needed.append(np.inf)
         max_frac = float(max(fracs))

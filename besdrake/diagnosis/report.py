@@ -149,7 +149,7 @@ def _markdown(diag: Diagnosis, figures: list[str], scenario_path: Path | None) -
         L.append("### No discrepancy beyond the noise: what the log cannot exclude")
         L.append("")
         L.append("The nominal simulation passes the lack-of-fit test, but that does not show it is right: these effects are still allowed "
-                 "(99% profile-likelihood intervals on the linearised model, within the realistic bounds):")
+                 "(99% likelihood-ratio intervals of each parameter on its own, on the linearised model, within the realistic bounds):")
         L.append("")
         L.append("| effect | allowed values | largest allowed deviation (share of the range) | throws to exclude it | what would show it |")
         L.append("|---|---|---|---|---|")
