@@ -206,6 +206,14 @@ def run_subject(
     return rec
 
 
+def three_of_three_probability(sd: float, offset: float = 0.0, radius: float = 0.1, repetitions: int = 3) -> float:
+    """P(all ``repetitions`` throws land within ``radius``) for a plan whose lab mean is ``offset`` m from the target
+    and whose touchdown scatters with ``sd`` m per axis (isotropic normal: the radius is Rice distributed)."""
+    from scipy.stats import rice
+
+    return float(rice.cdf(radius / sd, offset / sd) ** repetitions)
+
+
 def summarise(records: list[dict[str, Any]], max_transfers: int) -> dict[str, Any]:
     ok = [r for r in records if r["success"] and r["transfers_to_success"] <= max_transfers]
     # median over all subjects, a failure counting as "more than max_transfers" (inf)
@@ -221,6 +229,16 @@ def summarise(records: list[dict[str, Any]], max_transfers: int) -> dict[str, An
         "median_first_transfer_disparity_m": (float(np.median([r["first_transfer"]["disparity_m"] for r in records if r["first_transfer"]]))
                                               if any(r["first_transfer"] for r in records) else None),
         "target_met": bool(records and len(ok) == len(records)),
+    }
+
+
+def _noise_figures(step1: dict[str, Any]) -> dict[str, Any]:
+    """How noisy the 3-of-3 check is, from the touchdown SD that the diagnosis measured on repeated plans."""
+    sd = float(step1["diagnosis"]["noise"]["sd"]["touchdown"])
+    return {
+        "lab_touchdown_sd_m": sd,
+        "source": "diagnosis log, repeated plans",
+        "p_3_of_3_by_lab_mean_offset_m": {f"{d:.2f}": three_of_three_probability(sd, d) for d in (0.0, 0.02, 0.04, 0.06, 0.08)},
     }
 
 
@@ -247,9 +265,12 @@ def main(argv: list[str] | None = None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     imitated = args.imitated or args.out / "imitated"
     step1 = None
+    if (args.out / "diagnosis" / "summary.json").is_file():
+        step1 = json.loads((args.out / "diagnosis" / "summary.json").read_text())
     if args.scenario == "nominal":
         scenario, tag = "nominal", "nominal"
     elif args.refined_scenario is not None:
+        step1 = None
         scenario, tag = str(args.refined_scenario.resolve()), "refined"
     else:
         step1 = refined_scenario(args.out, args.lab, seed=args.seed)
@@ -280,6 +301,7 @@ def main(argv: list[str] | None = None) -> int:
         "diagnosis": None if step1 is None else {k: step1[k] for k in ("refined_scenario", "lab_trials", "wall_time_s")}
         | {"explained": step1["diagnosis"].get("explained"), "refined_effects": step1["diagnosis"].get("refined_effects")},
         "summary": summarise(records, args.max_transfers),
+        "success_check_noise": None if step1 is None else _noise_figures(step1),
         "per_subject": {
             str(r["subject"]): {
                 "refinement_episodes": r["refinement"]["episodes"],
