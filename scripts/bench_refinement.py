@@ -47,6 +47,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--popsize", type=int, default=10, help="CMA-ES population (the paper: 20)")
     parser.add_argument("--sigma0", type=float, default=1.0)
     parser.add_argument("--penalty-scale", type=float, default=1.0, help="multiply the limit-penalty weights of ThrowReward")
+    parser.add_argument("--dropped-penalty", type=float, default=None, help="reward penalty (m) of a dropped ball (default: ThrowReward's)")
+    parser.add_argument("--meta-episodes", type=int, default=0, help="episodes of the meta-parameter stage before the 49-D CMA-ES (0: none)")
+    parser.add_argument("--meta-sigma", type=float, default=1.0, help="initial step of the meta-parameter stage")
+    parser.add_argument("--out", type=Path, default=None, help="keep each run's folder (episodes, details.csv) under OUT/sS_runK")
     args = parser.parse_args(argv)
     logging.getLogger("drake").setLevel(logging.ERROR)
 
@@ -61,12 +65,15 @@ def main(argv: list[str] | None = None) -> int:
             d = ThrowReward()
             k = args.penalty_scale
             reward = ThrowReward(position_weight=k * d.position_weight, velocity_weight=k * d.velocity_weight,
-                                 acceleration_weight=k * d.acceleration_weight, violation_offset=k * d.violation_offset)
+                                 acceleration_weight=k * d.acceleration_weight, violation_offset=k * d.violation_offset,
+                                 dropped_penalty=d.dropped_penalty if args.dropped_penalty is None else args.dropped_penalty)
             problems = [RefinementProblem(load_dmp(f), reward) for f in files]
             index, start = best_start(problems, ex)
             runs = []
             for k in range(args.runs):
-                r = refine(problems[index], ex, args.episodes, seed=args.first_seed + k, popsize=args.popsize, sigma0=args.sigma0)
+                out_dir = None if args.out is None else args.out / f"s{s}_run{k}"
+                r = refine(problems[index], ex, args.episodes, seed=args.first_seed + k, popsize=args.popsize, sigma0=args.sigma0,
+                           out_dir=out_dir, meta_episodes=args.meta_episodes, meta_sigma=args.meta_sigma)
                 runs.append({"seed": args.first_seed + k, "success": r.success, "episodes_to_success": r.episodes_to_success,
                              "best_distance_within_limits_m": r.summary()["best_distance_within_limits_m"],
                              "n_episodes": r.n_episodes, "n_failed": r.n_failed, "wall_time_s": r.wall_time})
@@ -80,7 +87,8 @@ def main(argv: list[str] | None = None) -> int:
     eps = [r["episodes_to_success"] for r in all_runs if r["success"]]
     out = {
         "subjects_run": args.subjects, "runs_per_subject": args.runs, "episode_budget": args.episodes,
-        "population": args.popsize, "sigma0": args.sigma0, "penalty_scale": args.penalty_scale, "target_m": [2.0, 0.0], "backend": args.backend,
+        "population": args.popsize, "sigma0": args.sigma0, "penalty_scale": args.penalty_scale,
+        "dropped_penalty_m": reward.dropped_penalty, "meta_episodes": args.meta_episodes, "meta_sigma": args.meta_sigma, "target_m": [2.0, 0.0], "backend": args.backend,
         "success_rate": float(np.mean([r["success"] for r in all_runs])),
         "subjects_with_success_in_every_run": sum(v["success_rate"] == 1.0 for v in subjects.values()),
         "subjects_with_success_in_some_run": sum(v["success_rate"] > 0.0 for v in subjects.values()),

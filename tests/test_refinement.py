@@ -101,7 +101,7 @@ def test_never_released_is_shaped_and_penalised(plan_ok):
     rew = ThrowReward()
     kept = rew(plan_ok, outcome(None, ball_end=[0.5, 0.0, 1.0], never_released=True))
     dropped = rew(plan_ok, outcome([0.5, 0.0], dropped_early=True))
-    assert np.isfinite(kept.reward) and kept.reward == pytest.approx(dropped.reward - rew.never_released_penalty)
+    assert np.isfinite(kept.reward) and kept.reward == pytest.approx(dropped.reward + rew.dropped_penalty - rew.never_released_penalty)
     closer = rew(plan_ok, outcome(None, ball_end=[1.0, 0.0, 1.0], never_released=True))
     assert closer.reward > kept.reward
 
