@@ -75,7 +75,7 @@ def test_cli_finds_a_hidden_effect_in_a_full_log(tmp_path, capsys):
     assert "cannot tell" in (out / "report.md").read_text() or s["indistinguishable"] == []
 
 
-def test_touchdown_only_log_with_an_undetectable_effect_says_what_it_cannot_tell():
+def test_touchdown_only_log_with_an_undetectable_effect_says_what_it_cannot_tell(tmp_path):
     """A tiny hidden lag in a touchdown-only log: never "the nominal model is right with high confidence", but "no
     discrepancy beyond the noise; cannot tell nominal from ..." listing the lag with an interval that holds its value."""
     hidden = {"actuator_lag": {"tau": 0.004}}
@@ -94,6 +94,13 @@ def test_touchdown_only_log_with_an_undetectable_effect_says_what_it_cannot_tell
     assert s["explained"] is True and s["cannot_tell"][0]["allowed"] and "excluded" in s
     # The recommendation for a touchdown-only log points to a recording that would show the lag.
     assert any("record" in a.recommendation or "throws" in a.recommendation for a in d.cannot_tell)
+    # The report says it in words, with the allowed values; the refined scenario is the nominal one.
+    from besdrake.diagnosis import write_report
+
+    paths = write_report(d, tmp_path / "diag", figures=False)
+    text = open(paths["report"]).read()
+    assert "what the log cannot exclude" in text and "actuator_lag" in text
+    assert d.refined_effects() == {}
 
 
 def test_cli_design_writes_a_plan_set_the_lab_runner_reads(tmp_path):

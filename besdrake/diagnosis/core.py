@@ -49,6 +49,8 @@ CONFIDENT_P = 0.05
 #: level ALPHA, profile likelihood) every deviation of at least this fraction of its realistic range (the registry's
 #: bounds); otherwise the log "cannot tell the nominal simulation from" it.
 EXCLUDE_FRACTION = 0.1
+#: More throws than this to exclude an effect is reported as "no practical number of such throws" (None).
+MAX_THROWS_ADVICE = 10000
 
 
 class DiagnosisError(ValueError):
@@ -450,14 +452,12 @@ def _allowed_effects(prob: fitting.Problem, sens: fitting.Sensitivity, effects: 
             rng_ = s_.high - s_.low
             fracs.append(max(abs(lo - s_.nominal), abs(hi - s_.nominal)) / rng_)
             allowed[s_.name], nominal[s_.name], units[s_.name] = (float(lo), float(hi)), float(s_.nominal), s_.unit
-            if info > 0:  # the half-width shrinks as 1/sqrt(throws)
-                needed.append(n_throws * q / info / (EXCLUDE_FRACTION * rng_) ** 2)
-            else:
-                needed.append(np.inf)
+            if fracs[-1] >= EXCLUDE_FRACTION:  # throws to exclude this parameter: the half-width shrinks as 1/sqrt(throws)
+                needed.append(n_throws * q / info / (EXCLUDE_FRACTION * rng_) ** 2 if info > 0 else np.inf)
         max_frac = float(max(fracs))
         excluded = max_frac < EXCLUDE_FRACTION
         n_need = float(max(needed)) if needed else np.inf
-        throws_needed = int(np.ceil(n_need)) if np.isfinite(n_need) and n_need < 1e6 else None
+        throws_needed = int(np.ceil(n_need)) if np.isfinite(n_need) and n_need <= MAX_THROWS_ADVICE else None
         # Which signal would show a deviation of EXCLUDE_FRACTION of the range (finite-difference rollouts of the
         # sensitivity, evaluated for every signal).
         shows = []
@@ -482,7 +482,8 @@ def _allowed_effects(prob: fitting.Problem, sens: fitting.Sensitivity, effects: 
             rec = (f"about {throws_needed} throws like the logged ones (with repeats) would exclude {e} beyond {EXCLUDE_FRACTION:.0%} of its range; "
                    "plans that spread release speed and height more widely need fewer")
         else:
-            rec = "none of the signals a lab log holds responds to it for these throws: it does not matter for them"
+            rec = ("no practical number of throws like these would show it in the logged signals (they hardly respond to it); "
+                   "record other signals or throw differently")
         out.append(AllowedEffect(e, allowed, nominal, units, max_frac, excluded, throws_needed, rec))
     return out
 
