@@ -8,8 +8,10 @@ Prints one JSON object:
   training subject by :func:`besdrake.segmentation.tune_vmci`), ``vmci`` (the priors alone)
   and the zero-velocity-crossing baseline, each chosen by the best mean interior-border F1
   over +-0.1 s and +-0.2 s on a small grid; the public reference vMCI figures are quoted
-  constants (not measured here). ``vmci_rules_full_grid``: the same with the pause-merging
-  rule (``min_rest_s``) in the rule grid, which the default leaves out.
+  constants (not measured here). ``vmci_rules_*`` variants (sensitivity of the choices
+  :func:`~besdrake.segmentation.tune_vmci` makes): the pause-merging rule in the rule grid,
+  priors chosen before the rules, selection on the two scored tolerances only, the minimum
+  movement / rest durations in the prior grid.
 * ``defaults``: the shipped default vMCI on each subject.
 * ``border_at_speed_minimum``: fraction of borders within +-0.1 s of a local minimum of the
   hand speed (manual, vMCI, baseline).
@@ -166,20 +168,33 @@ def main() -> None:
         t0 = time.process_time()
         tuned = tune_vmci(by_subject[a], VMCI_GRID, preprocessed=pre)
         tune_cpu = time.process_time() - t0
-        # the priors alone (stage 1 of tune_vmci) and the baseline, chosen the same way
-        params = {"vmci": tuned.params, "zero_velocity": tune(ZeroVelocitySegmenter, ZVC_GRID, by_subject[a], pre)}
+        ev = evaluate_segmenter(tuned.segmenter(), by_subject[b], (0.1, 0.2), pre)
+        entry["vmci_rules"] = {"chosen_on_" + a: tuned.to_dict(), "scores_on_" + b: summary(ev),
+                               "tuning_cpu_s": tune_cpu,
+                               "border_at_speed_minimum_on_" + b: near_minimum_fraction(by_subject[b], pre, tuned.segmenter()),
+                               "manual_border_at_speed_minimum_on_" + b: near_minimum_fraction(by_subject[b], pre)}
+        # the vMCI model alone with the chosen priors, and the baseline chosen the same way
+        params = {"vmci": {**tuned.params, "rules": None},
+                  "zero_velocity": tune(ZeroVelocitySegmenter, ZVC_GRID, by_subject[a], pre)}
         for name, cls in (("vmci", VMCI), ("zero_velocity", ZeroVelocitySegmenter)):
             ev = evaluate_segmenter(cls(**params[name]), by_subject[b], (0.1, 0.2), pre)
             entry[name] = {"params_chosen_on_" + a: params[name], "scores_on_" + b: summary(ev)}
-        ev = evaluate_segmenter(tuned.segmenter(), by_subject[b], (0.1, 0.2), pre)
-        entry["vmci_rules"] = {"chosen_on_" + a: tuned.to_dict(), "scores_on_" + b: summary(ev),
-                               "tuning_cpu_s": tune_cpu}
-        full = tune_vmci(by_subject[a], VMCI_GRID, DEFAULT_RULE_GRID, preprocessed=pre)
-        ev = evaluate_segmenter(full.segmenter(), by_subject[b], (0.1, 0.2), pre)
-        entry["vmci_rules_full_grid"] = {"chosen_on_" + a: full.to_dict(), "scores_on_" + b: summary(ev)}
+        # what the choices left out of the default search would have given (sensitivity)
+        variants = {
+            "vmci_rules_full_grid": dict(rule_grid=DEFAULT_RULE_GRID),
+            "vmci_rules_two_stage": dict(joint=False),
+            "vmci_rules_scored_tolerances_only": dict(tolerances=(0.1, 0.2)),
+            "vmci_rules_min_lengths_in_grid": dict(vmci_grid={**VMCI_GRID, "min_length_s": [0.15, 0.4],
+                                                              "rest_min_length_s": [0.25, 0.4]}),
+        }
+        for name, kw in variants.items():
+            kw = {"vmci_grid": VMCI_GRID, **kw}
+            alt = tune_vmci(by_subject[a], kw.pop("vmci_grid"), preprocessed=pre, **kw)
+            ev = evaluate_segmenter(alt.segmenter(), by_subject[b], (0.1, 0.2), pre)
+            entry[name] = {"chosen_on_" + a: alt.to_dict(), "scores_on_" + b: summary(ev)}
         entry["f1_on_" + b] = {
             name: {t: entry[name]["scores_on_" + b]["starts_and_ends"][f"f1_{t}"] for t in (0.2, 0.1)}
-            for name in ("vmci_rules", "vmci", "zero_velocity", "vmci_rules_full_grid")
+            for name in ("vmci_rules", "vmci", "zero_velocity", *variants)
         }
         entry["f1_on_" + b]["reference_vmci_quoted"] = {0.2: QUOTED_REFERENCE_VMCI["f1_0.2"], 0.1: QUOTED_REFERENCE_VMCI["f1_0.1"]}
         entry["f1_on_" + b]["zero_velocity_tuned_quoted"] = {0.2: QUOTED_TUNED_ZVC["f1_0.2"], 0.1: QUOTED_TUNED_ZVC["f1_0.1"]}
@@ -189,7 +204,7 @@ def main() -> None:
     report["cross_subject"] = cross
     report["targets"] = {"f1_0.2": 0.90, "f1_0.1": 0.75}
     report["defaults"] = {s: summary(evaluate_segmenter(VMCI(), by_subject[s], (0.1, 0.2), pre)) for s in subjects}
-    report["default_params"] = VMCI().get_params()
+    report["default_params"] = VMCI().json_params()
     report["border_at_speed_minimum"] = {
         "manual": near_minimum_fraction(recs, pre),
         "vmci": near_minimum_fraction(recs, pre, VMCI()),

@@ -69,7 +69,7 @@ def test_pauses_become_rest_segments():
 
 def reference_segmentation(v, freq, seg: VMCI):
     """Exhaustive Viterbi with direct (non-incremental) regressions: the model of VMCI with
-    ``rest_log_prior=None, open_ends=False`` evaluated independently."""
+    ``rest_log_prior=None, open_ends=False`` (and no border rules) evaluated independently."""
     v = v / np.sqrt(np.mean(np.sum(v**2, axis=1)))
     n, d = v.shape
     dt = 1.0 / freq
@@ -114,7 +114,7 @@ def test_online_pruned_viterbi_equals_the_exhaustive_reference():
     from besdrake.mocap.preprocess import velocity
 
     v = velocity(x, 50.0)
-    seg = VMCI(frequency=50.0, input="velocity", rest_log_prior=None, open_ends=False, min_length_s=0.2)
+    seg = VMCI(frequency=50.0, input="velocity", rest_log_prior=None, open_ends=False, min_length_s=0.2, rules=None)
     exact_borders, exact_logp = reference_segmentation(v, 50.0, seg)
     full = VMCI(**{**seg.get_params(), "max_particles": 10**6, "prune_log_ratio": np.inf}).fit(v)
     pruned = seg.fit(v)

@@ -74,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
         "frequency_hz": pre.frequency,
         "n_frames": pre.n_frames,
         "method": args.method,
-        "segmenter": seg.get_params(),
+        "segmenter": seg.json_params(),
         "frame_numbering": "the file's own Frame column; adjacent segments share the border frame",
         "segments": out,
         "warnings": pre.warnings,

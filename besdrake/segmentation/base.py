@@ -95,6 +95,10 @@ class SegmenterMixin:
         """Segment ``X`` and return the interior border indices."""
         return self.fit(X, frequency=frequency).borders_
 
+    def json_params(self) -> dict:
+        """:meth:`get_params` with parameter objects as their ``to_dict()`` (JSON-ready)."""
+        return {k: (v.to_dict() if hasattr(v, "to_dict") else v) for k, v in self.get_params().items()}
+
     def get_params(self, deep: bool = True) -> dict:
         import inspect
 

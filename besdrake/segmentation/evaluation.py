@@ -251,7 +251,8 @@ def evaluate_segmenter(segmenter, recordings: list[LabelledRecording], tolerance
             true = manual_borders(rec.segments, int(pre.frames[0]), int(pre.frames[-1]), pre.frequency, mode=mode)
             for t in scores[mode]:
                 scores[mode][t] = scores[mode][t] + score_borders(pred, true, pre.frequency, t)
-    return SegmentationEvaluation(type(segmenter).__name__, segmenter.get_params(), scores, cpu, data)
+    params = segmenter.json_params() if hasattr(segmenter, "json_params") else segmenter.get_params()
+    return SegmentationEvaluation(type(segmenter).__name__, params, scores, cpu, data)
 
 
 def evaluate_classifier(classifier, train: list[LabelledRecording], test: list[LabelledRecording]) -> dict:

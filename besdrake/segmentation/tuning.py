@@ -1,16 +1,18 @@
 """Choosing a segmenter on labelled recordings (one subject), to be applied unchanged to others.
 
-:func:`tune_vmci` works in two stages, both on the training recordings only:
+:func:`tune_vmci` chooses, on the training recordings only, the vMCI priors of a small grid
+(:data:`DEFAULT_VMCI_GRID` on top of :data:`DEFAULT_TUNING_BASE`) together with the border
+placement rules (:mod:`besdrake.segmentation.placement`, :data:`DEFAULT_TUNING_RULE_GRID`):
+for each prior point, vMCI runs once per recording, the best rules for its borders are
+searched, and the prior point whose best rules score highest wins (``joint=False``: the
+priors are chosen without rules first). The score is the interior border F1 averaged over the
+tolerances :data:`SELECTION_TOLERANCES` (0.05-0.3 s): on a few dozen borders, F1 at the two
+scored tolerances alone ties often and picks among near-equal candidates by chance. Ties go to
+the prior point closest to the VMCI defaults and to the rule set closest to no rules.
 
-1. the vMCI priors: every point of a small grid of :class:`~besdrake.segmentation.VMCI`
-   parameters is scored (interior border F1, mean over the tolerances) and the best is kept
-   (ties, frequent on a few dozen borders, go to the point closest to the VMCI defaults);
-2. the border placement rules (:mod:`besdrake.segmentation.placement`): with those priors, the
-   rule set of a grid with the best mean F1 is kept.
-
-Two stages rather than one joint search: the joint search chooses among many more candidates
-on the same few dozen borders and overfits the training subject (measured on the
-pick-and-place data: ``scripts/bench_segmentation.py``).
+Measured on the pick-and-place data (``scripts/bench_segmentation.py``): every extra knob in
+the grids (the minimum movement / rest durations, the pause-merging rule) raised the training
+score and lowered the score on the other subject, so they are fixed or left out.
 """
 
 from __future__ import annotations
@@ -20,12 +22,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from besdrake.segmentation.evaluation import LabelledRecording, evaluate_segmenter, manual_borders
-from besdrake.segmentation.placement import BorderRules, LearnedRules, RuleCase, learn_rules
+from besdrake.segmentation.evaluation import LabelledRecording, manual_borders
+from besdrake.segmentation.placement import BorderRules, RuleCase, learn_rules, score_cases
 from besdrake.segmentation.vmci import VMCI
 
 #: vMCI priors searched by :func:`tune_vmci` by default.
-DEFAULT_VMCI_GRID = {"noise_ratio": [0.2, 0.3, 0.4, 0.5], "min_length_s": [0.25, 0.4]}
+DEFAULT_VMCI_GRID = {"noise_ratio": [0.2, 0.3, 0.4, 0.5]}
+
+#: Fixed VMCI parameters of :func:`tune_vmci` (the grid is added to them).
+DEFAULT_TUNING_BASE = {"min_length_s": 0.15, "rest_min_length_s": 0.4}
+
+#: Tolerances (s) whose mean border F1 :func:`tune_vmci` maximises: a finer measure than the two
+#: scored tolerances, so that fewer candidates tie on a few dozen borders.
+SELECTION_TOLERANCES = (0.05, 0.1, 0.15, 0.2, 0.25, 0.3)
 
 #: Border rules searched by :func:`tune_vmci` by default: the placement conventions of
 #: :data:`~besdrake.segmentation.placement.DEFAULT_RULE_GRID` except ``min_rest_s``. Merging a
@@ -102,12 +111,15 @@ def rule_cases(segmenter: VMCI, recordings: list[LabelledRecording], preprocesse
 
 
 def tune_vmci(recordings: list[LabelledRecording], vmci_grid: dict | None = None, rule_grid: dict | None = None,
-              tolerances=(0.1, 0.2), preprocessed: dict | None = None, base: dict | None = None) -> TunedVMCI:
-    """Choose vMCI priors, then border rules, on ``recordings`` (see the module docstring).
+              tolerances=None, preprocessed: dict | None = None, base: dict | None = None,
+              joint: bool = True) -> TunedVMCI:
+    """Choose vMCI priors and border rules on ``recordings`` (see the module docstring).
 
-    ``base``: fixed VMCI parameters the grid points are added to. ``preprocessed`` may map
-    ``str(path)`` to a preprocessed recording (as for
-    :func:`~besdrake.segmentation.evaluation.evaluate_segmenter`).
+    ``tolerances``: the border F1 tolerances (s) whose mean is maximised (default
+    :data:`SELECTION_TOLERANCES`). ``joint``: every prior point is scored with its own best
+    rules (True) or the priors are chosen without rules first (False). ``base``: fixed VMCI
+    parameters the grid points are added to. ``preprocessed`` may map ``str(path)`` to a
+    preprocessed recording (as for :func:`~besdrake.segmentation.evaluation.evaluate_segmenter`).
     """
     from besdrake.mocap.preprocess import preprocess
 
@@ -115,6 +127,8 @@ def tune_vmci(recordings: list[LabelledRecording], vmci_grid: dict | None = None
         raise ValueError("tune_vmci needs at least one labelled recording")
     vmci_grid = DEFAULT_VMCI_GRID if vmci_grid is None else vmci_grid
     rule_grid = DEFAULT_TUNING_RULE_GRID if rule_grid is None else rule_grid
+    tolerances = tuple(SELECTION_TOLERANCES if tolerances is None else tolerances)
+    base = {**DEFAULT_TUNING_BASE, **(base or {})}
     pre = dict(preprocessed or {})
     for rec in recordings:
         if str(rec.path) not in pre:
@@ -123,13 +137,17 @@ def tune_vmci(recordings: list[LabelledRecording], vmci_grid: dict | None = None
     n = 0
     for point in _grid(vmci_grid, base):
         n += 1
-        params = {**(base or {}), **point}
-        ev = evaluate_segmenter(VMCI(**params), recordings, tolerances, pre)
-        f1 = {float(t): ev.f1(t) for t in tolerances}
-        obj = float(np.mean(list(f1.values())))
+        params = {**base, **point}
+        cases = rule_cases(VMCI(**params), recordings, pre)
+        f1_priors = score_cases(cases, BorderRules(), tolerances)
+        if joint:
+            learned = learn_rules(cases, rule_grid, tolerances)
+            obj = learned.objective
+        else:
+            learned, obj = None, float(np.mean(list(f1_priors.values())))
         if best is None or obj > best[0] + 1e-12:
-            best = (obj, params, f1)
-    _, params, f1_priors = best
-    learned: LearnedRules = learn_rules(rule_cases(VMCI(**params), recordings, pre), rule_grid, tolerances)
-    n_rules = learned.n_candidates
-    return TunedVMCI(params, learned.rules, f1_priors, learned.f1, n, n_rules)
+            best = (obj, params, f1_priors, learned, cases)
+    _, params, f1_priors, learned, cases = best
+    if learned is None:
+        learned = learn_rules(cases, rule_grid, tolerances)
+    return TunedVMCI(params, learned.rules, f1_priors, learned.f1, n, learned.n_candidates)

@@ -47,6 +47,11 @@ from besdrake.segmentation.base import (
     SegmenterMixin,
     result_from_borders,
 )
+from besdrake.segmentation.placement import BorderRules, apply_rules
+
+#: Rules applied by default: drop a border between two movements where the speed has no real
+#: dip (above 0.7 of the smaller peak), the counterpart of the short ``min_length_s``.
+DEFAULT_RULES = BorderRules(dip_ratio=0.7)
 
 
 class _LengthTables:
@@ -128,7 +133,10 @@ class VMCI(SegmenterMixin):
             speed.
         nu: prior degrees of freedom of the noise variance.
         mean_length_s: mean of the geometric prior on segment duration (seconds).
-        min_length_s: shortest segment (seconds).
+        min_length_s: shortest movement segment (seconds).
+        rest_min_length_s: shortest rest segment (seconds); None: ``min_length_s``. A short
+            rest at a speed minimum is two borders where an annotator sees one, while a fast
+            movement (a throw) may be much shorter than the pauses worth a segment.
         max_length_s: longest segment (seconds); particles older than this are dropped.
         boundary_ratio: if > 0, two cubic ramps let a segment start and end at a non-zero
             velocity, with a prior standard deviation of ``boundary_ratio`` times the RMS
@@ -144,8 +152,8 @@ class VMCI(SegmenterMixin):
             to where the speed crosses this fraction of the movement's peak speed
             (:func:`refine_rest_borders`); None keeps the model's borders.
         rules: border placement rules applied after inference
-            (:class:`~besdrake.segmentation.placement.BorderRules` or its dict; None: none),
-            e.g. learned on a labelled subject by
+            (:class:`~besdrake.segmentation.placement.BorderRules` or its dict; None: none;
+            default :data:`DEFAULT_RULES`), e.g. learned on a labelled subject by
             :func:`~besdrake.segmentation.tuning.tune_vmci`.
         max_particles: particles kept after each step.
         prune_log_ratio: particles whose path log-probability is lower than the best by more
@@ -158,9 +166,13 @@ class VMCI(SegmenterMixin):
     After :meth:`fit`: ``result_`` (:class:`VMCIResult`), ``borders_`` (interior border sample
     indices), ``segments_`` (``(start, end)`` index pairs, adjacent segments share a border).
 
-    The defaults (noise_ratio 0.3, min_length_s 0.4, nu 10, rest_noise_ratio 0.25) were chosen
-    on subject 1 of the real pick-and-place data (``scripts/bench_segmentation.py`` re-runs the
-    choice on each subject and scores the other).
+    The defaults (noise_ratio 0.3, nu 10, rest_noise_ratio 0.25, rest_min_length_s 0.4) were
+    chosen on subject 1 of the real pick-and-place data; min_length_s 0.15 lets a movement be as
+    short as the fastest synthetic throws (0.15 s; a 0.4 s minimum merged such a throw with its
+    neighbour), and the default rules' dip criterion removes the spurious short splits that
+    allows on the slow pick-and-place movements. ``scripts/bench_segmentation.py`` chooses the
+    priors and rules on each subject (:func:`~besdrake.segmentation.tuning.tune_vmci`) and
+    scores the other.
     """
 
     def __init__(
@@ -170,7 +182,8 @@ class VMCI(SegmenterMixin):
         weight_ratio: float = 3.0,
         nu: float = 10.0,
         mean_length_s: float = 1.5,
-        min_length_s: float = 0.4,
+        min_length_s: float = 0.15,
+        rest_min_length_s: float | None = 0.4,
         max_length_s: float = 8.0,
         boundary_ratio: float = 0.0,
         noise_model: str = "segment",
@@ -178,7 +191,7 @@ class VMCI(SegmenterMixin):
         open_ends: bool = True,
         rest_noise_ratio: float | None = 0.25,
         rest_border_level: float | None = None,
-        rules=None,
+        rules=DEFAULT_RULES,
         max_particles: int = 60,
         prune_log_ratio: float = 60.0,
         frequency: float = 60.0,
@@ -191,6 +204,7 @@ class VMCI(SegmenterMixin):
         self.nu = nu
         self.mean_length_s = mean_length_s
         self.min_length_s = min_length_s
+        self.rest_min_length_s = rest_min_length_s
         self.max_length_s = max_length_s
         self.boundary_ratio = boundary_ratio
         self.noise_model = noise_model
@@ -215,6 +229,8 @@ class VMCI(SegmenterMixin):
             val = getattr(self, name)
             if not (np.isfinite(val) and val > 0):
                 raise ValueError(f"{name} must be a positive number, got {val}")
+        if self.rest_min_length_s is not None and not (np.isfinite(self.rest_min_length_s) and 0 < self.rest_min_length_s < self.max_length_s):
+            raise ValueError(f"rest_min_length_s must be positive and below max_length_s, got {self.rest_min_length_s}")
         if self.max_length_s <= self.min_length_s:
             raise ValueError(f"max_length_s ({self.max_length_s}) must exceed min_length_s ({self.min_length_s})")
         if self.max_particles < 1:
@@ -226,8 +242,6 @@ class VMCI(SegmenterMixin):
         self._rules()
 
     def _rules(self):
-        from besdrake.segmentation.placement import BorderRules
-
         if self.rules is None or isinstance(self.rules, BorderRules):
             return self.rules
         if isinstance(self.rules, dict):
@@ -243,12 +257,16 @@ class VMCI(SegmenterMixin):
             V = V[:, None]
         n, d = V.shape
         dt = 1.0 / frequency
-        lmin = max(2, int(round(self.min_length_s * frequency)))
+        rest = self.rest_log_prior is not None
+        lmin_move = max(2, int(round(self.min_length_s * frequency)))
+        lmin_rest = lmin_move if self.rest_min_length_s is None else max(2, int(round(self.rest_min_length_s * frequency)))
+        lmin = min(lmin_move, lmin_rest) if rest else lmin_move  # shortest segment of any model
+        lmature = max(lmin_move, lmin_rest) if rest else lmin_move  # pruned only once every model may end
         lmax = int(round(self.max_length_s * frequency))
         if n < 2 * lmin:
             raise SegmentationError(
                 f"a recording of {n} samples ({n * dt:.3g} s) is too short to segment: "
-                f"at least {2 * lmin} samples (two segments of min_length_s={self.min_length_s} s) are needed"
+                f"at least {2 * lmin} samples (two segments of {lmin} samples, min_length_s={self.min_length_s} s) are needed"
             )
         if not np.isfinite(V).all():
             bad = np.flatnonzero(~np.isfinite(V).all(axis=1))
@@ -289,7 +307,6 @@ class VMCI(SegmenterMixin):
         Vbest[0] = 0.0
         back = np.zeros(n + 1, dtype=int)
         kind = np.zeros(n + 1, dtype=bool)  # True: the segment ending at t is a rest segment
-        rest = self.rest_log_prior is not None
         log_rest = float(self.rest_log_prior) if rest else 0.0
 
         rest_ratio = self.rest_noise_ratio if self.rest_noise_ratio else self.noise_ratio
@@ -325,20 +342,23 @@ class VMCI(SegmenterMixin):
             rss = np.maximum(csq[t] - csq[starts] - quad, 0.0)
             N = L * d
             score = Vbest[starts] + marginal(rss, N, d * logdet[variant, L]) + log_pen
+            score = np.where(L >= lmin_move, score, -np.inf)
             is_rest = np.zeros(len(starts), dtype=bool)
             if rest:
                 score_rest = Vbest[starts] + marginal(csq[t] - csq[starts], N, 0.0, rest_model=True) + log_pen + log_rest
+                score_rest = np.where(L >= lmin_rest, score_rest, -np.inf)
                 is_rest = score_rest > score
                 score = np.where(is_rest, score_rest, score)
-            ok = L >= lmin
-            if ok.any():
-                cand = np.where(ok, score, -np.inf)
+            can_end = np.isfinite(score)
+            if can_end.any():
+                cand = score
                 j = int(np.argmax(cand))
                 Vbest[t] = cand[j]
                 back[t] = starts[j]
                 kind[t] = is_rest[j]
             # prune: keep young particles, the best by score, within the ratio
             if t < n:
+                ok = L >= lmature
                 keep = L < lmax
                 mature = keep & ok
                 if mature.sum() > 0:
@@ -381,8 +401,6 @@ class VMCI(SegmenterMixin):
                                          int(round(self.min_length_s * frequency)))
         rules = self._rules()
         if rules is not None and not rules.is_identity:
-            from besdrake.segmentation.placement import apply_rules
-
             result = apply_rules(result, np.linalg.norm(V, axis=1), frequency, rules)
         return result
 
