@@ -150,3 +150,33 @@ def test_tune_on_subject1_scores_on_subject2(shared_data, tmp_path):
     ev = evaluate_segmenter(tuned.segmenter(), labelled_recordings(folders["subject2"]))
     assert ev.f1(0.2) >= 0.88 and ev.f1(0.1) >= 0.80
     assert json.loads(json.dumps(tuned.to_dict()))["params"]["noise_ratio"] == 0.3
+
+
+def test_cli_eval_tune_on_and_segment_with_the_saved_segmenter(shared_data, tmp_path, capsys):
+    from besdrake.cli import main
+
+    for folder, names in (("train", ("subject1_run3", "subject1_run4")), ("test", ("subject2_run1", "subject2_run2"))):
+        (tmp_path / folder).mkdir()
+        for name in names:
+            for suffix in (".tsv", "_manually_segmented.json"):
+                (tmp_path / folder / (name + suffix)).symlink_to(shared_data / "pick_and_place" / (name + suffix))
+    saved = tmp_path / "tuned.json"
+    assert main(["eval", "segmentation", "--data", str(tmp_path / "test"), "--tune-on", str(tmp_path / "train"),
+                 "--save-segmenter", str(saved), "--no-baseline", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["tuned_on"] == str(tmp_path / "train")
+    assert set(out["tuned"]["rules"]) >= {"dip_ratio", "end_level", "start_level"}
+    assert 0.0 <= out["vmci_tuned"]["scores"]["0.1"]["f1"] <= out["vmci_tuned"]["scores"]["0.2"]["f1"] <= 1.0
+    assert out["vmci_tuned"]["params"]["rules"] == out["tuned"]["rules"]
+    rec = shared_data / "pick_and_place" / "subject2_run1.tsv"
+    assert main(["segment", str(rec), "--segmenter", str(saved), "--json"]) == 0
+    seg = json.loads(capsys.readouterr().out)
+    assert seg["segmenter"]["rules"] == out["tuned"]["rules"] and len(seg["segments"]) >= 2
+    # errors
+    assert main(["eval", "segmentation", "--data", str(tmp_path / "test"), "--save-segmenter", str(saved)]) == 2
+    assert "--tune-on" in capsys.readouterr().err
+    assert main(["segment", str(rec), "--segmenter", str(saved), "--method", "zvc"]) == 2
+    capsys.readouterr()
+    (tmp_path / "bad.json").write_text('{"rules": {}}')
+    assert main(["segment", str(rec), "--segmenter", str(tmp_path / "bad.json")]) == 2
+    assert "params" in capsys.readouterr().err

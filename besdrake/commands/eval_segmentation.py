@@ -16,6 +16,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print the metrics as one JSON object")
     parser.add_argument("--tolerances", type=float, nargs="+", default=[0.1, 0.2], help="seconds")
     parser.add_argument("--no-baseline", action="store_true", help="skip the zero-velocity baseline")
+    parser.add_argument("--tune-on", type=Path, default=None, metavar="DIR",
+                        help="also score vMCI with priors and border rules chosen on the labelled recordings "
+                             "in DIR (another subject: tuned on one, scored on the other)")
+    parser.add_argument("--save-segmenter", type=Path, default=None, metavar="FILE",
+                        help="with --tune-on: write the tuned segmenter as JSON (for 'besdrake segment --segmenter')")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -29,11 +34,27 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(str(err)) from None
     if any(t <= 0 for t in args.tolerances):
         raise UserError("tolerances must be positive seconds")
+    if args.save_segmenter and not args.tune_on:
+        raise UserError("--save-segmenter needs --tune-on DIR")
     methods = {"vmci": VMCI()}
     if not args.no_baseline:
         methods["zero_velocity"] = ZeroVelocitySegmenter()
+    report = {"data": str(args.data), "n_recordings": len(recs)}
+    if args.tune_on:
+        from besdrake.segmentation import tune_vmci
+
+        try:
+            tuned = tune_vmci(labelled_recordings(args.tune_on))
+        except (OSError, ValueError) as err:
+            raise UserError(f"--tune-on: {err}") from None
+        methods["vmci_tuned"] = tuned.segmenter()
+        report["tuned_on"] = str(args.tune_on)
+        report["tuned"] = tuned.to_dict()
+        if args.save_segmenter:
+            from besdrake._io import write_json
+
+            write_json(args.save_segmenter, tuned.to_dict())
     try:
-        report = {"data": str(args.data), "n_recordings": len(recs)}
         for name, seg in methods.items():
             report[name] = evaluate_segmenter(seg, recs, args.tolerances).to_dict()
     except ValueError as err:

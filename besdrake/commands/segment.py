@@ -19,6 +19,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="classifier JSON written by 'besdrake eval classification --save-classifier'")
     parser.add_argument("--train", type=Path, default=None,
                         help="folder of labelled recordings to train a 1-NN classifier on (instead of --classifier)")
+    parser.add_argument("--segmenter", type=Path, default=None, metavar="FILE",
+                        help="tuned vMCI (priors and border rules) written by 'besdrake eval segmentation --tune-on DIR --save-segmenter FILE'")
     parser.add_argument("--max-gap", type=float, default=0.25, help="interpolate marker gaps up to this many seconds")
 
 
@@ -34,10 +36,20 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"{args.file}: no such file")
     if args.classifier and args.train:
         raise UserError("give either --classifier or --train, not both")
+    if args.segmenter and args.method != "vmci":
+        raise UserError("--segmenter is a tuned vMCI; it cannot be used with --method zvc")
+    tuned = None
+    if args.segmenter:
+        from besdrake.segmentation import TunedVMCI
+
+        try:
+            tuned = TunedVMCI.from_dict(json.loads(args.segmenter.read_text())).segmenter()
+        except (OSError, ValueError) as err:
+            raise UserError(f"--segmenter {args.segmenter}: {err}") from None
     try:
         rec = read_recording(args.file)
         pre = preprocess(rec, max_gap_s=args.max_gap)
-        seg = VMCI() if args.method == "vmci" else ZeroVelocitySegmenter()
+        seg = tuned or (VMCI() if args.method == "vmci" else ZeroVelocitySegmenter())
         seg.fit(pre)
     except (MocapFormatError, PreprocessError, SegmentationError) as err:
         raise UserError(f"{args.file}: {err}") from None

@@ -66,6 +66,17 @@ class TunedVMCI:
         """A :class:`VMCI` with the chosen priors and rules."""
         return VMCI(**self.params, rules=self.rules)
 
+    @classmethod
+    def from_dict(cls, d: dict) -> "TunedVMCI":
+        """Inverse of :meth:`to_dict` (e.g. a file written by ``besdrake eval segmentation --save-segmenter``)."""
+        try:
+            return cls(dict(d["params"]), BorderRules.from_dict(d["rules"]),
+                       {float(k): v for k, v in d.get("train_f1_priors", {}).items()},
+                       {float(k): v for k, v in d.get("train_f1", {}).items()},
+                       int(d.get("n_prior_candidates", 0)), int(d.get("n_rule_candidates", 0)))
+        except (KeyError, TypeError, AttributeError) as err:
+            raise ValueError(f"not a tuned vMCI segmenter (needs 'params' and 'rules'): {err}") from None
+
     def to_dict(self) -> dict:
         return {
             "params": dict(self.params),
