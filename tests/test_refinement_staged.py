@@ -29,14 +29,16 @@ def test_dropped_ball_scores_below_the_same_touchdown_thrown(base):
     from besdrake.imitation import DMPParameterization
 
     plan = DMPParameterization(base).motion_plan(DMPParameterization(base).to_vector(), dt=0.01)
-    thrown = ThrowReward()(plan, outcome([1.5, 0.0]))
-    dropped = ThrowReward()(plan, outcome([1.5, 0.0], dropped_early=True))
+    rew = ThrowReward(dropped_penalty=1.0)
+    thrown = rew(plan, outcome([1.5, 0.0]))
+    dropped = rew(plan, outcome([1.5, 0.0], dropped_early=True))
     assert dropped.distance == thrown.distance == pytest.approx(0.5)
-    assert dropped.reward == pytest.approx(thrown.reward - DROPPED_PENALTY)
+    assert dropped.reward == pytest.approx(thrown.reward - 1.0)
     # a dropped ball never beats a real throw that lands farther from the target by less than the penalty
-    worse_throw = ThrowReward()(plan, outcome([1.5 - 0.9 * DROPPED_PENALTY, 0.0]))
+    worse_throw = rew(plan, outcome([1.5 - 0.9, 0.0]))
     assert worse_throw.reward > dropped.reward
-    assert ThrowReward(dropped_penalty=0.0)(plan, outcome([1.5, 0.0], dropped_early=True)).reward == pytest.approx(thrown.reward)
+    default = ThrowReward()(plan, outcome([1.5, 0.0], dropped_early=True))
+    assert default.reward == pytest.approx(thrown.reward - DROPPED_PENALTY)
     with pytest.raises(RefinementError):
         ThrowReward(dropped_penalty=-1.0)
     assert ThrowReward.from_dict(ThrowReward(dropped_penalty=0.3).to_dict()).dropped_penalty == 0.3
