@@ -138,3 +138,23 @@ def test_refine_with_meta_stage_succeeds_and_resumes(base, tmp_path):
         refine(RefinementProblem(base), StandIn(), n_episodes=60, seed=3, popsize=8, out_dir=tmp_path, meta_episodes=32)
     with pytest.raises(RefinementError):
         refine(problem, StandIn(), n_episodes=10, meta_episodes=-1)
+
+
+def test_refine_cli_meta_stage_and_dropped_penalty(base, tmp_path):
+    import json
+
+    from besdrake.cli import main
+    from besdrake.imitation import save_dmp
+
+    slow = base.copy()
+    slow.execution_time = 2.3
+    dmp_file = save_dmp(slow, tmp_path / "throw.dmp.json")
+    out = tmp_path / "run"
+    argv = ["refine", str(dmp_file), "--out", str(out), "--episodes", "8", "--popsize", "4", "--backend", "serial", "--quiet",
+            "--json", "--no-figures", "--meta-episodes", "4", "--dropped-penalty", "0.5"]
+    assert main(argv) == 0
+    problem = json.loads((out / "run0" / "problem.json").read_text())
+    assert problem["meta_episodes"] == 4 and problem["reward"]["dropped_penalty"] == 0.5
+    state = json.loads((out / "run0" / "optimizer.json").read_text())
+    assert state["optimizer"]["type"] == "StagedCMAES" and state["optimizer"]["stage"] == 2
+    assert main(argv[:-4] + ["--meta-episodes", "-1"]) == 2

@@ -29,6 +29,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--episodes", type=int, default=2000, help="episode budget per run (the paper: at most 10000)")
     parser.add_argument("--popsize", type=int, default=10, help="CMA-ES population (default 10, measured better here; the paper: 20)")
     parser.add_argument("--sigma0", type=float, default=1.0, help="initial step size in normalised units")
+    parser.add_argument("--meta-episodes", type=int, default=0,
+                        help="episodes of a first CMA-ES stage over meta-parameters (joint offsets, goals, execution time) before all 49 (0: none)")
+    parser.add_argument("--meta-sigma", type=float, default=1.0, help="initial step size of the meta-parameter stage")
+    parser.add_argument("--dropped-penalty", type=float, default=None, help="reward penalty (m) of a ball that falls out of the scoop (default 0)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--continue-after-success", action="store_true", help="use the whole budget instead of stopping at the first success")
     parser.add_argument("--backend", choices=("serial", "process"), default="process", help="rollout executor")
@@ -102,6 +106,8 @@ def run(args: argparse.Namespace) -> int:
             raise UserError(f"{name} must be >= {lo}, got {v}")
     if not (np.isfinite(args.sigma0) and args.sigma0 > 0):
         raise UserError(f"--sigma0 must be > 0, got {args.sigma0}")
+    if args.meta_episodes < 0 or not (np.isfinite(args.meta_sigma) and args.meta_sigma > 0):
+        raise UserError(f"--meta-episodes must be >= 0 and --meta-sigma > 0, got {args.meta_episodes}, {args.meta_sigma}")
     if not np.isfinite(args.target).all():
         raise UserError(f"--target must be finite, got {args.target}")
     t_start = time.perf_counter()
@@ -110,7 +116,8 @@ def run(args: argparse.Namespace) -> int:
     if not files:
         raise UserError("no imitated throws to refine")
     try:
-        reward = ThrowReward(target=tuple(args.target))
+        extra = {} if args.dropped_penalty is None else {"dropped_penalty": args.dropped_penalty}
+        reward = ThrowReward(target=tuple(args.target), **extra)
         problems = [RefinementProblem(load_dmp(f), reward) for f in files]
     except (DMPParameterError, RefinementError) as err:
         raise UserError(str(err)) from None
@@ -148,7 +155,8 @@ def run(args: argparse.Namespace) -> int:
 
             try:
                 result = refine(problem, executor, args.episodes, seed=args.seed + k, out_dir=run_dir, sigma0=args.sigma0,
-                                popsize=args.popsize, stop_on_success=not args.continue_after_success, progress=progress)
+                                popsize=args.popsize, stop_on_success=not args.continue_after_success, progress=progress,
+                                meta_episodes=args.meta_episodes, meta_sigma=args.meta_sigma)
             except (RefinementError, ResumeError) as err:
                 raise UserError(str(err)) from None
             finally:
