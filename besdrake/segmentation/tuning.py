@@ -44,7 +44,7 @@ SELECTION_TOLERANCES = (0.05, 0.1, 0.15, 0.2, 0.25, 0.3)
 #: the rule learned on the one cost 0.08-0.25 F1 on the other.
 DEFAULT_TUNING_RULE_GRID = {
     "merge_end_rests": [False, True],
-    "dip_ratio": [0.0, 0.3, 0.5, 0.7],
+    "dip_ratio": [0.0, 0.7, 0.5, 0.3],
     "snap_s": [0.0, 0.1, 0.2],
     "end_level": [0.0, 0.05, 0.1, 0.15, 0.2],
     "start_level": [0.0, 0.05, 0.1, 0.2],
