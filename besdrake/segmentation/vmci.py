@@ -22,7 +22,10 @@ passes through a minimum. This module implements that model from the papers:
   ``rest_noise_ratio``), so pauses become segments of their own (both ends of a pause are
   borders). ``segment_models`` in the result says which model won per segment.
 * Segment length prior: geometric with mean ``mean_length_s`` (a per-segment penalty),
-  truncated below ``min_length_s``.
+  truncated below ``min_length_s`` for movements and ``rest_min_length_s`` for rests.
+* Border rules (:mod:`besdrake.segmentation.placement`) may move or drop borders after the
+  inference: by default a border between two movements without a real speed dip is dropped;
+  rules learned from a labelled subject place borders the way its annotator does.
 * Inference: the online Viterbi recursion of Fearnhead & Liu 2007,
   ``V[t] = max_s V[s] + log P(v[s:t] | segment) + log g(t - s)``, over a set of candidate
   last changepoints (particles) that is pruned at every step (particles whose path
