@@ -17,10 +17,13 @@ Prints one JSON object:
   hand speed (manual, vMCI, baseline).
 * ``speed``: CPU seconds per second of data at the full recording rate, one core (median
   over recordings), and the factor faster than real time.
+* ``stability`` (``--stability``): the cross-subject tuning repeated without each training
+  recording in turn (median, min, max of the F1 on the other subject): how much the choice
+  depends on single recordings.
 * ``synthetic`` (``--synthetic DIR`` or generated with ``--generate``): borders F1 and the
   fraction of demonstrated throws whose start and end are both found within +-0.2 s.
 
-Usage: python3 scripts/bench_segmentation.py [--data DIR] [--synthetic DIR | --generate]
+Usage: python3 scripts/bench_segmentation.py [--data DIR] [--synthetic DIR | --generate] [--stability]
 """
 
 from __future__ import annotations
@@ -110,6 +113,27 @@ def near_minimum_fraction(recs, pre, segmenter=None) -> float:
     return near / total if total else float("nan")
 
 
+def stability(by_subject: dict, pre: dict) -> dict:
+    """Cross-subject F1 of tune_vmci when each training recording in turn is left out."""
+    out = {}
+    for a, b in itertools.permutations(by_subject, 2):
+        runs, f1 = [], []
+        for i, left_out in enumerate(by_subject[a]):
+            tuned = tune_vmci(by_subject[a][:i] + by_subject[a][i + 1:], VMCI_GRID, preprocessed=pre)
+            ev = evaluate_segmenter(tuned.segmenter(), by_subject[b], (0.1, 0.2), pre)
+            f1.append((ev.f1(0.2), ev.f1(0.1)))
+            runs.append({"left_out": left_out.path.name, "params": tuned.params, "rules": tuned.rules.to_dict(),
+                         "f1_0.2": ev.f1(0.2), "f1_0.1": ev.f1(0.1)})
+        arr = np.array(f1)
+        out[f"tuned_on_{a}_scored_on_{b}"] = {
+            "median": {"f1_0.2": float(np.median(arr[:, 0])), "f1_0.1": float(np.median(arr[:, 1]))},
+            "min": {"f1_0.2": float(arr[:, 0].min()), "f1_0.1": float(arr[:, 1].min())},
+            "max": {"f1_0.2": float(arr[:, 0].max()), "f1_0.1": float(arr[:, 1].max())},
+            "runs": runs,
+        }
+    return out
+
+
 def speed_figures(recs, pre) -> dict:
     per_rec = []
     seg = VMCI()
@@ -154,6 +178,8 @@ def main() -> None:
     ap.add_argument("--data", type=Path, default=DEFAULT_DATA)
     ap.add_argument("--synthetic", type=Path, default=None, help="folder of labelled synthetic throws")
     ap.add_argument("--generate", action="store_true", help="generate 10 synthetic subjects in a temp folder")
+    ap.add_argument("--stability", action="store_true",
+                    help="repeat the cross-subject tuning without each training recording (a few minutes)")
     args = ap.parse_args()
 
     recs = labelled_recordings(args.data)
@@ -202,6 +228,8 @@ def main() -> None:
         entry["zero_velocity_tuned_quoted"] = QUOTED_TUNED_ZVC
         cross[f"tuned_on_{a}_scored_on_{b}"] = entry
     report["cross_subject"] = cross
+    if args.stability:
+        report["stability"] = stability(by_subject, pre)
     report["targets"] = {"f1_0.2": 0.90, "f1_0.1": 0.75}
     report["defaults"] = {s: summary(evaluate_segmenter(VMCI(), by_subject[s], (0.1, 0.2), pre)) for s in subjects}
     report["default_params"] = VMCI().json_params()
