@@ -32,7 +32,7 @@ import numpy as np  # noqa: E402
 def main(argv: list[str] | None = None) -> int:
     from besdrake.commands.refine import collect_imitated
     from besdrake.imitation import load_dmp
-    from besdrake.search.refinement import ParameterScaling, RefinementProblem, ThrowReward, best_start, refine
+    from besdrake.search.refinement import MIN_EXECUTION_TIME, ParameterScaling, RefinementProblem, ThrowReward, best_start, refine
     from besdrake.sim import make_executor
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
@@ -51,6 +51,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--meta-episodes", type=int, default=0, help="episodes of the meta-parameter stage before the 49-D CMA-ES (0: none)")
     parser.add_argument("--meta-sigma", type=float, default=1.0, help="initial step of the meta-parameter stage")
     parser.add_argument("--position-unit", type=float, default=None, help="rad per normalised unit of start and goal (default: the module's)")
+    parser.add_argument("--no-slower", action="store_true", help="bound the execution time by the imitated one (never slower than the imitated throw)")
     parser.add_argument("--out", type=Path, default=None, help="keep each run's folder (episodes, details.csv) under OUT/sS_runK")
     args = parser.parse_args(argv)
     logging.getLogger("drake").setLevel(logging.ERROR)
@@ -70,7 +71,8 @@ def main(argv: list[str] | None = None) -> int:
                                  dropped_penalty=d.dropped_penalty if args.dropped_penalty is None else args.dropped_penalty)
             dmps = [load_dmp(f) for f in files]
             unit = {} if args.position_unit is None else {"position_unit": args.position_unit}
-            problems = [RefinementProblem(dm, reward, ParameterScaling.for_dmp(dm, **unit)) for dm in dmps]
+            problems = [RefinementProblem(dm, reward, ParameterScaling.for_dmp(
+                dm, max_execution_time=max(dm.execution_time, MIN_EXECUTION_TIME + 0.05) if args.no_slower else None, **unit)) for dm in dmps]
             index, start = best_start(problems, ex)
             runs = []
             for k in range(args.runs):
@@ -91,7 +93,7 @@ def main(argv: list[str] | None = None) -> int:
     out = {
         "subjects_run": args.subjects, "runs_per_subject": args.runs, "episode_budget": args.episodes,
         "population": args.popsize, "sigma0": args.sigma0, "penalty_scale": args.penalty_scale,
-        "dropped_penalty_m": reward.dropped_penalty, "meta_episodes": args.meta_episodes, "meta_sigma": args.meta_sigma, "position_unit_rad": args.position_unit, "target_m": [2.0, 0.0], "backend": args.backend,
+        "dropped_penalty_m": reward.dropped_penalty, "meta_episodes": args.meta_episodes, "meta_sigma": args.meta_sigma, "position_unit_rad": args.position_unit, "no_slower": args.no_slower, "target_m": [2.0, 0.0], "backend": args.backend,
         "success_rate": float(np.mean([r["success"] for r in all_runs])),
         "subjects_with_success_in_every_run": sum(v["success_rate"] == 1.0 for v in subjects.values()),
         "subjects_with_success_in_some_run": sum(v["success_rate"] > 0.0 for v in subjects.values()),

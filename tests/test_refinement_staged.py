@@ -158,3 +158,15 @@ def test_refine_cli_meta_stage_and_dropped_penalty(base, tmp_path):
     state = json.loads((out / "run0" / "optimizer.json").read_text())
     assert state["optimizer"]["type"] == "StagedCMAES" and state["optimizer"]["stage"] == 2
     assert main(argv[:-4] + ["--meta-episodes", "-1"]) == 2
+
+
+def test_scaling_max_execution_time_bounds_the_time(base):
+    from besdrake.search.refinement import MAX_EXECUTION_TIME, MIN_EXECUTION_TIME, ParameterScaling
+
+    s = ParameterScaling.for_dmp(base, max_execution_time=1.2)
+    assert s.bounds[-1].tolist() == [MIN_EXECUTION_TIME, 1.2]
+    assert s.to_theta(np.full(s.theta0.size, 50.0))[-1] == pytest.approx(1.2)
+    assert ParameterScaling.for_dmp(base).bounds[-1, 1] == MAX_EXECUTION_TIME
+    for bad in (MIN_EXECUTION_TIME, MAX_EXECUTION_TIME + 1.0, float("nan")):
+        with pytest.raises(RefinementError):
+            ParameterScaling.for_dmp(base, max_execution_time=bad)

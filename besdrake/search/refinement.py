@@ -228,15 +228,21 @@ class ParameterScaling:
         position_unit: float = POSITION_UNIT,
         acceleration_unit: float = ACCELERATION_UNIT,
         time_unit: float = TIME_UNIT,
+        max_execution_time: float | None = None,
     ) -> "ParameterScaling":
-        """Scaling around the imitated ``dmp`` (see module docstring for the units and bounds)."""
+        """Scaling around the imitated ``dmp`` (see module docstring for the units and bounds);
+        ``max_execution_time`` (s) replaces :data:`MAX_EXECUTION_TIME` as the upper bound of the
+        execution time (e.g. the imitated one: never slower than the imitated throw)."""
         for name, v in (("position_unit", position_unit), ("acceleration_unit", acceleration_unit), ("time_unit", time_unit)):
             if not (np.isfinite(v) and v > 0):
                 raise RefinementError(f"{name} must be a finite number > 0, got {v!r}")
+        t_max = MAX_EXECUTION_TIME if max_execution_time is None else float(max_execution_time)
+        if not (np.isfinite(t_max) and MIN_EXECUTION_TIME < t_max <= MAX_EXECUTION_TIME):
+            raise RefinementError(f"max_execution_time must lie in ({MIN_EXECUTION_TIME}, {MAX_EXECUTION_TIME}] s, got {max_execution_time!r}")
         n, k = dmp.n_dims, dmp.n_weights_per_dim
         param = DMPParameterization(dmp)
         theta0 = param.to_vector()
-        tau = float(np.clip(dmp.execution_time, MIN_EXECUTION_TIME, MAX_EXECUTION_TIME))
+        tau = float(np.clip(dmp.execution_time, MIN_EXECUTION_TIME, t_max))
         theta0[-1] = tau
         centers = dmp.basis.centers  # phase at each basis centre
         w_scale = np.tile(acceleration_unit * tau**2 / centers, n)
@@ -250,7 +256,7 @@ class ParameterScaling:
                 limits,
                 limits,
                 np.column_stack([w - WEIGHT_BOUND_UNITS * w_scale, w + WEIGHT_BOUND_UNITS * w_scale]),
-                [[MIN_EXECUTION_TIME, MAX_EXECUTION_TIME]],
+                [[MIN_EXECUTION_TIME, t_max]],
             ]
         )
         theta0[: 2 * n] = np.clip(theta0[: 2 * n], np.tile(limits[:, 0], 2), np.tile(limits[:, 1], 2))
