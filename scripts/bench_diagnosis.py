@@ -118,7 +118,10 @@ def _summarize(results: list[dict], modes: list[str], args, t_bench: float, regi
             t = " + ".join(sorted(r["hidden"]))
             p = " + ".join(r["best"]) or "none"
             if r.get("cannot_tell_size"):
-                p = "cannot tell nominal from a set " + ("holding the hidden effect" if r.get("honest_undetected") else "WITHOUT the hidden effect")
+                if r["cannot_tell_size"] == len(registry):
+                    p = "cannot tell nominal from the whole registry"
+                else:
+                    p = "cannot tell nominal from a set " + ("holding the hidden effect" if r.get("honest_undetected") else "WITHOUT the hidden effect")
             conf.setdefault(t, {}).setdefault(p, 0)
             conf[t][p] += 1
         ok_or_honest = [r["correct"] or r["honest_cannot_tell"] for r in known]
@@ -144,7 +147,7 @@ def _summarize(results: list[dict], modes: list[str], args, t_bench: float, regi
             "honest_undetected_answers": int(sum(r.get("honest_undetected", False) for r in known)),
             "cannot_tell_sets_holding_hidden_any_size": int(sum(bool(r.get("cannot_tell")) and all(e in r["cannot_tell"] for e in r["hidden"]) for r in known)),
             "cannot_tell_sets_of_whole_registry": int(sum(r.get("cannot_tell_size", 0) == len(registry) for r in known)),
-            "honest_undetected_hidden_value_within_allowed": int(sum(r.get("hidden_within_allowed", False) for r in known)),
+            "cannot_tell_hidden_value_within_allowed": int(sum(r.get("hidden_within_allowed", False) for r in known)),
             "mean_cannot_tell_set_size": float(np.mean([r["cannot_tell_size"] for r in known if r.get("cannot_tell_size", 0) > 0])) if any(r.get("cannot_tell_size", 0) for r in known) else None,
             "registry_size": len(registry),
             "mean_answer_set_size_of_honest_answers": float(np.mean([r["answer_set_size"] for r in known if r["honest_cannot_tell"] and not r["correct"]])) if any(r["honest_cannot_tell"] and not r["correct"] for r in known) else None,
@@ -208,7 +211,12 @@ def main(argv=None) -> int:
                 k_known += 1
             plans = diagnosis_plans(args.throws, args.repeats, seed=1000 * args.seed + i)
             lab = VirtualLab({"name": "bench_lab", "effects": hidden, "seed": 1000 * args.seed + i})
-            ms = [lab.execute(p) for p in plans]
+            try:
+                ms = [lab.execute(p) for p in plans]
+            except Exception as err:  # noqa: BLE001 - e.g. the lab's placement habit + scatter beyond the effect's bounds
+                for mode in modes:
+                    results.append({"trial": i, "mode": mode, "hidden": hidden, "unknown": unknown, "error": f"lab: {type(err).__name__}: {err}"})
+                continue
             # The lab's noise floor: median touchdown disparity of the TRUE model on the same throws.
             # Detectability from the touchdown alone: chi-square of the true effect's touchdown shift against the
             # lab's touchdown noise (about 5.4 cm per axis with placement), > 20 = detectable with this log.
@@ -239,7 +247,7 @@ def main(argv=None) -> int:
                 # in the reported set and the set is not the whole registry (the set sizes are printed as well).
                 ct = {a.effect: a for a in d.cannot_tell}
                 honest_undetected = bool(ct) and len(ct) < len(registry) and all(e in ct for e in hidden)
-                hidden_within_allowed = honest_undetected and all(
+                hidden_within_allowed = bool(ct) and all(e in ct for e in hidden) and all(
                     ct[e].allowed[k][0] - 1e-9 <= v <= ct[e].allowed[k][1] + 1e-9 for e, vals in hidden.items() for k, v in vals.items() if k in ct[e].allowed)
                 row = {
                     "trial": i, "mode": mode, "hidden": hidden, "unknown": unknown,
