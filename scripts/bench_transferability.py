@@ -256,8 +256,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--lab", default=DEFAULT_LAB)
     parser.add_argument("--lab-seed", type=int, default=1000, help="lab noise seed of subject S: this + S (the diagnosis uses the lab's own seed)")
     parser.add_argument("--seed", type=int, default=0, help="refinement and search seed")
-    parser.add_argument("--transfer-choice", choices=["predicted", "diverse"], default="predicted",
-                        help="which plan the Transferability Approach transfers: closest predicted lab touchdown, or the paper's most diverse")
+    parser.add_argument("--transfer-choice", choices=["likely", "predicted", "diverse"], default="likely",
+                        help="which plan the Transferability Approach transfers: most likely to pass 3/3, closest predicted lab touchdown, or the paper's most diverse")
     args = parser.parse_args(argv)
     logging.getLogger("drake").setLevel(logging.ERROR)
 

@@ -158,3 +158,22 @@ def test_predicted_choice_aims_past_the_target_when_the_lab_throws_short(seed_th
     assert len(search.offsets.Y) == len(result.transfers)  # repetitions train the offset model too
     assert transfers[0].sim_touchdown[0] == pytest.approx(2.0, abs=0.03)  # nothing measured yet: closest in simulation
     assert max(t.sim_touchdown[0] for t in transfers[1:]) > transfers[0].sim_touchdown[0] + 0.02
+
+
+def test_likely_choice_stops_retrying_a_plan_that_hits_only_now_and_then():
+    """Two plans predicted on target: the one whose lab throws scattered widely (a cliff) is less likely to pass 3/3."""
+    from besdrake.transfer.transferability import Transfer
+
+    cfg = TransferabilityConfig(transfer_choice="likely")
+    search = TransferabilityApproach(to_plan, np.array([[0.45, 0.0, 19.0]]), SCALES, BOUNDS, None, None, np.random.default_rng(0), cfg)
+    erratic, fresh = np.array([0.45, 0.0, 19.0]), np.array([0.46, 0.0, 19.0])
+    h = plan_hash(to_plan(erratic))
+    for k, x in enumerate([2.03, 2.28, 1.99, 2.30, 2.02]):  # 3 of 5 within 0.1 m, the others 0.3 m long
+        search.transfers.append(Transfer(k, "transfer" if k == 0 else "repeat", erratic.tolist(), h, [2.0, 0.0], [x, 0.0], 0.0, abs(x - 2.0)))
+    p = search._success_probabilities(np.array([erratic, fresh]), np.array([[2.0, 0.0], [2.0, 0.0]]))
+    assert 0 <= p[0] < p[1] <= 1
+    assert p[0] < 0.2  # its own scatter (SD ~0.14 m per axis) makes 3/3 unlikely
+    # with no lab trial at all, a plan predicted on target gets the Rayleigh figure of the prior scatter
+    fresh_only = TransferabilityApproach(to_plan, np.array([[0.45, 0.0, 19.0]]), SCALES, BOUNDS, None, None, np.random.default_rng(0), cfg)
+    p0 = fresh_only._success_probabilities(fresh[None], np.array([[2.0, 0.0]]))[0]
+    assert p0 == pytest.approx((1 - np.exp(-0.1**2 / (2 * 0.05**2))) ** 3, rel=1e-6)

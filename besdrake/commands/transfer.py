@@ -24,9 +24,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--workers", type=int, default=1, help="simulation processes")
     parser.add_argument("--plugin", action="append", default=[], help="module registering further effects (for the lab)")
     parser.add_argument("--keep-going", action="store_true", help="do not stop at the first 3/3 success")
-    parser.add_argument("--transfer-choice", choices=["predicted", "diverse"], default=None,
-                        help="plan transferred after each generation: closest predicted lab touchdown (sim + learned "
-                             "sim-to-lab offset) or the paper's most diverse (default: the library's)")
+    parser.add_argument("--transfer-choice", choices=["likely", "predicted", "diverse"], default=None,
+                        help="plan transferred after each generation: most likely to pass the 3/3 check, closest predicted "
+                             "lab touchdown (sim + learned sim-to-lab offset) or the paper's most diverse (default: the library's)")
     parser.add_argument("--json", action="store_true", help="print the summary as one JSON object")
 
 

@@ -25,6 +25,12 @@ plan to the lab, chosen by ``transfer_choice``:
   predicted from its own measurements, so the best plan in the lab is re-tried when nothing else is
   predicted closer. It spends the transfers on the task instead of on exploration: with a
   faithful-enough simulation the paper's diverse choice sends plans 0.1-0.3 m off target on purpose.
+* ``"likely"``: the plan most likely to pass the success check, P(``success_repetitions`` of them
+  within ``success_radius``) for a touchdown scattering isotropically around the predicted one (Rice
+  distribution). The scatter is the lab's (pooled over the plans thrown more than once, starting
+  from ``lab_sd_prior``), and for a plan thrown before its own measured scatter shrunk towards that: a
+  plan on a cliff (e.g. the ball sometimes rolls out early) that lands on target only now and then
+  is no longer re-tried, unlike with ``"predicted"``, which uses the mean only.
 
 Its measured disparity trains the surrogate. When a transferred plan lands
 within ``success_radius`` of the target, it is repeated until ``success_repetitions`` lab trials
@@ -56,7 +62,7 @@ from besdrake.transfer.measurement import Measurement, plan_hash
 #: Touchdown "distance" given to a throw that never lands (m): worse than any real throw.
 NO_TOUCHDOWN_DISTANCE = 5.0
 #: How the update heuristic picks the plan to transfer (see the module docstring).
-TRANSFER_CHOICES = ("diverse", "predicted")
+TRANSFER_CHOICES = ("diverse", "predicted", "likely")
 
 
 @dataclass
@@ -76,7 +82,8 @@ class TransferabilityConfig:
     transfer_max_sim_distance: float = 0.3
     limit_penalty: float = 1.0  # m of objective per rad (rad/s, rad/s^2) of limit violation
     diversity_neighbours: int = 5
-    transfer_choice: str = "diverse"  # "diverse" (the paper) or "predicted" (closest predicted lab touchdown)
+    transfer_choice: str = "diverse"  # "diverse" (the paper), "predicted" or "likely" (see the module docstring)
+    lab_sd_prior: float = 0.05  # m per axis: the lab's touchdown scatter assumed before repeated plans measure it
 
     def __post_init__(self) -> None:
         if self.transfer_choice not in TRANSFER_CHOICES:
@@ -393,8 +400,8 @@ class TransferabilityApproach:
 
     def _choose_transfer(self, P: np.ndarray, f1: np.ndarray, F: np.ndarray, D: np.ndarray, sim_td: np.ndarray) -> int:
         limits_ok = np.array([self.to_plan(p).check_limits().ok for p in P])
-        if self.config.transfer_choice == "predicted":
-            return self._closest_predicted(limits_ok, f1, D, sim_td)
+        if self.config.transfer_choice in ("predicted", "likely"):
+            return self._closest_predicted(limits_ok, f1, D, sim_td, P)
         ranks = nondominated_ranks(F)
         pool = np.flatnonzero((ranks == 0) & (f1 <= self.config.transfer_max_sim_distance) & limits_ok)
         if len(pool) == 0:
@@ -412,14 +419,52 @@ class TransferabilityApproach:
         """Simulated touchdowns ``(n, 2)`` plus the offsets the :class:`OffsetSurrogate` predicts (m)."""
         return np.asarray(sim_td, dtype=float) + self.offsets.predict(np.atleast_2d(D))
 
-    def _closest_predicted(self, limits_ok: np.ndarray, f1: np.ndarray, D: np.ndarray, sim_td: np.ndarray) -> int:
+    def _closest_predicted(self, limits_ok: np.ndarray, f1: np.ndarray, D: np.ndarray, sim_td: np.ndarray,
+                           P: np.ndarray | None = None) -> int:
         landed = limits_ok & np.isfinite(sim_td).all(axis=1)
         if not landed.any():
             pool = np.flatnonzero(limits_ok) if limits_ok.any() else np.arange(len(f1))
             return int(pool[np.argmin(f1[pool])])
         pool = np.flatnonzero(landed)
         predicted = self.predicted_lab_touchdowns(D[pool], sim_td[pool])
-        return int(pool[np.argmin(np.linalg.norm(predicted - self.target, axis=1))])
+        if self.config.transfer_choice != "likely" or P is None:
+            return int(pool[np.argmin(np.linalg.norm(predicted - self.target, axis=1))])
+        return int(pool[np.argmax(self._success_probabilities(P[pool], predicted))])
+
+    def _lab_groups(self) -> dict[str, np.ndarray]:
+        """Measured lab touchdowns ``(k, 2)`` of every plan thrown so far, by plan hash."""
+        groups: dict[str, list] = {}
+        for t in self.transfers:
+            if t.lab_touchdown is not None and t.kind in ("transfer", "repeat"):
+                groups.setdefault(t.plan_hash, []).append(t.lab_touchdown)
+        return {h: np.asarray(v, dtype=float) for h, v in groups.items()}
+
+    def _success_probabilities(self, thetas: np.ndarray, predicted: np.ndarray) -> np.ndarray:
+        """P(every repetition of the success check lands within the radius) of each plan (see ``"likely"``)."""
+        from scipy.stats import rice
+
+        cfg = self.config
+        groups = self._lab_groups()
+        ss, dof = 0.0, 0
+        for v in groups.values():
+            if len(v) > 1:
+                ss += float(((v - v.mean(axis=0)) ** 2).sum())
+                dof += 2 * (len(v) - 1)
+        prior_dof = 4.0
+        var0 = (prior_dof * cfg.lab_sd_prior**2 + ss) / (prior_dof + dof)  # pooled per-axis variance
+        out = np.zeros(len(thetas))
+        for j, theta in enumerate(thetas):
+            v = groups.get(plan_hash(self.to_plan(theta)))
+            centre, var = predicted[j], var0
+            if v is not None:
+                centre = v.mean(axis=0)  # its own measurements say where it lands
+                if len(v) > 1:
+                    own = float(((v - centre) ** 2).sum())
+                    var = (prior_dof * var0 + own) / (prior_dof + 2 * (len(v) - 1))
+                var = var * (1.0 + 1.0 / len(v))  # the mean's own uncertainty
+            sd = np.sqrt(var)
+            out[j] = rice.cdf(cfg.success_radius / sd, np.linalg.norm(centre - self.target) / sd) ** cfg.success_repetitions
+        return out
 
     # -- persistence ------------------------------------------------------------------------------
     def _save(self, P: np.ndarray, f1: np.ndarray, D: np.ndarray, sim_td: np.ndarray) -> None:
