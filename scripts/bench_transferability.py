@@ -105,8 +105,8 @@ def run_subject(
     ta_options: dict[str, Any] | None = None,
     tag: str = "ta",
 ) -> dict[str, Any]:
-    """Step 2 for one subject in folder ``out`` (resumable): the refinement in ``out/refine`` (shared by every
-    search setting), the search ``tag`` in ``out/tag`` (``out/tag/result.json`` marks it finished)."""
+    """Step 2 for one subject in folder ``out`` (resumable): the refinement in ``out/refine_rBUDGET`` (shared by
+    every search setting), the search ``tag`` in ``out/tag`` (``out/tag/result.json`` marks it finished)."""
     from besdrake.imitation import DMPParameterization, load_dmp
     from besdrake.search.refinement import ParameterScaling, RefinementProblem, ThrowReward, best_start, refine
     from besdrake.sim import make_executor
@@ -122,18 +122,19 @@ def run_subject(
     t0 = time.perf_counter()
     with make_executor("serial", scenario=scenario) as executor:
         # refinement in the benchmark's simulation, from the best imitated throw (once per subject and budget)
-        ref_done = out / "refine" / "refinement.json"
-        if ref_done.is_file() and json.loads(ref_done.read_text())["budget"] == refine_episodes:
+        ref_dir = out / f"refine_r{refine_episodes}"
+        ref_done = ref_dir / "refinement.json"
+        if ref_done.is_file():
             refinement = json.loads(ref_done.read_text())
-            refined = load_dmp(out / "refined.dmp.json")
+            refined = load_dmp(ref_dir / "refined.dmp.json")
         else:
             files = imitated_throws(subject, imitated)
             problems = [RefinementProblem(load_dmp(f), ThrowReward(target=TARGET)) for f in files]
             index, start = best_start(problems, executor)
             problem = problems[index]
-            ref = refine(problem, executor, n_episodes=refine_episodes, seed=refine_seed, out_dir=out / "refine")
+            ref = refine(problem, executor, n_episodes=refine_episodes, seed=refine_seed, out_dir=ref_dir)
             refined = DMPParameterization(problem.parameterization.template).from_vector(ref.best_theta)
-            refined.save(out / "refined.dmp.json")
+            refined.save(ref_dir / "refined.dmp.json")
             refinement = {
                 "budget": refine_episodes, "n_imitated_throws": len(files), "start_throw": files[index].name,
                 "start_sim_distance_m": start.distance, "episodes": ref.n_episodes, "success": ref.success,

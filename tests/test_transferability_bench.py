@@ -51,13 +51,13 @@ def test_run_subject_records_and_resumes_after_a_kill(tmp_path, monkeypatch):
     with pytest.raises(KeyboardInterrupt):
         bench.run_subject(0, "nominal", out, imitated, **kwargs)
     assert not (out / "ta_test" / "result.json").exists()
-    refinement = json.loads((out / "refine" / "refinement.json").read_text())
+    refinement = json.loads((out / "refine_r20" / "refinement.json").read_text())
     assert refinement["episodes"] == 20 and refinement["n_imitated_throws"] == len(files)
 
     monkeypatch.setattr(VirtualLab, "execute", real_execute)
     rec = bench.run_subject(0, "nominal", out, imitated, **kwargs)
     # the refinement was not redone, the two logged trials were not thrown again
-    assert json.loads((out / "refine" / "refinement.json").read_text()) == refinement
+    assert json.loads((out / "refine_r20" / "refinement.json").read_text()) == refinement
     assert rec["refinement"] == refinement
     from besdrake.transfer.log import LabLog
 
