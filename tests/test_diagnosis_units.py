@@ -178,7 +178,7 @@ def _sparse_world(seed: int, truth: float = 0.03):
 def test_a_sparse_multi_parameter_effect_beats_a_catch_all_and_pairs(seed):
     specs, sens, prob = _sparse_world(seed, truth=0.01)
     effects = ["joint_offset", "ball_placement", "air_drag"]
-    fits = sorted((fitting.linear_fit(prob, sens, c) for c in fitting.candidate_sets(effects)), key=lambda f: f.bic)
+    fits = sorted((fitting.linear_fit(prob, sens, c, select=True) for c in fitting.candidate_sets(effects)), key=lambda f: f.bic)
     # The single effect wins over the catch-all alone and over every pair (which contain it plus a spare effect).
     assert fits[0].effects == ("joint_offset",), [(f.effects, round(f.bic, 1)) for f in fits[:4]]
     # Only the moved parameter is active; the other five stay nominal and are charged 2 ln C(6, 1) for the choice.
@@ -187,7 +187,7 @@ def test_a_sparse_multi_parameter_effect_beats_a_catch_all_and_pairs(seed):
     assert fits[0].selection_penalty == pytest.approx(2 * np.log(6))
     assert fits[0].theta[0] == pytest.approx(0.01, abs=4 * fits[0].stderr[0])
     # Fitting all six parameters (plain BIC) would have charged 5 more ln n and lost to the catch-all.
-    full = fitting.linear_fit(prob, sens, ("joint_offset",), select=False)
+    full = fitting.linear_fit(prob, sens, ("joint_offset",))
     catch_all = next(f for f in fits if f.effects == ("ball_placement",))
     assert full.k == 6 and full.bic > catch_all.bic
 

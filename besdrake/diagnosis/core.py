@@ -3,8 +3,8 @@
 1. *Comparison*: every usable logged plan is replayed in the nominal simulation and compared throw by throw
    (touchdown, the ball's flight state, joint tracking; :mod:`~besdrake.diagnosis.observables`); the mean
    residual of each group is tested against the measurement noise (systematic vs noise).
-2. *Cause*: every candidate effect of the registry and every pair is fitted (:mod:`~besdrake.diagnosis.fitting`;
-   only the parameters a forward selection activates, the rest stay nominal) and ranked by the extended BIC; candidates within :data:`INDISTINGUISHABLE_DBIC` of the best that are not merely the
+2. *Cause*: every candidate effect of the registry and every pair is fitted (:mod:`~besdrake.diagnosis.fitting`)
+   and ranked by BIC; candidates within :data:`INDISTINGUISHABLE_DBIC` of the best that are not merely the
    best plus an unneeded effect are reported as "cannot tell apart", with the recording or throw that would
    separate them (predicted by simulating both fitted candidates). When even the best candidate leaves a
    residual above the noise (lack-of-fit test at :data:`ALPHA`), the result is "not explained". When no candidate

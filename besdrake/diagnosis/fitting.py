@@ -6,10 +6,14 @@ serves every candidate (single effects and pairs): each candidate is first fitte
 (bounded least squares, :func:`scipy.optimize.lsq_linear`), then the best few are refined with real rollouts
 (Gauss-Newton steps on a Broyden-updated Jacobian, within the effect's realistic bounds). The weighted
 residuals use the measurement noise per feature group, so ``chi2`` is -2 log-likelihood up to a constant
-and candidates are compared by an extended BIC = chi2 + k ln n + 2 ln C(m, k) per effect (Chen & Chen 2008):
-a realistic deviation usually moves one or two of an effect's m parameters (one joint's encoder zero, the base's
-height), so each candidate fits only the parameters a forward selection on the linear model activates (the others
-stay nominal), and choosing k of m parameters is charged 2 ln C(m, k). A six-parameter effect of which one parameter
+and candidates are compared by BIC = chi2 + k_eff ln n. Optionally (``linear_fit(..., select=True)``) an extended
+BIC = chi2 + k ln n + 2 ln C(m, k) per effect (Chen & Chen 2008): a realistic deviation usually moves one or two of
+an effect's m parameters (one joint's encoder zero, the base's height), so each candidate fits only the parameters a
+forward selection on the linear model activates (the others stay nominal), and choosing k of m parameters is charged
+2 ln C(m, k). It is off by default: on the hidden-effect benchmark it named one-joint offsets right where BIC lost
+them to a catch-all, but lost as many other trials to "effect + ball" pairs (seed 0: 17/27 right vs 19/27; seed 1,
+with the 2-parameter effects fitted whole: 3/7 vs 4/7). Effects of at most :data:`DENSE_PARAMS`
+parameters are fitted whole (a deviation may well move both, and a cheaper small effect would become a catch-all). A six-parameter effect of which one parameter
 is off then costs about what a one-parameter effect costs, instead of losing to a small catch-all effect.
 Parameter standard errors come from the Gauss-Newton covariance sigma^2 (J^T W J)^-1 at the optimum.
 """
@@ -32,6 +36,8 @@ STEP_FRACTION = 0.05
 DEGENERATE = {("air_drag", "rho"): "only the product rho * cd matters; cd is fitted at the nominal air density"}
 #: Weak Gaussian prior on each parameter: SD = this fraction of its range around the nominal value.
 PRIOR_FRACTION = 0.5
+#: Effects with at most this many (observable) parameters are always fitted whole; larger ones by forward selection.
+DENSE_PARAMS = 2
 
 
 @dataclass(frozen=True)
@@ -245,7 +251,7 @@ def selection_penalty(specs: Sequence[ParamSpec], n_params: dict[str, int]) -> f
     return float(sum(2.0 * log(comb(n_params[e], c)) for e, c in k.items() if n_params.get(e, 0) >= c))
 
 
-def linear_fit(prob: Problem, sens: Sensitivity, effects: tuple[str, ...], observable_tol: float = 1e-3, select: bool = True) -> CandidateFit:
+def linear_fit(prob: Problem, sens: Sensitivity, effects: tuple[str, ...], observable_tol: float = 1e-3, select: bool = False) -> CandidateFit:
     """Fit a candidate on the linear model at nominal (no rollouts).
 
     ``select``: forward selection of the active parameters (at least one per effect), ranked by the extended BIC
@@ -273,10 +279,14 @@ def linear_fit(prob: Problem, sens: Sensitivity, effects: tuple[str, ...], obser
         return sp, A, th0, delta, float(r @ r)
 
     chosen = list(keep)
-    if select and len(keep) > 1:
-        active: list[int] = []
+    # Effects with at most DENSE_PARAMS parameters are fitted whole (a realistic deviation may move both); the
+    # selection only picks among the parameters of larger effects (base pose, six encoder offsets).
+    dense = [j for j in keep if n_params[sens.specs[idx[j]].effect] <= DENSE_PARAMS]
+    free = [j for j in keep if j not in dense]
+    if select and free:
+        active: list[int] = list(dense)
         best_crit, best_set = np.inf, list(keep)
-        remaining = list(keep)
+        remaining = list(free)
         while remaining:
             trials = [(solve(active + [j])[4], j) for j in remaining]
             c2, j = min(trials)
