@@ -170,3 +170,18 @@ def test_scaling_max_execution_time_bounds_the_time(base):
     for bad in (MIN_EXECUTION_TIME, MAX_EXECUTION_TIME + 1.0, float("nan")):
         with pytest.raises(RefinementError):
             ParameterScaling.for_dmp(base, max_execution_time=bad)
+
+
+@pytest.mark.slow
+def test_real_simulation_refines_a_slow_throw_to_success(base):
+    """A few hundred episodes of the default search on the simulation: the fitted default throw slowed
+    down (lands ~0.8 m short) is refined into a throw within 0.1 m of the target and every limit."""
+    from besdrake.sim import make_executor
+
+    slow = base.copy()
+    slow.execution_time = 2.3
+    problem = RefinementProblem(slow)
+    with make_executor("serial") as ex:
+        result = refine(problem, ex, n_episodes=400, seed=0)
+    assert result.success, result.summary()
+    assert result.penalties[result.episodes_to_success - 1] == 0.0

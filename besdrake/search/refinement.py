@@ -39,8 +39,9 @@ with no limit violated (``penalty == 0``); :func:`refine` stops after that gener
 Options measured against the default (seed 0, synthetic subjects 0-4, shared 2-core machine; see
 ``scripts/bench_refinement.py``): a meta-parameter stage first (:func:`meta_basis`, :class:`~besdrake.search.cmaes.StagedCMAES`:
 ``refine(meta_episodes=...)``), a dropped-ball penalty (:data:`DROPPED_PENALTY`), a coarser position unit and an
-execution time bounded by the imitated one. None beat plain CMA-ES on the 49 parameters within 1000 episodes, so
-the default stays plain CMA-ES. Why runs stall (measured): every imitated throw drops the ball within 0.37 s
+execution time bounded by the imitated one. None beat plain CMA-ES on the 49 parameters, so the default stays
+plain CMA-ES (1500 episodes: default 857 / 1450 / - / - / 462 episodes to success on subjects 0-4, stalled at
+0.41 and 0.16 m; 300 meta episodes first: - / - / - / - / 977, stalled at 0.29, 0.34, 0.50 and 0.18 m). Why runs stall (measured): every imitated throw drops the ball within 0.37 s
 (scoop tilted beyond its walls at the start), and from there the search either climbs "drop it farther out"
 (the ball falls from the outstretched arm, up to ~1.4 m) or finds real throws released downwards at 2-3 m/s
 that land 1.5-1.7 m out, which it slowly lengthens (execution time up by 0.5-1.9 s); the successful throws
