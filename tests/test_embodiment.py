@@ -167,3 +167,30 @@ def test_jump_detector_flags_a_branch_switch_but_not_a_fast_smooth_motion():
     flipped[16:, 3] += np.pi  # the forearm flips to the other IK branch
     jumps = IKTrajectory(t, flipped, np.zeros(31), np.zeros(31), ones).jumps()
     assert [(i, j) for i, j, _ in jumps] == [(15, 3)]
+
+
+def test_within_cone_turns_only_axes_outside_the_cone_towards_up():
+    from besdrake.embodiment.mapping import within_cone
+
+    up = np.array([0.0, 0.0, 1.0])
+    angles = np.radians([0.0, 20.0, 34.9, 60.0, 95.0, 180.0])
+    axes = np.stack([np.sin(angles), np.zeros_like(angles), np.cos(angles)], axis=1)
+    out = within_cone(axes, up, np.radians(35.0))
+    got = np.degrees(np.arccos(np.clip(out @ up, -1, 1)))
+    np.testing.assert_allclose(got, [0.0, 20.0, 34.9, 35.0, 35.0, 35.0], atol=1e-6)
+    np.testing.assert_allclose(np.linalg.norm(out, axis=1), 1.0)
+    assert np.all(out[3:5, 0] > 0) and np.allclose(out[:5, 1], 0.0)  # turned in their own vertical plane (180 deg: any)
+
+
+def test_imitated_throw_holds_the_ball_within_the_cone(throw_hand, welded):
+    """The task constraint of throwing: the scoop opening stays near vertical in the imitated throw (the
+    palm's axis alone tilts the scoop ~90 degrees, so the ball falls out at once)."""
+    from besdrake.embodiment.mapping import ImitationOptions
+
+    def tilts(q):
+        return np.degrees([np.arccos(np.clip(welded.tcp_pose(x).rotation().matrix()[2, 2], -1, 1)) for x in q[::10]])
+
+    held = EmbodimentMapping(ImitationOptions(hold_cone_deg=35.0)).imitate(throw_hand)
+    free = EmbodimentMapping(ImitationOptions(hold_cone_deg=None)).imitate(throw_hand)
+    assert held.executable and tilts(held.ik.q).max() <= 35.0 + 3.0
+    assert tilts(free.ik.q).max() > 60.0

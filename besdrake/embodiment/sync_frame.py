@@ -14,6 +14,10 @@ and one joint configuration ``q_i`` (6) per sampled pose. Costs:
   ``1 - cos``), both evaluated on ``[m, q_i]``;
 * smoothness: squared first, second and third finite differences of every joint (rad), a convex
   quadratic in ``Q``;
+* holding (``hold_cone_deg``, off by default here, set by the embodiment mapping): the scoop's
+  opening within a cone around COMPI's vertical at every sampled pose (Drake
+  ``AngleBetweenVectorsConstraint``), a task constraint the demonstration does not carry: a human
+  palm faces forward while it holds the ball, a scoop turned that way drops it;
 * bounds: joint limits shrunk by a margin; the mount within a box around the nominal placement
   (COMPI's z up, its x towards the demonstrator's front, so the demonstrated throw points to
   the targets in front of the robot).
@@ -30,7 +34,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from pydrake.solvers import MathematicalProgram, SnoptSolver, SolverOptions
-from pydrake.multibody.inverse_kinematics import AngleBetweenVectorsCost, PositionConstraint, PositionCost
+from pydrake.multibody.inverse_kinematics import (
+    AngleBetweenVectorsConstraint,
+    AngleBetweenVectorsCost,
+    PositionConstraint,
+    PositionCost,
+)
 
 from besdrake import robot
 from besdrake.embodiment.kinematics import KinematicModel, mount_to_transform, mounted_compi_plant
@@ -55,6 +64,7 @@ class SyncFrameOptions:
     mount_upper: tuple[float, ...] = (1.5, 1.5, 1.5, 0.6, 0.35, 0.35)
     position_tolerance: float = 0.0005  # m, half-width of the position box when reachable
     major_iterations: int = 400
+    hold_cone_deg: float | None = None  # scoop opening within this angle of COMPI's vertical at every pose (None: free)
 
 
 @dataclass
@@ -115,6 +125,7 @@ def solve_sync_frame(
     poses = hand.resample(opts.n_poses) if len(hand.t) != opts.n_poses else hand
     n = len(poses.t)
     tcp = model.tcp
+    base = plant.GetFrameByName(robot.BASE_LINK)
     prog = MathematicalProgram()
     m = prog.NewContinuousVariables(6, "mount")
     Q = prog.NewContinuousVariables(n, 6, "q")
@@ -135,6 +146,13 @@ def solve_sync_frame(
         if opts.angle_weight > 0:
             prog.AddCost(
                 AngleBetweenVectorsCost(plant, plant.world_frame(), poses.palm_axis[i], tcp, SCOOP_AXIS, opts.angle_weight, contexts[i]),
+                xi,
+            )
+        if opts.hold_cone_deg is not None:
+            prog.AddConstraint(
+                AngleBetweenVectorsConstraint(
+                    plant, base, np.array([0.0, 0.0, 1.0]), tcp, SCOOP_AXIS, 0.0, np.radians(opts.hold_cone_deg), contexts[i]
+                ),
                 xi,
             )
         prog.AddBoundingBoxConstraint(robot.POSITION_LIMITS[:, 0] + opts.joint_margin, robot.POSITION_LIMITS[:, 1] - opts.joint_margin, Q[i])
