@@ -305,3 +305,17 @@ def test_recorded_lab_replays_a_log(tmp_path, quiet_lab):
     log2 = LabLog.create(tmp_path / "replayed", SafetyGate(rec).description())
     run_plans(SafetyGate(RecordedLab(tmp_path / "log")), [b, a], log2)
     np.testing.assert_array_equal(log2.measurement(0).touchdown, logged[1].touchdown)
+
+
+def test_placement_habit_plus_scatter_stays_within_the_effects_bounds(quiet_lab):
+    """A hidden placement habit near the bound plus this trial's scatter must not leave the bounds
+    (it raised EffectError in the diagnosis benchmark): the ball sits at the scoop's edge instead."""
+    cfg = lab_config(ball_placement_sd=0.005)
+    cfg["effects"] = {"ball_placement": {"x": 0.0075}}
+    quiet_lab.config = parse_lab_config(cfg)
+    try:
+        for trial in range(6):
+            m = quiet_lab.execute(default_throw(0.35), trial=trial)
+            assert not m.flags.get("aborted") and m.touchdown is not None, m.message
+    finally:
+        with_noise(quiet_lab)
