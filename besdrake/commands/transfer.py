@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 COMMAND = ("transfer",)
-HELP = "refine throws with the Transferability Approach: search in simulation, transfer diverse plans to the lab"
+HELP = "refine throws with the Transferability Approach: search in simulation, transfer the plans most likely to hit to the lab"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
