@@ -368,6 +368,7 @@ def _transfer(ctx: Context, seed_files: list[Path], scenario: str, out: Path) ->
     config = TransferabilityConfig(
         target=tuple(ctx.config["refinement"]["target"]), population=int(cfg["population"]),
         max_transfers=int(cfg["max_transfers"]), final_repetitions=int(cfg["final_repetitions"]),
+        transfer_choice=str(cfg.get("transfer_choice", "likely")),
     )
     with _executor(ctx, scenario) as executor:
         search = TransferabilityApproach(
