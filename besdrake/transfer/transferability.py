@@ -137,17 +137,23 @@ class TransferabilityResult:
         }
 
 
-class DisparitySurrogate:
-    """Gaussian-process regression from standardised behaviour descriptors to the measured disparity."""
+class _DescriptorGP:
+    """Gaussian-process regression from standardised behaviour descriptors to ``width`` measured values.
+
+    Until ``min_points`` observations exist every behaviour gets their mean (zero before the first)."""
+
+    width = 1
+    min_points = 2
+    noise = (0.1, (1e-4, 1.0))  # WhiteKernel level and bounds (on the normalised targets)
 
     def __init__(self) -> None:
         self.X = np.zeros((0, N_FEATURES))
-        self.y = np.zeros(0)
+        self.T = np.zeros((0, self.width))
         self._gp = None
 
-    def add(self, descriptor: np.ndarray, disparity: float) -> None:
+    def _append(self, descriptor: np.ndarray, value) -> None:
         self.X = np.vstack([self.X, descriptor])
-        self.y = np.append(self.y, disparity)
+        self.T = np.vstack([self.T, np.asarray(value, dtype=float).reshape(1, self.width)])
         self._gp = None
 
     def _fit(self):
@@ -159,60 +165,69 @@ class DisparitySurrogate:
         scale = self.X.std(axis=0)
         scale[scale < 1e-9] = 1.0
         self._scale = scale
-        kernel = ConstantKernel(1.0, (1e-2, 1e2)) * RBF(length_scale=3.0, length_scale_bounds=(0.3, 100.0)) + WhiteKernel(0.1, (1e-4, 1.0))
+        level, bounds = self.noise
+        kernel = ConstantKernel(1.0, (1e-2, 1e2)) * RBF(length_scale=3.0, length_scale_bounds=(0.3, 100.0)) + WhiteKernel(level, bounds)
+        target = self.T[:, 0] if self.width == 1 else self.T
         with warnings.catch_warnings():
             # A handful of transfers often puts a hyperparameter on its bound (all noise, or no signal
             # yet): expected early in the search, not worth a warning per fit.
             warnings.simplefilter("ignore", ConvergenceWarning)
-            self._gp = GaussianProcessRegressor(kernel, normalize_y=True, random_state=0).fit((self.X - self._mean) / self._scale, self.y)
+            self._gp = GaussianProcessRegressor(kernel, normalize_y=True, random_state=0).fit((self.X - self._mean) / self._scale, target)
+
+    def _predict(self, descriptors: np.ndarray) -> np.ndarray:
+        n = len(descriptors)
+        if len(self.T) < self.min_points:
+            return np.tile(self.T.mean(axis=0) if len(self.T) else np.zeros(self.width), (n, 1))
+        if self._gp is None:
+            self._fit()
+        return np.asarray(self._gp.predict((descriptors - self._mean) / self._scale)).reshape(n, self.width)
+
+
+class DisparitySurrogate(_DescriptorGP):
+    """Gaussian-process regression from standardised behaviour descriptors to the measured disparity."""
+
+    @property
+    def y(self) -> np.ndarray:
+        return self.T[:, 0]
+
+    @y.setter
+    def y(self, values: np.ndarray) -> None:
+        self.T = np.asarray(values, dtype=float).reshape(-1, 1)
+        self._gp = None
+
+    def add(self, descriptor: np.ndarray, disparity: float) -> None:
+        self._append(descriptor, disparity)
 
     def predict(self, descriptors: np.ndarray) -> np.ndarray:
         """Predicted disparity (m); before two transfers every behaviour gets the same prediction."""
-        if len(self.y) < 2:
-            return np.full(len(descriptors), float(self.y.mean()) if len(self.y) else 0.0)
-        if self._gp is None:
-            self._fit()
-        return self._gp.predict((descriptors - self._mean) / self._scale)
+        return self._predict(descriptors)[:, 0]
 
 
-class OffsetSurrogate:
+class OffsetSurrogate(_DescriptorGP):
     """Gaussian-process regression from standardised behaviour descriptors to the lab-minus-simulation
-    touchdown offset (x, y; m). Before any lab trial the offset is predicted as zero, with one trial as
-    that trial's offset; the GP's prior mean is the mean measured offset (``normalize_y``), so behaviours
-    far from every transferred one get the average offset."""
+    touchdown offset (x, y; m). Before any lab trial the offset is predicted as zero, with one or two
+    trials as their mean offset; the GP's prior mean is the mean measured offset (``normalize_y``), so
+    behaviours far from every transferred one get the average offset."""
 
-    def __init__(self) -> None:
-        self.X = np.zeros((0, N_FEATURES))
-        self.Y = np.zeros((0, 2))
+    width = 2
+    min_points = 3
+    noise = (0.5, (1e-3, 10.0))
+
+    @property
+    def Y(self) -> np.ndarray:
+        return self.T
+
+    @Y.setter
+    def Y(self, values: np.ndarray) -> None:
+        self.T = np.asarray(values, dtype=float).reshape(-1, 2)
         self._gp = None
 
     def add(self, descriptor: np.ndarray, offset: np.ndarray) -> None:
-        self.X = np.vstack([self.X, descriptor])
-        self.Y = np.vstack([self.Y, np.asarray(offset, dtype=float).reshape(1, 2)])
-        self._gp = None
-
-    def _fit(self):
-        from sklearn.exceptions import ConvergenceWarning
-        from sklearn.gaussian_process import GaussianProcessRegressor
-        from sklearn.gaussian_process.kernels import ConstantKernel, RBF, WhiteKernel
-
-        self._mean = self.X.mean(axis=0)
-        scale = self.X.std(axis=0)
-        scale[scale < 1e-9] = 1.0
-        self._scale = scale
-        kernel = ConstantKernel(1.0, (1e-2, 1e2)) * RBF(length_scale=3.0, length_scale_bounds=(0.3, 100.0)) + WhiteKernel(0.5, (1e-3, 10.0))
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", ConvergenceWarning)
-            self._gp = GaussianProcessRegressor(kernel, normalize_y=True, random_state=0).fit((self.X - self._mean) / self._scale, self.Y)
+        self._append(descriptor, offset)
 
     def predict(self, descriptors: np.ndarray) -> np.ndarray:
         """Predicted offsets ``(n, 2)`` (m)."""
-        n = len(descriptors)
-        if len(self.Y) < 3:
-            return np.tile(self.Y.mean(axis=0) if len(self.Y) else np.zeros(2), (n, 1))
-        if self._gp is None:
-            self._fit()
-        return np.asarray(self._gp.predict((descriptors - self._mean) / self._scale)).reshape(n, 2)
+        return self._predict(descriptors)
 
 
 def nondominated_ranks(F: np.ndarray) -> np.ndarray:
