@@ -26,12 +26,13 @@ touchdown distance (m^2), as in the paper; a rollout without touchdown or a fail
 failed episode. :meth:`BehaviorTemplate.instantiate` returns the :class:`~besdrake.plan.MotionPlan`
 for a target; :class:`TemplatePool` stores templates as JSON + npz with their provenance.
 
-Joint limits. Only the execution time changes the joint velocities and accelerations (by 1/k and
-1/k^2 for a k-times faster execution), so :func:`default_meta_bounds` raises the lower execution-time
-bound to the fastest execution that keeps the base within the robot's limits: a template never
-instantiates a plan that the lab's safety gate would refuse (``plan.meta["within_limits"]`` says so
-for templates with hand-set bounds). Targets beyond the base's reach at that speed are missed by
-the shortfall instead.
+Joint limits. :func:`default_meta_bounds` shrinks the meta-parameter box to plans within the robot's
+limits: the joint-1 goal range keeps the rotated path inside joint 1's limits, and the execution time
+is limited to the interval where the base stays within every limit (a k-times faster execution scales
+velocities by 1/k and accelerations by 1/k^2, and a refined DMP's path may change shape with its
+execution time). A template therefore never instantiates a plan that the lab's safety gate would
+refuse (``plan.meta["within_limits"]`` says so for templates with hand-set bounds). Targets beyond the
+base's reach within the limits are missed by the shortfall instead.
 """
 
 from __future__ import annotations
@@ -71,11 +72,12 @@ class TemplateError(ValueError):
 def default_meta_bounds(base: DMP, respect_limits: bool = True, joint1_mode: str = "rotate") -> np.ndarray:
     """Execution time in [0.7, 1.6] x the base's (at least 0.95 s), joint-1 goal within +-0.9 rad of the base's.
 
-    With ``respect_limits`` the lower execution-time bound is raised to :func:`limit_safe_execution_time`:
-    a faster execution scales joint velocities by 1/k and accelerations by 1/k^2, so a template may not
-    speed the base up beyond the robot's limits (the lab's safety gate would refuse those plans). When no
-    execution time in the box keeps the base within the limits, the box is returned unchanged (the
-    template's plans are then flagged by :meth:`BehaviorTemplate.instantiate`).
+    With ``respect_limits`` the box shrinks to plans within the robot's joint limits: in ``"rotate"`` mode
+    the joint-1 goal range keeps the whole rotated joint-1 path inside its limits, and the execution time
+    is limited to :func:`limit_safe_execution_times` (a faster execution scales velocities by 1/k and
+    accelerations by 1/k^2; a refined DMP's path may also change shape with its execution time). When no
+    execution time keeps the base within the limits the box is returned unchanged (the template's plans
+    are then flagged by :meth:`BehaviorTemplate.instantiate` and refused by a lab's safety gate).
     """
     tau = float(base.execution_time)
     g1 = float(base.goal[0])
@@ -84,33 +86,57 @@ def default_meta_bounds(base: DMP, respect_limits: bool = True, joint1_mode: str
     jl = robot.POSITION_LIMITS[0]
     bounds = np.array([[lo, hi], [max(jl[0], g1 - 0.9), min(jl[1], g1 + 0.9)]])
     if respect_limits:
-        safe = limit_safe_execution_time(MetaDMP(base, joint1_mode), bounds)
-        if safe is not None and safe < hi - 0.05:
-            bounds[0, 0] = max(lo, safe)
+        meta = MetaDMP(base, joint1_mode)
+        if joint1_mode == "rotate":  # the whole joint-1 path shifts with the goal
+            q1 = meta.plan(np.array([tau, g1])).q[:, 0]
+            bounds[1, 0] = max(bounds[1, 0], g1 + jl[0] - q1.min())
+            bounds[1, 1] = min(bounds[1, 1], g1 + jl[1] - q1.max())
+            if bounds[1, 0] >= bounds[1, 1]:
+                bounds[1] = [g1 - 1e-3, g1 + 1e-3]
+        safe = limit_safe_execution_times(meta, bounds)
+        if safe is not None:
+            bounds[0] = safe
     return bounds
 
 
-def limit_safe_execution_time(meta: "MetaDMP", bounds: np.ndarray, tol: float = 0.005) -> float | None:
-    """Smallest execution time in ``bounds[0]`` whose plans stay within the robot's joint limits, or None.
+def limit_safe_execution_times(meta: "MetaDMP", bounds: np.ndarray, n_grid: int = 60, tol: float = 0.005) -> tuple[float, float] | None:
+    """The interval of execution times within ``bounds[0]`` whose plans stay within the robot's joint
+    limits at the joint-1 goals ``bounds[1]`` (ends and middle), or None if there is none.
 
-    Checked at the joint-1 goals ``bounds[1]`` (ends and middle; in ``"rotate"`` mode the goal only
-    shifts joint 1, so the derivatives do not depend on it). Bisection: the limits are monotone in the
-    execution time for a time-scaled DMP (velocities scale with 1/tau, accelerations with 1/tau^2).
+    A grid scan (no monotonicity assumed) finds the safe run that holds the base's own execution time
+    (else the longest safe run); bisection then places its ends within ``tol``.
     """
-    goals = np.linspace(bounds[1, 0], bounds[1, 1], 3) if meta.joint1_mode == "goal" else [float(meta.base.goal[0])]
+    goals = np.linspace(bounds[1, 0], bounds[1, 1], 3)
 
     def ok(tau: float) -> bool:
         return all(meta.plan(np.array([tau, g])).check_limits().ok for g in goals)
 
-    lo, hi = float(bounds[0, 0]), float(bounds[0, 1])
-    if ok(lo):
-        return lo
-    if not ok(hi):
+    grid = np.linspace(bounds[0, 0], bounds[0, 1], n_grid)
+    good = np.array([ok(t) for t in grid])
+    if not good.any():
         return None
-    while hi - lo > tol:
-        mid = 0.5 * (lo + hi)
-        lo, hi = (lo, mid) if ok(mid) else (mid, hi)
-    return hi
+    runs, start = [], None
+    for i, g in enumerate(good):
+        if g and start is None:
+            start = i
+        if start is not None and (not g or i == len(good) - 1):
+            runs.append((start, i if g else i - 1))
+            start = None
+    base_tau = float(meta.base.execution_time)
+    holding = [r for r in runs if grid[r[0]] <= base_tau <= grid[r[1]]]
+    a, b = holding[0] if holding else max(runs, key=lambda r: r[1] - r[0])
+
+    def edge(inside: float, outside: float) -> float:
+        while abs(outside - inside) > tol:
+            mid = 0.5 * (inside + outside)
+            inside, outside = (mid, outside) if ok(mid) else (inside, mid)
+        return inside
+
+    lo = grid[a] if a == 0 else edge(grid[a], grid[a - 1])
+    hi = grid[b] if b == len(grid) - 1 else edge(grid[b], grid[b + 1])
+    if hi - lo < 1e-6:
+        return None
+    return float(lo), float(hi)
 
 
 def _check_context(context: Any) -> np.ndarray:
@@ -470,5 +496,5 @@ def fitted_default_throw(amplitude: float = 0.6, n_weights_per_dim: int = 6) -> 
 __all__ = [
     "CONTEXT_BOUNDS", "TEST_CONTEXTS", "METHODS", "JOINT1_MODES", "META_NAMES", "PAPER_MEAN_CM",
     "TemplateError", "MetaDMP", "BehaviorTemplate", "TemplatePool", "TemplateEvaluation", "TemplateTraining",
-    "default_meta_bounds", "limit_safe_execution_time", "evaluate_template", "train_template", "touchdowns", "fitted_default_throw",
+    "default_meta_bounds", "limit_safe_execution_times", "evaluate_template", "train_template", "touchdowns", "fitted_default_throw",
 ]
