@@ -67,19 +67,14 @@ def run(args: argparse.Namespace) -> int:
     except (OSError, ValueError) as err:
         raise UserError(f"cannot read the log {args.logdir}: {err}") from None
     candidates = None if args.candidates is None else [c.strip() for c in args.candidates.split(",") if c.strip()]
-    backend = args.backend
     try:
         scenario = load_scenario(args.scenario)
         names = candidates if candidates is not None else None
         if names is not None:
             for n in names:
                 get_effect(n)
-        # Effects registered by a plugin exist only in this process: simulate them here.
-        from besdrake.sim.effects import list_effects
-
-        if args.plugin and any(type(get_effect(n)).__module__ != "besdrake.sim.effects" for n in (names or list_effects())):
-            backend = "serial"
-        diag = diagnose(measurements, scenario=scenario, candidates=candidates, pairs=not args.no_pairs, backend=backend,
+        # Plugin effects reach the simulation workers too: the executors load this process's plugins in each.
+        diag = diagnose(measurements, scenario=scenario, candidates=candidates, pairs=not args.no_pairs, backend=args.backend,
                         workers=args.workers, folds=args.folds, seed=args.seed)
     except (DiagnosisError, EffectError, ScenarioError) as err:
         raise UserError(str(err)) from None
