@@ -45,7 +45,10 @@ plain CMA-ES (1500 episodes: default 857 / 1450 / - / - / 462 episodes to succes
 (scoop tilted beyond its walls at the start), and from there the search either climbs "drop it farther out"
 (the ball falls from the outstretched arm, up to ~1.4 m) or finds real throws released downwards at 2-3 m/s
 that land 1.5-1.7 m out, which it slowly lengthens (execution time up by 0.5-1.9 s); the successful throws
-are released at ~3.5 m/s.
+are released at ~3.5 m/s. These figures are for the paper-literal imitation
+(``ImitationOptions(hold_cone_deg=None)``); the embodiment mapping now keeps the scoop upright enough to
+hold the ball, which removes the first dead end (same benchmark, seeds 0 and 1: 10 of 20 runs reach the
+goal against 5 of 20).
 """
 
 from __future__ import annotations
