@@ -29,3 +29,35 @@ def shared_data() -> Path:
     if not SHARED_DATA.is_dir():
         pytest.skip(f"shared data not found at {SHARED_DATA}")
     return SHARED_DATA
+
+
+_DRAG_PLUGIN = '''
+from besdrake.sim.effects import Effect, Param, register_effect
+
+@register_effect
+class PluginDrag(Effect):
+    """Test plugin: air drag on the ball in flight."""
+    name = "{name}"
+    applied_via = "flight"
+    params = {{"cd": Param(0.0, 0.0, 1.0, "1", "drag coefficient")}}
+    def apply(self, setup, values):
+        setup.drag_coefficient = values["cd"]
+'''
+
+
+@pytest.fixture
+def drag_plugin(tmp_path: Path):
+    """A user's plugin file (``tmp_path/drag_plugin.py``) registering a drag effect under a unique name:
+    yields ``(path, name)``; the effect is unregistered afterwards if the test loaded it."""
+    import uuid
+
+    from besdrake.sim.effects import unregister_effect
+
+    name = f"plugin_drag_{uuid.uuid4().hex[:8]}"
+    path = tmp_path / "drag_plugin.py"
+    path.write_text(_DRAG_PLUGIN.format(name=name))
+    yield path, name
+    try:
+        unregister_effect(name)
+    except Exception:  # noqa: BLE001 - the test never loaded it
+        pass

@@ -2,13 +2,11 @@
 
 from __future__ import annotations
 
-import uuid
 
 import numpy as np
 import pytest
 
 from besdrake.plan import MotionPlan
-from besdrake.sim.effects import unregister_effect
 from besdrake.sim.throws import default_throw
 from besdrake.transfer.lab import JointLimits, Lab, SafetyGate
 from besdrake.transfer.log import LabLog, run_plans
@@ -234,40 +232,22 @@ def test_shipped_lab_configs_load():
 # ---------------------------------------------------------------------------------------- plugins
 
 
-PLUGIN = '''
-from besdrake.sim.effects import Effect, Param, register_effect
-
-@register_effect
-class PluginDrag(Effect):
-    """Test plugin: extra air drag on the ball in flight."""
-    name = "{name}"
-    applied_via = "flight"
-    params = {{"cd": Param(0.0, 0.0, 1.0, "1", "drag coefficient")}}
-    def apply(self, setup, values):
-        setup.drag_coefficient = values["cd"]
-'''
-
-
-def test_plugin_loads_and_its_effect_acts(tmp_path, quiet_lab):
-    name = f"plugin_drag_{uuid.uuid4().hex[:8]}"
-    (tmp_path / "my_effects.py").write_text(PLUGIN.format(name=name))
+def test_plugin_loads_and_its_effect_acts(drag_plugin, quiet_lab):
+    path, name = drag_plugin
     cfg = lab_config()
-    cfg["plugins"] = ["my_effects.py"]  # relative to the config file
+    cfg["plugins"] = [path.name]  # relative to the config file
     cfg["effects"] = {name: {"cd": 0.8}}
     import yaml
 
-    (tmp_path / "lab.yaml").write_text(yaml.safe_dump(cfg))
-    try:
-        loaded = load_lab_config(tmp_path / "lab.yaml")
-        assert loaded.effects == {name: {"cd": 0.8}}
-        plan = default_throw(0.35)
-        base = with_noise(quiet_lab).execute(plan, trial=0).touchdown
-        quiet_lab.config = loaded
-        dragged = quiet_lab.execute(plan, trial=0).touchdown
-        assert dragged[0] < base[0] - 0.02, "drag must shorten the throw"
-        assert load_plugin(tmp_path / "my_effects.py") is load_plugin(tmp_path / "my_effects.py"), "loaded once"
-    finally:
-        unregister_effect(name)
+    (path.parent / "lab.yaml").write_text(yaml.safe_dump(cfg))
+    loaded = load_lab_config(path.parent / "lab.yaml")
+    assert loaded.effects == {name: {"cd": 0.8}}
+    plan = default_throw(0.35)
+    base = with_noise(quiet_lab).execute(plan, trial=0).touchdown
+    quiet_lab.config = loaded
+    dragged = quiet_lab.execute(plan, trial=0).touchdown
+    assert dragged[0] < base[0] - 0.02, "drag must shorten the throw"
+    assert load_plugin(path) is load_plugin(path), "loaded once"
 
 
 def test_plugin_errors_name_the_file(tmp_path):

@@ -135,41 +135,20 @@ def test_a_worker_that_dies_fails_its_batch_and_the_pool_recovers():
         unregister_effect("test_crash")
 
 
-PLUGIN = '''
-from besdrake.sim.effects import Effect, Param, register_effect
-
-@register_effect
-class PluginDrag(Effect):
-    """Test plugin: air drag on the ball in flight."""
-    name = "{name}"
-    applied_via = "flight"
-    params = {{"cd": Param(0.0, 0.0, 1.0, "1", "drag coefficient")}}
-    def apply(self, setup, values):
-        setup.drag_coefficient = values["cd"]
-'''
-
-
-def test_spawned_workers_load_the_callers_effect_plugins(tmp_path):
+def test_spawned_workers_load_the_callers_effect_plugins(drag_plugin):
     """An effect registered by a --plugin file simulates in a process pool too (spawned workers do not
     inherit the registry: the executor hands them the plugin files)."""
-    import uuid
-
-    from besdrake.sim.effects import unregister_effect
     from besdrake.transfer.plugins import load_plugin
 
-    name = f"exec_plugin_drag_{uuid.uuid4().hex[:8]}"
-    (tmp_path / "drag_plugin.py").write_text(PLUGIN.format(name=name))
-    load_plugin(tmp_path / "drag_plugin.py")
-    try:
-        plans = [default_throw(0.35)]
-        effects = {name: {"cd": 0.9}}
-        with make_executor("serial") as ex:
-            serial = ex.evaluate(plans, effects)[0]
-            plain = ex.evaluate(plans)[0]
-        with make_executor("process", workers=1, start_method="spawn") as ex:
-            pooled = ex.evaluate(plans, effects)[0]
-        assert not pooled.flags["sim_failed"], pooled.message
-        assert serial.touchdown[0] < plain.touchdown[0] - 0.02  # the plugin's drag acts
-        np.testing.assert_allclose(pooled.touchdown, serial.touchdown, atol=1e-9)
-    finally:
-        unregister_effect(name)
+    path, name = drag_plugin
+    load_plugin(path)
+    plans = [default_throw(0.35)]
+    effects = {name: {"cd": 0.9}}
+    with make_executor("serial") as ex:
+        serial = ex.evaluate(plans, effects)[0]
+        plain = ex.evaluate(plans)[0]
+    with make_executor("process", workers=1, start_method="spawn") as ex:
+        pooled = ex.evaluate(plans, effects)[0]
+    assert not pooled.flags["sim_failed"], pooled.message
+    assert serial.touchdown[0] < plain.touchdown[0] - 0.02  # the plugin's drag acts
+    np.testing.assert_allclose(pooled.touchdown, serial.touchdown, atol=1e-9)
