@@ -35,7 +35,7 @@ import numpy as np  # noqa: E402
 def main(argv: list[str] | None = None) -> int:
     from besdrake.commands.refine import collect_imitated
     from besdrake.imitation import load_dmp
-    from besdrake.search.refinement import MIN_EXECUTION_TIME, ParameterScaling, RefinementProblem, ThrowReward, best_start, refine
+    from besdrake.search.refinement import MIN_EXECUTION_TIME, ParameterScaling, RefinementProblem, ThrowReward, rank_starts, refine, restart_points
     from besdrake.sim import make_executor
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
@@ -55,6 +55,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--meta-sigma", type=float, default=1.0, help="initial step of the meta-parameter stage")
     parser.add_argument("--position-unit", type=float, default=None, help="rad per normalised unit of start and goal (default: the module's)")
     parser.add_argument("--no-slower", action="store_true", help="bound the execution time by the imitated one (never slower than the imitated throw)")
+    parser.add_argument("--stagnation", type=int, default=0, help="restart a CMA-ES attempt after this many generations without improvement (0: plain CMA-ES)")
+    parser.add_argument("--stagnation-tol", type=float, default=0.01, help="improvement (m) below which an attempt counts as stalled")
+    parser.add_argument("--max-attempt-generations", type=int, default=0, help="cap of one attempt's generations (0: none)")
+    parser.add_argument("--restart-from", choices=["start", "ranked", "best"], default="start",
+                        help="restart attempts from the start throw, from the imitated throws in reward order, or from the best throw so far")
+    parser.add_argument("--n-starts", type=int, default=4, help="with --restart-from ranked: how many of the best imitated throws")
     parser.add_argument("--out", type=Path, default=None, help="keep each run's folder (episodes, details.csv) under OUT/sS_runK")
     args = parser.parse_args(argv)
     logging.getLogger("drake").setLevel(logging.ERROR)
@@ -76,15 +82,21 @@ def main(argv: list[str] | None = None) -> int:
             unit = {} if args.position_unit is None else {"position_unit": args.position_unit}
             problems = [RefinementProblem(dm, reward, ParameterScaling.for_dmp(
                 dm, max_execution_time=max(dm.execution_time, MIN_EXECUTION_TIME + 0.05) if args.no_slower else None, **unit)) for dm in dmps]
-            index, start = best_start(problems, ex)
+            ranked = rank_starts(problems, ex)
+            index, start = ranked[0]
+            starts = None
+            if args.restart_from == "ranked":
+                starts = restart_points(problems[index], [problems[i] for i, _ in ranked[: args.n_starts]])
             runs = []
             for k in range(args.runs):
                 out_dir = None if args.out is None else args.out / f"s{s}_run{k}"
                 r = refine(problems[index], ex, args.episodes, seed=args.first_seed + k, popsize=args.popsize, sigma0=args.sigma0,
-                           out_dir=out_dir, meta_episodes=args.meta_episodes, meta_sigma=args.meta_sigma)
+                           out_dir=out_dir, meta_episodes=args.meta_episodes, meta_sigma=args.meta_sigma,
+                           stagnation_generations=args.stagnation, stagnation_tol=args.stagnation_tol, starts=starts,
+                           restart_from_best=args.restart_from == "best", max_attempt_generations=args.max_attempt_generations)
                 runs.append({"seed": args.first_seed + k, "success": r.success, "episodes_to_success": r.episodes_to_success,
                              "best_distance_within_limits_m": r.summary()["best_distance_within_limits_m"],
-                             "n_episodes": r.n_episodes, "n_failed": r.n_failed, "wall_time_s": r.wall_time})
+                             "n_episodes": r.n_episodes, "n_failed": r.n_failed, "n_restarts": len(r.attempts), "wall_time_s": r.wall_time})
                 print(f"subject {s} run {k}: {'success after %d episodes' % r.episodes_to_success if r.success else 'no success'}; "
                       f"best {runs[-1]['best_distance_within_limits_m']} m; {r.wall_time:.0f} s", file=sys.stderr, flush=True)
             all_runs += runs
@@ -96,7 +108,8 @@ def main(argv: list[str] | None = None) -> int:
     out = {
         "subjects_run": args.subjects, "runs_per_subject": args.runs, "episode_budget": args.episodes,
         "population": args.popsize, "sigma0": args.sigma0, "penalty_scale": args.penalty_scale,
-        "dropped_penalty_m": reward.dropped_penalty, "meta_episodes": args.meta_episodes, "meta_sigma": args.meta_sigma, "position_unit_rad": args.position_unit, "no_slower": args.no_slower, "target_m": [2.0, 0.0], "backend": args.backend,
+        "dropped_penalty_m": reward.dropped_penalty, "meta_episodes": args.meta_episodes, "meta_sigma": args.meta_sigma, "position_unit_rad": args.position_unit, "no_slower": args.no_slower, "stagnation_generations": args.stagnation, "stagnation_tol_m": args.stagnation_tol,
+        "max_attempt_generations": args.max_attempt_generations, "restart_from": args.restart_from, "n_starts": args.n_starts, "target_m": [2.0, 0.0], "backend": args.backend,
         "success_rate": float(np.mean([r["success"] for r in all_runs])),
         "subjects_with_success_in_every_run": sum(v["success_rate"] == 1.0 for v in subjects.values()),
         "subjects_with_success_in_some_run": sum(v["success_rate"] > 0.0 for v in subjects.values()),

@@ -506,3 +506,161 @@ class StagedCMAES(BestAndWorst, Optimizer):
             opt.full = CMAES.from_state(state["full"])
             opt.rng = opt.full.rng
         return opt
+
+
+class StagnationRestartCMAES(BestAndWorst, Optimizer):
+    """CMA-ES that restarts when it stalls, from the next of several start points (a maximiser).
+
+    Each *attempt* is a :class:`CMAES` (population ``popsize``, step ``sigma0``) started at
+    ``starts[k % len(starts)]`` for the ``k``-th attempt, or, with ``restart_from_best``, at the best
+    candidate so far (every attempt after the first). An attempt ends when the best reward it has seen
+    has improved by less than ``tol`` over its last ``stagnation_generations`` generations (a plateau),
+    after ``max_generations`` generations (``0``: no such cap), or when ``cma`` stops it. Meant for
+    multi-modal landscapes where a run either finds the good basin early or creeps along a bad one
+    (the throw: slow downward throws that the search keeps lengthening), so one budget is spent on
+    several short attempts instead of one long one. Budget and stop belong to the caller (the loop):
+    :meth:`stop` is never true. One Generator drives every attempt; :meth:`state_dict` saves the
+    attempt counter, the per-generation best of the current attempt and the inner CMA-ES, so a resumed
+    run asks the same candidates as an uninterrupted one.
+    """
+
+    def __init__(
+        self,
+        starts: np.ndarray,
+        sigma0: float,
+        rng: np.random.Generator,
+        *,
+        popsize: int | None = None,
+        bounds: np.ndarray | None = None,
+        stagnation_generations: int = 20,
+        tol: float = 0.01,
+        max_generations: int = 0,
+        restart_from_best: bool = False,
+        cma_options: dict[str, Any] | None = None,
+    ) -> None:
+        starts = np.atleast_2d(np.asarray(starts, dtype=float))
+        if starts.size == 0 or not np.isfinite(starts).all():
+            raise ValueError(f"starts must be a non-empty finite (k, n) array, got {starts!r}")
+        if not (np.isfinite(sigma0) and sigma0 > 0):
+            raise ValueError(f"sigma0 must be a positive finite step size, got {sigma0!r}")
+        if stagnation_generations < 1 or max_generations < 0:
+            raise ValueError(f"stagnation_generations must be >= 1 and max_generations >= 0, got {stagnation_generations}, {max_generations}")
+        if not (np.isfinite(tol) and tol >= 0):
+            raise ValueError(f"tol must be a finite number >= 0, got {tol!r}")
+        self.n_params = starts.shape[1]
+        self.bounds = None if bounds is None else np.asarray(bounds, dtype=float)
+        if self.bounds is not None:
+            for s in starts:
+                CMAES._check_bounds(self.bounds, s)
+        self.starts = starts
+        self.sigma0 = float(sigma0)
+        self.rng = rng
+        self.popsize = popsize
+        self.stagnation_generations = int(stagnation_generations)
+        self.tol = float(tol)
+        self.max_generations = int(max_generations)
+        self.restart_from_best = bool(restart_from_best)
+        self.cma_options = dict(cma_options or {})
+        self.attempt = 0
+        #: best reward of the current attempt after each of its generations
+        self.attempt_best: list[float] = []
+        #: one entry per finished attempt: start index (-1: best so far), generations, best reward, why it ended
+        self.attempt_history: list[dict[str, Any]] = []
+        self._init_best(starts[0])
+        self.inner = self._new_attempt()
+
+    def _start_point(self) -> tuple[int, np.ndarray]:
+        if self.restart_from_best and self.attempt > 0 and np.isfinite(self._best_reward):
+            return -1, self._best_params.copy()
+        i = self.attempt % len(self.starts)
+        return i, self.starts[i].copy()
+
+    def _new_attempt(self) -> CMAES:
+        _, x = self._start_point()
+        if self.bounds is not None:
+            span = self.bounds[:, 1] - self.bounds[:, 0]
+            x = np.clip(x, self.bounds[:, 0] + 1e-9 * span, self.bounds[:, 1] - 1e-9 * span)
+        return CMAES(x, self.sigma0, self.rng, popsize=self.popsize, bounds=self.bounds, cma_options=self.cma_options)
+
+    def ask(self) -> np.ndarray:
+        return self.inner.ask()
+
+    def stalled(self) -> str | None:
+        """Why the current attempt should end now (``None``: it goes on)."""
+        g = len(self.attempt_best)
+        if self.inner.stop():
+            return "cma"
+        if self.max_generations and g >= self.max_generations:
+            return "max_generations"
+        G = self.stagnation_generations
+        if g > G and self.attempt_best[-1] - self.attempt_best[-1 - G] < self.tol:
+            return "stagnation"
+        return None
+
+    def tell(self, candidates: np.ndarray, rewards: np.ndarray) -> None:
+        candidates = np.asarray(candidates, dtype=float)
+        rewards = np.asarray(rewards, dtype=float).ravel()
+        clean, failed = self._record_batch(candidates, rewards)
+        self.inner.tell(candidates, rewards)
+        prev = self.attempt_best[-1] if self.attempt_best else -np.inf
+        ok = clean[~failed]
+        self.attempt_best.append(max(prev, float(ok.max())) if ok.size else prev)
+        why = self.stalled()
+        if why is not None:
+            index, _ = self._start_point()
+            self.attempt_history.append({"start": index, "generations": len(self.attempt_best),
+                                         "best_reward": float(self.attempt_best[-1]), "end": why})
+            self.attempt += 1
+            self.attempt_best = []
+            self.inner = self._new_attempt()
+
+    @property
+    def mean(self) -> np.ndarray:
+        """Mean of the current attempt's search distribution."""
+        return self.inner.mean
+
+    def state_dict(self) -> dict[str, Any]:
+        return {
+            "type": "StagnationRestartCMAES",
+            "config": {
+                "starts": self.starts,
+                "sigma0": self.sigma0,
+                "popsize": self.popsize,
+                "bounds": self.bounds,
+                "stagnation_generations": self.stagnation_generations,
+                "tol": self.tol,
+                "max_generations": self.max_generations,
+                "restart_from_best": self.restart_from_best,
+                "cma_options": self.cma_options,
+            },
+            "attempt": self.attempt,
+            "attempt_best": [float(v) for v in self.attempt_best],
+            "attempt_history": self.attempt_history,
+            **self._best_state(),
+            "inner": self.inner.state_dict(),
+        }
+
+    @classmethod
+    def from_state(cls, state: dict[str, Any]) -> "StagnationRestartCMAES":
+        if state.get("type") != "StagnationRestartCMAES":
+            raise ValueError(f"not a StagnationRestartCMAES state (type={state.get('type')!r})")
+        cfg = state["config"]
+        inner = CMAES.from_state(state["inner"])
+        opt = cls.__new__(cls)
+        opt.n_params = inner.n_params
+        opt.starts = np.atleast_2d(np.asarray(cfg["starts"], dtype=float))
+        opt.sigma0 = float(cfg["sigma0"])
+        opt.popsize = cfg["popsize"]
+        opt.bounds = None if cfg["bounds"] is None else np.asarray(cfg["bounds"], dtype=float)
+        opt.stagnation_generations = int(cfg["stagnation_generations"])
+        opt.tol = float(cfg["tol"])
+        opt.max_generations = int(cfg["max_generations"])
+        opt.restart_from_best = bool(cfg["restart_from_best"])
+        opt.cma_options = dict(cfg["cma_options"])
+        opt.attempt = int(state["attempt"])
+        opt.attempt_best = [float(v) for v in state["attempt_best"]]
+        opt.attempt_history = [dict(e) for e in state["attempt_history"]]
+        opt._restore_best(state)
+        opt.inner = inner
+        opt.rng = inner.rng
+        return opt

@@ -98,6 +98,8 @@ PLAN_DT = 0.01
 #: the ball within ~300 episodes but then stalls at 1.5-1.7 m with throws released downwards (best 0.52 / 0.28 /
 #: 0.43 / 0.20 m on subjects 0-3), while without it subject 0 succeeds after 857 episodes; so not the default.
 DROPPED_PENALTY = 0.0
+#: A restart attempt (``refine(stagnation_generations=...)``) stalls when its best reward improved by less than this (m).
+STAGNATION_TOL = 0.01
 #: Offset (rad) of the whole movement per unit of the meta-parameter stage (:func:`meta_basis`).
 META_OFFSET_UNIT = 1.0
 
@@ -475,6 +477,8 @@ class RefinementResult:
     penalties: np.ndarray = field(default_factory=lambda: np.zeros(0))
     resumed: bool = False
     stop_reason: str = "budget"
+    #: restart attempts of a :class:`~besdrake.search.cmaes.StagnationRestartCMAES` run (finished ones), else empty
+    attempts: list[dict[str, Any]] = field(default_factory=list)
 
     def best_so_far(self) -> np.ndarray:
         """Best target distance (m) of the throws within every limit, up to each episode (NaN before the first)."""
@@ -496,6 +500,7 @@ class RefinementResult:
             "wall_time_s": self.wall_time,
             "resumed": self.resumed,
             "stop_reason": self.stop_reason,
+            "n_restarts": len(self.attempts),
         }
 
 
@@ -509,6 +514,25 @@ def best_start(problems: Sequence[RefinementProblem], executor) -> tuple[int, Re
     if not finite:
         raise RefinementError("none of the imitated throws could be simulated")
     return max(finite, key=lambda ir: ir[1].reward)
+
+
+def rank_starts(problems: Sequence[RefinementProblem], executor) -> list[tuple[int, RewardBreakdown]]:
+    """Every imitated throw (x = 0 of each problem) with its record, best reward first (failed ones last)."""
+    results = [(i, p.evaluate(np.zeros((1, p.n_params)), executor)[0]) for i, p in enumerate(problems)]
+    if not any(np.isfinite(r.reward) for _, r in results):
+        raise RefinementError("none of the imitated throws could be simulated")
+    return sorted(results, key=lambda ir: -ir[1].reward if np.isfinite(ir[1].reward) else np.inf)
+
+
+def restart_points(problem: RefinementProblem, others: Sequence[RefinementProblem]) -> np.ndarray:
+    """The imitated throws of ``others`` as candidates of ``problem``'s normalised space, shape
+    ``(len(others), n_params)`` (clipped to its bounds): start points of restart attempts."""
+    rows = []
+    for p in others:
+        if p.n_params != problem.n_params:
+            raise RefinementError(f"restart point with {p.n_params} parameters for a problem with {problem.n_params}")
+        rows.append(problem.scaling.to_x(p.scaling.theta0))
+    return np.array(rows, dtype=float).reshape(-1, problem.n_params)
 
 
 def meta_basis(problem: RefinementProblem, offset_unit: float = META_OFFSET_UNIT) -> np.ndarray:
@@ -549,8 +573,19 @@ def make_optimizer(
     *,
     meta_episodes: int = 0,
     meta_sigma: float = 1.0,
+    stagnation_generations: int = 0,
+    starts: np.ndarray | None = None,
+    restart_from_best: bool = False,
+    stagnation_tol: float = STAGNATION_TOL,
+    max_attempt_generations: int = 0,
 ):
     """CMA-ES on the normalised space, started at the imitated throw (``x0 = 0``) unless ``x0`` is given.
+
+    With ``stagnation_generations > 0`` a :class:`~besdrake.search.cmaes.StagnationRestartCMAES`: a
+    CMA-ES attempt ends when its best reward improved by less than ``stagnation_tol`` (m) over that many
+    generations (or after ``max_attempt_generations``), and the next attempt starts with a fresh step
+    ``sigma0`` from the next row of ``starts`` (normalised candidates, e.g. :func:`restart_points`;
+    default: ``x0`` only), or from the best throw so far with ``restart_from_best``.
 
     With ``meta_episodes > 0`` a :class:`~besdrake.search.cmaes.StagedCMAES`: first CMA-ES (step
     ``meta_sigma``) over the meta-parameters of :func:`meta_basis` for ``meta_episodes`` episodes, then
@@ -561,6 +596,16 @@ def make_optimizer(
     bounds = problem.scaling.x_bounds
     x0 = np.clip(x0, bounds[:, 0] + 1e-9, bounds[:, 1] - 1e-9)
     rng = np.random.default_rng(seed)
+    if stagnation_generations > 0:
+        from besdrake.search.cmaes import StagnationRestartCMAES
+
+        pts = x0[None, :] if starts is None else np.atleast_2d(np.asarray(starts, dtype=float))
+        if pts.shape[1:] != (problem.n_params,):
+            raise RefinementError(f"starts must have {problem.n_params} columns, got shape {pts.shape}")
+        span = bounds[:, 1] - bounds[:, 0]
+        pts = np.clip(pts, bounds[:, 0] + 1e-9 * span, bounds[:, 1] - 1e-9 * span)
+        return StagnationRestartCMAES(pts, sigma0, rng, popsize=popsize, bounds=bounds, stagnation_generations=stagnation_generations,
+                                      tol=stagnation_tol, max_generations=max_attempt_generations, restart_from_best=restart_from_best)
     if meta_episodes > 0:
         return StagedCMAES(x0, meta_basis(problem), meta_sigma, sigma0, rng, subspace_evaluations=meta_episodes,
                            popsize_subspace=popsize, popsize=popsize, bounds=bounds)
@@ -581,6 +626,11 @@ def refine(
     *,
     meta_episodes: int = 0,
     meta_sigma: float = 1.0,
+    stagnation_generations: int = 0,
+    starts: np.ndarray | None = None,
+    restart_from_best: bool = False,
+    stagnation_tol: float = STAGNATION_TOL,
+    max_attempt_generations: int = 0,
 ) -> RefinementResult:
     """Refine ``problem`` with CMA-ES for at most ``n_episodes`` episodes (stops at the first
     generation with a success when ``stop_on_success``). With ``out_dir`` the run is resumable:
@@ -601,6 +651,10 @@ def refine(
         desc = problem.describe() | {"seed": int(seed), "sigma0": float(sigma0), "popsize": int(popsize)}
         if meta_episodes > 0:
             desc |= {"meta_episodes": int(meta_episodes), "meta_sigma": float(meta_sigma)}
+        if stagnation_generations > 0:
+            desc |= {"stagnation_generations": int(stagnation_generations), "stagnation_tol": float(stagnation_tol),
+                     "max_attempt_generations": int(max_attempt_generations), "restart_from_best": bool(restart_from_best),
+                     "starts": None if starts is None else np.atleast_2d(np.asarray(starts, dtype=float)).tolist()}
         if desc_path.exists():
             try:
                 old = json.loads(desc_path.read_text())
@@ -612,7 +666,9 @@ def refine(
             write_json(desc_path, desc)
         details_path = out / DETAILS_FILE
         problem.records.update(read_details(details_path))
-    opt = optimizer if optimizer is not None else make_optimizer(problem, seed, sigma0, popsize, meta_episodes=meta_episodes, meta_sigma=meta_sigma)
+    opt = optimizer if optimizer is not None else make_optimizer(
+        problem, seed, sigma0, popsize, meta_episodes=meta_episodes, meta_sigma=meta_sigma, stagnation_generations=stagnation_generations,
+        starts=starts, restart_from_best=restart_from_best, stagnation_tol=stagnation_tol, max_attempt_generations=max_attempt_generations)
     t0 = time.perf_counter()
     best = [np.inf]
     last = [t0]
@@ -661,13 +717,14 @@ def _result(problem: RefinementProblem, loop, wall: float) -> RefinementResult:
         success=bool(successes.any()), episodes_to_success=first, n_episodes=int(loop.n_evaluations),
         n_failed=int(loop.n_failed), wall_time=wall, rewards=rewards, distances=distances, successes=successes,
         penalties=penalties, resumed=bool(loop.resumed), stop_reason=loop.stop_reason,
+        attempts=[dict(a) for a in getattr(loop.optimizer, "attempt_history", [])],
     )
 
 
 __all__ = [
     "SUCCESS_DISTANCE", "DEFAULT_TARGET", "DEFAULT_POPSIZE", "MIN_EXECUTION_TIME", "MAX_EXECUTION_TIME", "PAPER_POPSIZE",
     "RefinementError", "RewardBreakdown", "ThrowReward", "ParameterScaling", "RefinementProblem",
-    "RefinementResult", "best_start", "make_optimizer", "refine", "read_details", "params_key", "failed_breakdown",
+    "RefinementResult", "best_start", "rank_starts", "restart_points", "make_optimizer", "refine", "read_details", "params_key", "failed_breakdown",
 ]
 
 

@@ -1,0 +1,120 @@
+"""Refinement with stagnation restarts: StagnationRestartCMAES (plateau detection, start points, resume),
+rank_starts/restart_points and refine(stagnation_generations=...)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from besdrake.search.base import load_state, save_state
+from besdrake.search.cmaes import StagnationRestartCMAES
+from besdrake.search.refinement import RefinementError, RefinementProblem, rank_starts, refine, restart_points
+from besdrake.search.templates import fitted_default_throw
+from tests.test_refinement import StandIn
+
+
+def two_basins(X: np.ndarray) -> np.ndarray:
+    """A deceptive landscape: a broad local optimum (-0.5) at -3 and the global one (0) at +3."""
+    X = np.atleast_2d(X)
+    return -np.minimum(np.sum((X - 3.0) ** 2, axis=1), 0.5 + 0.1 * np.sum((X + 3.0) ** 2, axis=1))
+
+
+def run(opt, generations: int) -> None:
+    for _ in range(generations):
+        X = opt.ask()
+        opt.tell(X, two_basins(X))
+
+
+def test_a_stalled_attempt_restarts_from_the_next_start_point():
+    n = 5
+    starts = np.array([[-3.0] * n, [2.0] * n])
+    opt = StagnationRestartCMAES(starts, 0.5, np.random.default_rng(0), popsize=8, bounds=np.tile([-10.0, 10.0], (n, 1)),
+                                 stagnation_generations=5, tol=0.01)
+    run(opt, 80)
+    assert len(opt.attempt_history) >= 1
+    first = opt.attempt_history[0]
+    assert first["start"] == 0 and first["end"] in ("stagnation", "cma") and first["best_reward"] <= -0.5 + 1e-9
+    assert opt.attempt_history[1:] == [] or opt.attempt_history[1]["start"] == 1
+    assert opt.best[1] > -0.1  # the second start point leads into the global basin
+    # plain CMA-ES from the first start point stays in the local basin
+    from besdrake.search.cmaes import CMAES
+
+    plain = CMAES(starts[0], 0.5, np.random.default_rng(0), popsize=8, bounds=np.tile([-10.0, 10.0], (n, 1)))
+    run(plain, 80)
+    assert plain.best[1] < -0.4
+
+
+def test_restart_from_best_and_generation_cap():
+    n = 3
+    opt = StagnationRestartCMAES(np.zeros((1, n)), 1.0, np.random.default_rng(1), popsize=6, stagnation_generations=50,
+                                 max_generations=4, restart_from_best=True)
+    run(opt, 12)
+    assert [a["end"] for a in opt.attempt_history] == ["max_generations"] * 3
+    assert [a["start"] for a in opt.attempt_history] == [0, -1, -1]
+    assert opt.attempt == 3 and len(opt.attempt_best) == 0  # a fresh attempt, started at the best throw so far
+    assert np.allclose(opt.inner.x0, opt.best[0])
+
+
+def test_resumed_restart_optimizer_asks_the_same_candidates(tmp_path):
+    n = 4
+    kw = dict(popsize=6, bounds=np.tile([-10.0, 10.0], (n, 1)), stagnation_generations=3, tol=0.05)
+    starts = np.array([[-3.0] * n, [1.0] * n])
+    a = StagnationRestartCMAES(starts, 0.5, np.random.default_rng(7), **kw)
+    run(a, 15)
+    save_state(a.state_dict(), tmp_path / "opt")
+    b = StagnationRestartCMAES.from_state(load_state(tmp_path / "opt"))
+    assert b.attempt == a.attempt and b.attempt_best == a.attempt_best
+    for _ in range(25):
+        Xa, Xb = a.ask(), b.ask()
+        assert np.array_equal(Xa, Xb)
+        a.tell(Xa, two_basins(Xa))
+        b.tell(Xb, two_basins(Xb))
+    assert a.attempt_history == b.attempt_history and a.attempt >= 2
+
+
+def test_bad_restart_settings_are_rejected():
+    with pytest.raises(ValueError):
+        StagnationRestartCMAES(np.zeros((1, 3)), 1.0, np.random.default_rng(0), stagnation_generations=0)
+    with pytest.raises(ValueError):
+        StagnationRestartCMAES(np.full((1, 3), np.nan), 1.0, np.random.default_rng(0))
+    with pytest.raises(ValueError):
+        StagnationRestartCMAES(np.zeros((1, 3)), 1.0, np.random.default_rng(0), tol=-1.0)
+
+
+@pytest.fixture(scope="module")
+def base():
+    return fitted_default_throw()
+
+
+def test_rank_starts_and_restart_points(base):
+    near, far = base.copy(), base.copy()
+    far.goal = far.goal.copy()
+    far.goal[1] += 0.5  # StandIn: lands 0.5 m farther out (beyond the target)
+    near.goal = near.goal.copy()
+    near.goal[1] += 0.8  # lands 0.8 m out: closest to the target 2 m (StandIn x = goal of joint 2 + 1)
+    problems = [RefinementProblem(base), RefinementProblem(far), RefinementProblem(near)]
+    ranked = rank_starts(problems, StandIn())
+    d = [r.distance for _, r in ranked]
+    assert d == sorted(d) and ranked[0][0] == 2
+    pts = restart_points(problems[0], [problems[i] for i, _ in ranked])
+    assert pts.shape == (3, problems[0].n_params)
+    for row, (i, _) in zip(pts, ranked):
+        assert np.allclose(problems[0].theta(row), problems[i].scaling.theta0)
+    assert np.allclose(pts[-1], 0.0)
+
+
+def test_refine_with_restarts_succeeds_records_attempts_and_resumes(base, tmp_path):
+    problem = RefinementProblem(base)
+    kw = dict(seed=0, popsize=8, stagnation_generations=3, stagnation_tol=0.01, stop_on_success=False, starts=np.zeros((2, 49)))
+    first = refine(problem, StandIn(), n_episodes=48, out_dir=tmp_path, **kw)
+    again = refine(RefinementProblem(base), StandIn(), n_episodes=400, out_dir=tmp_path, **kw)
+    assert again.resumed and again.n_episodes == 400
+    fresh = refine(RefinementProblem(base), StandIn(), n_episodes=400, **kw)
+    assert np.array_equal(fresh.rewards, again.rewards)  # resuming changes nothing
+    assert fresh.attempts == again.attempts
+    assert first.n_episodes == 48
+    assert np.nanmin(fresh.best_so_far()) < 0.1
+    with pytest.raises(RefinementError, match="another refinement"):
+        refine(RefinementProblem(base), StandIn(), n_episodes=480, out_dir=tmp_path, **(kw | {"stagnation_generations": 4}))
+    with pytest.raises(RefinementError, match="columns"):
+        refine(RefinementProblem(base), StandIn(), n_episodes=8, **(kw | {"starts": np.zeros((2, 3))}))
