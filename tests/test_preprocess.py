@@ -9,7 +9,6 @@ from scipy.spatial.transform import Rotation
 from besdrake.mocap.preprocess import (
     PreprocessError,
     back_frame,
-    fill_gaps,
     preprocess,
     rotation_to_quaternion,
     to_frame,
@@ -79,19 +78,17 @@ def test_velocity_of_a_ramp_and_a_sine():
     assert np.allclose(v[5:-5, 1], np.cos(t[5:-5]), atol=2e-3)
 
 
-def test_short_gaps_are_interpolated_and_flagged_long_gaps_stay_missing():
-    f = 100.0
-    t = np.arange(400) / f
-    pos = np.zeros((400, 2, 3))
-    pos[:, 0, 0] = np.sin(2 * t)
-    pos[:, 1, 1] = np.cos(t)
-    truth = pos.copy()
-    pos[100:110, 0] = np.nan  # 0.1 s: filled
-    pos[200:260, 1] = np.nan  # 0.6 s: kept
-    filled, interp = fill_gaps(pos, f, max_gap_s=0.25)
-    assert interp[100:110, 0].all() and not interp[:100, 0].any() and not interp[110:, 0].any()
-    assert np.allclose(filled[100:110, 0], truth[100:110, 0], atol=1e-4)
-    assert np.isnan(filled[200:260, 1]).all() and not interp[:, 1].any()
+def test_preprocess_fills_short_gaps_and_refuses_long_ones():
+    rec, _, _ = moving_body(n=400)
+    truth = rec.positions.copy()
+    hand = NAMES.index("Hand top")
+    rec.positions[100:110, hand] = np.nan  # 0.1 s: filled
+    pre = preprocess(rec, max_gap_s=0.25)
+    assert pre.interpolated[100:110, hand].all() and pre.interpolated[:, hand].sum() == 10
+    assert np.allclose(pre.positions[100:110, hand], truth[100:110, hand], atol=1e-3)
+    rec.positions[200:260, hand] = np.nan  # 0.6 s: too long for a hand marker
+    with pytest.raises(PreprocessError, match="Hand top"):
+        preprocess(rec, max_gap_s=0.25)
 
 
 def test_preprocess_flags_filled_hand_samples():

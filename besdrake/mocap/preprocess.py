@@ -1,6 +1,7 @@
 """Preprocessing of a motion-capture recording for segmentation and classification.
 
-* short gaps (missing samples) are interpolated per marker and flagged; longer gaps stay NaN;
+* short gaps (missing samples) are interpolated per marker (:func:`besdrake.mocap.gaps.fill_gaps`) and
+  flagged; longer gaps stay NaN;
 * the demonstrator's *back frame* is built from the three back markers
   (origin: their centroid; y: from ``Back right`` to ``Back left``; z: from the right/left
   midpoint towards ``Back top``, made orthogonal to y; x = y cross z);
@@ -18,6 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.signal import savgol_filter
 
+from besdrake.mocap.gaps import fill_gaps
 from besdrake.mocap.recording import MocapRecording
 
 BACK_MARKERS = ("Back top", "Back right", "Back left")
@@ -78,44 +80,6 @@ class Preprocessed:
     def marker_back(self, name: str) -> np.ndarray:
         """``(n, 3)`` positions of one marker in the back frame."""
         return self.positions_back[:, self.marker_names.index(name), :]
-
-
-def fill_gaps(positions: np.ndarray, frequency: float, max_gap_s: float = DEFAULT_MAX_GAP_S):
-    """Interpolate gaps of at most ``max_gap_s`` seconds per marker (cubic where possible).
-
-    Args:
-        positions: ``(n, m, 3)`` with NaN for missing samples.
-    Returns:
-        ``(filled, interpolated)``: the filled copy and a ``(n, m)`` bool mask of filled samples.
-        Gaps at the start/end of the recording and gaps longer than ``max_gap_s`` stay NaN.
-    """
-    from scipy.interpolate import CubicSpline
-
-    pos = np.array(positions, dtype=float, copy=True)
-    n, m, _ = pos.shape
-    interp = np.zeros((n, m), dtype=bool)
-    max_gap = int(round(max_gap_s * frequency))
-    t = np.arange(n)
-    for j in range(m):
-        miss = np.isnan(pos[:, j, :]).any(axis=1)
-        if not miss.any() or miss.all():
-            continue
-        pos[miss, j, :] = np.nan
-        d = np.diff(np.r_[0, miss.astype(np.int8), 0])
-        starts, ends = np.flatnonzero(d == 1), np.flatnonzero(d == -1)
-        ok = ~miss
-        spline = CubicSpline(t[ok], pos[ok, j, :], axis=0) if ok.sum() >= 4 else None
-        for a, b in zip(starts, ends):
-            if a == 0 or b == n or (b - a) > max_gap:
-                continue
-            idx = np.arange(a, b)
-            if spline is not None:
-                pos[idx, j, :] = spline(idx)
-            else:
-                w = (idx - (a - 1)) / (b - (a - 1))
-                pos[idx, j, :] = (1 - w)[:, None] * pos[a - 1, j, :] + w[:, None] * pos[b, j, :]
-            interp[idx, j] = True
-    return pos, interp
 
 
 def back_frame(top: np.ndarray, right: np.ndarray, left: np.ndarray):
@@ -209,7 +173,8 @@ def preprocess(
     if rec.n_frames < 3:
         raise PreprocessError(f"the recording has {rec.n_frames} frames; at least 3 are needed")
     _require(rec, hand_markers + back_markers)
-    pos, interp = fill_gaps(rec.positions, rec.frequency, max_gap_s)
+    filled = fill_gaps(rec, max_gap_s)  # short gaps by a local cubic spline; long and edge gaps stay NaN
+    pos, interp = filled.recording.positions, filled.filled_mask
     missing = np.isnan(pos).any(axis=2)
     warnings = []
     for j, name in enumerate(rec.marker_names):

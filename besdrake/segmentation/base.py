@@ -73,7 +73,7 @@ class SegmenterMixin:
             bad = np.flatnonzero(~np.isfinite(arr).all(axis=1))
             raise SegmentationError(
                 f"the input has NaN/inf at {len(bad)} samples (first index {bad[0]}); "
-                "fill gaps first (besdrake.mocap.preprocess.fill_gaps) or crop the recording"
+                "fill gaps first (besdrake.mocap.gaps.fill_gaps) or crop the recording"
             )
         if self.input == "position":
             if arr.shape[0] < 5:

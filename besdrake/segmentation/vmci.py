@@ -275,7 +275,7 @@ class VMCI(SegmenterMixin):
             bad = np.flatnonzero(~np.isfinite(V).all(axis=1))
             raise SegmentationError(
                 f"the input has NaN/inf at {len(bad)} samples (first index {bad[0]}); "
-                "fill gaps first (besdrake.mocap.preprocess.fill_gaps) or crop the recording"
+                "fill gaps first (besdrake.mocap.gaps.fill_gaps) or crop the recording"
             )
         scale = float(np.sqrt(np.mean(np.sum(V**2, axis=1))))
         if scale <= 0:
