@@ -1,8 +1,8 @@
 """``besdrake template ACTION``: behaviour templates (contextual policy search over two meta-parameters).
 
 * ``train BASE --pool DIR --name NAME``: learn a template from a base DMP (a refined throw, e.g.
-  ``OUT/run0/refined.dmp.json`` of ``besdrake refine``; ``default`` = a DMP fitted to the built-in
-  default throw) with BO-CPS (``--method es|ucb``) or ACES, evaluate it on the paper's 16 test
+  ``OUT/run0/refined.dmp.json`` of ``besdrake refine``; ``default`` = the built-in default throw
+  fitted as a DMP, :func:`~besdrake.search.templates.default_template_base`) with BO-CPS (``--method es|ucb``) or ACES, evaluate it on the paper's 16 test
   contexts and add it to the pool. The search is resumable: it lives in ``DIR/runs/NAME``.
 * ``eval NAME --pool DIR``: mean distance over the 16 test contexts (simulated).
 * ``instantiate NAME --pool DIR --target X Y [--plan-out FILE]``: the motion plan for a target.
@@ -108,7 +108,7 @@ def _train(args, pool) -> int:
     from besdrake.cli import UserError
     from besdrake.imitation import DMPParameterError, load_dmp
     from besdrake.search.loop import ResumeError
-    from besdrake.search.templates import PAPER_MEAN_CM, evaluate_template, fitted_default_throw, train_template
+    from besdrake.search.templates import PAPER_MEAN_CM, TEMPLATE_BASE_WEIGHTS, default_template_base, evaluate_template, train_template
 
     if args.episodes < 1:
         raise UserError(f"--episodes must be >= 1, got {args.episodes}")
@@ -116,7 +116,7 @@ def _train(args, pool) -> int:
     if name in pool and not args.overwrite:
         raise UserError(f"{args.pool} already holds a template {name!r} (use --overwrite or another --name)")
     if args.name_or_base == "default":
-        base, base_source = fitted_default_throw(), "fitted_default_throw(amplitude=0.6)"
+        base, base_source = default_template_base(), f"default_template_base (default throw, amplitude 0.6, {TEMPLATE_BASE_WEIGHTS} weights per joint)"
     else:
         try:
             base, base_source = load_dmp(args.name_or_base), str(Path(args.name_or_base).resolve())
