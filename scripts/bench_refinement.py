@@ -54,6 +54,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--meta-episodes", type=int, default=0, help="episodes of the meta-parameter stage before the 49-D CMA-ES (0: none)")
     parser.add_argument("--meta-sigma", type=float, default=1.0, help="initial step of the meta-parameter stage")
     parser.add_argument("--position-unit", type=float, default=None, help="rad per normalised unit of start and goal (default: the module's)")
+    parser.add_argument("--acceleration-unit", type=float, default=None, help="rad/s^2 per normalised unit of the weights (default: the module's)")
+    parser.add_argument("--time-unit", type=float, default=None, help="s per normalised unit of the execution time (default: the module's)")
     parser.add_argument("--no-slower", action="store_true", help="bound the execution time by the imitated one (never slower than the imitated throw)")
     parser.add_argument("--stagnation", type=int, default=0, help="restart a CMA-ES attempt after this many generations without improvement (0: plain CMA-ES)")
     parser.add_argument("--stagnation-tol", type=float, default=0.01, help="improvement (m) below which an attempt counts as stalled")
@@ -61,6 +63,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--restart-from", choices=["start", "ranked", "best"], default="start",
                         help="restart attempts from the start throw, from the imitated throws in reward order, or from the best throw so far")
     parser.add_argument("--n-starts", type=int, default=4, help="with --restart-from ranked: how many of the best imitated throws")
+    parser.add_argument("--diagonal", type=int, default=0, help="separable CMA-ES (cma's CMA_diagonal) for this many generations (-1: always, 0: never)")
+    parser.add_argument("--elitist", action="store_true", help="elitist CMA-ES (cma's CMA_elitist: the best throw so far stays in the population)")
     parser.add_argument("--out", type=Path, default=None, help="keep each run's folder (episodes, details.csv) under OUT/sS_runK")
     args = parser.parse_args(argv)
     logging.getLogger("drake").setLevel(logging.ERROR)
@@ -79,9 +83,13 @@ def main(argv: list[str] | None = None) -> int:
                                  acceleration_weight=k * d.acceleration_weight, violation_offset=k * d.violation_offset,
                                  dropped_penalty=d.dropped_penalty if args.dropped_penalty is None else args.dropped_penalty)
             dmps = [load_dmp(f) for f in files]
-            unit = {} if args.position_unit is None else {"position_unit": args.position_unit}
+            unit = {k: v for k, v in (("position_unit", args.position_unit), ("acceleration_unit", args.acceleration_unit),
+                                      ("time_unit", args.time_unit)) if v is not None}
             problems = [RefinementProblem(dm, reward, ParameterScaling.for_dmp(
                 dm, max_execution_time=max(dm.execution_time, MIN_EXECUTION_TIME + 0.05) if args.no_slower else None, **unit)) for dm in dmps]
+            cma_options = {} if args.diagonal == 0 else {"CMA_diagonal": True if args.diagonal < 0 else args.diagonal}
+            if args.elitist:
+                cma_options["CMA_elitist"] = True
             ranked = rank_starts(problems, ex)
             index, start = ranked[0]
             starts = None
@@ -93,7 +101,8 @@ def main(argv: list[str] | None = None) -> int:
                 r = refine(problems[index], ex, args.episodes, seed=args.first_seed + k, popsize=args.popsize, sigma0=args.sigma0,
                            out_dir=out_dir, meta_episodes=args.meta_episodes, meta_sigma=args.meta_sigma,
                            stagnation_generations=args.stagnation, stagnation_tol=args.stagnation_tol, starts=starts,
-                           restart_from_best=args.restart_from == "best", max_attempt_generations=args.max_attempt_generations)
+                           restart_from_best=args.restart_from == "best", max_attempt_generations=args.max_attempt_generations,
+                           cma_options=cma_options)
                 runs.append({"seed": args.first_seed + k, "success": r.success, "episodes_to_success": r.episodes_to_success,
                              "best_distance_within_limits_m": r.summary()["best_distance_within_limits_m"],
                              "n_episodes": r.n_episodes, "n_failed": r.n_failed, "n_restarts": len(r.attempts), "wall_time_s": r.wall_time})
@@ -108,8 +117,8 @@ def main(argv: list[str] | None = None) -> int:
     out = {
         "subjects_run": args.subjects, "runs_per_subject": args.runs, "episode_budget": args.episodes,
         "population": args.popsize, "sigma0": args.sigma0, "penalty_scale": args.penalty_scale,
-        "dropped_penalty_m": reward.dropped_penalty, "meta_episodes": args.meta_episodes, "meta_sigma": args.meta_sigma, "position_unit_rad": args.position_unit, "no_slower": args.no_slower, "stagnation_generations": args.stagnation, "stagnation_tol_m": args.stagnation_tol,
-        "max_attempt_generations": args.max_attempt_generations, "restart_from": args.restart_from, "n_starts": args.n_starts, "target_m": [2.0, 0.0], "backend": args.backend,
+        "dropped_penalty_m": reward.dropped_penalty, "meta_episodes": args.meta_episodes, "meta_sigma": args.meta_sigma, "position_unit_rad": args.position_unit, "acceleration_unit": args.acceleration_unit, "time_unit_s": args.time_unit, "no_slower": args.no_slower, "stagnation_generations": args.stagnation, "stagnation_tol_m": args.stagnation_tol,
+        "max_attempt_generations": args.max_attempt_generations, "restart_from": args.restart_from, "n_starts": args.n_starts, "diagonal": args.diagonal, "elitist": args.elitist, "target_m": [2.0, 0.0], "backend": args.backend,
         "success_rate": float(np.mean([r["success"] for r in all_runs])),
         "subjects_with_success_in_every_run": sum(v["success_rate"] == 1.0 for v in subjects.values()),
         "subjects_with_success_in_some_run": sum(v["success_rate"] > 0.0 for v in subjects.values()),

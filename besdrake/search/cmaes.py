@@ -44,7 +44,9 @@ _RESTART_STRATEGIES = ("none", "ipop", "bipop")
 
 # Attributes of cma.CMAEvolutionStrategy (and its sub-objects) that change during tell() and
 # determine the next candidates and the termination tests. Paths are relative to the strategy.
-_ARRAY_ATTRS = ("mean", "mean_old", "mean_after_tell", "pc", "pc_neg", "sm.C", "sm.B", "sm.D", "adapt_sigma.ps", "sigma_vec.scaling")
+# "C", "B", "D", "dC", "pc2": the diagonal covariance of separable CMA-ES (cma option CMA_diagonal) lives on the strategy itself
+_ARRAY_ATTRS = ("mean", "mean_old", "mean_after_tell", "pc", "pc_neg", "sm.C", "sm.B", "sm.D", "adapt_sigma.ps", "sigma_vec.scaling",
+                "C", "B", "D", "dC", "pc2", "best.x", "best.x_geno")  # best.*: what elitist CMA-ES (CMA_elitist) re-injects
 _SCALAR_ATTRS = (
     "sigma",
     "_sigma_old",
@@ -65,6 +67,9 @@ _SCALAR_ATTRS = (
     "fit.median_previous",
     "fit.median_got_worse",
     "fit.flatfit_iterations",
+    "sigma_vec.is_identity",
+    "best.f",
+    "best.evals",
 )
 _LIST_ATTRS = ("fit.hist", "fit.histbest", "fit.histmedian", "fit.fit", "hsiglist")
 
@@ -270,7 +275,7 @@ class CMAES(BestAndWorst, Optimizer):
     # -- persistence -----------------------------------------------------------------------------
     def state_dict(self) -> dict[str, Any]:
         """State after the last :meth:`tell`; candidates asked but not told are asked again."""
-        arrays = {path: np.array(_get(self.es, path), dtype=float) for path in _ARRAY_ATTRS if _has(self.es, path)}
+        arrays = {path: np.array(_get(self.es, path), dtype=float) for path in _ARRAY_ATTRS if _has(self.es, path) and _get(self.es, path) is not None}
         scalars = {}
         for path in _SCALAR_ATTRS:
             if _has(self.es, path):

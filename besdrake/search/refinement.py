@@ -578,6 +578,7 @@ def make_optimizer(
     restart_from_best: bool = False,
     stagnation_tol: float = STAGNATION_TOL,
     max_attempt_generations: int = 0,
+    cma_options: dict[str, Any] | None = None,
 ):
     """CMA-ES on the normalised space, started at the imitated throw (``x0 = 0``) unless ``x0`` is given.
 
@@ -585,7 +586,8 @@ def make_optimizer(
     CMA-ES attempt ends when its best reward improved by less than ``stagnation_tol`` (m) over that many
     generations (or after ``max_attempt_generations``), and the next attempt starts with a fresh step
     ``sigma0`` from the next row of ``starts`` (normalised candidates, e.g. :func:`restart_points`;
-    default: ``x0`` only), or from the best throw so far with ``restart_from_best``.
+    default: ``x0`` only), or from the best throw so far with ``restart_from_best``. ``cma_options``:
+    further options of the ``cma`` package (JSON values), e.g. ``{"CMA_diagonal": True}`` (separable CMA-ES).
 
     With ``meta_episodes > 0`` a :class:`~besdrake.search.cmaes.StagedCMAES`: first CMA-ES (step
     ``meta_sigma``) over the meta-parameters of :func:`meta_basis` for ``meta_episodes`` episodes, then
@@ -605,11 +607,12 @@ def make_optimizer(
         span = bounds[:, 1] - bounds[:, 0]
         pts = np.clip(pts, bounds[:, 0] + 1e-9 * span, bounds[:, 1] - 1e-9 * span)
         return StagnationRestartCMAES(pts, sigma0, rng, popsize=popsize, bounds=bounds, stagnation_generations=stagnation_generations,
-                                      tol=stagnation_tol, max_generations=max_attempt_generations, restart_from_best=restart_from_best)
+                                      tol=stagnation_tol, max_generations=max_attempt_generations, restart_from_best=restart_from_best,
+                                      cma_options=cma_options)
     if meta_episodes > 0:
         return StagedCMAES(x0, meta_basis(problem), meta_sigma, sigma0, rng, subspace_evaluations=meta_episodes,
-                           popsize_subspace=popsize, popsize=popsize, bounds=bounds)
-    return CMAES(x0, sigma0, rng, popsize=popsize, bounds=bounds)
+                           popsize_subspace=popsize, popsize=popsize, bounds=bounds, cma_options=cma_options)
+    return CMAES(x0, sigma0, rng, popsize=popsize, bounds=bounds, cma_options=cma_options)
 
 
 def refine(
@@ -631,6 +634,7 @@ def refine(
     restart_from_best: bool = False,
     stagnation_tol: float = STAGNATION_TOL,
     max_attempt_generations: int = 0,
+    cma_options: dict[str, Any] | None = None,
 ) -> RefinementResult:
     """Refine ``problem`` with CMA-ES for at most ``n_episodes`` episodes (stops at the first
     generation with a success when ``stop_on_success``). With ``out_dir`` the run is resumable:
@@ -655,6 +659,8 @@ def refine(
             desc |= {"stagnation_generations": int(stagnation_generations), "stagnation_tol": float(stagnation_tol),
                      "max_attempt_generations": int(max_attempt_generations), "restart_from_best": bool(restart_from_best),
                      "starts": None if starts is None else np.atleast_2d(np.asarray(starts, dtype=float)).tolist()}
+        if cma_options:
+            desc |= {"cma_options": dict(cma_options)}
         if desc_path.exists():
             try:
                 old = json.loads(desc_path.read_text())
@@ -668,7 +674,8 @@ def refine(
         problem.records.update(read_details(details_path))
     opt = optimizer if optimizer is not None else make_optimizer(
         problem, seed, sigma0, popsize, meta_episodes=meta_episodes, meta_sigma=meta_sigma, stagnation_generations=stagnation_generations,
-        starts=starts, restart_from_best=restart_from_best, stagnation_tol=stagnation_tol, max_attempt_generations=max_attempt_generations)
+        starts=starts, restart_from_best=restart_from_best, stagnation_tol=stagnation_tol, max_attempt_generations=max_attempt_generations,
+        cma_options=cma_options)
     t0 = time.perf_counter()
     best = [np.inf]
     last = [t0]
