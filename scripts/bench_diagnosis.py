@@ -125,6 +125,8 @@ def _summarize(results: list[dict], modes: list[str], args, t_bench: float, regi
             conf.setdefault(t, {}).setdefault(p, 0)
             conf[t][p] += 1
         ok_or_honest = [r["correct"] or r["honest_cannot_tell"] for r in known]
+        # Lenient: any "cannot tell nominal from {...}" set that holds the hidden effect counts, whatever its size.
+        lenient = [r["correct"] or r["honest_cannot_tell"] or (bool(r.get("cannot_tell")) and all(e in r["cannot_tell"] for e in r["hidden"])) for r in known]
         # Touchdown-only logs cannot show an effect that does not move the touchdown: there "the nominal
         # simulation agrees within the noise" is the honest answer.
         detect = [r for r in known if r.get("touchdown_detectable", True)]
@@ -138,6 +140,7 @@ def _summarize(results: list[dict], modes: list[str], args, t_bench: float, regi
             "n_known_trials": len(known),
             "right_cause_rate": rate(known, "correct"),
             "right_or_honest_cannot_tell_rate": float(np.mean(ok_or_honest)) if ok_or_honest else None,
+            "right_or_honest_rate_lenient": float(np.mean(lenient)) if lenient else None,
             "explained_rate_known": rate(known, "explained"),
             "n_touchdown_detectable": len(detect),
             "right_or_honest_rate_touchdown_detectable": float(np.mean([r["correct"] or r["honest_cannot_tell"] for r in detect])) if detect else None,
@@ -148,6 +151,14 @@ def _summarize(results: list[dict], modes: list[str], args, t_bench: float, regi
             "cannot_tell_sets_holding_hidden_any_size": int(sum(bool(r.get("cannot_tell")) and all(e in r["cannot_tell"] for e in r["hidden"]) for r in known)),
             "cannot_tell_sets_of_whole_registry": int(sum(r.get("cannot_tell_size", 0) == len(registry) for r in known)),
             "cannot_tell_hidden_value_within_allowed": int(sum(r.get("hidden_within_allowed", False) for r in known)),
+            # The "cannot tell nominal from ..." answer split in two: effects the log bounds (a larger deviation would
+            # have been seen) and effects it does not constrain at all (any realistic value fits). Counted as narrowed
+            # when the hidden effects are in the answer and the bounded part is smaller than the registry.
+            "cannot_tell_narrowed_honest": int(sum(bool(r.get("cannot_tell")) and all(e in r["cannot_tell"] for e in r["hidden"])
+                                                   and r.get("cannot_tell_constrained_size", len(registry)) < len(registry) for r in known)),
+            "mean_cannot_tell_constrained_size": float(np.mean([r["cannot_tell_constrained_size"] for r in known if r.get("cannot_tell_size", 0) > 0]))
+            if any(r.get("cannot_tell_size", 0) for r in known) else None,
+            "hidden_listed_as_unconstrained": int(sum(bool(r.get("cannot_tell")) and any(e in r.get("cannot_tell_unconstrained", []) for e in r["hidden"]) for r in known)),
             "mean_cannot_tell_set_size": float(np.mean([r["cannot_tell_size"] for r in known if r.get("cannot_tell_size", 0) > 0])) if any(r.get("cannot_tell_size", 0) for r in known) else None,
             "registry_size": len(registry),
             "mean_answer_set_size_of_honest_answers": float(np.mean([r["answer_set_size"] for r in known if r["honest_cannot_tell"] and not r["correct"]])) if any(r["honest_cannot_tell"] and not r["correct"] for r in known) else None,
@@ -178,6 +189,8 @@ def main(argv=None) -> int:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--modes", default="full,touchdown")
+    ap.add_argument("--only", default=None, help="comma-separated trial indices to run (the others are drawn but skipped): re-run single trials")
+    ap.add_argument("--placement-sd", type=float, default=None, help="diagnose's placement_sd (m; default: diagnose's default)")
     ap.add_argument("--progress", action="store_true", help="one line per diagnosis on stderr")
     ap.add_argument("--out", default=None, help="also (re)write the summary JSON to this file after every diagnosis")
     args = ap.parse_args(argv)
@@ -189,6 +202,8 @@ def main(argv=None) -> int:
     from besdrake.transfer.virtual_lab import VirtualLab
 
     registry = list(list_effects())
+    only = None if args.only is None else {int(x) for x in args.only.split(",") if x.strip()}
+    dkw = {} if args.placement_sd is None else {"placement_sd": args.placement_sd}
     draw_unknown = _register_unknown()
     modes = args.modes.split(",")
     truth_roll = Rollout("nominal")
@@ -209,6 +224,8 @@ def main(argv=None) -> int:
             else:
                 hidden = _draw(registry[k_known % len(registry)], rng)
                 k_known += 1
+            if only is not None and i not in only:
+                continue
             plans = diagnosis_plans(args.throws, args.repeats, seed=1000 * args.seed + i)
             lab = VirtualLab({"name": "bench_lab", "effects": hidden, "seed": 1000 * args.seed + i})
             try:
@@ -235,7 +252,7 @@ def main(argv=None) -> int:
                 log = ms if mode == "full" else _strip(ms)
                 t0 = time.perf_counter()
                 try:
-                    d = diagnose(log, candidates=registry, executor=ex, cache=cache, seed=i)
+                    d = diagnose(log, candidates=registry, executor=ex, cache=cache, seed=i, **dkw)
                 except Exception as err:  # noqa: BLE001 - a benchmark records failures
                     results.append({"trial": i, "mode": mode, "hidden": hidden, "unknown": unknown, "error": f"{type(err).__name__}: {err}"})
                     continue
@@ -256,6 +273,8 @@ def main(argv=None) -> int:
                     "honest_undetected": honest_undetected, "hidden_within_allowed": hidden_within_allowed,
                     "alternatives": [list(a) for a in alt],
                     "cannot_tell": sorted(ct), "cannot_tell_size": len(ct),
+                    "cannot_tell_unconstrained": sorted(e for e, a in ct.items() if a.unconstrained),
+                    "cannot_tell_constrained_size": sum(not a.unconstrained for a in ct.values()),
                     "allowed_fraction": {a.effect: a.max_fraction for a in [*d.cannot_tell, *d.excluded]},
                     "answer_set_size": len(ct) if ct else (1 + len(alt) if alt else 1),
                     "fitted": d.refined_effects(),

@@ -212,3 +212,73 @@ def test_allowed_effects_excludes_what_the_data_would_show_and_lists_what_they_c
     assert not fric.excluded
     assert fric.allowed["mu_static"] == pytest.approx((0.05, 1.5))
     assert fric.throws_needed is None and fric.recommendation
+
+
+def test_placement_points_stand_for_the_scatter():
+    from besdrake.diagnosis.core import placement_points
+
+    sd = 0.002
+    pts = placement_points(sd)
+    assert pts.shape == (4, 2)
+    assert np.allclose(pts.mean(axis=0), 0.0)  # symmetric: anything linear in the placement averages out
+    # The mean distance from the centre per axis is that of N(0, sd^2): sd sqrt(2/pi) (what the funnel's lift follows).
+    assert np.allclose(np.abs(pts).mean(axis=0), sd * np.sqrt(2 / np.pi))
+    assert np.all(placement_points(0.0) == 0.0)
+
+
+class _FunnelExecutor:
+    """Stands in for the rollout executor: the touchdown moves linearly with the placement (x) and is lifted by the
+    funnel in proportion to |x| + |y| (y), like an off-centre ball that sits higher."""
+
+    def __init__(self):
+        self.calls = 0
+
+    def evaluate(self, plans, effects):
+        from types import SimpleNamespace
+
+        out = []
+        for e in effects:
+            p = e.get("ball_placement", {})
+            x, y = p.get("x", 0.0), p.get("y", 0.0)
+            out.append(SimpleNamespace(touchdown=np.array([1.5 + 10.0 * x, 100.0 * (abs(x) + abs(y))]), flags={}, ball_t=np.zeros(0), joint_t=np.zeros(0)))
+        self.calls += len(out)
+        return out
+
+
+def test_expected_features_average_over_the_placement_scatter():
+    from besdrake.diagnosis.core import _placement_correction, _Sim, placement_points
+    from besdrake.sim.scenario import load_scenario
+
+    plans = diagnosis_plans(3, 1)
+    keys = [f"k{i}" for i in range(len(plans))]
+    lay = [observables.ThrowLayout() for _ in plans]
+    sim = _Sim(_FunnelExecutor(), plans, keys, lay, lay)
+    sd = 0.002
+    summary = _placement_correction(sim, load_scenario("nominal"), sd)
+    lift = 100.0 * 2 * sd * np.sqrt(2 / np.pi)  # E(|x| + |y|) for N(0, sd^2) per axis
+    td = group_slices()["touchdown"]
+    y0 = sim.one({})
+    assert np.allclose(y0[:, td], [1.5, lift])  # the nominal throw is the mean over the scatter: lifted, not centred
+    assert summary["touchdown"] == pytest.approx([0.0, lift], abs=1e-4)
+    # A candidate that sets the placement is averaged over the same points around ITS placement (far off-centre in x:
+    # |x + dx| = x + dx, so only the y scatter still lifts), not given the nominal correction.
+    y_habit = sim.one({"ball_placement": {"x": 0.005}})
+    assert np.allclose(y_habit[:, td], [1.5 + 0.05, 100.0 * (0.005 + sd * np.sqrt(2 / np.pi))])
+    # Any other candidate gets the nominal correction added.
+    y_other = sim.one({"air_drag": {"cd": 0.5}})
+    assert np.allclose(y_other[:, td], y0[:, td])
+    # Without scatter nothing is corrected.
+    sim0 = _Sim(_FunnelExecutor(), plans, keys, lay, lay)
+    assert _placement_correction(sim0, load_scenario("nominal"), 0.0) == {}
+    assert np.allclose(sim0.one({})[:, td], [1.5, 0.0])
+    assert len(placement_points(sd)) == 4
+
+
+def test_diagnose_rejects_a_placement_scatter_outside_the_scoop():
+    from besdrake.diagnosis import DiagnosisError, diagnose
+    from besdrake.transfer.measurement import Measurement
+
+    ms = [Measurement(trial=i, plan=p, touchdown=np.array([1.5, 0.0])) for i, p in enumerate(diagnosis_plans(8, 0))]
+    for bad in (-0.001, 0.05, float("nan")):
+        with pytest.raises(DiagnosisError, match="placement_sd"):
+            diagnose(ms, placement_sd=bad)

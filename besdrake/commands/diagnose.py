@@ -25,6 +25,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--workers", type=int, default=2, help="worker processes for the process backend (default 2)")
     parser.add_argument("--folds", type=int, default=3, help="K of the held-out (K-fold by plan) gain (default 3)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the folds and the bootstrap")
+    parser.add_argument("--placement-sd", type=float, default=None, metavar="M",
+                        help="throw-to-throw scatter of the ball's placement in the scoop, m per axis (default 0.002, the virtual lab's; "
+                             "0: compare with the ball always centred)")
     parser.add_argument("--no-figures", action="store_true", help="do not write PNG figures")
     parser.add_argument("--json", action="store_true", help="print the machine-readable summary as JSON")
 
@@ -75,7 +78,8 @@ def run(args: argparse.Namespace) -> int:
                 get_effect(n)
         # Plugin effects reach the simulation workers too: the executors load this process's plugins in each.
         diag = diagnose(measurements, scenario=scenario, candidates=candidates, pairs=not args.no_pairs, backend=args.backend,
-                        workers=args.workers, folds=args.folds, seed=args.seed)
+                        workers=args.workers, folds=args.folds, seed=args.seed,
+                        **({} if args.placement_sd is None else {"placement_sd": args.placement_sd}))
     except (DiagnosisError, EffectError, ScenarioError) as err:
         raise UserError(str(err)) from None
     out = args.out or Path("runs") / "diagnosis" / Path(args.logdir).resolve().name

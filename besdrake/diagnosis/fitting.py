@@ -12,7 +12,10 @@ an effect's m parameters (one joint's encoder zero, the base's height), so each 
 forward selection on the linear model activates (the others stay nominal), and choosing k of m parameters is charged
 2 ln C(m, k). It is off by default: on the hidden-effect benchmark it named one-joint offsets right where BIC lost
 them to a catch-all, but lost as many other trials to "effect + ball" pairs (seed 0: 17/27 right vs 19/27; seed 1,
-with the 2-parameter effects fitted whole: 3/7 vs 4/7). Effects of at most :data:`DENSE_PARAMS`
+with the 2-parameter effects fitted whole: 3/7 vs 4/7). Those pairs were mostly the ball's placement scatter, which
+:func:`besdrake.diagnosis.core.diagnose` now models (expected throw over the scatter); with it, ``diagnose`` turns the
+selection on (``core.SELECT_PARAMETERS``): the two one-joint-offset trials that BIC lost to a catch-all were named
+right and eight previously right trials stayed right (seed 0, full logs). Effects of at most :data:`DENSE_PARAMS`
 parameters are fitted whole (a deviation may well move both, and a cheaper small effect would become a catch-all). A six-parameter effect of which one parameter
 is off then costs about what a one-parameter effect costs, instead of losing to a small catch-all effect.
 Parameter standard errors come from the Gauss-Newton covariance sigma^2 (J^T W J)^-1 at the optimum.

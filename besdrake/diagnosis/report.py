@@ -151,11 +151,12 @@ def _markdown(diag: Diagnosis, figures: list[str], scenario_path: Path | None) -
         L.append("The nominal simulation passes the lack-of-fit test, but that does not show it is right: these effects are still allowed "
                  "(99% likelihood-ratio intervals of each parameter on its own, on the linearised model, within the realistic bounds):")
         L.append("")
-        L.append("| effect | allowed values | largest allowed deviation (share of the range) | throws to exclude it | what would show it |")
-        L.append("|---|---|---|---|---|")
+        L.append("| effect | allowed values | largest allowed deviation (share of the range) | constrained by the log | throws to exclude it | what would show it |")
+        L.append("|---|---|---|---|---|---|")
         for a in diag.cannot_tell:
             vals = "; ".join(f"{k} {lo:.3g}..{hi:.3g} {a.units.get(k, '')}" for k, (lo, hi) in a.allowed.items())
-            L.append(f"| {a.effect} | {vals} | {a.max_fraction:.0%} | {a.throws_needed if a.throws_needed is not None else 'no number'} | {a.recommendation} |")
+            con = "no: any realistic value fits" if a.unconstrained else "partly: larger deviations would have been seen"
+            L.append(f"| {a.effect} | {vals} | {a.max_fraction:.0%} | {con} | {a.throws_needed if a.throws_needed is not None else 'no number'} | {a.recommendation} |")
         L.append("")
         if diag.excluded:
             L.append(f"Excluded (every deviation of {EXCLUDE_FRACTION:.0%} of the realistic range or more is ruled out): " + ", ".join(a.effect for a in diag.excluded) + ".")
