@@ -36,6 +36,7 @@ def main(argv: list[str] | None = None) -> int:
     from besdrake.commands.refine import collect_imitated
     from besdrake.imitation import load_dmp
     from besdrake.search.refinement import MIN_EXECUTION_TIME, ParameterScaling, RefinementProblem, ThrowReward, rank_starts, refine, restart_points
+    from besdrake.search.refinement import DEFAULT_CMA_OPTIONS, DEFAULT_STAGNATION_GENERATIONS, STAGNATION_TOL
     from besdrake.sim import make_executor
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
@@ -57,14 +58,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--acceleration-unit", type=float, default=None, help="rad/s^2 per normalised unit of the weights (default: the module's)")
     parser.add_argument("--time-unit", type=float, default=None, help="s per normalised unit of the execution time (default: the module's)")
     parser.add_argument("--no-slower", action="store_true", help="bound the execution time by the imitated one (never slower than the imitated throw)")
-    parser.add_argument("--stagnation", type=int, default=0, help="restart a CMA-ES attempt after this many generations without improvement (0: plain CMA-ES)")
-    parser.add_argument("--stagnation-tol", type=float, default=0.01, help="improvement (m) below which an attempt counts as stalled")
+    parser.add_argument("--stagnation", type=int, default=None, help="restart a CMA-ES attempt after this many generations without improvement (0: never; default: the module's)")
+    parser.add_argument("--stagnation-tol", type=float, default=None, help="improvement (m) below which an attempt counts as stalled")
     parser.add_argument("--max-attempt-generations", type=int, default=0, help="cap of one attempt's generations (0: none)")
-    parser.add_argument("--restart-from", choices=["start", "ranked", "best"], default="start",
+    parser.add_argument("--restart-from", choices=["start", "ranked", "best"], default="best",
                         help="restart attempts from the start throw, from the imitated throws in reward order, or from the best throw so far")
     parser.add_argument("--n-starts", type=int, default=4, help="with --restart-from ranked: how many of the best imitated throws")
-    parser.add_argument("--diagonal", type=int, default=0, help="separable CMA-ES (cma's CMA_diagonal) for this many generations (-1: always, 0: never)")
-    parser.add_argument("--elitist", action="store_true", help="elitist CMA-ES (cma's CMA_elitist: the best throw so far stays in the population)")
+    parser.add_argument("--diagonal", type=int, default=None, help="separable CMA-ES (cma's CMA_diagonal) for this many generations (-1: always, 0: never; default: the module's)")
+    parser.add_argument("--elitist", action=argparse.BooleanOptionalAction, default=None,
+                        help="elitist CMA-ES (cma's CMA_elitist: the best throw so far stays in the population; default: the module's)")
+    parser.add_argument("--plain", action="store_true", help="the search before issue 5 (plain CMA-ES, no restarts): overrides --diagonal --elitist --stagnation")
     parser.add_argument("--out", type=Path, default=None, help="keep each run's folder (episodes, details.csv) under OUT/sS_runK")
     args = parser.parse_args(argv)
     logging.getLogger("drake").setLevel(logging.ERROR)
@@ -87,9 +90,15 @@ def main(argv: list[str] | None = None) -> int:
                                       ("time_unit", args.time_unit)) if v is not None}
             problems = [RefinementProblem(dm, reward, ParameterScaling.for_dmp(
                 dm, max_execution_time=max(dm.execution_time, MIN_EXECUTION_TIME + 0.05) if args.no_slower else None, **unit)) for dm in dmps]
-            cma_options = {} if args.diagonal == 0 else {"CMA_diagonal": True if args.diagonal < 0 else args.diagonal}
-            if args.elitist:
-                cma_options["CMA_elitist"] = True
+            cma_options = {} if args.plain else dict(DEFAULT_CMA_OPTIONS)
+            if args.diagonal is not None and not args.plain:
+                cma_options["CMA_diagonal"] = True if args.diagonal < 0 else args.diagonal
+            if args.elitist is not None and not args.plain:
+                cma_options["CMA_elitist"] = args.elitist
+            cma_options = {k: v for k, v in cma_options.items() if v}
+            stagnation = 0 if args.plain else (DEFAULT_STAGNATION_GENERATIONS if args.stagnation is None else args.stagnation)
+            if args.meta_episodes > 0 and args.stagnation is None:
+                stagnation = 0  # the meta-parameter stage does not combine with restarts
             ranked = rank_starts(problems, ex)
             index, start = ranked[0]
             starts = None
@@ -100,7 +109,7 @@ def main(argv: list[str] | None = None) -> int:
                 out_dir = None if args.out is None else args.out / f"s{s}_run{k}"
                 r = refine(problems[index], ex, args.episodes, seed=args.first_seed + k, popsize=args.popsize, sigma0=args.sigma0,
                            out_dir=out_dir, meta_episodes=args.meta_episodes, meta_sigma=args.meta_sigma,
-                           stagnation_generations=args.stagnation, stagnation_tol=args.stagnation_tol, starts=starts,
+                           stagnation_generations=stagnation, stagnation_tol=STAGNATION_TOL if args.stagnation_tol is None else args.stagnation_tol, starts=starts,
                            restart_from_best=args.restart_from == "best", max_attempt_generations=args.max_attempt_generations,
                            cma_options=cma_options)
                 runs.append({"seed": args.first_seed + k, "success": r.success, "episodes_to_success": r.episodes_to_success,
@@ -117,8 +126,8 @@ def main(argv: list[str] | None = None) -> int:
     out = {
         "subjects_run": args.subjects, "runs_per_subject": args.runs, "episode_budget": args.episodes,
         "population": args.popsize, "sigma0": args.sigma0, "penalty_scale": args.penalty_scale,
-        "dropped_penalty_m": reward.dropped_penalty, "meta_episodes": args.meta_episodes, "meta_sigma": args.meta_sigma, "position_unit_rad": args.position_unit, "acceleration_unit": args.acceleration_unit, "time_unit_s": args.time_unit, "no_slower": args.no_slower, "stagnation_generations": args.stagnation, "stagnation_tol_m": args.stagnation_tol,
-        "max_attempt_generations": args.max_attempt_generations, "restart_from": args.restart_from, "n_starts": args.n_starts, "diagonal": args.diagonal, "elitist": args.elitist, "target_m": [2.0, 0.0], "backend": args.backend,
+        "dropped_penalty_m": reward.dropped_penalty, "meta_episodes": args.meta_episodes, "meta_sigma": args.meta_sigma, "position_unit_rad": args.position_unit, "acceleration_unit": args.acceleration_unit, "time_unit_s": args.time_unit, "no_slower": args.no_slower, "stagnation_generations": stagnation, "stagnation_tol_m": STAGNATION_TOL if args.stagnation_tol is None else args.stagnation_tol,
+        "max_attempt_generations": args.max_attempt_generations, "restart_from": args.restart_from, "n_starts": args.n_starts, "cma_options": cma_options, "plain": args.plain, "target_m": [2.0, 0.0], "backend": args.backend,
         "success_rate": float(np.mean([r["success"] for r in all_runs])),
         "subjects_with_success_in_every_run": sum(v["success_rate"] == 1.0 for v in subjects.values()),
         "subjects_with_success_in_some_run": sum(v["success_rate"] > 0.0 for v in subjects.values()),

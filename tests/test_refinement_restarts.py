@@ -118,3 +118,43 @@ def test_refine_with_restarts_succeeds_records_attempts_and_resumes(base, tmp_pa
         refine(RefinementProblem(base), StandIn(), n_episodes=480, out_dir=tmp_path, **(kw | {"stagnation_generations": 4}))
     with pytest.raises(RefinementError, match="columns"):
         refine(RefinementProblem(base), StandIn(), n_episodes=8, **(kw | {"starts": np.zeros((2, 3))}))
+
+
+@pytest.mark.parametrize("options", [{"CMA_diagonal": True}, {"CMA_elitist": True}, {"CMA_diagonal": True, "CMA_elitist": True}])
+def test_separable_and_elitist_cmaes_resume_with_the_same_candidates(tmp_path, options):
+    from besdrake.search.cmaes import CMAES
+
+    n = 6
+    a = CMAES(np.zeros(n), 1.0, np.random.default_rng(2), popsize=6, bounds=np.tile([-10.0, 10.0], (n, 1)), cma_options=options)
+    run(a, 12)
+    save_state(a.state_dict(), tmp_path / "opt")
+    b = CMAES.from_state(load_state(tmp_path / "opt"))
+    for _ in range(20):
+        Xa, Xb = a.ask(), b.ask()
+        assert np.array_equal(Xa, Xb)
+        a.tell(Xa, two_basins(Xa))
+        b.tell(Xb, two_basins(Xb))
+    if options.get("CMA_diagonal"):
+        assert not hasattr(a.es.sm, "C")  # really the separable variant
+
+
+def test_cli_search_options_map_to_refine_keywords():
+    import argparse
+
+    from besdrake.commands.refine import add_arguments, search_options
+    from besdrake.search.refinement import DEFAULT_CMA_OPTIONS, DEFAULT_STAGNATION_GENERATIONS, PLAIN_SEARCH
+
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    default = search_options(parser.parse_args(["x"]))
+    assert default["cma_options"] == {k: v for k, v in DEFAULT_CMA_OPTIONS.items() if v}
+    assert default["stagnation_generations"] == DEFAULT_STAGNATION_GENERATIONS and default["restart_from_best"]
+    assert search_options(parser.parse_args(["x", "--plain", "--separable", "--stagnation", "5"])) == PLAIN_SEARCH
+    custom = search_options(parser.parse_args(["x", "--separable", "--no-elitist", "--stagnation", "7", "--restart-from", "start"]))
+    assert custom == {"cma_options": {"CMA_diagonal": True}, "stagnation_generations": 7, "restart_from_best": False}
+    assert search_options(parser.parse_args(["x", "--meta-episodes", "50"]))["stagnation_generations"] == 0
+
+
+def test_meta_stage_and_restarts_do_not_combine(base):
+    with pytest.raises(RefinementError, match="do not combine"):
+        refine(RefinementProblem(base), StandIn(), n_episodes=8, meta_episodes=4, stagnation_generations=3)

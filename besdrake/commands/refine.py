@@ -32,6 +32,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--meta-episodes", type=int, default=0,
                         help="episodes of a first CMA-ES stage over meta-parameters (joint offsets, goals, execution time) before all 49 (0: none)")
     parser.add_argument("--meta-sigma", type=float, default=1.0, help="initial step size of the meta-parameter stage")
+    parser.add_argument("--separable", action=argparse.BooleanOptionalAction, default=None,
+                        help="separable CMA-ES (a diagonal covariance, cma's CMA_diagonal); default: besdrake.search.refinement.DEFAULT_CMA_OPTIONS")
+    parser.add_argument("--elitist", action=argparse.BooleanOptionalAction, default=None,
+                        help="elitist CMA-ES (the best throw so far stays in the population); default: as DEFAULT_CMA_OPTIONS")
+    parser.add_argument("--stagnation", type=int, default=None, metavar="G",
+                        help="restart CMA-ES (fresh step size) when its best distance improved by less than 1 cm in G generations; 0: never (default: DEFAULT_STAGNATION_GENERATIONS)")
+    parser.add_argument("--restart-from", choices=("start", "best"), default="best",
+                        help="where a restart begins: the best throw so far (default) or the start throw")
+    parser.add_argument("--plain", action="store_true", help="the search before issue 5: plain CMA-ES, no restarts (overrides the search options above)")
     parser.add_argument("--dropped-penalty", type=float, default=None, help="reward penalty (m) of a ball that falls out of the scoop (default 0)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--continue-after-success", action="store_true", help="use the whole budget instead of stopping at the first success")
@@ -88,6 +97,23 @@ def _imitate_synthetic(source: str, folder: Path) -> list[Path]:
     return [folder / n for n in names]
 
 
+def search_options(args: argparse.Namespace) -> dict:
+    """Keyword arguments of :func:`besdrake.search.refinement.refine` for the search options of the command line."""
+    from besdrake.search.refinement import DEFAULT_CMA_OPTIONS, DEFAULT_STAGNATION_GENERATIONS, PLAIN_SEARCH
+
+    if args.plain:
+        return dict(PLAIN_SEARCH)
+    options = dict(DEFAULT_CMA_OPTIONS)
+    for flag, key in ((args.separable, "CMA_diagonal"), (args.elitist, "CMA_elitist")):
+        if flag is not None:
+            options[key] = bool(flag)
+    options = {k: v for k, v in options.items() if v}
+    stagnation = DEFAULT_STAGNATION_GENERATIONS if args.stagnation is None else args.stagnation
+    if args.meta_episodes > 0:
+        stagnation = 0 if args.stagnation is None else stagnation
+    return {"cma_options": options, "stagnation_generations": stagnation, "restart_from_best": args.restart_from == "best"}
+
+
 def run(args: argparse.Namespace) -> int:
     import logging
 
@@ -108,6 +134,8 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--sigma0 must be > 0, got {args.sigma0}")
     if args.meta_episodes < 0 or not (np.isfinite(args.meta_sigma) and args.meta_sigma > 0):
         raise UserError(f"--meta-episodes must be >= 0 and --meta-sigma > 0, got {args.meta_episodes}, {args.meta_sigma}")
+    if args.stagnation is not None and args.stagnation < 0:
+        raise UserError(f"--stagnation must be >= 0, got {args.stagnation}")
     if not np.isfinite(args.target).all():
         raise UserError(f"--target must be finite, got {args.target}")
     t_start = time.perf_counter()
@@ -126,6 +154,7 @@ def run(args: argparse.Namespace) -> int:
         executor = make_executor(args.backend, workers=args.workers, scenario=args.scenario) if args.backend == "process" else make_executor("serial", scenario=args.scenario)
     except ScenarioError as err:
         raise UserError(str(err)) from None
+    search = search_options(args)
     start_file = args.out / "start.json"
     runs = []
     with executor:
@@ -156,7 +185,7 @@ def run(args: argparse.Namespace) -> int:
             try:
                 result = refine(problem, executor, args.episodes, seed=args.seed + k, out_dir=run_dir, sigma0=args.sigma0,
                                 popsize=args.popsize, stop_on_success=not args.continue_after_success, progress=progress,
-                                meta_episodes=args.meta_episodes, meta_sigma=args.meta_sigma)
+                                meta_episodes=args.meta_episodes, meta_sigma=args.meta_sigma, **search)
             except (RefinementError, ResumeError) as err:
                 raise UserError(str(err)) from None
             finally:

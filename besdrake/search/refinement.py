@@ -99,7 +99,13 @@ PLAN_DT = 0.01
 #: 0.43 / 0.20 m on subjects 0-3), while without it subject 0 succeeds after 857 episodes; so not the default.
 DROPPED_PENALTY = 0.0
 #: A restart attempt (``refine(stagnation_generations=...)``) stalls when its best reward improved by less than this (m).
-STAGNATION_TOL = 0.01
+STAGNATION_TOL = 0.02
+#: Default search of :func:`refine` (see the module docstring for the measurements): ``cma`` options and the
+#: stagnation restarts (generations; 0: none). ``refine(cma_options={}, stagnation_generations=0)`` is plain CMA-ES.
+DEFAULT_CMA_OPTIONS: dict[str, Any] = {"CMA_diagonal": True, "CMA_elitist": True}
+DEFAULT_STAGNATION_GENERATIONS = 10
+#: The search before issue 5 (plain CMA-ES, no restarts): keyword arguments of :func:`refine`.
+PLAIN_SEARCH: dict[str, Any] = {"cma_options": {}, "stagnation_generations": 0}
 #: Offset (rad) of the whole movement per unit of the meta-parameter stage (:func:`meta_basis`).
 META_OFFSET_UNIT = 1.0
 
@@ -573,9 +579,9 @@ def make_optimizer(
     *,
     meta_episodes: int = 0,
     meta_sigma: float = 1.0,
-    stagnation_generations: int = 0,
+    stagnation_generations: int | None = None,
     starts: np.ndarray | None = None,
-    restart_from_best: bool = False,
+    restart_from_best: bool = True,
     stagnation_tol: float = STAGNATION_TOL,
     max_attempt_generations: int = 0,
     cma_options: dict[str, Any] | None = None,
@@ -598,6 +604,11 @@ def make_optimizer(
     bounds = problem.scaling.x_bounds
     x0 = np.clip(x0, bounds[:, 0] + 1e-9, bounds[:, 1] - 1e-9)
     rng = np.random.default_rng(seed)
+    cma_options = dict(DEFAULT_CMA_OPTIONS if cma_options is None else cma_options)
+    if stagnation_generations is None:
+        stagnation_generations = DEFAULT_STAGNATION_GENERATIONS if meta_episodes == 0 else 0
+    if stagnation_generations > 0 and meta_episodes > 0:
+        raise RefinementError("stagnation restarts and the meta-parameter stage do not combine; give one of them")
     if stagnation_generations > 0:
         from besdrake.search.cmaes import StagnationRestartCMAES
 
@@ -629,9 +640,9 @@ def refine(
     *,
     meta_episodes: int = 0,
     meta_sigma: float = 1.0,
-    stagnation_generations: int = 0,
+    stagnation_generations: int | None = None,
     starts: np.ndarray | None = None,
-    restart_from_best: bool = False,
+    restart_from_best: bool = True,
     stagnation_tol: float = STAGNATION_TOL,
     max_attempt_generations: int = 0,
     cma_options: dict[str, Any] | None = None,
@@ -645,6 +656,11 @@ def refine(
 
     if n_episodes < 1:
         raise RefinementError(f"n_episodes must be >= 1, got {n_episodes}")
+    cma_options = dict(DEFAULT_CMA_OPTIONS if cma_options is None else cma_options)
+    if stagnation_generations is None:
+        stagnation_generations = DEFAULT_STAGNATION_GENERATIONS if meta_episodes == 0 else 0
+    if stagnation_generations < 0:
+        raise RefinementError(f"stagnation_generations must be >= 0, got {stagnation_generations}")
     if meta_episodes < 0 or not (np.isfinite(meta_sigma) and meta_sigma > 0):
         raise RefinementError(f"meta_episodes must be >= 0 and meta_sigma > 0, got {meta_episodes}, {meta_sigma}")
     out = None if out_dir is None else Path(out_dir)
