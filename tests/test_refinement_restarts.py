@@ -158,3 +158,23 @@ def test_cli_search_options_map_to_refine_keywords():
 def test_meta_stage_and_restarts_do_not_combine(base):
     with pytest.raises(RefinementError, match="do not combine"):
         refine(RefinementProblem(base), StandIn(), n_episodes=8, meta_episodes=4, stagnation_generations=3)
+
+
+@pytest.mark.slow
+def test_default_search_brings_an_imitated_throw_close_to_the_target(tmp_path):
+    """Synthetic subject 2, the default search (separable elitist CMA-ES with restarts), 300 episodes."""
+    import logging
+
+    from besdrake.commands.refine import collect_imitated
+    from besdrake.imitation import load_dmp
+    from besdrake.search.refinement import best_start
+    from besdrake.sim import make_executor
+
+    logging.getLogger("drake").setLevel(logging.ERROR)
+    problems = [RefinementProblem(load_dmp(f)) for f in collect_imitated(["synthetic:2"], tmp_path)]
+    with make_executor("serial") as ex:
+        index, start = best_start(problems, ex)
+        result = refine(problems[index], ex, n_episodes=300, seed=0, out_dir=tmp_path / "run")
+    best = np.nanmin(result.best_so_far())
+    assert best < 0.5 * start.distance, (start.distance, result.summary())
+    assert result.success or best < 0.3, result.summary()

@@ -36,7 +36,30 @@ changes all 49 parameters so the ball lands within :data:`SUCCESS_DISTANCE` of a
 Success of a run: the first episode whose touchdown is within :data:`SUCCESS_DISTANCE` of the target
 with no limit violated (``penalty == 0``); :func:`refine` stops after that generation by default.
 
-Options measured against the default (seed 0, synthetic subjects 0-4, shared 2-core machine; see
+The search (:func:`make_optimizer`, defaults :data:`DEFAULT_CMA_OPTIONS`, :data:`DEFAULT_STAGNATION_GENERATIONS`):
+*separable* CMA-ES (``cma``'s ``CMA_diagonal``: a diagonal covariance, whose per-parameter step sizes adapt about
+``n`` times faster than a full covariance in 49 dimensions) that is *elitist* (``CMA_elitist``: the best throw so
+far stays in the population) and restarts (:class:`~besdrake.search.cmaes.StagnationRestartCMAES`, fresh step size
+``sigma0``, from the best throw so far) when its best distance has improved by less than :data:`STAGNATION_TOL`
+over 10 generations. Why: the successful throws lie far from the imitated one along a few parameters (goal of joint
+2 raised by 1.2-2.3 rad, start of joint 3 lowered, execution time changed by up to 1 s; measured on the 10 best
+throws of the plain runs), while the population's median throw lands 0.5-0.7 m from the target when its best lands
+0.1-0.2 m away: plain CMA-ES learns those scales slowly and its mean creeps. Measured before choosing (800
+episodes, seed 0, subjects 0-4, episodes to success or best distance in m; shared 2-core machine):
+plain 0.18 / 0.33 / 411 / 0.29 / 0.32; separable 0.16 / 0.29 / 0.11 / 0.11 / 0.13; elitist 0.18 / 0.30 / 191 /
+528 / 0.12; separable + elitist 0.16 / 0.43 / 169 / 687 / 0.18; the same with restarts from the best throw
+(subjects 0, 1, 4) 0.15 / 0.46 / 434, restarts from the start throw instead 0.22 / 0.51 (subject 4 not run); separable with a
+0.6 rad position unit 0.33 / 0.38 / 0.28 / 797 / 517; separable with population 6 0.25 / 0.20 / 600 / 659 / 0.12;
+restarts from the next-best imitated throws (:func:`rank_starts`, :func:`restart_points`) 0.32 on subject 0.
+Single runs: the differences are within the seed-to-seed spread. ``refine(**PLAIN_SEARCH)`` (``--plain`` on the
+command line) is the search before (plain CMA-ES). All 10 subjects, 1500 episodes, seed 0
+(``scripts/bench_refinement.py --runs 1 --episodes 1500 --backend serial``): goal reached for 7 of 10 (subjects
+2-8: 169 / 761 / 434 / 350 / 930 / 1021 / 495 episodes), median 495; stalled at 0.15 / 0.43 / 0.21 m (subjects 0,
+1, 9); median 83 s per run. Plain CMA-ES, same benchmark: 6 of 10 (subjects 0 1 2 4 5 7: 1399 / 1118 / 411 / 1153 /
+881 / 327), median 1000. Restarts from the best throw do not leave a bad basin (subject 1: six attempts, all
+0.43-0.51 m).
+
+Options measured against plain CMA-ES (seed 0, synthetic subjects 0-4, shared 2-core machine; see
 ``scripts/bench_refinement.py``): a meta-parameter stage first (:func:`meta_basis`, :class:`~besdrake.search.cmaes.StagedCMAES`:
 ``refine(meta_episodes=...)``), a dropped-ball penalty (:data:`DROPPED_PENALTY`), a coarser position unit and an
 execution time bounded by the imitated one. None beat plain CMA-ES on the 49 parameters, so the default stays
