@@ -212,6 +212,9 @@ def test_allowed_effects_excludes_what_the_data_would_show_and_lists_what_they_c
     assert not fric.excluded
     assert fric.allowed["mu_static"] == pytest.approx((0.05, 1.5))
     assert fric.throws_needed is None and fric.recommendation
+    # ... so the log does not constrain friction at all, while it bounds the base height (a larger offset would show).
+    assert fric.unconstrained and not base.unconstrained
+    assert fric.to_dict()["unconstrained"] is True
 
 
 def test_placement_points_stand_for_the_scatter():

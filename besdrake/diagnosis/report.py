@@ -155,7 +155,7 @@ def _markdown(diag: Diagnosis, figures: list[str], scenario_path: Path | None) -
         L.append("|---|---|---|---|---|---|")
         for a in diag.cannot_tell:
             vals = "; ".join(f"{k} {lo:.3g}..{hi:.3g} {a.units.get(k, '')}" for k, (lo, hi) in a.allowed.items())
-            con = "no: any realistic value fits" if a.unconstrained else "partly: larger deviations would have been seen"
+            con = "no: (nearly) any realistic value fits" if a.unconstrained else "partly: larger deviations would have been seen"
             L.append(f"| {a.effect} | {vals} | {a.max_fraction:.0%} | {con} | {a.throws_needed if a.throws_needed is not None else 'no number'} | {a.recommendation} |")
         L.append("")
         if diag.excluded:
