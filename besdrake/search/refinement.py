@@ -55,8 +55,10 @@ Single runs: the differences are within the seed-to-seed spread. ``refine(**PLAI
 command line) is the search before (plain CMA-ES). All 10 subjects, 1500 episodes, seed 0
 (``scripts/bench_refinement.py --runs 1 --episodes 1500 --backend serial``): goal reached for 7 of 10 (subjects
 2-8: 169 / 761 / 434 / 350 / 930 / 1021 / 495 episodes), median 495; stalled at 0.15 / 0.43 / 0.21 m (subjects 0,
-1, 9); median 83 s per run. Plain CMA-ES, same benchmark: 6 of 10 (subjects 0 1 2 4 5 7: 1399 / 1118 / 411 / 1153 /
-881 / 327), median 1000. Restarts from the best throw do not leave a bad basin (subject 1: six attempts, all
+1, 9); median 83 s per run. Seed 1 (``--first-seed 1``): 7 of 10 (subjects 0 2 3 4 6 7 8: 213 / 111 / 1164 / 691 /
+627 / 625 / 446), median 625; stalled at 0.14 / 0.10 / 0.21 m (subjects 1, 5, 9); median 99 s per run. Plain
+CMA-ES, same benchmark: 6 of 10 (subjects 0 1 2 4 5 7: 1399 / 1118 / 411 / 1153 / 881 / 327), median 1000; seed 1
+with 1000 episodes: 4 of 10. Restarts from the best throw do not leave a bad basin (subject 1: six attempts, all
 0.43-0.51 m).
 
 Options measured against plain CMA-ES (seed 0, synthetic subjects 0-4, shared 2-core machine; see
