@@ -59,7 +59,8 @@ command line) is the search before (plain CMA-ES). All 10 subjects, 1500 episode
 627 / 625 / 446), median 625; stalled at 0.14 / 0.10 / 0.21 m (subjects 1, 5, 9); median 99 s per run. Plain
 CMA-ES, same benchmark: 6 of 10 (subjects 0 1 2 4 5 7: 1399 / 1118 / 411 / 1153 / 881 / 327), median 1000; seed 1
 with 1000 episodes: 4 of 10. Restarts from the best throw do not leave a bad basin (subject 1: six attempts, all
-0.43-0.51 m).
+0.43-0.51 m); restarts from the start throw instead (``--restart-from start``, subjects 1 and 9, seed 0, 1500
+episodes) stall too, at 0.32 and 0.27 m.
 
 Options measured against plain CMA-ES (seed 0, synthetic subjects 0-4, shared 2-core machine; see
 ``scripts/bench_refinement.py``): a meta-parameter stage first (:func:`meta_basis`, :class:`~besdrake.search.cmaes.StagedCMAES`:
