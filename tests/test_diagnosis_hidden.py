@@ -120,6 +120,13 @@ def test_cli_reports_a_missing_log_clearly(tmp_path, capsys):
     assert "cannot read the log" in capsys.readouterr().err
 
 
+def test_cli_rejects_a_placement_scatter_outside_the_scoop(tmp_path, capsys):
+    run_lab({}, 8, 2, 3, full=False, logdir=tmp_path / "log")
+    rc = main(["diagnose", str(tmp_path / "log"), "--placement-sd", "0.05", "--backend", "serial", "--no-figures"])
+    assert rc == 2
+    assert "placement_sd" in capsys.readouterr().err
+
+
 ALL = ["base_offset", "joint_offset", "actuator_lag", "gain_scale", "air_drag", "ball", "scoop_friction"]
 
 
