@@ -596,6 +596,15 @@ def meta_basis(problem: RefinementProblem, offset_unit: float = META_OFFSET_UNIT
     return np.column_stack(cols)
 
 
+def _search_defaults(cma_options: dict[str, Any] | None, stagnation_generations: int | None, meta_episodes: int) -> tuple[dict[str, Any], int]:
+    """The default search where a setting is None: :data:`DEFAULT_CMA_OPTIONS`, and restarts after
+    :data:`DEFAULT_STAGNATION_GENERATIONS` unless the meta-parameter stage is asked for (they do not combine)."""
+    cma_options = dict(DEFAULT_CMA_OPTIONS if cma_options is None else cma_options)
+    if stagnation_generations is None:
+        stagnation_generations = DEFAULT_STAGNATION_GENERATIONS if meta_episodes == 0 else 0
+    return cma_options, int(stagnation_generations)
+
+
 def make_optimizer(
     problem: RefinementProblem,
     seed: int = 0,
@@ -630,9 +639,7 @@ def make_optimizer(
     bounds = problem.scaling.x_bounds
     x0 = np.clip(x0, bounds[:, 0] + 1e-9, bounds[:, 1] - 1e-9)
     rng = np.random.default_rng(seed)
-    cma_options = dict(DEFAULT_CMA_OPTIONS if cma_options is None else cma_options)
-    if stagnation_generations is None:
-        stagnation_generations = DEFAULT_STAGNATION_GENERATIONS if meta_episodes == 0 else 0
+    cma_options, stagnation_generations = _search_defaults(cma_options, stagnation_generations, meta_episodes)
     if stagnation_generations > 0 and meta_episodes > 0:
         raise RefinementError("stagnation restarts and the meta-parameter stage do not combine; give one of them")
     if stagnation_generations > 0:
@@ -682,9 +689,7 @@ def refine(
 
     if n_episodes < 1:
         raise RefinementError(f"n_episodes must be >= 1, got {n_episodes}")
-    cma_options = dict(DEFAULT_CMA_OPTIONS if cma_options is None else cma_options)
-    if stagnation_generations is None:
-        stagnation_generations = DEFAULT_STAGNATION_GENERATIONS if meta_episodes == 0 else 0
+    cma_options, stagnation_generations = _search_defaults(cma_options, stagnation_generations, meta_episodes)
     if stagnation_generations < 0:
         raise RefinementError(f"stagnation_generations must be >= 0, got {stagnation_generations}")
     if meta_episodes < 0 or not (np.isfinite(meta_sigma) and meta_sigma > 0):
