@@ -37,10 +37,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--elitist", action=argparse.BooleanOptionalAction, default=None,
                         help="elitist CMA-ES (the best throw so far stays in the population); default: as DEFAULT_CMA_OPTIONS")
     parser.add_argument("--stagnation", type=int, default=None, metavar="G",
-                        help="restart CMA-ES (fresh step size) when its best distance improved by less than 1 cm in G generations; 0: never (default: DEFAULT_STAGNATION_GENERATIONS)")
+                        help="restart CMA-ES (fresh step size) when its best distance improved by less than STAGNATION_TOL (2 cm) in G generations; 0: never (default: DEFAULT_STAGNATION_GENERATIONS)")
     parser.add_argument("--restart-from", choices=("start", "best"), default="best",
                         help="where a restart begins: the best throw so far (default) or the start throw")
-    parser.add_argument("--plain", action="store_true", help="the search before issue 5: plain CMA-ES, no restarts (overrides the search options above)")
+    parser.add_argument("--plain", action="store_true", help="the previous default search: plain CMA-ES, no restarts (overrides the search options above)")
     parser.add_argument("--dropped-penalty", type=float, default=None, help="reward penalty (m) of a ball that falls out of the scoop (default 0)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--continue-after-success", action="store_true", help="use the whole budget instead of stopping at the first success")
