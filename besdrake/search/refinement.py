@@ -538,14 +538,7 @@ class RefinementResult:
 
 def best_start(problems: Sequence[RefinementProblem], executor) -> tuple[int, RewardBreakdown]:
     """Index of the imitated throw (x = 0 of each problem) with the highest reward, and its record."""
-    results = []
-    for i, p in enumerate(problems):
-        r = p.evaluate(np.zeros((1, p.n_params)), executor)[0]
-        results.append((i, r))
-    finite = [(i, r) for i, r in results if np.isfinite(r.reward)]
-    if not finite:
-        raise RefinementError("none of the imitated throws could be simulated")
-    return max(finite, key=lambda ir: ir[1].reward)
+    return rank_starts(problems, executor)[0]
 
 
 def rank_starts(problems: Sequence[RefinementProblem], executor) -> list[tuple[int, RewardBreakdown]]:
