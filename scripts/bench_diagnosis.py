@@ -126,7 +126,8 @@ def _summarize(results: list[dict], modes: list[str], args, t_bench: float, regi
             conf[t][p] += 1
         ok_or_honest = [r["correct"] or r["honest_cannot_tell"] for r in known]
         # Lenient: any "cannot tell nominal from {...}" set that holds the hidden effect counts, whatever its size.
-        lenient = [r["correct"] or r["honest_cannot_tell"] or (bool(r.get("cannot_tell")) and all(e in r["cannot_tell"] for e in r["hidden"])) for r in known]
+        holds = {id(r): bool(r.get("cannot_tell")) and all(e in r["cannot_tell"] for e in r["hidden"]) for r in known}
+        lenient = [r["correct"] or r["honest_cannot_tell"] or holds[id(r)] for r in known]
         # Touchdown-only logs cannot show an effect that does not move the touchdown: there "the nominal
         # simulation agrees within the noise" is the honest answer.
         detect = [r for r in known if r.get("touchdown_detectable", True)]
@@ -148,13 +149,13 @@ def _summarize(results: list[dict], modes: list[str], args, t_bench: float, regi
             "n_touchdown_undetectable": len(undetect),
             "n_answered_cannot_tell_nominal_from": int(sum(r.get("cannot_tell_size", 0) > 0 for r in known)),
             "honest_undetected_answers": int(sum(r.get("honest_undetected", False) for r in known)),
-            "cannot_tell_sets_holding_hidden_any_size": int(sum(bool(r.get("cannot_tell")) and all(e in r["cannot_tell"] for e in r["hidden"]) for r in known)),
+            "cannot_tell_sets_holding_hidden_any_size": int(sum(holds[id(r)] for r in known)),
             "cannot_tell_sets_of_whole_registry": int(sum(r.get("cannot_tell_size", 0) == len(registry) for r in known)),
             "cannot_tell_hidden_value_within_allowed": int(sum(r.get("hidden_within_allowed", False) for r in known)),
             # The "cannot tell nominal from ..." answer split in two: effects the log bounds (a larger deviation would
             # have been seen) and effects it does not constrain at all (any realistic value fits). Counted as narrowed
             # when the hidden effects are in the answer and the bounded part is smaller than the registry.
-            "cannot_tell_narrowed_honest": int(sum(bool(r.get("cannot_tell")) and all(e in r["cannot_tell"] for e in r["hidden"])
+            "cannot_tell_narrowed_honest": int(sum(holds[id(r)]
                                                    and r.get("cannot_tell_constrained_size", len(registry)) < len(registry) for r in known)),
             "mean_cannot_tell_constrained_size": float(np.mean([r["cannot_tell_constrained_size"] for r in known if r.get("cannot_tell_size", 0) > 0]))
             if any(r.get("cannot_tell_size", 0) for r in known) else None,
