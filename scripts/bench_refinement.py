@@ -54,6 +54,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--popsize", type=int, default=10, help="CMA-ES population (the paper: 20)")
     parser.add_argument("--sigma0", type=float, default=1.0)
     parser.add_argument("--penalty-scale", type=float, default=1.0, help="multiply the limit-penalty weights of ThrowReward")
+    parser.add_argument("--violation-offset", type=float, default=None, help="reward offset (m) of a throw beyond a limit (default: ThrowReward's, times --penalty-scale)")
     parser.add_argument("--dropped-penalty", type=float, default=None, help="reward penalty (m) of a dropped ball (default: ThrowReward's)")
     parser.add_argument("--meta-episodes", type=int, default=0, help="episodes of the meta-parameter stage before the 49-D CMA-ES (0: none)")
     parser.add_argument("--meta-sigma", type=float, default=1.0, help="initial step of the meta-parameter stage")
@@ -70,6 +71,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--diagonal", type=int, default=None, help="separable CMA-ES (cma's CMA_diagonal) for this many generations (-1: always, 0: never; default: the module's)")
     parser.add_argument("--elitist", action=argparse.BooleanOptionalAction, default=None,
                         help="elitist CMA-ES (cma's CMA_elitist: the best throw so far stays in the population; default: the module's)")
+    parser.add_argument("--popsize-growth", type=float, default=1.0, help="IPOP-like restarts: attempt k has population POPSIZE * GROWTH**k")
+    parser.add_argument("--regimes", choices=["large", "bipop"], default="large", help="restart regimes (bipop: small local restarts from the best alternate with large ones)")
+    parser.add_argument("--position-step", type=float, default=None, help="initial step of start/goal parameters, in multiples of --sigma0 (cma's CMA_stds; default: the module's)")
+    parser.add_argument("--time-step", type=float, default=None, help="initial step of the execution time, in multiples of --sigma0 (default: as --position-step)")
     parser.add_argument("--plain", action="store_true", help="the search before issue 5 (plain CMA-ES, no restarts): overrides --diagonal --elitist --stagnation")
     parser.add_argument("--out", type=Path, default=None, help="keep each run's folder (episodes, details.csv) under OUT/sS_runK")
     args = parser.parse_args(argv)
@@ -86,7 +91,8 @@ def main(argv: list[str] | None = None) -> int:
             d = ThrowReward()
             k = args.penalty_scale
             reward = ThrowReward(position_weight=k * d.position_weight, velocity_weight=k * d.velocity_weight,
-                                 acceleration_weight=k * d.acceleration_weight, violation_offset=k * d.violation_offset,
+                                 acceleration_weight=k * d.acceleration_weight,
+                                 violation_offset=k * d.violation_offset if args.violation_offset is None else args.violation_offset,
                                  dropped_penalty=d.dropped_penalty if args.dropped_penalty is None else args.dropped_penalty)
             dmps = [load_dmp(f) for f in files]
             unit = {k: v for k, v in (("position_unit", args.position_unit), ("acceleration_unit", args.acceleration_unit),
@@ -98,6 +104,12 @@ def main(argv: list[str] | None = None) -> int:
                 cma_options["CMA_diagonal"] = True if args.diagonal < 0 else args.diagonal
             if args.elitist is not None and not args.plain:
                 cma_options["CMA_elitist"] = args.elitist
+            if args.position_step is not None and not args.plain:
+                n = problems[0].parameterization.template.n_dims
+                stds = np.ones(problems[0].n_params)
+                stds[: 2 * n] = args.position_step
+                stds[-1] = args.position_step if args.time_step is None else args.time_step
+                cma_options["CMA_stds"] = stds.tolist()
             cma_options = {k: v for k, v in cma_options.items() if v}
             stagnation = 0 if args.plain else (DEFAULT_STAGNATION_GENERATIONS if args.stagnation is None else args.stagnation)
             if args.meta_episodes > 0 and args.stagnation is None:
@@ -114,7 +126,7 @@ def main(argv: list[str] | None = None) -> int:
                            out_dir=out_dir, meta_episodes=args.meta_episodes, meta_sigma=args.meta_sigma,
                            stagnation_generations=stagnation, stagnation_tol=STAGNATION_TOL if args.stagnation_tol is None else args.stagnation_tol, starts=starts,
                            restart_from_best=args.restart_from == "best", max_attempt_generations=args.max_attempt_generations,
-                           cma_options=cma_options)
+                           cma_options=cma_options, popsize_growth=args.popsize_growth, restart_regimes=args.regimes)
                 runs.append({"seed": args.first_seed + k, "success": r.success, "episodes_to_success": r.episodes_to_success,
                              "best_distance_within_limits_m": r.summary()["best_distance_within_limits_m"],
                              "n_episodes": r.n_episodes, "n_failed": r.n_failed, "n_restarts": len(r.attempts), "wall_time_s": r.wall_time})
@@ -128,9 +140,9 @@ def main(argv: list[str] | None = None) -> int:
     eps = [r["episodes_to_success"] for r in all_runs if r["success"]]
     out = {
         "subjects_run": args.subjects, "runs_per_subject": args.runs, "episode_budget": args.episodes,
-        "population": args.popsize, "sigma0": args.sigma0, "penalty_scale": args.penalty_scale,
+        "population": args.popsize, "sigma0": args.sigma0, "penalty_scale": args.penalty_scale, "violation_offset_m": reward.violation_offset,
         "dropped_penalty_m": reward.dropped_penalty, "meta_episodes": args.meta_episodes, "meta_sigma": args.meta_sigma, "position_unit_rad": args.position_unit, "acceleration_unit": args.acceleration_unit, "time_unit_s": args.time_unit, "no_slower": args.no_slower, "stagnation_generations": stagnation, "stagnation_tol_m": STAGNATION_TOL if args.stagnation_tol is None else args.stagnation_tol,
-        "max_attempt_generations": args.max_attempt_generations, "restart_from": args.restart_from, "n_starts": args.n_starts, "cma_options": cma_options, "plain": args.plain, "target_m": [2.0, 0.0], "backend": args.backend,
+        "max_attempt_generations": args.max_attempt_generations, "restart_from": args.restart_from, "n_starts": args.n_starts, "cma_options": cma_options, "popsize_growth": args.popsize_growth, "restart_regimes": args.regimes, "plain": args.plain, "target_m": [2.0, 0.0], "backend": args.backend,
         "success_rate": float(np.mean([r["success"] for r in all_runs])),
         "subjects_with_success_in_every_run": sum(v["success_rate"] == 1.0 for v in subjects.values()),
         "subjects_with_success_in_some_run": sum(v["success_rate"] > 0.0 for v in subjects.values()),

@@ -81,6 +81,51 @@ def test_bad_restart_settings_are_rejected():
         StagnationRestartCMAES(np.zeros((1, 3)), 1.0, np.random.default_rng(0), tol=-1.0)
 
 
+def test_bipop_regimes_alternate_small_local_and_large_restarts():
+    n = 4
+    opt = StagnationRestartCMAES(np.zeros((1, n)), 1.0, np.random.default_rng(3), popsize=6, stagnation_generations=50,
+                                 max_generations=3, restart_from_best=False, regimes="bipop", popsize_growth=2.0)
+    told = 0
+    for _ in range(3 * 6):
+        X = opt.ask()
+        opt.tell(X, two_basins(X))
+        told += X.shape[0]
+    hist = opt.attempt_history
+    assert len(hist) >= 4 and hist[0]["regime"] == "large" and hist[0]["popsize"] == 6
+    # the second attempt is small (no small episodes yet): from the best throw, a step below sigma0, same population
+    assert hist[1]["regime"] == "small" and hist[1]["start"] == -1 and hist[1]["sigma0"] < 1.0 and hist[1]["popsize"] == 6
+    for h in hist:  # large attempts restart from the start point (restart_from_best=False) and grow the population
+        if h["regime"] == "large":
+            assert h["sigma0"] == 1.0 and h["start"] == 0
+    larges = [h["popsize"] for h in hist if h["regime"] == "large"]
+    assert larges == [6 * 2**k for k in range(len(larges))]
+    assert opt.evaluations["small"] + opt.evaluations["large"] == told
+
+
+def test_resumed_bipop_restart_optimizer_asks_the_same_candidates(tmp_path):
+    n = 4
+    kw = dict(popsize=6, bounds=np.tile([-10.0, 10.0], (n, 1)), stagnation_generations=3, tol=0.05, regimes="bipop",
+              popsize_growth=1.5, restart_from_best=True)
+    a = StagnationRestartCMAES(np.full((1, n), -3.0), 0.5, np.random.default_rng(11), **kw)
+    run(a, 12)
+    save_state(a.state_dict(), tmp_path / "opt")
+    b = StagnationRestartCMAES.from_state(load_state(tmp_path / "opt"))
+    assert (b.regime, b.n_large_restarts, b.evaluations) == (a.regime, a.n_large_restarts, a.evaluations)
+    for _ in range(30):
+        Xa, Xb = a.ask(), b.ask()
+        assert np.array_equal(Xa, Xb)
+        a.tell(Xa, two_basins(Xa))
+        b.tell(Xb, two_basins(Xb))
+    assert a.attempt_history == b.attempt_history and a.attempt >= 3
+    assert {h["regime"] for h in a.attempt_history} == {"large", "small"}
+
+
+def test_bad_regime_settings_are_rejected():
+    for kw in ({"regimes": "ipop"}, {"popsize_growth": 0.5}, {"small_decades": -1.0}):
+        with pytest.raises(ValueError):
+            StagnationRestartCMAES(np.zeros((1, 3)), 1.0, np.random.default_rng(0), **kw)
+
+
 @pytest.fixture(scope="module")
 def base():
     return fitted_default_throw()

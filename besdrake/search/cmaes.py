@@ -41,6 +41,8 @@ import numpy as np
 from besdrake.search.base import BestAndWorst, Optimizer, rng_from_state, rng_state
 
 _RESTART_STRATEGIES = ("none", "ipop", "bipop")
+#: Restart regimes of :class:`StagnationRestartCMAES`.
+_STAGNATION_REGIMES = ("large", "bipop")
 
 # Attributes of cma.CMAEvolutionStrategy (and its sub-objects) that change during tell() and
 # determine the next candidates and the termination tests. Paths are relative to the strategy.
@@ -523,10 +525,23 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
     after ``max_generations`` generations (``0``: no such cap), or when ``cma`` stops it. Meant for
     multi-modal landscapes where a run either finds the good basin early or creeps along a bad one
     (the throw: slow downward throws that the search keeps lengthening), so one budget is spent on
-    several short attempts instead of one long one. Budget and stop belong to the caller (the loop):
-    :meth:`stop` is never true. One Generator drives every attempt; :meth:`state_dict` saves the
-    attempt counter, the per-generation best of the current attempt and the inner CMA-ES, so a resumed
-    run asks the same candidates as an uninterrupted one.
+    several short attempts instead of one long one.
+
+    Restart regimes (``regimes``):
+
+    * ``"large"`` (default): every attempt has step ``sigma0``; ``popsize_growth`` > 1 makes it IPOP-like,
+      attempt ``k`` has population ``round(popsize * popsize_growth**k)``.
+    * ``"bipop"``: after the first attempt, a restart is *small* (step ``sigma0 * 10**(-small_decades * u)``,
+      ``u ~ U(0, 1)``, population ``popsize``, always from the best candidate so far: a local search of
+      the best basin) whenever the episodes spent in small attempts are fewer than those spent in large
+      ones, else *large* (step ``sigma0``, population ``round(popsize * popsize_growth**j)`` for the
+      ``j``-th large restart, start point as above). After Hansen (2009), "Benchmarking a BI-population
+      CMA-ES on the BBOB-2009 function testbed", with the restarts triggered by stagnation.
+
+    Budget and stop belong to the caller (the loop): :meth:`stop` is never true. One Generator drives
+    every attempt; :meth:`state_dict` saves the attempt counter and regime bookkeeping, the per-generation
+    best of the current attempt and the inner CMA-ES, so a resumed run asks the same candidates as an
+    uninterrupted one.
     """
 
     def __init__(
@@ -542,6 +557,9 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
         max_generations: int = 0,
         restart_from_best: bool = False,
         cma_options: dict[str, Any] | None = None,
+        popsize_growth: float = 1.0,
+        regimes: str = "large",
+        small_decades: float = 2.0,
     ) -> None:
         starts = np.atleast_2d(np.asarray(starts, dtype=float))
         if starts.size == 0 or not np.isfinite(starts).all():
@@ -552,6 +570,12 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
             raise ValueError(f"stagnation_generations must be >= 1 and max_generations >= 0, got {stagnation_generations}, {max_generations}")
         if not (np.isfinite(tol) and tol >= 0):
             raise ValueError(f"tol must be a finite number >= 0, got {tol!r}")
+        if not (np.isfinite(popsize_growth) and popsize_growth >= 1):
+            raise ValueError(f"popsize_growth must be a finite number >= 1, got {popsize_growth!r}")
+        if regimes not in _STAGNATION_REGIMES:
+            raise ValueError(f"regimes must be one of {_STAGNATION_REGIMES}, got {regimes!r}")
+        if not (np.isfinite(small_decades) and small_decades >= 0):
+            raise ValueError(f"small_decades must be a finite number >= 0, got {small_decades!r}")
         self.n_params = starts.shape[1]
         self.bounds = None if bounds is None else np.asarray(bounds, dtype=float)
         if self.bounds is not None:
@@ -566,26 +590,50 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
         self.max_generations = int(max_generations)
         self.restart_from_best = bool(restart_from_best)
         self.cma_options = dict(cma_options or {})
+        self.popsize_growth = float(popsize_growth)
+        self.regimes = regimes
+        self.small_decades = float(small_decades)
         self.attempt = 0
+        #: regime bookkeeping: regime of the current attempt, large restarts so far, episodes per regime
+        self.regime = "large"
+        self.n_large_restarts = 0
+        self.evaluations = {"large": 0, "small": 0}
         #: best reward of the current attempt after each of its generations
         self.attempt_best: list[float] = []
-        #: one entry per finished attempt: start index (-1: best so far), generations, best reward, why it ended
+        #: one entry per finished attempt: start index (-1: best so far), generations, best reward, why it ended, regime, step, population
         self.attempt_history: list[dict[str, Any]] = []
         self._init_best(starts[0])
-        self.inner = self._new_attempt()
+        self.inner = self._new_attempt(self.sigma0)
 
     def _start_point(self) -> tuple[int, np.ndarray]:
-        if self.restart_from_best and self.attempt > 0 and np.isfinite(self._best_reward):
+        if (self.restart_from_best or self.regime == "small") and self.attempt > 0 and np.isfinite(self._best_reward):
             return -1, self._best_params.copy()
         i = self.attempt % len(self.starts)
         return i, self.starts[i].copy()
 
-    def _new_attempt(self) -> CMAES:
+    def _new_attempt(self, sigma: float) -> CMAES:
         _, x = self._start_point()
         if self.bounds is not None:
             span = self.bounds[:, 1] - self.bounds[:, 0]
             x = np.clip(x, self.bounds[:, 0] + 1e-9 * span, self.bounds[:, 1] - 1e-9 * span)
-        return CMAES(x, self.sigma0, self.rng, popsize=self.popsize, bounds=self.bounds, cma_options=self.cma_options)
+        return CMAES(x, sigma, self.rng, popsize=self.attempt_popsize(), bounds=self.bounds, cma_options=self.cma_options)
+
+    def attempt_popsize(self) -> int | None:
+        """Population of the current attempt (``None``: ``cma``'s default, not grown)."""
+        if self.popsize is None or self.popsize_growth == 1.0 or self.regime == "small":
+            return self.popsize
+        k = self.attempt if self.regimes == "large" else self.n_large_restarts
+        return max(2, int(round(self.popsize * self.popsize_growth**k)))
+
+    def _next_regime(self) -> float:
+        """Choose the regime of the next attempt (sets :attr:`regime`); returns its step size."""
+        if self.regimes == "bipop" and self.evaluations["small"] < self.evaluations["large"]:
+            self.regime = "small"
+            return self.sigma0 * 10 ** (-self.small_decades * float(self.rng.uniform()))
+        self.regime = "large"
+        if self.attempt > 0:
+            self.n_large_restarts += 1
+        return self.sigma0
 
     def ask(self) -> np.ndarray:
         return self.inner.ask()
@@ -607,17 +655,20 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
         rewards = np.asarray(rewards, dtype=float).ravel()
         clean, failed = self._record_batch(candidates, rewards)
         self.inner.tell(candidates, rewards)
+        self.evaluations[self.regime] += rewards.size
         prev = self.attempt_best[-1] if self.attempt_best else -np.inf
         ok = clean[~failed]
         self.attempt_best.append(max(prev, float(ok.max())) if ok.size else prev)
         why = self.stalled()
         if why is not None:
             index, _ = self._start_point()
-            self.attempt_history.append({"start": index, "generations": len(self.attempt_best),
-                                         "best_reward": float(self.attempt_best[-1]), "end": why})
+            entry = {"start": index, "generations": len(self.attempt_best), "best_reward": float(self.attempt_best[-1]), "end": why}
+            if self.regimes != "large" or self.popsize_growth != 1.0:
+                entry |= {"regime": self.regime, "sigma0": float(self.inner.sigma0), "popsize": int(self.inner.popsize0)}
+            self.attempt_history.append(entry)
             self.attempt += 1
             self.attempt_best = []
-            self.inner = self._new_attempt()
+            self.inner = self._new_attempt(self._next_regime())
 
     @property
     def mean(self) -> np.ndarray:
@@ -625,6 +676,11 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
         return self.inner.mean
 
     def state_dict(self) -> dict[str, Any]:
+        extra_cfg: dict[str, Any] = {}
+        if self.popsize_growth != 1.0:
+            extra_cfg["popsize_growth"] = self.popsize_growth
+        if self.regimes != "large":
+            extra_cfg |= {"regimes": self.regimes, "small_decades": self.small_decades}
         return {
             "type": "StagnationRestartCMAES",
             "config": {
@@ -637,8 +693,10 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
                 "max_generations": self.max_generations,
                 "restart_from_best": self.restart_from_best,
                 "cma_options": self.cma_options,
+                **extra_cfg,
             },
             "attempt": self.attempt,
+            "regime": {"regime": self.regime, "n_large_restarts": self.n_large_restarts, "evaluations": dict(self.evaluations)},
             "attempt_best": [float(v) for v in self.attempt_best],
             "attempt_history": self.attempt_history,
             **self._best_state(),
@@ -662,6 +720,14 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
         opt.max_generations = int(cfg["max_generations"])
         opt.restart_from_best = bool(cfg["restart_from_best"])
         opt.cma_options = dict(cfg["cma_options"])
+        opt.popsize_growth = float(cfg.get("popsize_growth", 1.0))
+        opt.regimes = str(cfg.get("regimes", "large"))
+        opt.small_decades = float(cfg.get("small_decades", 2.0))
+        reg = state.get("regime", {})  # absent in states written before the regimes existed
+        opt.regime = str(reg.get("regime", "large"))
+        opt.n_large_restarts = int(reg.get("n_large_restarts", state["attempt"]))
+        ev = reg.get("evaluations", {})
+        opt.evaluations = {"large": int(ev.get("large", 0)), "small": int(ev.get("small", 0))}
         opt.attempt = int(state["attempt"])
         opt.attempt_best = [float(v) for v in state["attempt_best"]]
         opt.attempt_history = [dict(e) for e in state["attempt_history"]]

@@ -613,6 +613,8 @@ def make_optimizer(
     stagnation_tol: float = STAGNATION_TOL,
     max_attempt_generations: int = 0,
     cma_options: dict[str, Any] | None = None,
+    popsize_growth: float = 1.0,
+    restart_regimes: str = "large",
 ):
     """CMA-ES on the normalised space, started at the imitated throw (``x0 = 0``) unless ``x0`` is given.
 
@@ -645,7 +647,7 @@ def make_optimizer(
         pts = np.clip(pts, bounds[:, 0] + 1e-9 * span, bounds[:, 1] - 1e-9 * span)
         return StagnationRestartCMAES(pts, sigma0, rng, popsize=popsize, bounds=bounds, stagnation_generations=stagnation_generations,
                                       tol=stagnation_tol, max_generations=max_attempt_generations, restart_from_best=restart_from_best,
-                                      cma_options=cma_options)
+                                      cma_options=cma_options, popsize_growth=popsize_growth, regimes=restart_regimes)
     if meta_episodes > 0:
         return StagedCMAES(x0, meta_basis(problem), meta_sigma, sigma0, rng, subspace_evaluations=meta_episodes,
                            popsize_subspace=popsize, popsize=popsize, bounds=bounds, cma_options=cma_options)
@@ -672,6 +674,8 @@ def refine(
     stagnation_tol: float = STAGNATION_TOL,
     max_attempt_generations: int = 0,
     cma_options: dict[str, Any] | None = None,
+    popsize_growth: float = 1.0,
+    restart_regimes: str = "large",
 ) -> RefinementResult:
     """Refine ``problem`` with CMA-ES for at most ``n_episodes`` episodes (stops at the first
     generation with a success when ``stop_on_success``). With ``out_dir`` the run is resumable:
@@ -699,6 +703,10 @@ def refine(
             desc |= {"stagnation_generations": int(stagnation_generations), "stagnation_tol": float(stagnation_tol),
                      "max_attempt_generations": int(max_attempt_generations), "restart_from_best": bool(restart_from_best),
                      "starts": None if starts is None else np.atleast_2d(np.asarray(starts, dtype=float)).tolist()}
+            if popsize_growth != 1.0:
+                desc |= {"popsize_growth": float(popsize_growth)}
+            if restart_regimes != "large":
+                desc |= {"restart_regimes": str(restart_regimes)}
         if cma_options:
             desc |= {"cma_options": dict(cma_options)}
         if desc_path.exists():
@@ -715,7 +723,7 @@ def refine(
     opt = optimizer if optimizer is not None else make_optimizer(
         problem, seed, sigma0, popsize, meta_episodes=meta_episodes, meta_sigma=meta_sigma, stagnation_generations=stagnation_generations,
         starts=starts, restart_from_best=restart_from_best, stagnation_tol=stagnation_tol, max_attempt_generations=max_attempt_generations,
-        cma_options=cma_options)
+        cma_options=cma_options, popsize_growth=popsize_growth, restart_regimes=restart_regimes)
     t0 = time.perf_counter()
     best = [np.inf]
     last = [t0]
