@@ -39,7 +39,7 @@ def main(argv: list[str] | None = None) -> int:
     from besdrake.commands.refine import collect_imitated
     from besdrake.imitation import load_dmp
     from besdrake.search.refinement import MIN_EXECUTION_TIME, ParameterScaling, RefinementProblem, ThrowReward, rank_starts, refine, restart_points
-    from besdrake.search.refinement import DEFAULT_CMA_OPTIONS, DEFAULT_STAGNATION_GENERATIONS, STAGNATION_TOL
+    from besdrake.search.refinement import DEFAULT_CMA_OPTIONS, DEFAULT_POPSIZE_GROWTH, DEFAULT_RESTART_REGIMES, DEFAULT_STAGNATION_GENERATIONS, STAGNATION_TOL
     from besdrake.sim import make_executor
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
@@ -71,8 +71,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--diagonal", type=int, default=None, help="separable CMA-ES (cma's CMA_diagonal) for this many generations (-1: always, 0: never; default: the module's)")
     parser.add_argument("--elitist", action=argparse.BooleanOptionalAction, default=None,
                         help="elitist CMA-ES (cma's CMA_elitist: the best throw so far stays in the population; default: the module's)")
-    parser.add_argument("--popsize-growth", type=float, default=1.0, help="IPOP-like restarts: attempt k has population POPSIZE * GROWTH**k")
-    parser.add_argument("--regimes", choices=["large", "bipop"], default="large", help="restart regimes (bipop: small local restarts from the best alternate with large ones)")
+    parser.add_argument("--popsize-growth", type=float, default=None, help="IPOP-like restarts: the k-th large attempt has population POPSIZE * GROWTH**k (default: the module's)")
+    parser.add_argument("--regimes", choices=["large", "bipop"], default=None, help="restart regimes (bipop: small local restarts from the best alternate with large ones; default: the module's)")
     parser.add_argument("--position-step", type=float, default=None, help="initial step of start/goal parameters, in multiples of --sigma0 (cma's CMA_stds; default: the module's)")
     parser.add_argument("--time-step", type=float, default=None, help="initial step of the execution time, in multiples of --sigma0 (default: as --position-step)")
     parser.add_argument("--plain", action="store_true", help="the search before issue 5 (plain CMA-ES, no restarts): overrides --diagonal --elitist --stagnation")
@@ -142,7 +142,8 @@ def main(argv: list[str] | None = None) -> int:
         "subjects_run": args.subjects, "runs_per_subject": args.runs, "episode_budget": args.episodes,
         "population": args.popsize, "sigma0": args.sigma0, "penalty_scale": args.penalty_scale, "violation_offset_m": reward.violation_offset,
         "dropped_penalty_m": reward.dropped_penalty, "meta_episodes": args.meta_episodes, "meta_sigma": args.meta_sigma, "position_unit_rad": args.position_unit, "acceleration_unit": args.acceleration_unit, "time_unit_s": args.time_unit, "no_slower": args.no_slower, "stagnation_generations": stagnation, "stagnation_tol_m": STAGNATION_TOL if args.stagnation_tol is None else args.stagnation_tol,
-        "max_attempt_generations": args.max_attempt_generations, "restart_from": args.restart_from, "n_starts": args.n_starts, "cma_options": cma_options, "popsize_growth": args.popsize_growth, "restart_regimes": args.regimes, "plain": args.plain, "target_m": [2.0, 0.0], "backend": args.backend,
+        "max_attempt_generations": args.max_attempt_generations, "restart_from": args.restart_from, "n_starts": args.n_starts, "cma_options": cma_options, "popsize_growth": DEFAULT_POPSIZE_GROWTH if args.popsize_growth is None else args.popsize_growth,
+        "restart_regimes": DEFAULT_RESTART_REGIMES if args.regimes is None else args.regimes, "plain": args.plain, "target_m": [2.0, 0.0], "backend": args.backend,
         "success_rate": float(np.mean([r["success"] for r in all_runs])),
         "subjects_with_success_in_every_run": sum(v["success_rate"] == 1.0 for v in subjects.values()),
         "subjects_with_success_in_some_run": sum(v["success_rate"] > 0.0 for v in subjects.values()),

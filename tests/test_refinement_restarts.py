@@ -198,6 +198,8 @@ def test_cli_search_options_map_to_refine_keywords():
     custom = search_options(parser.parse_args(["x", "--separable", "--no-elitist", "--stagnation", "7", "--restart-from", "start"]))
     assert custom == {"cma_options": {"CMA_diagonal": True}, "stagnation_generations": 7, "restart_from_best": False}
     assert search_options(parser.parse_args(["x", "--meta-episodes", "50"]))["stagnation_generations"] == 0
+    regimes = search_options(parser.parse_args(["x", "--regimes", "large", "--popsize-growth", "2"]))
+    assert regimes["restart_regimes"] == "large" and regimes["popsize_growth"] == 2.0
 
 
 def test_meta_stage_and_restarts_do_not_combine(base):

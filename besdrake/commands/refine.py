@@ -40,6 +40,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="restart CMA-ES (fresh step size) when its best distance improved by less than STAGNATION_TOL (2 cm) in G generations; 0: never (default: DEFAULT_STAGNATION_GENERATIONS)")
     parser.add_argument("--restart-from", choices=("start", "best"), default="best",
                         help="where a restart begins: the best throw so far (default) or the start throw")
+    parser.add_argument("--regimes", choices=("large", "bipop"), default=None,
+                        help="restart regimes: 'large' (every restart with the initial step) or 'bipop' (small local restarts from the best throw "
+                             "alternate with large ones); default: besdrake.search.refinement.DEFAULT_RESTART_REGIMES")
+    parser.add_argument("--popsize-growth", type=float, default=None, metavar="F",
+                        help="IPOP-like: the k-th large restart has population POPSIZE * F**k (default: DEFAULT_POPSIZE_GROWTH)")
     parser.add_argument("--plain", action="store_true", help="the previous default search: plain CMA-ES, no restarts (overrides the search options above)")
     parser.add_argument("--dropped-penalty", type=float, default=None, help="reward penalty (m) of a ball that falls out of the scoop (default 0)")
     parser.add_argument("--seed", type=int, default=0)
@@ -111,7 +116,12 @@ def search_options(args: argparse.Namespace) -> dict:
     stagnation = DEFAULT_STAGNATION_GENERATIONS if args.stagnation is None else args.stagnation
     if args.meta_episodes > 0:
         stagnation = 0 if args.stagnation is None else stagnation
-    return {"cma_options": options, "stagnation_generations": stagnation, "restart_from_best": args.restart_from == "best"}
+    out = {"cma_options": options, "stagnation_generations": stagnation, "restart_from_best": args.restart_from == "best"}
+    if args.regimes is not None:
+        out["restart_regimes"] = args.regimes
+    if args.popsize_growth is not None:
+        out["popsize_growth"] = args.popsize_growth
+    return out
 
 
 def run(args: argparse.Namespace) -> int:
@@ -136,6 +146,8 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--meta-episodes must be >= 0 and --meta-sigma > 0, got {args.meta_episodes}, {args.meta_sigma}")
     if args.stagnation is not None and args.stagnation < 0:
         raise UserError(f"--stagnation must be >= 0, got {args.stagnation}")
+    if args.popsize_growth is not None and not (np.isfinite(args.popsize_growth) and args.popsize_growth >= 1):
+        raise UserError(f"--popsize-growth must be >= 1, got {args.popsize_growth}")
     if not np.isfinite(args.target).all():
         raise UserError(f"--target must be finite, got {args.target}")
     t_start = time.perf_counter()

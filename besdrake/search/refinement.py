@@ -130,6 +130,12 @@ STAGNATION_TOL = 0.02
 #: stagnation restarts (generations; 0: none). ``refine(cma_options={}, stagnation_generations=0)`` is plain CMA-ES.
 DEFAULT_CMA_OPTIONS: dict[str, Any] = {"CMA_diagonal": True, "CMA_elitist": True}
 DEFAULT_STAGNATION_GENERATIONS = 10
+#: Restart regimes of the stagnation restarts (:class:`~besdrake.search.cmaes.StagnationRestartCMAES`'s ``regimes``):
+#: ``"large"`` (every restart with the initial step) or ``"bipop"`` (small local restarts from the best throw
+#: alternate with large ones), and the population growth of the large restarts (1: none).
+RESTART_REGIMES = ("large", "bipop")
+DEFAULT_RESTART_REGIMES = "large"
+DEFAULT_POPSIZE_GROWTH = 1.0
 #: The search before issue 5 (plain CMA-ES, no restarts): keyword arguments of :func:`refine`.
 PLAIN_SEARCH: dict[str, Any] = {"cma_options": {}, "stagnation_generations": 0}
 #: Offset (rad) of the whole movement per unit of the meta-parameter stage (:func:`meta_basis`).
@@ -589,13 +595,21 @@ def meta_basis(problem: RefinementProblem, offset_unit: float = META_OFFSET_UNIT
     return np.column_stack(cols)
 
 
-def _search_defaults(cma_options: dict[str, Any] | None, stagnation_generations: int | None, meta_episodes: int) -> tuple[dict[str, Any], int]:
-    """The default search where a setting is None: :data:`DEFAULT_CMA_OPTIONS`, and restarts after
-    :data:`DEFAULT_STAGNATION_GENERATIONS` unless the meta-parameter stage is asked for (they do not combine)."""
+def _search_defaults(cma_options: dict[str, Any] | None, stagnation_generations: int | None, meta_episodes: int,
+                     restart_regimes: str | None = None, popsize_growth: float | None = None) -> tuple[dict[str, Any], int, str, float]:
+    """The default search where a setting is None: :data:`DEFAULT_CMA_OPTIONS`, restarts after
+    :data:`DEFAULT_STAGNATION_GENERATIONS` unless the meta-parameter stage is asked for (they do not combine),
+    :data:`DEFAULT_RESTART_REGIMES` and :data:`DEFAULT_POPSIZE_GROWTH`."""
     cma_options = dict(DEFAULT_CMA_OPTIONS if cma_options is None else cma_options)
     if stagnation_generations is None:
         stagnation_generations = DEFAULT_STAGNATION_GENERATIONS if meta_episodes == 0 else 0
-    return cma_options, int(stagnation_generations)
+    regimes = DEFAULT_RESTART_REGIMES if restart_regimes is None else str(restart_regimes)
+    if regimes not in RESTART_REGIMES:
+        raise RefinementError(f"restart_regimes must be one of {RESTART_REGIMES}, got {restart_regimes!r}")
+    growth = DEFAULT_POPSIZE_GROWTH if popsize_growth is None else float(popsize_growth)
+    if not (np.isfinite(growth) and growth >= 1):
+        raise RefinementError(f"popsize_growth must be a finite number >= 1, got {popsize_growth!r}")
+    return cma_options, int(stagnation_generations), regimes, growth
 
 
 def make_optimizer(
@@ -613,8 +627,8 @@ def make_optimizer(
     stagnation_tol: float = STAGNATION_TOL,
     max_attempt_generations: int = 0,
     cma_options: dict[str, Any] | None = None,
-    popsize_growth: float = 1.0,
-    restart_regimes: str = "large",
+    popsize_growth: float | None = None,
+    restart_regimes: str | None = None,
 ):
     """CMA-ES on the normalised space, started at the imitated throw (``x0 = 0``) unless ``x0`` is given.
 
@@ -634,7 +648,8 @@ def make_optimizer(
     bounds = problem.scaling.x_bounds
     x0 = np.clip(x0, bounds[:, 0] + 1e-9, bounds[:, 1] - 1e-9)
     rng = np.random.default_rng(seed)
-    cma_options, stagnation_generations = _search_defaults(cma_options, stagnation_generations, meta_episodes)
+    cma_options, stagnation_generations, restart_regimes, popsize_growth = _search_defaults(
+        cma_options, stagnation_generations, meta_episodes, restart_regimes, popsize_growth)
     if stagnation_generations > 0 and meta_episodes > 0:
         raise RefinementError("stagnation restarts and the meta-parameter stage do not combine; give one of them")
     if stagnation_generations > 0:
@@ -674,8 +689,8 @@ def refine(
     stagnation_tol: float = STAGNATION_TOL,
     max_attempt_generations: int = 0,
     cma_options: dict[str, Any] | None = None,
-    popsize_growth: float = 1.0,
-    restart_regimes: str = "large",
+    popsize_growth: float | None = None,
+    restart_regimes: str | None = None,
 ) -> RefinementResult:
     """Refine ``problem`` with CMA-ES for at most ``n_episodes`` episodes (stops at the first
     generation with a success when ``stop_on_success``). With ``out_dir`` the run is resumable:
@@ -686,7 +701,8 @@ def refine(
 
     if n_episodes < 1:
         raise RefinementError(f"n_episodes must be >= 1, got {n_episodes}")
-    cma_options, stagnation_generations = _search_defaults(cma_options, stagnation_generations, meta_episodes)
+    cma_options, stagnation_generations, restart_regimes, popsize_growth = _search_defaults(
+        cma_options, stagnation_generations, meta_episodes, restart_regimes, popsize_growth)
     if stagnation_generations < 0:
         raise RefinementError(f"stagnation_generations must be >= 0, got {stagnation_generations}")
     if meta_episodes < 0 or not (np.isfinite(meta_sigma) and meta_sigma > 0):
