@@ -98,6 +98,47 @@ def _register_unknown():
     return draw
 
 
+def _signature(hidden: dict, lab_seed: int, ms, plans, truth_roll) -> np.ndarray:
+    """How far the hidden effect moves the logged signals, without noise: features (N, F) of the same plans in two
+    noise-free labs with the same seed (so the same per-trial ball placement draws), the effect on minus off, read
+    at the windows the diagnosis uses (layout from the logged trial and the nominal rollout). NaN where not logged."""
+    from besdrake.diagnosis import observables
+    from besdrake.transfer.virtual_lab import VirtualLab
+
+    quiet = {"touchdown_sd": 0.0, "mocap_noise_sd": 0.0, "mocap_dropout": 0.0, "encoder_noise_sd": 0.0}
+    on = VirtualLab({"name": "bench_lab_on", "effects": hidden, "seed": lab_seed, "noise": quiet})
+    off = VirtualLab({"name": "bench_lab_off", "effects": {}, "seed": lab_seed, "noise": quiet})
+    out = np.full((len(ms), observables.N_FEATURES), np.nan)
+    for i, (m, p) in enumerate(zip(ms, plans)):
+        m_on, m_off = on.execute(p, trial=m.trial), off.execute(p, trial=m.trial)
+        if not observables.usable(m)[0] or not observables.usable(m_on)[0] or not observables.usable(m_off)[0]:
+            continue
+        lay = observables.make_layout(m, truth_roll.rollout(p, limits="flag"))
+        out[i] = observables.measured_features(m_on, lay)[0] - observables.measured_features(m_off, lay)[0]
+    return out
+
+
+def _signature_size(sig: np.ndarray, d, k: int) -> dict:
+    """The signature in units of the diagnosis' detection limit: its chi-square against the diagnosis' own noise
+    model over the groups the log has (lambda), divided by the chi-square a k-parameter cause must gain over the
+    nominal simulation to be named (INDISTINGUISHABLE_DBIC + k ln n, n the fitted residual entries); >= 1:
+    detectable with this log in principle. Also per group."""
+    from besdrake.diagnosis.core import INDISTINGUISHABLE_DBIC
+    from besdrake.diagnosis.observables import group_slices
+
+    sd = d.noise.vector()
+    per_group = {}
+    for g, s_ in group_slices().items():
+        if g not in d.groups_measured:
+            continue
+        z = sig[:, s_] / sd[s_]
+        per_group[g] = float(np.nansum(z * z))
+    lam = float(sum(per_group.values()))
+    n = d.causes[0].n if d.causes else 1
+    limit = INDISTINGUISHABLE_DBIC + k * np.log(max(n, 1))
+    return {"signature_chi2": lam, "signature_chi2_by_group": per_group, "detection_limit_chi2": float(limit), "signature_over_limit": lam / limit}
+
+
 def _strip(ms):
     from besdrake.transfer.measurement import Measurement
 
@@ -137,9 +178,17 @@ def _summarize(results: list[dict], modes: list[str], args, t_bench: float, regi
         walls = [r["wall_s"] for r in results if r["mode"] == mode and "error" not in r]
         gb = [r["gain_before_m"] for r in known if r["gain_before_m"] is not None]
         ga = [r["gain_after_m"] for r in known if r["gain_after_m"] is not None]
+        # Beside the raw figures (the targets): the same rates over trials whose hidden effect moves the logged
+        # signals (noise-free, effect on vs off) by at least the diagnosis' detection limit (signature_over_limit >= 1).
+        sig_ok = [r for r in known if r.get("detectable")]
         out[mode] = {
             "n_known_trials": len(known),
             "right_cause_rate": rate(known, "correct"),
+            "n_detectable_signature": len(sig_ok),
+            "right_cause_rate_detectable_signature": rate(sig_ok, "correct"),
+            "right_or_honest_rate_detectable_signature": float(np.mean([r["correct"] or r["honest_cannot_tell"] for r in sig_ok])) if sig_ok else None,
+            "undetectable_signature_trials": [{"trial": r["trial"], "hidden": r["hidden"], "signature_over_limit": r.get("signature_over_limit"), "best": r["best"],
+                                               "honest_cannot_tell": r["honest_cannot_tell"]} for r in known if "detectable" in r and not r["detectable"]],
             "right_or_honest_cannot_tell_rate": float(np.mean(ok_or_honest)) if ok_or_honest else None,
             "right_or_honest_rate_lenient": float(np.mean(lenient)) if lenient else None,
             "explained_rate_known": rate(known, "explained"),
@@ -248,6 +297,8 @@ def main(argv=None) -> int:
                         shift2 += float(np.sum((o.touchdown - o0.touchdown) ** 2))
             floor = float(np.median(floor_d)) if floor_d else float("nan")
             td_detectable = shift2 / 0.054**2 > 20.0
+            sig = None if unknown else _signature(hidden, 1000 * args.seed + i, ms, plans, truth_roll)
+            k_hidden = sum(len(v) for v in hidden.values())
             cache: dict = {}
             for mode in modes:
                 log = ms if mode == "full" else _strip(ms)
@@ -287,12 +338,15 @@ def main(argv=None) -> int:
                     "after_over_floor": (d.gain.median_disparity_after_m / floor) if d.gain and floor > 0 else None,
                     "wall_s": wall, "rollouts": d.n_rollouts,
                 }
+                if sig is not None:
+                    row.update(_signature_size(sig, d, k_hidden))
+                    row["detectable"] = row["signature_over_limit"] >= 1.0
                 results.append(row)
                 if args.out:
                     with open(args.out, "w") as fh:
                         json.dump(_summarize(results, modes, args, t_bench, registry), fh, indent=1, default=float)
                 if args.progress:
-                    print(json.dumps({k: row[k] for k in ("trial", "mode", "hidden", "best", "explained", "confidence", "correct", "honest_cannot_tell", "cannot_tell", "after_over_floor", "wall_s")}), file=sys.stderr, flush=True)
+                    print(json.dumps({k: row.get(k) for k in ("trial", "mode", "hidden", "best", "explained", "confidence", "correct", "honest_cannot_tell", "cannot_tell", "signature_over_limit", "after_over_floor", "wall_s")}), file=sys.stderr, flush=True)
 
     out = _summarize(results, modes, args, t_bench, registry)
     print(json.dumps(out, indent=1, default=float))
