@@ -118,6 +118,35 @@ def _signature(hidden: dict, lab_seed: int, ms, plans, truth_roll) -> np.ndarray
     return out
 
 
+def _expected_signature(hidden: dict, ms, plans, truth_roll, sd: float, n_draws: int = 4, seed: int = 0) -> np.ndarray:
+    """The systematic part of the signature: per throw, the effect on minus off of the *expected* throw over the
+    lab's ball-placement scatter (``2 n_draws`` antithetic Gaussian draws of SD ``sd`` per axis, the same for on and
+    off), noise-free, read at the diagnosis' windows. The per-throw placement is unknown to any diagnosis, so only
+    this part of :func:`_signature` can show in a fit (a placement habit moves single throws a lot through the
+    funnel's kink, their mean much less)."""
+    from besdrake.diagnosis import observables
+    from besdrake.sim.effects import get_effect
+
+    b = get_effect("ball_placement").params
+    d = np.random.default_rng(seed).normal(0.0, sd, (n_draws, 2))
+    d = np.vstack([d, -d])
+    habit = hidden.get("ball_placement", {})
+    out = np.full((len(ms), observables.N_FEATURES), np.nan)
+    for i, (m, p) in enumerate(zip(ms, plans)):
+        if not observables.usable(m)[0]:
+            continue
+        lay = observables.make_layout(m, truth_roll.rollout(p, limits="flag"))
+        f_on, f_off = [], []
+        for dk in d:
+            for own, acc in ((habit, f_on), ({}, f_off)):
+                pl = {ax: float(np.clip(own.get(ax, 0.0) + dk[j], b[ax].low, b[ax].high)) for j, ax in enumerate(("x", "y"))}
+                eff = {**(hidden if own is habit else {}), "ball_placement": pl}
+                acc.append(observables.simulated_features(truth_roll.rollout(p, effects=eff, limits="flag"), lay))
+        with np.errstate(invalid="ignore"):
+            out[i] = np.mean(f_on, axis=0) - np.mean(f_off, axis=0)
+    return out
+
+
 def _signature_size(sig: np.ndarray, d, k: int) -> dict:
     """The signature in units of the diagnosis' detection limit: its chi-square against the diagnosis' own noise
     model over the groups the log has (lambda), divided by the chi-square a k-parameter cause must gain over the
@@ -181,13 +210,17 @@ def _summarize(results: list[dict], modes: list[str], args, t_bench: float, regi
         # Beside the raw figures (the targets): the same rates over trials whose hidden effect moves the logged
         # signals (noise-free, effect on vs off) by at least the diagnosis' detection limit (signature_over_limit >= 1).
         sig_ok = [r for r in known if r.get("detectable")]
+        sig_ok_same = [r for r in known if r.get("detectable_same_draws")]
         out[mode] = {
             "n_known_trials": len(known),
             "right_cause_rate": rate(known, "correct"),
             "n_detectable_signature": len(sig_ok),
             "right_cause_rate_detectable_signature": rate(sig_ok, "correct"),
             "right_or_honest_rate_detectable_signature": float(np.mean([r["correct"] or r["honest_cannot_tell"] for r in sig_ok])) if sig_ok else None,
-            "undetectable_signature_trials": [{"trial": r["trial"], "hidden": r["hidden"], "signature_over_limit": r.get("signature_over_limit"), "best": r["best"],
+            "n_detectable_signature_same_draws": len(sig_ok_same),
+            "right_cause_rate_detectable_signature_same_draws": rate(sig_ok_same, "correct"),
+            "undetectable_signature_trials": [{"trial": r["trial"], "hidden": r["hidden"], "signature_over_limit_expected": r.get("signature_over_limit_expected"),
+                                               "signature_over_limit_same_draws": r.get("signature_over_limit"), "best": r["best"],
                                                "honest_cannot_tell": r["honest_cannot_tell"]} for r in known if "detectable" in r and not r["detectable"]],
             "right_or_honest_cannot_tell_rate": float(np.mean(ok_or_honest)) if ok_or_honest else None,
             "right_or_honest_rate_lenient": float(np.mean(lenient)) if lenient else None,
@@ -298,6 +331,7 @@ def main(argv=None) -> int:
             floor = float(np.median(floor_d)) if floor_d else float("nan")
             td_detectable = shift2 / 0.054**2 > 20.0
             sig = None if unknown else _signature(hidden, 1000 * args.seed + i, ms, plans, truth_roll)
+            sig_exp = None if unknown else _expected_signature(hidden, ms, plans, truth_roll, lab.config.noise.ball_placement_sd, seed=1000 * args.seed + i)
             k_hidden = sum(len(v) for v in hidden.values())
             cache: dict = {}
             for mode in modes:
@@ -340,13 +374,15 @@ def main(argv=None) -> int:
                 }
                 if sig is not None:
                     row.update(_signature_size(sig, d, k_hidden))
-                    row["detectable"] = row["signature_over_limit"] >= 1.0
+                    row.update({k + "_expected": v for k, v in _signature_size(sig_exp, d, k_hidden).items()})
+                    row["detectable_same_draws"] = row["signature_over_limit"] >= 1.0
+                    row["detectable"] = row["signature_over_limit_expected"] >= 1.0
                 results.append(row)
                 if args.out:
                     with open(args.out, "w") as fh:
                         json.dump(_summarize(results, modes, args, t_bench, registry), fh, indent=1, default=float)
                 if args.progress:
-                    print(json.dumps({k: row.get(k) for k in ("trial", "mode", "hidden", "best", "explained", "confidence", "correct", "honest_cannot_tell", "cannot_tell", "signature_over_limit", "after_over_floor", "wall_s")}), file=sys.stderr, flush=True)
+                    print(json.dumps({k: row.get(k) for k in ("trial", "mode", "hidden", "best", "explained", "confidence", "correct", "honest_cannot_tell", "cannot_tell", "signature_over_limit", "signature_over_limit_expected", "after_over_floor", "wall_s")}), file=sys.stderr, flush=True)
 
     out = _summarize(results, modes, args, t_bench, registry)
     print(json.dumps(out, indent=1, default=float))

@@ -799,7 +799,7 @@ def diagnose(
         # and refine it from the best of them when that is as good as the third-best linear candidate.
         extra_starts: dict[tuple[str, ...], list] = {}
         pl_fit = next((f for f in fits if f.effects == ("ball_placement",)), None)
-        if top and pl_fit is not None and pl_fit.specs and sim.placement_draws is not None and ("ball_placement",) not in singles_needed:
+        if top and pl_fit is not None and pl_fit.specs and sim.placement_draws is not None:
             pts = []
             for dx, dy in PLACEMENT_STARTS:
                 th = np.array([{"x": dx, "y": dy}.get(s_.name, s_.nominal) for s_ in pl_fit.specs])
@@ -807,7 +807,7 @@ def diagnose(
                 r_s = prob.weighted(y_s)
                 pts.append((float(r_s @ r_s), th, y_s))
             c2_best, th_best, y_best_start = min(pts, key=lambda p_: p_[0])
-            if c2_best + pl_fit.k * np.log(max(prob.n, 1)) <= top[-1].bic:
+            if ("ball_placement",) in singles_needed or c2_best + pl_fit.k * np.log(max(prob.n, 1)) <= top[-1].bic:
                 singles_needed.add(("ball_placement",))
                 extra_starts[("ball_placement",)] = [(th_best, y_best_start)]
         to_refine = [f for f in fits if f.effects and (any(f is t for t in top) or f.effects in singles_needed)]
