@@ -285,3 +285,86 @@ def test_diagnose_rejects_a_placement_scatter_outside_the_scoop():
     for bad in (-0.001, 0.05, float("nan")):
         with pytest.raises(DiagnosisError, match="placement_sd"):
             diagnose(ms, placement_sd=bad)
+
+
+class _LagFunnelExecutor(_FunnelExecutor):
+    """A funnel whose lift depends on another effect: a lagging arm (actuator_lag.tau) lifts an off-centre ball more."""
+
+    def evaluate(self, plans, effects):
+        outs = super().evaluate(plans, effects)
+        for o, e in zip(outs, effects):
+            o.touchdown[1] *= 1.0 + 10.0 * e.get("actuator_lag", {}).get("tau", 0.0)
+        return outs
+
+
+def test_local_placement_correction_follows_the_candidate():
+    from besdrake.diagnosis.core import _placement_correction, _Sim
+    from besdrake.sim.scenario import load_scenario
+
+    plans = diagnosis_plans(3, 1)
+    keys = [f"k{i}" for i in range(len(plans))]
+    lay = [observables.ThrowLayout() for _ in plans]
+    sim = _Sim(_LagFunnelExecutor(), plans, keys, lay, lay)
+    sd = 0.002
+    _placement_correction(sim, load_scenario("nominal"), sd)
+    td = group_slices()["touchdown"]
+    lift = 100.0 * 2 * sd * np.sqrt(2 / np.pi)
+    lag = {"actuator_lag": {"tau": 0.05}}
+    # The nominal correction is the nominal lift; under the lag the scatter lifts the ball 1.5x as much.
+    assert np.allclose(sim.one(lag)[:, td], [1.5, lift])
+    sh = sim.local_shift(lag)
+    assert sh is not None and len(sh) == 2
+    assert np.allclose(sh[0][:, td], [0.0, 1.5 * lift])
+    assert np.allclose(sim.one(lag, shift=sh)[:, td], [1.5, 1.5 * lift])
+    # Candidates that set the placement are averaged exactly already; the nominal one has the nominal correction.
+    assert sim.local_shift({"ball_placement": {"x": 0.001}}) is None and sim.local_shift({}) is None
+    sim0 = _Sim(_LagFunnelExecutor(), plans, keys, lay, lay)
+    assert sim0.local_shift(lag) is None  # no scatter, no correction
+
+
+def _nested_world(seed: int, extra: float):
+    """Linear world of 12 plans x 2 repeats, 3 features per throw whose noise is mostly one per-throw component
+    shared by all three (like the touchdown scatter that also moves the ball path and its speed), an effect "a" that
+    is present and an effect "b" that shifts every feature of every throw alike (a catch-all for a mean offset),
+    present with size ``extra``."""
+    rng = np.random.default_rng(seed)
+    n_plans, reps, F, sd = 12, 2, 3, 1.0
+    keys = [f"p{j}" for j in range(n_plans) for _ in range(reps)]
+    N = len(keys)
+    specs = [fitting.ParamSpec("a", "k", 0.0, -5.0, 5.0, 0.5, "1"), fitting.ParamSpec("b", "k", 0.0, -5.0, 5.0, 0.5, "1")]
+    plan_sig = {k: rng.normal(0, 1, F) for k in dict.fromkeys(keys)}
+    dy = np.stack([np.array([plan_sig[k] for k in keys]), np.ones((N, F))])
+    y0 = np.zeros((N, F))
+    shared = rng.normal(0, sd, (N, 1))
+    y_meas = y0 + 2.0 * dy[0] + extra * dy[1] + shared + 0.2 * rng.normal(0, sd, (N, F))
+    prob = fitting.Problem(y_meas, y0, np.full(F, sd))
+    sens = fitting.Sensitivity(specs, y0, dy)
+    fits = {}
+    for c in (("a",), ("a", "b")):
+        f = fitting.linear_fit(prob, sens, c)
+        idx = [specs.index(s_) for s_ in f.specs]
+        f.y_fit = y0 + np.tensordot(f.theta - np.array([s_.nominal for s_ in f.specs]), dy[idx], axes=1)
+        fits[c] = f
+    return prob, fits[("a", "b")], fits[("a",)], keys
+
+
+def test_an_extra_effect_is_claimed_only_if_significant_over_plans():
+    from besdrake.diagnosis.core import ALPHA, _extra_effect_significant
+
+    noise_claims, real_claims, bic_claims = 0, 0, 0
+    for seed in range(20):
+        prob, big, small, keys = _nested_world(seed, extra=0.0)
+        sig, p = _extra_effect_significant(prob, big, "b", keys)
+        assert 0.0 <= p <= 1.0
+        noise_claims += sig
+        bic_claims += big.bic < small.bic
+        prob, big, small, keys = _nested_world(seed, extra=1.0)
+        real_claims += _extra_effect_significant(prob, big, "b", keys)[0]
+        # The effect every fit needs ("a") is significant whatever "b" does.
+        assert _extra_effect_significant(prob, big, "a", keys)[0]
+    # "b" only fits the mean of the shared per-throw noise: rarely claimed (level ALPHA per test, 20 tests), while BIC
+    # over entries, counting the shared noise three times, prefers it more often; an offset of one noise SD on every
+    # throw (about 5 standard errors; 12 plans, so the robust variance has only 11 dof) is claimed nearly always.
+    assert noise_claims <= max(1, int(np.ceil(3 * ALPHA * 20)))
+    assert bic_claims > noise_claims
+    assert real_claims >= 18

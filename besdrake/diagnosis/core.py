@@ -74,9 +74,9 @@ EXPAND_ALL = False
 #: (:meth:`_Sim.local_shift`) instead of at nominal: at most LOCAL_TOP of them by BIC plus the effects of the best one
 #: on their own, each only if its chi2 is within LOCAL_CHI2_FACTOR of the best (about 100 rollouts each).
 LOCAL_PLACEMENT = True
-#: Claim the second effect of a pair only if it predicts held-out plans better than the pair's single effect
-#: (:func:`_extra_effect_generalises`); needs at least CV_MIN_PLANS distinct plans.
-CROSS_VALIDATE = True
+#: Claim the second effect of a pair only if its parameters are significant with the plans as the independent
+#: units (:func:`_extra_effect_significant`); needs at least CV_MIN_PLANS distinct plans.
+ROBUST_NESTED_TEST = True
 CV_MIN_PLANS = 6
 LOCAL_TOP = 3
 LOCAL_CHI2_FACTOR = 1.5
@@ -519,41 +519,39 @@ def _lack_of_fit_p(prob: fitting.Problem, y_fit: np.ndarray, k: int, noise_model
     return p, ps
 
 
-def _heldout_plan_losses(prob: fitting.Problem, fit: fitting.CandidateFit, keys: Sequence[str]) -> dict[str, float]:
-    """Leave-one-plan-out prediction loss of a refined candidate, per plan: the weighted squared residual of the
-    plan's throws predicted by the candidate refitted without them (one Gauss-Newton step on its Jacobian at the
-    all-data optimum, with the fit's weak prior and bounds). A parameter that only fits the noise of these throws
-    (e.g. the mean of the touchdown scatter, which the touchdown, the ball path and its speed all share within a
-    throw) predicts other throws no better; an effect the lab has does."""
-    r = prob.weighted(fit.y_fit if fit.y_fit is not None else prob.y0)
-    throw_of = np.nonzero(prob.mask)[0]
-    entry_key = np.array([keys[i] for i in throw_of])
-    A = fit.jac if (fit.specs and fit.jac is not None and fit.jac.shape[0] == len(r)) else None
-    out: dict[str, float] = {}
-    for u in dict.fromkeys(keys):
-        test = entry_key == u
-        if not test.any():
-            continue
-        r_t = r[test]
-        if A is not None and (~test).any():
-            delta = fitting._solve_step(A[~test], r[~test], fit.specs, fit.theta)
-            r_t = r_t - A[test] @ delta
-        out[u] = float(r_t @ r_t)
-    return out
-
-
-def _extra_effect_generalises(prob: fitting.Problem, big: fitting.CandidateFit, small: fitting.CandidateFit, keys: Sequence[str]) -> tuple[bool, float, float]:
-    """Whether the larger of two nested candidates predicts held-out plans better (leave-one-plan-out, one-sided
-    Wilcoxon signed-rank test over plans at level :data:`ALPHA`; plans, not feature entries, are the independent
-    units: the residuals within a throw are strongly correlated and a chi-square over entries counts them as
-    independent evidence). Returns (generalises, p-value, summed held-out loss difference big - small)."""
-    lb, ls = _heldout_plan_losses(prob, big, keys), _heldout_plan_losses(prob, small, keys)
-    common = [u for u in lb if u in ls]
-    d = np.array([lb[u] - ls[u] for u in common])
-    if len(d) < CV_MIN_PLANS or not np.any(d != 0):
-        return True, float("nan"), float(d.sum()) if len(d) else 0.0
-    p = float(stats.wilcoxon(d, alternative="less").pvalue)
-    return p < ALPHA, p, float(d.sum())
+def _extra_effect_significant(prob: fitting.Problem, big: fitting.CandidateFit, effect: str, keys: Sequence[str]) -> tuple[bool, float]:
+    """Whether ``effect``'s parameters in the refined candidate ``big`` differ from nominal significantly when the
+    plans, not the residual entries, are the independent units: Wald test with the cluster-robust (sandwich)
+    covariance H^-1 (sum_u g_u g_u^T) H^-1 U/(U-1), g_u the score of plan u's throws (weighted Jacobian^T residual),
+    H the Gauss-Newton information with the fit's weak prior; F(q, U-1) reference at level :data:`ALPHA`. The
+    residuals within a throw are strongly correlated (the touchdown scatter also moves the ball path and its speed),
+    so a chi-square over entries counts one throw's noise several times and lets a small effect (a joint offset)
+    absorb it; the plan-level scatter of the scores does not. Returns (significant, p-value)."""
+    idx = [j for j, s_ in enumerate(big.specs) if s_.effect == effect]
+    A = big.jac
+    if not idx or A is None or big.y_fit is None or A.shape[0] != prob.n:
+        return True, float("nan")
+    r = prob.weighted(big.y_fit)
+    entry_key = np.array([keys[i] for i in np.nonzero(prob.mask)[0]])
+    plans = list(dict.fromkeys(entry_key.tolist()))
+    U = len(plans)
+    if U < CV_MIN_PLANS:
+        return True, float("nan")
+    P, _ = fitting._prior_rows(big.specs, big.theta)
+    H = A.T @ A + P.T @ P
+    G = np.array([A[entry_key == u].T @ r[entry_key == u] for u in plans])
+    meat = G.T @ G * U / (U - 1)
+    try:
+        Hi = np.linalg.inv(H)
+    except np.linalg.LinAlgError:
+        return True, float("nan")
+    cov = Hi @ meat @ Hi
+    delta = big.theta[idx] - np.array([big.specs[j].nominal for j in idx])
+    C = cov[np.ix_(idx, idx)]
+    W = float(delta @ np.linalg.pinv(C) @ delta)
+    q = len(idx)
+    p = float(stats.f.sf(W / q, q, U - 1))
+    return p < ALPHA, p
 
 
 def _separation_advice(a: fitting.CandidateFit, b: fitting.CandidateFit, sim: _Sim, measured: list[str], plans_meta: list[dict]) -> dict:
@@ -854,8 +852,8 @@ def diagnose(
         # the lack-of-fit test) and the effect changes neither the predicted touchdowns nor the joint tracking
         # materially (less than MATERIAL x the noise SD, median over throws; the ball path at 4x that); it then
         # only absorbs small systematic differences that no throw outcome depends on.
-        # A nested pair's extra effect is also dropped when it does not predict held-out plans better (CROSS_VALIDATE,
-        # :func:`_extra_effect_generalises`). When several effects could go, the model kept is the best (BIC) of them.
+        # A nested pair's extra effect is also dropped when it is not significant with the plans as the independent
+        # units (ROBUST_NESTED_TEST, :func:`_extra_effect_significant`). When several effects could go, the model kept is the best (BIC) of them.
         best_fit = fits[0]
         by_effects = {f.effects: f for f in fits if f.refined}
         changed = True
@@ -873,11 +871,11 @@ def diagnose(
                 if sub_adequate and all(v < MATERIAL for v in size.values()):
                     drops.append((sub_fit.bic, e, sub_fit, f"{best_fit.name} fits better by BIC ({sub_fit.bic - best_fit.bic:.1f}) but {e} changes the predictions by only "
                                   + ", ".join(f"{g} {v:.2f} noise SD" for g, v in size.items()) + f" (median): not claimed, below the {MATERIAL} SD materiality threshold"))
-                elif CROSS_VALIDATE and sub:
-                    gen, p_cv, dloss = _extra_effect_generalises(prob, best_fit, sub_fit, keys)
-                    if not gen:
-                        drops.append((sub_fit.bic, e, sub_fit, f"{best_fit.name} fits better by BIC ({sub_fit.bic - best_fit.bic:.1f}) but {e} does not predict "
-                                      f"held-out plans better (leave-one-plan-out: held-out chi2 change {dloss:+.1f}, one-sided Wilcoxon p = {p_cv:.2g} >= {ALPHA}): not claimed"))
+                elif ROBUST_NESTED_TEST and sub:
+                    sig, p_w = _extra_effect_significant(prob, best_fit, e, keys)
+                    if not sig:
+                        drops.append((sub_fit.bic, e, sub_fit, f"{best_fit.name} fits better by BIC ({sub_fit.bic - best_fit.bic:.1f}) but {e} is not significant "
+                                      f"with the throws' plans as the independent units (cluster-robust Wald test p = {p_w:.2g} >= {ALPHA}): not claimed"))
             if drops:
                 _b, _e, best_fit, note = min(drops, key=lambda x: x[0])
                 notes.append(note)
