@@ -165,6 +165,26 @@ def test_refine_with_restarts_succeeds_records_attempts_and_resumes(base, tmp_pa
         refine(RefinementProblem(base), StandIn(), n_episodes=8, **(kw | {"starts": np.zeros((2, 3))}))
 
 
+def test_default_bipop_refine_resumes_and_rejects_a_folder_of_the_previous_default(base, tmp_path):
+    from besdrake.search.refinement import DEFAULT_RESTART_REGIMES
+
+    assert DEFAULT_RESTART_REGIMES == "bipop"
+    kw = dict(seed=1, popsize=6, stagnation_generations=2, stagnation_tol=0.5, stop_on_success=False)
+    refine(RefinementProblem(base), StandIn(), n_episodes=30, out_dir=tmp_path / "new", **kw)
+    again = refine(RefinementProblem(base), StandIn(), n_episodes=120, out_dir=tmp_path / "new", **kw)
+    fresh = refine(RefinementProblem(base), StandIn(), n_episodes=120, **kw)
+    assert again.resumed and np.array_equal(fresh.rewards, again.rewards) and fresh.attempts == again.attempts
+    assert {a["regime"] for a in fresh.attempts} == {"large", "small"}
+    small = [a for a in fresh.attempts if a["regime"] == "small"]
+    assert all(a["start"] == -1 and a["sigma0"] <= 1.0 for a in small)
+    # a run folder of the previous default (every restart large) is another run
+    refine(RefinementProblem(base), StandIn(), n_episodes=12, out_dir=tmp_path / "old", restart_regimes="large", **kw)
+    with pytest.raises(RefinementError, match="another refinement"):
+        refine(RefinementProblem(base), StandIn(), n_episodes=24, out_dir=tmp_path / "old", **kw)
+    with pytest.raises(RefinementError, match="restart_regimes"):
+        refine(RefinementProblem(base), StandIn(), n_episodes=12, restart_regimes="ipop", **kw)
+
+
 @pytest.mark.parametrize("options", [{"CMA_diagonal": True}, {"CMA_elitist": True}, {"CMA_diagonal": True, "CMA_elitist": True}])
 def test_separable_and_elitist_cmaes_resume_with_the_same_candidates(tmp_path, options):
     from besdrake.search.cmaes import CMAES

@@ -45,7 +45,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "alternate with large ones); default: besdrake.search.refinement.DEFAULT_RESTART_REGIMES")
     parser.add_argument("--popsize-growth", type=float, default=None, metavar="F",
                         help="IPOP-like: the k-th large restart has population POPSIZE * F**k (default: DEFAULT_POPSIZE_GROWTH)")
-    parser.add_argument("--plain", action="store_true", help="the previous default search: plain CMA-ES, no restarts (overrides the search options above)")
+    parser.add_argument("--plain", action="store_true", help="the search before issue 5: plain CMA-ES, no restarts (overrides the search options above; "
+                                                              "'--regimes large' is the default before the BIPOP regimes)")
     parser.add_argument("--dropped-penalty", type=float, default=None, help="reward penalty (m) of a ball that falls out of the scoop (default 0)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--continue-after-success", action="store_true", help="use the whole budget instead of stopping at the first success")
