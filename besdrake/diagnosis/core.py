@@ -6,7 +6,10 @@
    *expected* throw of a lab whose ball placement scatters (``placement_sd``, :func:`placement_points`): the throw is
    nonlinear in the placement, so the scatter shifts the mean and would otherwise be taken for an effect.
 2. *Cause*: every candidate effect of the registry and every pair is fitted (:mod:`~besdrake.diagnosis.fitting`)
-   and ranked by BIC; candidates within :data:`INDISTINGUISHABLE_DBIC` of the best that are not merely the
+   and ranked by BIC (the leading candidates with the placement correction recomputed at their own parameters,
+   :meth:`_Sim.local_shift`; a pair's second effect claimed only if it is significant with the throws' plans as the
+   independent units, :func:`_extra_effect_significant`, since residuals within a throw are strongly correlated and
+   BIC over entries counts one throw's noise several times); candidates within :data:`INDISTINGUISHABLE_DBIC` of the best that are not merely the
    best plus an unneeded effect are reported as "cannot tell apart", with the recording or throw that would
    separate them (predicted by simulating both fitted candidates). When even the best candidate leaves a
    residual above the noise (lack-of-fit test at :data:`ALPHA`), the result is "not explained". When no candidate

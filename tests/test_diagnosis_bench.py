@@ -1,0 +1,59 @@
+"""scripts/bench_diagnosis.py: the noise-free signature of a hidden effect and its size against the detection limit."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from besdrake.diagnosis.core import INDISTINGUISHABLE_DBIC
+from besdrake.diagnosis.design import diagnosis_plans
+from besdrake.diagnosis.observables import N_FEATURES, group_slices
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _bench():
+    spec = importlib.util.spec_from_file_location("bench_diagnosis", ROOT / "scripts" / "bench_diagnosis.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_signature_is_the_effect_on_minus_off_without_noise():
+    from besdrake.sim import Rollout
+    from besdrake.transfer.virtual_lab import VirtualLab
+
+    bench = _bench()
+    plans = diagnosis_plans(3, 0, seed=3)
+    hidden = {"base_offset": {"z": -0.05}}
+    ms = [VirtualLab({"name": "t", "effects": hidden, "seed": 9}).execute(p, trial=i) for i, p in enumerate(plans)]
+    roll = Rollout("nominal")
+    td = group_slices()["touchdown"]
+    sig = bench._signature(hidden, 9, ms, plans, roll)
+    exp = bench._expected_signature(hidden, ms, plans, roll, 0.002, n_draws=1, seed=9)
+    assert sig.shape == exp.shape == (3, N_FEATURES)
+    # A 5 cm lower pedestal lands the ball centimetres short, with or without the placement scatter averaged.
+    assert np.all(np.abs(sig[:, td.start]) > 0.01) and np.all(np.abs(exp[:, td.start]) > 0.01)
+    assert np.allclose(sig[:, td], exp[:, td], atol=0.01)
+    # No effect: nothing moves (same placement draws on and off).
+    assert np.allclose(np.nan_to_num(bench._signature({}, 9, ms, plans, roll)), 0.0)
+
+
+def test_signature_size_is_in_units_of_the_detection_limit():
+    bench = _bench()
+    sl = group_slices()
+    sd = np.ones(N_FEATURES)
+    sd[sl["touchdown"]] = 0.05
+    d = SimpleNamespace(noise=SimpleNamespace(vector=lambda: sd), groups_measured=["touchdown"], causes=[SimpleNamespace(n=50)])
+    sig = np.full((10, N_FEATURES), np.nan)
+    sig[:, sl["touchdown"]] = [0.05, 0.0]  # one noise SD on every throw's touchdown x
+    sig[:, sl["ball_pos"]] = 1.0  # not logged: does not count
+    out = bench._signature_size(sig, d, k=1)
+    assert out["signature_chi2"] == pytest.approx(10.0)
+    assert out["detection_limit_chi2"] == pytest.approx(INDISTINGUISHABLE_DBIC + np.log(50))
+    assert out["signature_over_limit"] == pytest.approx(10.0 / (INDISTINGUISHABLE_DBIC + np.log(50)))
+    assert set(out["signature_chi2_by_group"]) == {"touchdown"}
