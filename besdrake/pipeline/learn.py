@@ -305,7 +305,8 @@ def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int
         for k in range(int(cfg["plans"])):
             ctx.progress(f"{tag}: CMA-ES run {k + 1}/{cfg['plans']} from throw {index} ({start.distance:.2f} m from the target)")
             result = refine(problem, executor, n_episodes=int(budget), seed=int(cfg["seed"]) + k,
-                            out_dir=out / f"run{k}", popsize=int(cfg["population"]))
+                            out_dir=out / f"run{k}", popsize=int(cfg["population"]),
+                            stop_on_success=bool(cfg.get("stop_on_success", True)))
             dmp = DMPParameterization(problem.parameterization.template).from_vector(result.best_theta)
             dmp.save(out / f"refined{k}.dmp.json")
             DMPParameterization(dmp).motion_plan(DMPParameterization(dmp).to_vector(), dt=0.01).save(out / f"refined{k}.plan.json")
