@@ -120,8 +120,19 @@ def test_resumed_bipop_restart_optimizer_asks_the_same_candidates(tmp_path):
     assert {h["regime"] for h in a.attempt_history} == {"large", "small"}
 
 
+def test_small_share_limits_the_episodes_of_small_restarts(tmp_path):
+    n = 3
+    opt = StagnationRestartCMAES(np.zeros((1, n)), 1.0, np.random.default_rng(5), popsize=6, stagnation_generations=50,
+                                 max_generations=3, regimes="bipop", small_share=0.01)
+    run(opt, 5 * 3)
+    # one small restart (no small episodes yet), then large ones: the small share (1 %) is spent
+    assert [h["regime"] for h in opt.attempt_history] == ["large", "small", "large", "large", "large"]
+    save_state(opt.state_dict(), tmp_path / "opt")
+    assert StagnationRestartCMAES.from_state(load_state(tmp_path / "opt")).small_share == 0.01
+
+
 def test_bad_regime_settings_are_rejected():
-    for kw in ({"regimes": "ipop"}, {"popsize_growth": 0.5}, {"small_decades": -1.0}):
+    for kw in ({"regimes": "ipop"}, {"popsize_growth": 0.5}, {"small_decades": -1.0}, {"small_share": 0.0}):
         with pytest.raises(ValueError):
             StagnationRestartCMAES(np.zeros((1, 3)), 1.0, np.random.default_rng(0), **kw)
 

@@ -533,8 +533,8 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
       attempt ``k`` has population ``round(popsize * popsize_growth**k)``.
     * ``"bipop"``: after the first attempt, a restart is *small* (step ``sigma0 * 10**(-small_decades * u)``,
       ``u ~ U(0, 1)``, population ``popsize``, always from the best candidate so far: a local search of
-      the best basin) whenever the episodes spent in small attempts are fewer than those spent in large
-      ones, else *large* (step ``sigma0``, population ``round(popsize * popsize_growth**j)`` for the
+      the best basin) whenever the episodes spent in small attempts are fewer than ``small_share`` times
+      those spent in large ones, else *large* (step ``sigma0``, population ``round(popsize * popsize_growth**j)`` for the
       ``j``-th large restart, start point as above). After Hansen (2009), "Benchmarking a BI-population
       CMA-ES on the BBOB-2009 function testbed", with the restarts triggered by stagnation.
 
@@ -560,6 +560,7 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
         popsize_growth: float = 1.0,
         regimes: str = "large",
         small_decades: float = 2.0,
+        small_share: float = 1.0,
     ) -> None:
         starts = np.atleast_2d(np.asarray(starts, dtype=float))
         if starts.size == 0 or not np.isfinite(starts).all():
@@ -576,6 +577,8 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
             raise ValueError(f"regimes must be one of {_STAGNATION_REGIMES}, got {regimes!r}")
         if not (np.isfinite(small_decades) and small_decades >= 0):
             raise ValueError(f"small_decades must be a finite number >= 0, got {small_decades!r}")
+        if not (np.isfinite(small_share) and small_share > 0):
+            raise ValueError(f"small_share must be a finite number > 0, got {small_share!r}")
         self.n_params = starts.shape[1]
         self.bounds = None if bounds is None else np.asarray(bounds, dtype=float)
         if self.bounds is not None:
@@ -593,6 +596,7 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
         self.popsize_growth = float(popsize_growth)
         self.regimes = regimes
         self.small_decades = float(small_decades)
+        self.small_share = float(small_share)
         self.attempt = 0
         #: regime bookkeeping: regime of the current attempt, large restarts so far, episodes per regime
         self.regime = "large"
@@ -627,7 +631,7 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
 
     def _next_regime(self) -> float:
         """Choose the regime of the next attempt (sets :attr:`regime`); returns its step size."""
-        if self.regimes == "bipop" and self.evaluations["small"] < self.evaluations["large"]:
+        if self.regimes == "bipop" and self.evaluations["small"] < self.small_share * self.evaluations["large"]:
             self.regime = "small"
             return self.sigma0 * 10 ** (-self.small_decades * float(self.rng.uniform()))
         self.regime = "large"
@@ -681,6 +685,8 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
             extra_cfg["popsize_growth"] = self.popsize_growth
         if self.regimes != "large":
             extra_cfg |= {"regimes": self.regimes, "small_decades": self.small_decades}
+            if self.small_share != 1.0:
+                extra_cfg["small_share"] = self.small_share
         return {
             "type": "StagnationRestartCMAES",
             "config": {
@@ -723,6 +729,7 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
         opt.popsize_growth = float(cfg.get("popsize_growth", 1.0))
         opt.regimes = str(cfg.get("regimes", "large"))
         opt.small_decades = float(cfg.get("small_decades", 2.0))
+        opt.small_share = float(cfg.get("small_share", 1.0))
         reg = state.get("regime", {})  # absent in states written before the regimes existed
         opt.regime = str(reg.get("regime", "large"))
         opt.n_large_restarts = int(reg.get("n_large_restarts", state["attempt"]))

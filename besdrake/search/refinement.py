@@ -656,6 +656,7 @@ def make_optimizer(
     cma_options: dict[str, Any] | None = None,
     popsize_growth: float | None = None,
     restart_regimes: str | None = None,
+    small_share: float = 1.0,
 ):
     """CMA-ES on the normalised space, started at the imitated throw (``x0 = 0``) unless ``x0`` is given.
 
@@ -689,7 +690,8 @@ def make_optimizer(
         pts = np.clip(pts, bounds[:, 0] + 1e-9 * span, bounds[:, 1] - 1e-9 * span)
         return StagnationRestartCMAES(pts, sigma0, rng, popsize=popsize, bounds=bounds, stagnation_generations=stagnation_generations,
                                       tol=stagnation_tol, max_generations=max_attempt_generations, restart_from_best=restart_from_best,
-                                      cma_options=cma_options, popsize_growth=popsize_growth, regimes=restart_regimes)
+                                      cma_options=cma_options, popsize_growth=popsize_growth, regimes=restart_regimes,
+                                      small_share=small_share)
     if meta_episodes > 0:
         return StagedCMAES(x0, meta_basis(problem), meta_sigma, sigma0, rng, subspace_evaluations=meta_episodes,
                            popsize_subspace=popsize, popsize=popsize, bounds=bounds, cma_options=cma_options)
@@ -718,6 +720,7 @@ def refine(
     cma_options: dict[str, Any] | None = None,
     popsize_growth: float | None = None,
     restart_regimes: str | None = None,
+    small_share: float = 1.0,
 ) -> RefinementResult:
     """Refine ``problem`` with CMA-ES for at most ``n_episodes`` episodes (stops at the first
     generation with a success when ``stop_on_success``). With ``out_dir`` the run is resumable:
@@ -750,6 +753,8 @@ def refine(
                 desc |= {"popsize_growth": float(popsize_growth)}
             if restart_regimes != "large":
                 desc |= {"restart_regimes": str(restart_regimes)}
+            if small_share != 1.0:
+                desc |= {"small_share": float(small_share)}
         if cma_options:
             desc |= {"cma_options": dict(cma_options)}
         if desc_path.exists():
@@ -766,7 +771,7 @@ def refine(
     opt = optimizer if optimizer is not None else make_optimizer(
         problem, seed, sigma0, popsize, meta_episodes=meta_episodes, meta_sigma=meta_sigma, stagnation_generations=stagnation_generations,
         starts=starts, restart_from_best=restart_from_best, stagnation_tol=stagnation_tol, max_attempt_generations=max_attempt_generations,
-        cma_options=cma_options, popsize_growth=popsize_growth, restart_regimes=restart_regimes)
+        cma_options=cma_options, popsize_growth=popsize_growth, restart_regimes=restart_regimes, small_share=small_share)
     t0 = time.perf_counter()
     best = [np.inf]
     last = [t0]
