@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -13,21 +11,11 @@ from besdrake.diagnosis.core import INDISTINGUISHABLE_DBIC
 from besdrake.diagnosis.design import diagnosis_plans
 from besdrake.diagnosis.observables import N_FEATURES, group_slices
 
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def _bench():
-    spec = importlib.util.spec_from_file_location("bench_diagnosis", ROOT / "scripts" / "bench_diagnosis.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-def test_signature_is_the_effect_on_minus_off_without_noise():
+def test_signature_is_the_effect_on_minus_off_without_noise(script):
     from besdrake.sim import Rollout
     from besdrake.transfer.virtual_lab import VirtualLab
 
-    bench = _bench()
+    bench = script("bench_diagnosis")
     plans = diagnosis_plans(3, 0, seed=3)
     hidden = {"base_offset": {"z": -0.05}}
     ms = [VirtualLab({"name": "t", "effects": hidden, "seed": 9}).execute(p, trial=i) for i, p in enumerate(plans)]
@@ -43,8 +31,8 @@ def test_signature_is_the_effect_on_minus_off_without_noise():
     assert np.allclose(np.nan_to_num(bench._signature({}, 9, ms, plans, roll)), 0.0)
 
 
-def test_signature_size_is_in_units_of_the_detection_limit():
-    bench = _bench()
+def test_signature_size_is_in_units_of_the_detection_limit(script):
+    bench = script("bench_diagnosis")
     sl = group_slices()
     sd = np.ones(N_FEATURES)
     sd[sl["touchdown"]] = 0.05

@@ -248,14 +248,20 @@ class _FunnelExecutor:
         return out
 
 
-def test_expected_features_average_over_the_placement_scatter():
-    from besdrake.diagnosis.core import _placement_correction, _Sim, placement_points
-    from besdrake.sim.scenario import load_scenario
+def _funnel_sim(executor_cls):
+    """The diagnosis' simulator over three design plans with a stand-in executor (no Drake)."""
+    from besdrake.diagnosis.core import _Sim
 
     plans = diagnosis_plans(3, 1)
-    keys = [f"k{i}" for i in range(len(plans))]
     lay = [observables.ThrowLayout() for _ in plans]
-    sim = _Sim(_FunnelExecutor(), plans, keys, lay, lay)
+    return _Sim(executor_cls(), plans, [f"k{i}" for i in range(len(plans))], lay, lay)
+
+
+def test_expected_features_average_over_the_placement_scatter():
+    from besdrake.diagnosis.core import _placement_correction, placement_points
+    from besdrake.sim.scenario import load_scenario
+
+    sim = _funnel_sim(_FunnelExecutor)
     sd = 0.002
     summary = _placement_correction(sim, load_scenario("nominal"), sd)
     lift = 100.0 * 2 * sd * np.sqrt(2 / np.pi)  # E(|x| + |y|) for N(0, sd^2) per axis
@@ -271,7 +277,7 @@ def test_expected_features_average_over_the_placement_scatter():
     y_other = sim.one({"air_drag": {"cd": 0.5}})
     assert np.allclose(y_other[:, td], y0[:, td])
     # Without scatter nothing is corrected.
-    sim0 = _Sim(_FunnelExecutor(), plans, keys, lay, lay)
+    sim0 = _funnel_sim(_FunnelExecutor)
     assert _placement_correction(sim0, load_scenario("nominal"), 0.0) == {}
     assert np.allclose(sim0.one({})[:, td], [1.5, 0.0])
     assert len(placement_points(sd)) == 4
@@ -298,13 +304,10 @@ class _LagFunnelExecutor(_FunnelExecutor):
 
 
 def test_local_placement_correction_follows_the_candidate():
-    from besdrake.diagnosis.core import _placement_correction, _Sim
+    from besdrake.diagnosis.core import _placement_correction
     from besdrake.sim.scenario import load_scenario
 
-    plans = diagnosis_plans(3, 1)
-    keys = [f"k{i}" for i in range(len(plans))]
-    lay = [observables.ThrowLayout() for _ in plans]
-    sim = _Sim(_LagFunnelExecutor(), plans, keys, lay, lay)
+    sim = _funnel_sim(_LagFunnelExecutor)
     sd = 0.002
     _placement_correction(sim, load_scenario("nominal"), sd)
     td = group_slices()["touchdown"]
@@ -318,7 +321,7 @@ def test_local_placement_correction_follows_the_candidate():
     assert np.allclose(sim.one(lag, shift=sh)[:, td], [1.5, 1.5 * lift])
     # Candidates that set the placement are averaged exactly already; the nominal one has the nominal correction.
     assert sim.local_shift({"ball_placement": {"x": 0.001}}) is None and sim.local_shift({}) is None
-    sim0 = _Sim(_LagFunnelExecutor(), plans, keys, lay, lay)
+    sim0 = _funnel_sim(_LagFunnelExecutor)
     assert sim0.local_shift(lag) is None  # no scatter, no correction
 
 

@@ -25,6 +25,22 @@ def run(opt, generations: int) -> None:
         opt.tell(X, two_basins(X))
 
 
+def restored(a, tmp_path):
+    """``a`` saved to disk and restored as a new optimizer."""
+    save_state(a.state_dict(), tmp_path / "opt")
+    return StagnationRestartCMAES.from_state(load_state(tmp_path / "opt"))
+
+
+def assert_same_asks(a, b, generations: int) -> None:
+    """``a`` and ``b`` side by side on the two-basin function ask identical candidates and record the same attempts."""
+    for _ in range(generations):
+        Xa, Xb = a.ask(), b.ask()
+        assert np.array_equal(Xa, Xb)
+        a.tell(Xa, two_basins(Xa))
+        b.tell(Xb, two_basins(Xb))
+    assert a.attempt_history == b.attempt_history
+
+
 def test_a_stalled_attempt_restarts_from_the_next_start_point():
     n = 5
     starts = np.array([[-3.0] * n, [2.0] * n])
@@ -61,15 +77,10 @@ def test_resumed_restart_optimizer_asks_the_same_candidates(tmp_path):
     starts = np.array([[-3.0] * n, [1.0] * n])
     a = StagnationRestartCMAES(starts, 0.5, np.random.default_rng(7), **kw)
     run(a, 15)
-    save_state(a.state_dict(), tmp_path / "opt")
-    b = StagnationRestartCMAES.from_state(load_state(tmp_path / "opt"))
+    b = restored(a, tmp_path)
     assert b.attempt == a.attempt and b.attempt_best == a.attempt_best
-    for _ in range(25):
-        Xa, Xb = a.ask(), b.ask()
-        assert np.array_equal(Xa, Xb)
-        a.tell(Xa, two_basins(Xa))
-        b.tell(Xb, two_basins(Xb))
-    assert a.attempt_history == b.attempt_history and a.attempt >= 2
+    assert_same_asks(a, b, 25)
+    assert a.attempt >= 2
 
 
 def test_bad_restart_settings_are_rejected():
@@ -108,15 +119,10 @@ def test_resumed_bipop_restart_optimizer_asks_the_same_candidates(tmp_path):
               popsize_growth=1.5, restart_from_best=True)
     a = StagnationRestartCMAES(np.full((1, n), -3.0), 0.5, np.random.default_rng(11), **kw)
     run(a, 12)
-    save_state(a.state_dict(), tmp_path / "opt")
-    b = StagnationRestartCMAES.from_state(load_state(tmp_path / "opt"))
+    b = restored(a, tmp_path)
     assert (b.regime, b.n_large_restarts, b.evaluations) == (a.regime, a.n_large_restarts, a.evaluations)
-    for _ in range(30):
-        Xa, Xb = a.ask(), b.ask()
-        assert np.array_equal(Xa, Xb)
-        a.tell(Xa, two_basins(Xa))
-        b.tell(Xb, two_basins(Xb))
-    assert a.attempt_history == b.attempt_history and a.attempt >= 3
+    assert_same_asks(a, b, 30)
+    assert a.attempt >= 3
     assert {h["regime"] for h in a.attempt_history} == {"large", "small"}
 
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
 
@@ -83,10 +82,8 @@ def test_record_writes_self_contained_html(tmp_path, capsys):
     assert 'src="http' not in html and "localhost:" not in html  # scripts inlined, no server needed
 
 
-def test_render_diagrams_writes_dot(tmp_path):
-    spec = importlib.util.spec_from_file_location("render_diagrams", REPO / "scripts" / "render_diagrams.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+def test_render_diagrams_writes_dot(tmp_path, script):
+    mod = script("render_diagrams")
     written = mod.render(REPO / "diagrams" / "nominal.yaml", tmp_path)
     dot = written[0].read_text()
     assert written[0].suffix == ".dot"

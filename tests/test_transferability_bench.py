@@ -3,30 +3,18 @@ its record and its resume after a kill. Slow (imitation of 8 throws, a small ref
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import shutil
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def _bench():
-    spec = importlib.util.spec_from_file_location("bench_transferability", ROOT / "scripts" / "bench_transferability.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 @pytest.mark.slow
-def test_run_subject_records_and_resumes_after_a_kill(tmp_path, monkeypatch):
+def test_run_subject_records_and_resumes_after_a_kill(tmp_path, monkeypatch, script):
     from besdrake.commands.refine import collect_imitated
     from besdrake.transfer.virtual_lab import VirtualLab
 
-    bench = _bench()
+    bench = script("bench_transferability")
     imitated = tmp_path / "imitated"
     # one experiment (8 throws) of subject 0, put where the benchmark caches a subject's imitated throws
     (imitated / "imit_s0").mkdir(parents=True)
@@ -51,13 +39,14 @@ def test_run_subject_records_and_resumes_after_a_kill(tmp_path, monkeypatch):
     with pytest.raises(KeyboardInterrupt):
         bench.run_subject(0, "nominal", out, imitated, **kwargs)
     assert not (out / "ta_test" / "result.json").exists()
-    refinement = json.loads((out / "refine_r20" / "refinement.json").read_text())
+    refinement = json.loads((out / "refine_r20_full" / "refinement.json").read_text())
     assert refinement["episodes"] == 20 and refinement["n_imitated_throws"] == len(files)
+    assert refinement["whole_budget"]  # the budget is spent on the closest throw, not stopped at the first success
 
     monkeypatch.setattr(VirtualLab, "execute", real_execute)
     rec = bench.run_subject(0, "nominal", out, imitated, **kwargs)
     # the refinement was not redone, the two logged trials were not thrown again
-    assert json.loads((out / "refine_r20" / "refinement.json").read_text()) == refinement
+    assert json.loads((out / "refine_r20_full" / "refinement.json").read_text()) == refinement
     assert rec["refinement"] == refinement
     from besdrake.transfer.log import LabLog
 
@@ -77,8 +66,8 @@ def test_run_subject_records_and_resumes_after_a_kill(tmp_path, monkeypatch):
     assert summary["subjects"] == 1 and summary["target_met"] == (rec["success"] and rec["transfers_to_success"] <= 3)
 
 
-def test_three_of_three_probability_matches_the_closed_form_and_falls_with_the_offset():
-    bench = _bench()
+def test_three_of_three_probability_matches_the_closed_form_and_falls_with_the_offset(script):
+    bench = script("bench_transferability")
     sd = 0.05
     p_hit = 1.0 - np.exp(-0.1**2 / (2 * sd**2))  # Rayleigh radius of a plan centred on the target
     assert bench.three_of_three_probability(sd, 0.0) == pytest.approx(p_hit**3, rel=1e-6)
