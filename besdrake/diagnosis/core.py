@@ -81,9 +81,9 @@ EXPAND_ALL = False
 #: confusions) now right; wall time median 49 s, max 141 s (was 28 / 60 s).
 LOCAL_PLACEMENT = True
 #: Claim the second effect of a pair only if its parameters are significant with the plans as the independent
-#: units (:func:`_extra_effect_significant`); needs at least CV_MIN_PLANS distinct plans.
+#: units (:func:`_extra_effect_significant`); needs at least NESTED_TEST_MIN_PLANS distinct plans.
 ROBUST_NESTED_TEST = True
-CV_MIN_PLANS = 6
+NESTED_TEST_MIN_PLANS = 6
 LOCAL_TOP = 3
 LOCAL_CHI2_FACTOR = 1.5
 #: Fit only the parameters a forward selection activates (extended BIC, :func:`fitting.linear_fit`): a realistic
@@ -541,7 +541,7 @@ def _extra_effect_significant(prob: fitting.Problem, big: fitting.CandidateFit, 
     entry_key = np.array([keys[i] for i in np.nonzero(prob.mask)[0]])
     plans = list(dict.fromkeys(entry_key.tolist()))
     U = len(plans)
-    if U < CV_MIN_PLANS:
+    if U < NESTED_TEST_MIN_PLANS:
         return True, float("nan")
     P, _ = fitting._prior_rows(big.specs, big.theta)
     H = A.T @ A + P.T @ P
