@@ -74,8 +74,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--elitist", action=argparse.BooleanOptionalAction, default=None,
                         help="elitist CMA-ES (cma's CMA_elitist: the best throw so far stays in the population; default: the module's)")
     parser.add_argument("--popsize-growth", type=float, default=None, help="IPOP-like restarts: the k-th large attempt has population POPSIZE * GROWTH**k (default: the module's)")
-    parser.add_argument("--regimes", choices=["large", "bipop"], default=None, help="restart regimes (bipop: small local restarts from the best alternate with large ones; default: the module's)")
+    parser.add_argument("--regimes", choices=["large", "bipop", "local"], default=None, help="restart regimes (bipop: small local restarts from the best alternate with large ones; default: the module's)")
     parser.add_argument("--small-share", type=float, default=1.0, help="bipop: small restarts while their episodes are fewer than SHARE times the large ones")
+    parser.add_argument("--patience", type=int, default=2, help="local: small restarts in a row without improvement before a large one")
+    parser.add_argument("--scouts", type=int, default=0, help="independent short first attempts (scouts) before the best goes on (0/1: none)")
+    parser.add_argument("--scout-generations", type=int, default=10, help="generations of each scout")
     parser.add_argument("--position-step", type=float, default=None, help="initial step of start/goal parameters, in multiples of --sigma0 (cma's CMA_stds; default: the module's)")
     parser.add_argument("--time-step", type=float, default=None, help="initial step of the execution time, in multiples of --sigma0 (default: as --position-step)")
     parser.add_argument("--plain", action="store_true", help="the search before issue 5 (plain CMA-ES, no restarts): overrides --diagonal --elitist --stagnation")
@@ -130,7 +133,8 @@ def main(argv: list[str] | None = None) -> int:
                            stagnation_generations=stagnation, stagnation_tol=STAGNATION_TOL if args.stagnation_tol is None else args.stagnation_tol, starts=starts,
                            restart_from_best=args.restart_from == "best", max_attempt_generations=args.max_attempt_generations,
                            cma_options=cma_options, popsize_growth=args.popsize_growth, restart_regimes=args.regimes,
-                           small_share=args.small_share)
+                           small_share=args.small_share, patience=args.patience,
+                           scouts=args.scouts, scout_generations=args.scout_generations)
                 runs.append({"seed": args.first_seed + k, "success": r.success, "episodes_to_success": r.episodes_to_success,
                              "best_distance_within_limits_m": r.summary()["best_distance_within_limits_m"],
                              "n_episodes": r.n_episodes, "n_failed": r.n_failed, "n_restarts": len(r.attempts), "wall_time_s": r.wall_time})
@@ -147,7 +151,7 @@ def main(argv: list[str] | None = None) -> int:
         "population": args.popsize, "sigma0": args.sigma0, "penalty_scale": args.penalty_scale, "violation_offset_m": reward.violation_offset,
         "dropped_penalty_m": reward.dropped_penalty, "meta_episodes": args.meta_episodes, "meta_sigma": args.meta_sigma, "position_unit_rad": args.position_unit, "acceleration_unit": args.acceleration_unit, "time_unit_s": args.time_unit, "no_slower": args.no_slower, "stagnation_generations": stagnation, "stagnation_tol_m": STAGNATION_TOL if args.stagnation_tol is None else args.stagnation_tol,
         "max_attempt_generations": args.max_attempt_generations, "restart_from": args.restart_from, "n_starts": args.n_starts, "cma_options": cma_options, "popsize_growth": DEFAULT_POPSIZE_GROWTH if args.popsize_growth is None else args.popsize_growth,
-        "restart_regimes": DEFAULT_RESTART_REGIMES if args.regimes is None else args.regimes, "small_share": args.small_share, "plain": args.plain, "target_m": [2.0, 0.0], "backend": args.backend,
+        "restart_regimes": DEFAULT_RESTART_REGIMES if args.regimes is None else args.regimes, "small_share": args.small_share, "patience": args.patience, "scouts": args.scouts, "scout_generations": args.scout_generations, "plain": args.plain, "target_m": [2.0, 0.0], "backend": args.backend,
         "success_rate": float(np.mean([r["success"] for r in all_runs])),
         "subjects_with_success_in_every_run": sum(v["success_rate"] == 1.0 for v in subjects.values()),
         "subjects_with_success_in_some_run": sum(v["success_rate"] > 0.0 for v in subjects.values()),

@@ -137,8 +137,92 @@ def test_small_share_limits_the_episodes_of_small_restarts(tmp_path):
     assert StagnationRestartCMAES.from_state(load_state(tmp_path / "opt")).small_share == 0.01
 
 
+def drifting(step: float):
+    """Rewards that move by ``step`` per generation (spread within a generation, so ``cma`` sees no flat fitness)."""
+    generation = iter(range(10**6))
+
+    def rewards(X: np.ndarray) -> np.ndarray:
+        return step * next(generation) + 0.01 * np.arange(np.atleast_2d(X).shape[0])
+
+    return rewards
+
+
+def test_local_regimes_restart_small_until_stuck_then_once_large():
+    n = 3
+    opt = StagnationRestartCMAES(np.zeros((1, n)), 1.0, np.random.default_rng(4), popsize=6, stagnation_generations=50,
+                                 max_generations=2, regimes="local", patience=2, tol=0.01)
+    worse = drifting(-1.0)  # no attempt ever improves on the first generation's best
+    for _ in range(7 * 2):
+        X = opt.ask()
+        opt.tell(X, worse(X))
+    # nothing ever improves: the first (large) attempt, then 2 small ones (patience), one large, 2 small, ...
+    assert [h["regime"] for h in opt.attempt_history] == ["large", "small", "small", "large", "small", "small", "large"]
+    for h in opt.attempt_history[1:]:
+        # small ones from the best throw with a smaller step; large ones from the start point (restart_from_best=False)
+        assert (h["start"], h["sigma0"] == 1.0) == ((0, True) if h["regime"] == "large" else (-1, False))
+
+
+def test_local_regimes_stay_small_while_the_small_restarts_improve():
+    n = 3
+    better = drifting(1.0)  # every generation better than the last
+    opt = StagnationRestartCMAES(np.zeros((1, n)), 1.0, np.random.default_rng(4), popsize=6, stagnation_generations=50,
+                                 max_generations=2, regimes="local", patience=1, tol=0.5)
+    for _ in range(6 * 2):
+        X = opt.ask()
+        opt.tell(X, better(X))
+    assert [h["regime"] for h in opt.attempt_history] == ["large"] + ["small"] * 5
+
+
+def test_resumed_local_restart_optimizer_asks_the_same_candidates(tmp_path):
+    n = 4
+    kw = dict(popsize=6, bounds=np.tile([-10.0, 10.0], (n, 1)), stagnation_generations=3, tol=0.05, regimes="local", patience=1,
+              restart_from_best=True)
+    a = StagnationRestartCMAES(np.full((1, n), -3.0), 0.5, np.random.default_rng(11), **kw)
+    run(a, 14)
+    b = restored(a, tmp_path)
+    assert (b.regime, b.small_streak, b.attempt_start_best, b.patience) == (a.regime, a.small_streak, a.attempt_start_best, 1)
+    assert_same_asks(a, b, 40)
+    assert a.attempt >= 3
+    assert {h["regime"] for h in a.attempt_history} == {"large", "small"}
+
+
+def test_scouts_run_one_after_the_other_and_the_best_goes_on():
+    n = 3
+    opt = StagnationRestartCMAES(np.zeros((1, n)), 1.0, np.random.default_rng(6), popsize=6, stagnation_generations=50,
+                                 restart_from_best=True, regimes="bipop", scouts=3, scout_generations=4)
+    inners, finals = [], []
+    for _ in range(3 * 4):
+        if not inners or inners[-1] is not opt.inner:
+            inners.append(opt.inner)
+        X = opt.ask()
+        opt.tell(X, two_basins(X))
+    hist = opt.attempt_history
+    assert [(h["end"], h["generations"], h["start"]) for h in hist] == [("scout", 4, 0)] * 3  # each from the start point
+    assert len(inners) == 3 and len({id(i) for i in inners}) == 3
+    best = int(np.argmax([h["best_reward"] for h in hist]))
+    assert opt.inner is inners[best] and opt.attempt == 3  # the best scout's CMA-ES goes on, with its history
+    assert opt.attempt_best[-1] == hist[best]["best_reward"] and len(opt.attempt_best) == 4
+    X = opt.ask()
+    opt.tell(X, two_basins(X))
+    assert len(opt.attempt_best) == 5
+
+
+def test_resumed_scouting_asks_the_same_candidates(tmp_path):
+    n = 4
+    kw = dict(popsize=6, bounds=np.tile([-10.0, 10.0], (n, 1)), stagnation_generations=3, tol=0.05, regimes="bipop",
+              restart_from_best=True, scouts=3, scout_generations=4)
+    for told in (6, 10):  # mid-scouting, with a scout kept; and just before the best scout goes on
+        a = StagnationRestartCMAES(np.full((1, n), -1.0), 0.5, np.random.default_rng(3), **kw)
+        run(a, told)
+        b = restored(a, tmp_path)
+        assert b.kept_best == a.kept_best and (b.kept is None) == (a.kept is None)
+        assert_same_asks(a, b, 40)
+        assert a.attempt >= 5
+
+
 def test_bad_regime_settings_are_rejected():
-    for kw in ({"regimes": "ipop"}, {"popsize_growth": 0.5}, {"small_decades": -1.0}, {"small_share": 0.0}):
+    for kw in ({"regimes": "ipop"}, {"popsize_growth": 0.5}, {"small_decades": -1.0}, {"small_share": 0.0},
+               {"regimes": "local", "patience": 0}, {"regimes": "local", "patience": 1.5}, {"scouts": -1}, {"scout_generations": 0}):
         with pytest.raises(ValueError):
             StagnationRestartCMAES(np.zeros((1, 3)), 1.0, np.random.default_rng(0), **kw)
 

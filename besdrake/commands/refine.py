@@ -40,9 +40,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="restart CMA-ES (fresh step size) when its best distance improved by less than STAGNATION_TOL (2 cm) in G generations; 0: never (default: DEFAULT_STAGNATION_GENERATIONS)")
     parser.add_argument("--restart-from", choices=("start", "best"), default="best",
                         help="where a restart begins: the best throw so far (default) or the start throw")
-    parser.add_argument("--regimes", choices=("large", "bipop"), default=None,
-                        help="restart regimes: 'large' (every restart with the initial step) or 'bipop' (small local restarts from the best throw "
-                             "alternate with large ones); default: besdrake.search.refinement.DEFAULT_RESTART_REGIMES")
+    parser.add_argument("--regimes", choices=("large", "bipop", "local"), default=None,
+                        help="restart regimes: 'large' (every restart with the initial step), 'bipop' (small local restarts from the best throw "
+                             "alternate with large ones) or 'local' (small restarts from the best throw; a large one only after --patience small "
+                             "ones in a row brought no improvement); default: besdrake.search.refinement.DEFAULT_RESTART_REGIMES")
+    parser.add_argument("--patience", type=int, default=None, metavar="K",
+                        help="'local' regimes: small restarts in a row without improvement before a large one (default: DEFAULT_PATIENCE)")
     parser.add_argument("--popsize-growth", type=float, default=None, metavar="F",
                         help="IPOP-like: the k-th large restart has population POPSIZE * F**k (default: DEFAULT_POPSIZE_GROWTH)")
     parser.add_argument("--plain", action="store_true", help="the search before issue 5: plain CMA-ES, no restarts (overrides the search options above; "
@@ -122,6 +125,8 @@ def search_options(args: argparse.Namespace) -> dict:
         out["restart_regimes"] = args.regimes
     if args.popsize_growth is not None:
         out["popsize_growth"] = args.popsize_growth
+    if args.patience is not None:
+        out["patience"] = args.patience
     return out
 
 
@@ -147,6 +152,8 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--meta-episodes must be >= 0 and --meta-sigma > 0, got {args.meta_episodes}, {args.meta_sigma}")
     if args.stagnation is not None and args.stagnation < 0:
         raise UserError(f"--stagnation must be >= 0, got {args.stagnation}")
+    if args.patience is not None and args.patience < 1:
+        raise UserError(f"--patience must be >= 1, got {args.patience}")
     if args.popsize_growth is not None and not (np.isfinite(args.popsize_growth) and args.popsize_growth >= 1):
         raise UserError(f"--popsize-growth must be >= 1, got {args.popsize_growth}")
     if not np.isfinite(args.target).all():

@@ -42,7 +42,7 @@ from besdrake.search.base import BestAndWorst, Optimizer, rng_from_state, rng_st
 
 _RESTART_STRATEGIES = ("none", "ipop", "bipop")
 #: Restart regimes of :class:`StagnationRestartCMAES`.
-_STAGNATION_REGIMES = ("large", "bipop")
+_STAGNATION_REGIMES = ("large", "bipop", "local")
 
 # Attributes of cma.CMAEvolutionStrategy (and its sub-objects) that change during tell() and
 # determine the next candidates and the termination tests. Paths are relative to the strategy.
@@ -537,6 +537,15 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
       those spent in large ones, else *large* (step ``sigma0``, population ``round(popsize * popsize_growth**j)`` for the
       ``j``-th large restart, start point as above). After Hansen (2009), "Benchmarking a BI-population
       CMA-ES on the BBOB-2009 function testbed", with the restarts triggered by stagnation.
+    * ``"local"``: a restart is small (as above) unless the last ``patience`` small attempts in a row
+      each failed to raise the best reward so far by ``tol``: then one large restart, after which
+      restarts are small again. A local search of the best basin that escalates to a large step only
+      when it is stuck (instead of BIPOP's fixed share of episodes).
+
+    Scouting (``scouts`` > 1): the first ``scouts`` attempts are independent short CMA-ES runs (step ``sigma0``,
+    each from ``starts[k % len(starts)]``, at most ``scout_generations`` generations each, one after the other);
+    then the scout with the best reward goes on (its CMA-ES state, not a fresh one) as the first attempt proper,
+    and the restarts above follow. Meant for landscapes where the basin a run ends up in is decided early.
 
     Budget and stop belong to the caller (the loop): :meth:`stop` is never true. One Generator drives
     every attempt; :meth:`state_dict` saves the attempt counter and regime bookkeeping, the per-generation
@@ -561,6 +570,9 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
         regimes: str = "large",
         small_decades: float = 2.0,
         small_share: float = 1.0,
+        patience: int = 2,
+        scouts: int = 0,
+        scout_generations: int = 10,
     ) -> None:
         starts = np.atleast_2d(np.asarray(starts, dtype=float))
         if starts.size == 0 or not np.isfinite(starts).all():
@@ -579,6 +591,10 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
             raise ValueError(f"small_decades must be a finite number >= 0, got {small_decades!r}")
         if not (np.isfinite(small_share) and small_share > 0):
             raise ValueError(f"small_share must be a finite number > 0, got {small_share!r}")
+        if int(patience) != patience or patience < 1:
+            raise ValueError(f"patience must be an integer >= 1, got {patience!r}")
+        if int(scouts) != scouts or scouts < 0 or int(scout_generations) != scout_generations or scout_generations < 1:
+            raise ValueError(f"scouts must be an integer >= 0 and scout_generations >= 1, got {scouts!r}, {scout_generations!r}")
         self.n_params = starts.shape[1]
         self.bounds = None if bounds is None else np.asarray(bounds, dtype=float)
         if self.bounds is not None:
@@ -597,11 +613,20 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
         self.regimes = regimes
         self.small_decades = float(small_decades)
         self.small_share = float(small_share)
+        self.patience = int(patience)
+        self.scouts = int(scouts)
+        self.scout_generations = int(scout_generations)
+        #: scouting: the best scout so far (its CMA-ES, and its per-generation best), kept to go on after the last scout
+        self.kept: CMAES | None = None
+        self.kept_best: list[float] = []
         self.attempt = 0
         #: regime bookkeeping: regime of the current attempt, large restarts so far, episodes per regime
         self.regime = "large"
         self.n_large_restarts = 0
         self.evaluations = {"large": 0, "small": 0}
+        #: "local" regimes: small attempts in a row that did not raise the best by ``tol``; best reward when the attempt began
+        self.small_streak = 0
+        self.attempt_start_best = -np.inf
         #: best reward of the current attempt after each of its generations
         self.attempt_best: list[float] = []
         #: one entry per finished attempt: start index (-1: best so far), generations, best reward, why it ended, regime, step, population
@@ -609,8 +634,12 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
         self._init_best(starts[0])
         self.inner = self._new_attempt(self.sigma0)
 
+    def scouting(self) -> bool:
+        """True while the current attempt is one of the scouts (see the class docstring)."""
+        return self.scouts > 1 and self.attempt < self.scouts
+
     def _start_point(self) -> tuple[int, np.ndarray]:
-        if (self.restart_from_best or self.regime == "small") and self.attempt > 0 and np.isfinite(self._best_reward):
+        if (self.restart_from_best or self.regime == "small") and self.attempt > 0 and np.isfinite(self._best_reward) and not self.scouting():
             return -1, self._best_params.copy()
         i = self.attempt % len(self.starts)
         return i, self.starts[i].copy()
@@ -631,7 +660,14 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
 
     def _next_regime(self) -> float:
         """Choose the regime of the next attempt (sets :attr:`regime`); returns its step size."""
-        if self.regimes == "bipop" and self.evaluations["small"] < self.small_share * self.evaluations["large"]:
+        if self.regimes == "local":
+            improved = self._best_reward - self.attempt_start_best >= self.tol
+            self.small_streak = 0 if (self.regime == "large" or improved) else self.small_streak + 1
+            if self.small_streak < self.patience:
+                self.regime = "small"
+                return self.sigma0 * 10 ** (-self.small_decades * float(self.rng.uniform()))
+            self.small_streak = 0
+        elif self.regimes == "bipop" and self.evaluations["small"] < self.small_share * self.evaluations["large"]:
             self.regime = "small"
             return self.sigma0 * 10 ** (-self.small_decades * float(self.rng.uniform()))
         self.regime = "large"
@@ -652,6 +688,8 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
         G = self.stagnation_generations
         if g > G and self.attempt_best[-1] - self.attempt_best[-1 - G] < self.tol:
             return "stagnation"
+        if self.scouting() and g >= self.scout_generations:
+            return "scout"
         return None
 
     def tell(self, candidates: np.ndarray, rewards: np.ndarray) -> None:
@@ -670,9 +708,19 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
             if self.regimes != "large" or self.popsize_growth != 1.0:
                 entry |= {"regime": self.regime, "sigma0": float(self.inner.sigma0), "popsize": int(self.inner.popsize0)}
             self.attempt_history.append(entry)
+            if why == "scout" and (not self.kept_best or self.attempt_best[-1] > self.kept_best[-1]):
+                self.kept, self.kept_best = self.inner, list(self.attempt_best)
             self.attempt += 1
             self.attempt_best = []
-            self.inner = self._new_attempt(self._next_regime())
+            if self.scouting():
+                self.inner = self._new_attempt(self.sigma0)
+            elif self.scouts > 1 and self.attempt == self.scouts and self.kept is not None:
+                # scouting is over: the best scout goes on (a large attempt)
+                self.inner, self.attempt_best = self.kept, self.kept_best
+                self.kept, self.kept_best = None, []
+            else:
+                self.inner = self._new_attempt(self._next_regime())
+            self.attempt_start_best = float(self._best_reward)
 
     @property
     def mean(self) -> np.ndarray:
@@ -687,6 +735,10 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
             extra_cfg |= {"regimes": self.regimes, "small_decades": self.small_decades}
             if self.small_share != 1.0:
                 extra_cfg["small_share"] = self.small_share
+            if self.regimes == "local":
+                extra_cfg["patience"] = self.patience
+        if self.scouts > 1:
+            extra_cfg |= {"scouts": self.scouts, "scout_generations": self.scout_generations}
         return {
             "type": "StagnationRestartCMAES",
             "config": {
@@ -702,11 +754,14 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
                 **extra_cfg,
             },
             "attempt": self.attempt,
-            "regime": {"regime": self.regime, "n_large_restarts": self.n_large_restarts, "evaluations": dict(self.evaluations)},
+            "regime": {"regime": self.regime, "n_large_restarts": self.n_large_restarts, "evaluations": dict(self.evaluations),
+                       **({"small_streak": self.small_streak, "attempt_start_best": float(self.attempt_start_best)} if self.regimes == "local" else {})},
             "attempt_best": [float(v) for v in self.attempt_best],
             "attempt_history": self.attempt_history,
             **self._best_state(),
             "inner": self.inner.state_dict(),
+            **({"kept": None if self.kept is None else self.kept.state_dict(), "kept_best": [float(v) for v in self.kept_best]}
+               if self.scouts > 1 else {}),
         }
 
     @classmethod
@@ -730,11 +785,20 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
         opt.regimes = str(cfg.get("regimes", "large"))
         opt.small_decades = float(cfg.get("small_decades", 2.0))
         opt.small_share = float(cfg.get("small_share", 1.0))
+        opt.patience = int(cfg.get("patience", 2))
+        opt.scouts = int(cfg.get("scouts", 0))
+        opt.scout_generations = int(cfg.get("scout_generations", 10))
+        opt.kept = None if state.get("kept") is None else CMAES.from_state(state["kept"])
+        if opt.kept is not None:
+            opt.kept.rng = inner.rng  # one Generator drives every attempt
+        opt.kept_best = [float(v) for v in state.get("kept_best", [])]
         reg = state.get("regime", {})  # absent in states written before the regimes existed
         opt.regime = str(reg.get("regime", "large"))
         opt.n_large_restarts = int(reg.get("n_large_restarts", state["attempt"]))
         ev = reg.get("evaluations", {})
         opt.evaluations = {"large": int(ev.get("large", 0)), "small": int(ev.get("small", 0))}
+        opt.small_streak = int(reg.get("small_streak", 0))
+        opt.attempt_start_best = float(reg.get("attempt_start_best", -np.inf))
         opt.attempt = int(state["attempt"])
         opt.attempt_best = [float(v) for v in state["attempt_best"]]
         opt.attempt_history = [dict(e) for e in state["attempt_history"]]

@@ -163,9 +163,11 @@ DEFAULT_STAGNATION_GENERATIONS = 10
 #: ``"large"`` (every restart with the initial step; the default before) or ``"bipop"`` (small local restarts from the
 #: best throw alternate with large ones; 16 of 20 benchmark runs against 14 of 20, see the module docstring), and the population growth of the
 #: large restarts (1: none; IPOP-like above 1: available, not measured on the throw).
-RESTART_REGIMES = ("large", "bipop")
+RESTART_REGIMES = ("large", "bipop", "local")
 DEFAULT_RESTART_REGIMES = "bipop"
 DEFAULT_POPSIZE_GROWTH = 1.0
+#: ``"local"`` regimes: small restarts in a row that did not improve the best throw by :data:`STAGNATION_TOL` before a large one.
+DEFAULT_PATIENCE = 2
 #: The search before issue 5 (plain CMA-ES, no restarts): keyword arguments of :func:`refine`.
 PLAIN_SEARCH: dict[str, Any] = {"cma_options": {}, "stagnation_generations": 0}
 #: Offset (rad) of the whole movement per unit of the meta-parameter stage (:func:`meta_basis`).
@@ -660,6 +662,9 @@ def make_optimizer(
     popsize_growth: float | None = None,
     restart_regimes: str | None = None,
     small_share: float = 1.0,
+    patience: int = DEFAULT_PATIENCE,
+    scouts: int = 0,
+    scout_generations: int = 10,
 ):
     """CMA-ES on the normalised space, started at the imitated throw (``x0 = 0``) unless ``x0`` is given.
 
@@ -694,7 +699,8 @@ def make_optimizer(
         return StagnationRestartCMAES(pts, sigma0, rng, popsize=popsize, bounds=bounds, stagnation_generations=stagnation_generations,
                                       tol=stagnation_tol, max_generations=max_attempt_generations, restart_from_best=restart_from_best,
                                       cma_options=cma_options, popsize_growth=popsize_growth, regimes=restart_regimes,
-                                      small_share=small_share)
+                                      small_share=small_share, patience=patience, scouts=scouts,
+                                      scout_generations=scout_generations)
     if meta_episodes > 0:
         return StagedCMAES(x0, meta_basis(problem), meta_sigma, sigma0, rng, subspace_evaluations=meta_episodes,
                            popsize_subspace=popsize, popsize=popsize, bounds=bounds, cma_options=cma_options)
@@ -724,6 +730,9 @@ def refine(
     popsize_growth: float | None = None,
     restart_regimes: str | None = None,
     small_share: float = 1.0,
+    patience: int = DEFAULT_PATIENCE,
+    scouts: int = 0,
+    scout_generations: int = 10,
 ) -> RefinementResult:
     """Refine ``problem`` with CMA-ES for at most ``n_episodes`` episodes (stops at the first
     generation with a success when ``stop_on_success``). With ``out_dir`` the run is resumable:
@@ -738,6 +747,10 @@ def refine(
         cma_options, stagnation_generations, meta_episodes, restart_regimes, popsize_growth)
     if stagnation_generations < 0:
         raise RefinementError(f"stagnation_generations must be >= 0, got {stagnation_generations}")
+    if int(patience) != patience or patience < 1:
+        raise RefinementError(f"patience must be an integer >= 1, got {patience!r}")
+    if int(scouts) != scouts or scouts < 0 or int(scout_generations) != scout_generations or scout_generations < 1:
+        raise RefinementError(f"scouts must be an integer >= 0 and scout_generations >= 1, got {scouts!r}, {scout_generations!r}")
     if meta_episodes < 0 or not (np.isfinite(meta_sigma) and meta_sigma > 0):
         raise RefinementError(f"meta_episodes must be >= 0 and meta_sigma > 0, got {meta_episodes}, {meta_sigma}")
     out = None if out_dir is None else Path(out_dir)
@@ -758,6 +771,10 @@ def refine(
                 desc |= {"restart_regimes": str(restart_regimes)}
             if small_share != 1.0:
                 desc |= {"small_share": float(small_share)}
+            if restart_regimes == "local":
+                desc |= {"patience": int(patience)}
+            if scouts > 1:
+                desc |= {"scouts": int(scouts), "scout_generations": int(scout_generations)}
         if cma_options:
             desc |= {"cma_options": dict(cma_options)}
         if desc_path.exists():
@@ -774,7 +791,8 @@ def refine(
     opt = optimizer if optimizer is not None else make_optimizer(
         problem, seed, sigma0, popsize, meta_episodes=meta_episodes, meta_sigma=meta_sigma, stagnation_generations=stagnation_generations,
         starts=starts, restart_from_best=restart_from_best, stagnation_tol=stagnation_tol, max_attempt_generations=max_attempt_generations,
-        cma_options=cma_options, popsize_growth=popsize_growth, restart_regimes=restart_regimes, small_share=small_share)
+        cma_options=cma_options, popsize_growth=popsize_growth, restart_regimes=restart_regimes, small_share=small_share,
+        patience=patience, scouts=scouts, scout_generations=scout_generations)
     t0 = time.perf_counter()
     best = [np.inf]
     last = [t0]
