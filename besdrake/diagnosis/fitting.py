@@ -315,13 +315,15 @@ def refine(
     starts: Sequence[tuple[np.ndarray, np.ndarray]] = (),
     try_linear: bool = True,
     min_gain: float = 0.5,
+    nominal_secants: bool = True,
 ) -> CandidateFit:
     """Gauss-Newton with real rollouts: Broyden-updated Jacobian, step halving, bounded steps.
 
     ``simulate_one(effects) -> features (N, F)``. The start is the best (real chi2) of the nominal, the
     linear solution (``try_linear``: one batch of rollouts) and ``starts``: already simulated
     ``(theta, y_sim)`` pairs, e.g. a refined single effect for a pair. Stops when an iteration lowers chi2
-    by less than ``min_gain`` or after ``iterations``.
+    by less than ``min_gain`` or after ``iterations``. ``nominal_secants``: update the Jacobian with the secants from
+    the nominal to each start (off when ``fit.jac`` is already a local Jacobian at a start, as in a forward step).
     """
     if not fit.specs:
         y = simulate_one({})
@@ -339,7 +341,7 @@ def refine(
     for th, y in starts:
         points.append((np.asarray(th, float), y, prob.weighted(y)))
     # Secant information from every start point (rank-one updates from the nominal).
-    for th, _y, r_p in points[1:]:
+    for th, _y, r_p in (points[1:] if nominal_secants else []):
         dth = th - theta_nom
         if np.any(dth):
             A = A + np.outer((r_nom - r_p) - A @ dth, dth) / (dth @ dth)
