@@ -371,3 +371,78 @@ def test_an_extra_effect_is_claimed_only_if_significant_over_plans():
     assert noise_claims <= max(1, int(np.ceil(3 * ALPHA * 20)))
     assert bic_claims > noise_claims
     assert real_claims >= 18
+
+
+class _LagBaseWorld:
+    """Touchdowns only: a lag that moves them quadratically in its time constant (nearly flat at nominal, so its
+    linear model there is far off), a base height and air drag that move them linearly, per-throw signatures."""
+
+    def __init__(self, seed: int, tau: float, z: float):
+        rng = np.random.default_rng(seed)
+        self.calls = 0
+        self.N, self.sl = 25, group_slices()["touchdown"]
+        self.sig = {e: rng.normal(0, 1, (self.N, 2)) for e in ("actuator_lag", "base_offset", "air_drag")}
+        self.y0 = np.full((self.N, N_FEATURES), np.nan)
+        self.y0[:, self.sl] = rng.normal(0, 1, (self.N, 2))
+        self.nm = noise.NoiseModel(sd={"touchdown": 0.05, "ball_pos": 0.01, "ball_vel": 0.05, "ball_acc": 0.3, "joints": 1e-3},
+                                   dof={"touchdown": 16, "ball_pos": 0, "ball_vel": 0, "ball_acc": 0, "joints": 0}, source={})
+        y_meas = self.one({"actuator_lag": {"tau": tau}, "base_offset": {"z": z}})
+        y_meas[:, self.sl] += rng.normal(0, 0.05, (self.N, 2))
+        self.prob = fitting.Problem(y_meas, self.y0, self.nm.vector())
+
+    def one(self, effects: dict) -> np.ndarray:
+        self.calls += 1
+        tau = effects.get("actuator_lag", {}).get("tau", 0.0)
+        z = effects.get("base_offset", {}).get("z", 0.0)
+        cd = effects.get("air_drag", {}).get("cd", 0.0)
+        y = self.y0.copy()
+        y[:, self.sl] += 0.3 * (tau / 0.03) ** 2 * self.sig["actuator_lag"] + 4.0 * z * self.sig["base_offset"] + 0.2 * cd * self.sig["air_drag"]
+        return y
+
+    def features(self, effects_list: list[dict]) -> np.ndarray:
+        return np.array([self.one(e) for e in effects_list])
+
+    def fits(self):
+        specs = [fitting.ParamSpec("actuator_lag", "tau", 0.0, 0.0, 0.05, 0.0025, "s"),
+                 fitting.ParamSpec("base_offset", "z", 0.0, -0.05, 0.05, 0.005, "m"),
+                 fitting.ParamSpec("air_drag", "cd", 0.0, 0.0, 1.0, 0.05, "1")]
+        sens = fitting.compute_sensitivity(specs, self.y0, self.features)
+        fits = [fitting.linear_fit(self.prob, sens, c) for c in fitting.candidate_sets(["actuator_lag", "base_offset", "air_drag"])]
+        singles = {}
+        for f in fits:
+            if len(f.effects) == 1:
+                singles[f.effects[0]] = fitting.refine(self.prob, f, self.one, iterations=8)
+        return sens, fits, singles
+
+
+def test_forward_pairs_refines_the_right_pair_from_a_nonlinear_lead():
+    from besdrake.diagnosis.core import ALPHA, _forward_pairs, _lack_of_fit_p
+
+    world = _LagBaseWorld(seed=2, tau=0.03, z=-0.03)
+    sens, fits, singles = world.fits()
+    pair_at_nominal = next(f for f in fits if f.effects == ("actuator_lag", "base_offset"))
+    # Why the step exists: linearised at nominal, the lag looks tiny and the pair's fit is far off.
+    assert pair_at_nominal.chi2 > 5 * pair_at_nominal.n
+    lead = singles["actuator_lag"]
+    assert min(singles.values(), key=lambda f: f.bic) is lead
+    assert _lack_of_fit_p(world.prob, lead.y_fit, lead.k, world.nm, ["touchdown"])[0] < ALPHA
+    done = _forward_pairs(world.prob, fits, sens, world, singles, world.nm, ["touchdown"], 8)
+    assert ("actuator_lag", "base_offset") in done
+    pair = next(f for f in fits if f.effects == ("actuator_lag", "base_offset"))
+    assert pair.refined and pair is not pair_at_nominal
+    values = {s.key: (v, e) for s, v, e in zip(pair.specs, pair.theta, pair.stderr)}
+    for key, truth in (("actuator_lag.tau", 0.03), ("base_offset.z", -0.03)):
+        v, e = values[key]
+        assert 0 < e < 0.003 and v == pytest.approx(truth, abs=4 * e), key
+    assert _lack_of_fit_p(world.prob, pair.y_fit, pair.k, world.nm, ["touchdown"])[0] >= ALPHA
+    assert pair.bic < lead.bic - 20
+
+
+def test_forward_pairs_does_nothing_when_the_lead_fits():
+    from besdrake.diagnosis.core import _forward_pairs
+
+    world = _LagBaseWorld(seed=3, tau=0.03, z=0.0)
+    sens, fits, singles = world.fits()
+    before, calls = list(fits), world.calls
+    assert _forward_pairs(world.prob, fits, sens, world, singles, world.nm, ["touchdown"], 8) == []
+    assert world.calls == calls and all(a is b for a, b in zip(before, fits))
