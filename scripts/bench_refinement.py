@@ -42,6 +42,7 @@ def main(argv: list[str] | None = None) -> int:
     from besdrake.imitation import load_dmp
     from besdrake.search.refinement import MIN_EXECUTION_TIME, ParameterScaling, RefinementProblem, ThrowReward, rank_starts, refine, restart_points
     from besdrake.search.refinement import DEFAULT_CMA_OPTIONS, DEFAULT_POPSIZE_GROWTH, DEFAULT_RESTART_REGIMES, DEFAULT_STAGNATION_GENERATIONS, STAGNATION_TOL
+    from besdrake.search.refinement import DEFAULT_SCOUT_GENERATIONS, DEFAULT_SCOUTS
     from besdrake.sim import make_executor
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
@@ -77,8 +78,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--regimes", choices=["large", "bipop", "local"], default=None, help="restart regimes (bipop: small local restarts from the best alternate with large ones; default: the module's)")
     parser.add_argument("--small-share", type=float, default=1.0, help="bipop: small restarts while their episodes are fewer than SHARE times the large ones")
     parser.add_argument("--patience", type=int, default=2, help="local: small restarts in a row without improvement before a large one")
-    parser.add_argument("--scouts", type=int, default=0, help="independent short first attempts (scouts) before the best goes on (0/1: none)")
-    parser.add_argument("--scout-generations", type=int, default=10, help="generations of each scout")
+    parser.add_argument("--scouts", type=int, default=None, help="independent short first attempts (scouts) before the best goes on (0/1: none; default: the module's)")
+    parser.add_argument("--scout-generations", type=int, default=None, help="generations of each scout (default: the module's)")
     parser.add_argument("--position-step", type=float, default=None, help="initial step of start/goal parameters, in multiples of --sigma0 (cma's CMA_stds; default: the module's)")
     parser.add_argument("--time-step", type=float, default=None, help="initial step of the execution time, in multiples of --sigma0 (default: as --position-step)")
     parser.add_argument("--plain", action="store_true", help="the search before issue 5 (plain CMA-ES, no restarts): overrides --diagonal --elitist --stagnation")
@@ -151,7 +152,8 @@ def main(argv: list[str] | None = None) -> int:
         "population": args.popsize, "sigma0": args.sigma0, "penalty_scale": args.penalty_scale, "violation_offset_m": reward.violation_offset,
         "dropped_penalty_m": reward.dropped_penalty, "meta_episodes": args.meta_episodes, "meta_sigma": args.meta_sigma, "position_unit_rad": args.position_unit, "acceleration_unit": args.acceleration_unit, "time_unit_s": args.time_unit, "no_slower": args.no_slower, "stagnation_generations": stagnation, "stagnation_tol_m": STAGNATION_TOL if args.stagnation_tol is None else args.stagnation_tol,
         "max_attempt_generations": args.max_attempt_generations, "restart_from": args.restart_from, "n_starts": args.n_starts, "cma_options": cma_options, "popsize_growth": DEFAULT_POPSIZE_GROWTH if args.popsize_growth is None else args.popsize_growth,
-        "restart_regimes": DEFAULT_RESTART_REGIMES if args.regimes is None else args.regimes, "small_share": args.small_share, "patience": args.patience, "scouts": args.scouts, "scout_generations": args.scout_generations, "plain": args.plain, "target_m": [2.0, 0.0], "backend": args.backend,
+        "restart_regimes": DEFAULT_RESTART_REGIMES if args.regimes is None else args.regimes, "small_share": args.small_share, "patience": args.patience, "scouts": DEFAULT_SCOUTS if args.scouts is None else args.scouts,
+        "scout_generations": DEFAULT_SCOUT_GENERATIONS if args.scout_generations is None else args.scout_generations, "plain": args.plain, "target_m": [2.0, 0.0], "backend": args.backend,
         "success_rate": float(np.mean([r["success"] for r in all_runs])),
         "subjects_with_success_in_every_run": sum(v["success_rate"] == 1.0 for v in subjects.values()),
         "subjects_with_success_in_some_run": sum(v["success_rate"] > 0.0 for v in subjects.values()),

@@ -321,6 +321,30 @@ def test_cli_search_options_map_to_refine_keywords():
     assert search_options(parser.parse_args(["x", "--meta-episodes", "50"]))["stagnation_generations"] == 0
     regimes = search_options(parser.parse_args(["x", "--regimes", "large", "--popsize-growth", "2"]))
     assert regimes["restart_regimes"] == "large" and regimes["popsize_growth"] == 2.0
+    local = search_options(parser.parse_args(["x", "--regimes", "local", "--patience", "3", "--scouts", "0", "--scout-generations", "5"]))
+    assert (local["restart_regimes"], local["patience"], local["scouts"], local["scout_generations"]) == ("local", 3, 0, 5)
+    assert "scouts" not in default and "patience" not in default  # the module's defaults apply
+
+
+def test_default_scouting_refine_resumes_and_rejects_a_folder_of_the_previous_default(base, tmp_path):
+    from besdrake.search.refinement import DEFAULT_SCOUT_GENERATIONS, DEFAULT_SCOUTS
+
+    assert DEFAULT_SCOUTS > 1 and DEFAULT_SCOUT_GENERATIONS >= 1
+    kw = dict(seed=2, popsize=6, stagnation_generations=50, stop_on_success=False, scout_generations=3)
+    n = (DEFAULT_SCOUTS * 3 + 4) * 6
+    refine(RefinementProblem(base), StandIn(), n_episodes=30, out_dir=tmp_path / "new", **kw)
+    again = refine(RefinementProblem(base), StandIn(), n_episodes=n, out_dir=tmp_path / "new", **kw)
+    fresh = refine(RefinementProblem(base), StandIn(), n_episodes=n, **kw)
+    assert again.resumed and np.array_equal(fresh.rewards, again.rewards) and fresh.attempts == again.attempts
+    scouts = fresh.attempts[:DEFAULT_SCOUTS]
+    assert [(a["end"], a["generations"], a["start"]) for a in scouts] == [("scout", 3, 0)] * DEFAULT_SCOUTS
+    # a run folder of the previous default (no scouts) is another run
+    refine(RefinementProblem(base), StandIn(), n_episodes=12, out_dir=tmp_path / "old", **(kw | {"scouts": 0}))
+    with pytest.raises(RefinementError, match="another refinement"):
+        refine(RefinementProblem(base), StandIn(), n_episodes=24, out_dir=tmp_path / "old", **kw)
+    for bad in ({"scouts": -1}, {"scout_generations": 0}, {"patience": 0}):
+        with pytest.raises(RefinementError):
+            refine(RefinementProblem(base), StandIn(), n_episodes=12, **(kw | bad))
 
 
 def test_meta_stage_and_restarts_do_not_combine(base):
@@ -363,7 +387,7 @@ def test_bipop_small_restart_refines_a_near_miss(tmp_path):
     problems = [RefinementProblem(load_dmp(f)) for f in collect_imitated(["synthetic:5"], tmp_path)]
     with make_executor("serial") as ex:
         index, _ = best_start(problems, ex)
-        result = refine(problems[index], ex, n_episodes=500, seed=1)
+        result = refine(problems[index], ex, n_episodes=500, seed=1, scouts=0)  # BIPOP without scouting (the default before)
     assert result.success, result.summary()
     # the first (large) attempt stalled; the goal came in a later attempt, and the next after the first is small
     first = result.attempts[0]

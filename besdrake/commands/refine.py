@@ -46,6 +46,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "ones in a row brought no improvement); default: besdrake.search.refinement.DEFAULT_RESTART_REGIMES")
     parser.add_argument("--patience", type=int, default=None, metavar="K",
                         help="'local' regimes: small restarts in a row without improvement before a large one (default: DEFAULT_PATIENCE)")
+    parser.add_argument("--scouts", type=int, default=None, metavar="K",
+                        help="the first K attempts are independent short CMA-ES runs from the start throw (--scout-generations each), then the best "
+                             "goes on; 0: none, the search before (default: besdrake.search.refinement.DEFAULT_SCOUTS)")
+    parser.add_argument("--scout-generations", type=int, default=None, metavar="G",
+                        help="generations of each scout (default: DEFAULT_SCOUT_GENERATIONS)")
     parser.add_argument("--popsize-growth", type=float, default=None, metavar="F",
                         help="IPOP-like: the k-th large restart has population POPSIZE * F**k (default: DEFAULT_POPSIZE_GROWTH)")
     parser.add_argument("--plain", action="store_true", help="the search before issue 5: plain CMA-ES, no restarts (overrides the search options above; "
@@ -127,6 +132,10 @@ def search_options(args: argparse.Namespace) -> dict:
         out["popsize_growth"] = args.popsize_growth
     if args.patience is not None:
         out["patience"] = args.patience
+    if args.scouts is not None:
+        out["scouts"] = args.scouts
+    if args.scout_generations is not None:
+        out["scout_generations"] = args.scout_generations
     return out
 
 
@@ -154,6 +163,8 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--stagnation must be >= 0, got {args.stagnation}")
     if args.patience is not None and args.patience < 1:
         raise UserError(f"--patience must be >= 1, got {args.patience}")
+    if (args.scouts is not None and args.scouts < 0) or (args.scout_generations is not None and args.scout_generations < 1):
+        raise UserError(f"--scouts must be >= 0 and --scout-generations >= 1, got {args.scouts}, {args.scout_generations}")
     if args.popsize_growth is not None and not (np.isfinite(args.popsize_growth) and args.popsize_growth >= 1):
         raise UserError(f"--popsize-growth must be >= 1, got {args.popsize_growth}")
     if not np.isfinite(args.target).all():

@@ -168,6 +168,11 @@ DEFAULT_RESTART_REGIMES = "bipop"
 DEFAULT_POPSIZE_GROWTH = 1.0
 #: ``"local"`` regimes: small restarts in a row that did not improve the best throw by :data:`STAGNATION_TOL` before a large one.
 DEFAULT_PATIENCE = 2
+#: Scouting (:class:`~besdrake.search.cmaes.StagnationRestartCMAES`'s ``scouts``): the first attempts are this many
+#: independent short CMA-ES runs from the start throw, of :data:`DEFAULT_SCOUT_GENERATIONS` generations each; the best
+#: goes on. ``refine(scouts=0)`` (``--scouts 0``) is the search before (see the module docstring for the measurements).
+DEFAULT_SCOUTS = 3
+DEFAULT_SCOUT_GENERATIONS = 12
 #: The search before issue 5 (plain CMA-ES, no restarts): keyword arguments of :func:`refine`.
 PLAIN_SEARCH: dict[str, Any] = {"cma_options": {}, "stagnation_generations": 0}
 #: Offset (rad) of the whole movement per unit of the meta-parameter stage (:func:`meta_basis`).
@@ -644,6 +649,15 @@ def _search_defaults(cma_options: dict[str, Any] | None, stagnation_generations:
     return cma_options, int(stagnation_generations), regimes, growth
 
 
+def _scouting_defaults(scouts: int | None, scout_generations: int | None) -> tuple[int, int]:
+    """:data:`DEFAULT_SCOUTS` and :data:`DEFAULT_SCOUT_GENERATIONS` where a setting is None, checked."""
+    scouts = DEFAULT_SCOUTS if scouts is None else scouts
+    scout_generations = DEFAULT_SCOUT_GENERATIONS if scout_generations is None else scout_generations
+    if int(scouts) != scouts or scouts < 0 or int(scout_generations) != scout_generations or scout_generations < 1:
+        raise RefinementError(f"scouts must be an integer >= 0 and scout_generations >= 1, got {scouts!r}, {scout_generations!r}")
+    return int(scouts), int(scout_generations)
+
+
 def make_optimizer(
     problem: RefinementProblem,
     seed: int = 0,
@@ -663,8 +677,8 @@ def make_optimizer(
     restart_regimes: str | None = None,
     small_share: float = 1.0,
     patience: int = DEFAULT_PATIENCE,
-    scouts: int = 0,
-    scout_generations: int = 10,
+    scouts: int | None = None,
+    scout_generations: int | None = None,
 ):
     """CMA-ES on the normalised space, started at the imitated throw (``x0 = 0``) unless ``x0`` is given.
 
@@ -686,6 +700,7 @@ def make_optimizer(
     rng = np.random.default_rng(seed)
     cma_options, stagnation_generations, restart_regimes, popsize_growth = _search_defaults(
         cma_options, stagnation_generations, meta_episodes, restart_regimes, popsize_growth)
+    scouts, scout_generations = _scouting_defaults(scouts, scout_generations)
     if stagnation_generations > 0 and meta_episodes > 0:
         raise RefinementError("stagnation restarts and the meta-parameter stage do not combine; give one of them")
     if stagnation_generations > 0:
@@ -731,8 +746,8 @@ def refine(
     restart_regimes: str | None = None,
     small_share: float = 1.0,
     patience: int = DEFAULT_PATIENCE,
-    scouts: int = 0,
-    scout_generations: int = 10,
+    scouts: int | None = None,
+    scout_generations: int | None = None,
 ) -> RefinementResult:
     """Refine ``problem`` with CMA-ES for at most ``n_episodes`` episodes (stops at the first
     generation with a success when ``stop_on_success``). With ``out_dir`` the run is resumable:
@@ -749,8 +764,7 @@ def refine(
         raise RefinementError(f"stagnation_generations must be >= 0, got {stagnation_generations}")
     if int(patience) != patience or patience < 1:
         raise RefinementError(f"patience must be an integer >= 1, got {patience!r}")
-    if int(scouts) != scouts or scouts < 0 or int(scout_generations) != scout_generations or scout_generations < 1:
-        raise RefinementError(f"scouts must be an integer >= 0 and scout_generations >= 1, got {scouts!r}, {scout_generations!r}")
+    scouts, scout_generations = _scouting_defaults(scouts, scout_generations)
     if meta_episodes < 0 or not (np.isfinite(meta_sigma) and meta_sigma > 0):
         raise RefinementError(f"meta_episodes must be >= 0 and meta_sigma > 0, got {meta_episodes}, {meta_sigma}")
     out = None if out_dir is None else Path(out_dir)
