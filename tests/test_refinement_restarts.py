@@ -204,7 +204,12 @@ def test_scouts_run_one_after_the_other_and_the_best_goes_on():
     assert opt.attempt_best[-1] == hist[best]["best_reward"] and len(opt.attempt_best) == 4
     X = opt.ask()
     opt.tell(X, two_basins(X))
-    assert len(opt.attempt_best) == 5
+    assert len(opt.attempt_best) == 5 and opt.continued_scout == best
+    while len(opt.attempt_history) == 3:  # the continued scout's record names the scout and its start point
+        X = opt.ask()
+        opt.tell(X, two_basins(X))
+    assert opt.attempt_history[3]["continues_scout"] == best and opt.attempt_history[3]["start"] == 0
+    assert all("continues_scout" not in h for h in opt.attempt_history[4:]) and opt.continued_scout is None
 
 
 def test_resumed_scouting_asks_the_same_candidates(tmp_path):
@@ -215,7 +220,7 @@ def test_resumed_scouting_asks_the_same_candidates(tmp_path):
         a = StagnationRestartCMAES(np.full((1, n), -1.0), 0.5, np.random.default_rng(3), **kw)
         run(a, told)
         b = restored(a, tmp_path)
-        assert b.kept_best == a.kept_best and (b.kept is None) == (a.kept is None)
+        assert b.kept_best == a.kept_best and (b.kept is None) == (a.kept is None) and b.kept_scout == a.kept_scout
         assert_same_asks(a, b, 40)
         assert a.attempt >= 5
 

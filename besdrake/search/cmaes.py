@@ -619,6 +619,9 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
         #: scouting: the best scout so far (its CMA-ES, and its per-generation best), kept to go on after the last scout
         self.kept: CMAES | None = None
         self.kept_best: list[float] = []
+        #: the scout (attempt number) kept so far, and the one whose CMA-ES the current attempt continues (None: a fresh attempt)
+        self.kept_scout: int | None = None
+        self.continued_scout: int | None = None
         self.attempt = 0
         #: regime bookkeeping: regime of the current attempt, large restarts so far, episodes per regime
         self.regime = "large"
@@ -704,20 +707,25 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
         why = self.stalled()
         if why is not None:
             index, _ = self._start_point()
+            if self.continued_scout is not None:
+                index = self.continued_scout % len(self.starts)  # the scout's start point
             entry = {"start": index, "generations": len(self.attempt_best), "best_reward": float(self.attempt_best[-1]), "end": why}
+            if self.continued_scout is not None:
+                entry["continues_scout"] = self.continued_scout
             if self.regimes != "large" or self.popsize_growth != 1.0:
                 entry |= {"regime": self.regime, "sigma0": float(self.inner.sigma0), "popsize": int(self.inner.popsize0)}
             self.attempt_history.append(entry)
             if why == "scout" and (not self.kept_best or self.attempt_best[-1] > self.kept_best[-1]):
-                self.kept, self.kept_best = self.inner, list(self.attempt_best)
+                self.kept, self.kept_best, self.kept_scout = self.inner, list(self.attempt_best), self.attempt
             self.attempt += 1
             self.attempt_best = []
+            self.continued_scout = None
             if self.scouting():
                 self.inner = self._new_attempt(self.sigma0)
             elif self.scouts > 1 and self.attempt == self.scouts and self.kept is not None:
                 # scouting is over: the best scout goes on (a large attempt)
-                self.inner, self.attempt_best = self.kept, self.kept_best
-                self.kept, self.kept_best = None, []
+                self.inner, self.attempt_best, self.continued_scout = self.kept, self.kept_best, self.kept_scout
+                self.kept, self.kept_best, self.kept_scout = None, [], None
             else:
                 self.inner = self._new_attempt(self._next_regime())
             self.attempt_start_best = float(self._best_reward)
@@ -760,8 +768,8 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
             "attempt_history": self.attempt_history,
             **self._best_state(),
             "inner": self.inner.state_dict(),
-            **({"kept": None if self.kept is None else self.kept.state_dict(), "kept_best": [float(v) for v in self.kept_best]}
-               if self.scouts > 1 else {}),
+            **({"kept": None if self.kept is None else self.kept.state_dict(), "kept_best": [float(v) for v in self.kept_best],
+                "kept_scout": self.kept_scout, "continued_scout": self.continued_scout} if self.scouts > 1 else {}),
         }
 
     @classmethod
@@ -792,6 +800,8 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
         if opt.kept is not None:
             opt.kept.rng = inner.rng  # one Generator drives every attempt
         opt.kept_best = [float(v) for v in state.get("kept_best", [])]
+        opt.kept_scout = None if state.get("kept_scout") is None else int(state["kept_scout"])
+        opt.continued_scout = None if state.get("continued_scout") is None else int(state["continued_scout"])
         reg = state.get("regime", {})  # absent in states written before the regimes existed
         opt.regime = str(reg.get("regime", "large"))
         opt.n_large_restarts = int(reg.get("n_large_restarts", state["attempt"]))

@@ -41,7 +41,8 @@ The search (:func:`make_optimizer`, defaults :data:`DEFAULT_CMA_OPTIONS`, :data:
 ``n`` times faster than a full covariance in 49 dimensions) that is *elitist* (``CMA_elitist``: the best throw so
 far stays in the population) and restarts (:class:`~besdrake.search.cmaes.StagnationRestartCMAES`, fresh step size
 ``sigma0``, from the best throw so far) when its best distance has improved by less than :data:`STAGNATION_TOL`
-over 10 generations, with *BIPOP restart regimes* (:data:`DEFAULT_RESTART_REGIMES`, see below). Why: the successful throws lie far from the imitated one along a few parameters (goal of joint
+over 10 generations, with *BIPOP restart regimes* (:data:`DEFAULT_RESTART_REGIMES`, see below), after *scouting*
+(:data:`DEFAULT_SCOUTS`, see below: three short independent first attempts, the best goes on). Why: the successful throws lie far from the imitated one along a few parameters (goal of joint
 2 raised by 1.2-2.3 rad, start of joint 3 lowered, execution time changed by up to 1 s; measured on the 10 best
 throws of the plain runs), while the population's median throw lands 0.5-0.7 m from the target when its best lands
 0.1-0.2 m away: plain CMA-ES learns those scales slowly and its mean creeps. Measured before choosing (800
@@ -90,6 +91,27 @@ The issue's target (every run succeeds, median <= 500 episodes) is not met. A sm
 (``small_share=0.5``: small attempts while their episodes are fewer than half the large ones), on the runs where the
 two differ (seed 0 subjects 3 4 6 7 8 9; seed 1 subjects 1 5 9): 976 / 901 / 0.202 m / 1163 / 0.153 m / 952 and
 931 / 221 / 717, i.e. 4 of 6 (as BIPOP; every restart large: 5 of 6) and 3 of 3; not better, so not the default.
+
+Scouting (``refine(scouts=3, scout_generations=12)``, the default; ``scouts=0``, ``--scouts 0``: the search before):
+the first three attempts are independent CMA-ES runs from the start throw (step ``sigma0``, 12 generations = 120
+episodes each, one after the other); the best of them goes on with its CMA-ES state as the first attempt proper, then
+the BIPOP restarts follow. Why (measured on last session's 20 benchmark runs and probes of their best throws): the
+near misses are *range-limited*: the best throws of the stalled seed-0 runs (subjects 0 1 6 7) land at x = 1.64-1.94 m
+(target 2 m), released downwards (-8 to -19 degrees) at 2.0-3.1 m/s; probed on subject 0, seed 0 (best 0.109 m, x =
+1.89 m): every start/goal/time parameter +-0.015 rad or s moves x by < 5 mm, random steps of 0.001-0.1 units only
+shorten it; landing beyond 1.95 m within the limits is rare at all (0-24 of up to 1500 episodes
+per run, 0 in every stalled run). So a
+run's fate is mostly decided by the throw family its first attempt settles in, which no restart from the best throw
+leaves (subject 1, seed 0: six attempts, 0.37-0.51 m). Scouting spends ~240 episodes on two more first attempts. A
+small local restart from a near miss still finishes many runs (last session's BIPOP logs: 13 of 30 small restarts
+from a best of 0.10-0.15 m reached the goal, in 8 generations on average, against 1 of 7 large ones), which is why
+the BIPOP regimes stay. ``restart_regimes="local"`` (``--regimes local``: small restarts from the best throw, a large
+one only after :data:`DEFAULT_PATIENCE` small ones in a row without a 2 cm improvement) was screened too and is not
+the default. Screened on the hard cases (1500 episodes; seed 0 subjects 0 1 6 7, seed 1 subjects 1 6; episodes to
+success or best distance in m; shared 2-core machine): BIPOP 0.109 / 0.366 / 0.178 / 0.106 and 931 / 1394, 2 of 6;
+local 0.155 / 0.366 / 0.247 / 0.206 and 931 / 0.247, 1 of 6; scouting 0.150 / 783 / 0.107 / 1232 and 0.241 / 1415,
+3 of 6 (subject 1 of seed 0 reaches the goal for the first time: its third scout found another family).
+All 10 subjects with scouting: see the figures below (benchmark running at the time of writing).
 
 Options measured against plain CMA-ES (seed 0, synthetic subjects 0-4, shared 2-core machine; see
 ``scripts/bench_refinement.py``): a meta-parameter stage first (:func:`meta_basis`, :class:`~besdrake.search.cmaes.StagedCMAES`:
