@@ -390,7 +390,8 @@ class _LagBaseWorld:
         y_meas[:, self.sl] += rng.normal(0, 0.05, (self.N, 2))
         self.prob = fitting.Problem(y_meas, self.y0, self.nm.vector())
 
-    def one(self, effects: dict) -> np.ndarray:
+    def one(self, effects: dict, rows=None, shift=None) -> np.ndarray:
+        assert rows is None and shift is None  # no placement correction in this world
         self.calls += 1
         tau = effects.get("actuator_lag", {}).get("tau", 0.0)
         z = effects.get("base_offset", {}).get("z", 0.0)

@@ -674,15 +674,26 @@ def _allowed_effects(prob: fitting.Problem, sens: fitting.Sensitivity, effects: 
 
 # ---------------------------------------------------------------------------------------------- main
 def _forward_pairs(prob: fitting.Problem, fits: list[fitting.CandidateFit], sens: fitting.Sensitivity, sim: "_Sim",
-                   refined_singles: dict[str, fitting.CandidateFit], nm: noise.NoiseModel, groups: list[str], iterations: int) -> list[tuple[str, ...]]:
-    """Forward selection from the best refined single effect: when it alone does not fit (lack-of-fit p < ALPHA),
+                   refined_singles: dict[str, fitting.CandidateFit], nm: noise.NoiseModel, groups: list[str], iterations: int,
+                   local_shift: dict | None = None) -> list[tuple[str, ...]]:
+    """Forward selection from the best refined single effect: when it alone does not fit (lack-of-fit p < ALPHA,
+    judged with the placement correction at its own parameters when ``local_shift`` is given: the lead is refined on
+    it first and its correction stored there, the pairs are refined on it too),
     fit each pair "lead + other" on a linear model around the lead's optimum (its own refined Jacobian, the other
     effect's sensitivities from nominal: no rollouts) and refine the FORWARD_TOP most promising pairs with rollouts
     from the lead's optimum. Why: a pair's linear fit at nominal misjudges a pair whose lead effect is far from
     linear (a lag near its bound), so the right pair was never refined (default lab: base 3 cm lower + 10 ms lag,
     named lag + ball). Replaces those pairs' entries in ``fits`` (in place); returns the pairs refined."""
     lead = min(refined_singles.values(), key=lambda f: f.bic)
-    if lead.y_fit is None or lead.jac is None or _lack_of_fit_p(prob, lead.y_fit, lead.k, nm, groups)[0] >= ALPHA:
+    if lead.y_fit is None or lead.jac is None:
+        return []
+    sh = None
+    if local_shift is not None and _lack_of_fit_p(prob, lead.y_fit, lead.k, nm, groups)[0] < ALPHA:
+        sh = sim.local_shift(lead.parameters())  # the same rollouts the later re-judgement of the lead uses
+        if sh is not None:
+            local_shift[lead.effects] = sh
+            fitting.refine(prob, lead, lambda e: sim.one(e, shift=sh), iterations=iterations, nominal_secants=False)
+    if _lack_of_fit_p(prob, lead.y_fit, lead.k, nm, groups)[0] >= ALPHA:
         return []
     lead_e = lead.effects[0]
     lead_theta = {s_.key: v for s_, v in zip(lead.specs, lead.theta)}
@@ -713,7 +724,7 @@ def _forward_pairs(prob: fitting.Problem, fits: list[fitting.CandidateFit], sens
     done = []
     for f in proposals[:FORWARD_TOP]:
         th = np.array([lead_theta.get(s_.key, s_.nominal) for s_ in f.specs])
-        fitting.refine(prob, f, lambda e: sim.one(e), iterations=iterations, starts=[(th, lead.y_fit)], nominal_secants=False)
+        fitting.refine(prob, f, lambda e: sim.one(e, shift=sh), iterations=iterations, starts=[(th, lead.y_fit)], nominal_secants=False)
         done.append(f.effects)
     return done
 
@@ -880,13 +891,14 @@ def diagnose(
             fitting.refine(prob, f, lambda e: sim.one(e), iterations=refine_iterations, starts=starts)
             if len(f.effects) == 1:
                 refined_singles[f.effects[0]] = f
+        local_shift: dict[tuple[str, ...], tuple[np.ndarray, np.ndarray]] = {}
         if FORWARD_PAIRS and pairs and refined_singles:
-            _forward_pairs(prob, fits, sens, sim, refined_singles, nm, measured_groups, refine_iterations)
+            _forward_pairs(prob, fits, sens, sim, refined_singles, nm, measured_groups, refine_iterations,
+                           local_shift if LOCAL_PLACEMENT and sim.placement_draws is not None else None)
         # The nominal placement correction (sim.shift) is a linearisation at the nominal simulation; under an effect
         # that changes how the scoop moves (a lag, other gains) the scatter shifts the mean throw differently, and a
         # small extra effect (a joint offset) absorbs the difference. Re-judge the leading candidates with the
         # correction at their own parameters (one rollout per placement draw and throw each) and refine them on it.
-        local_shift: dict[tuple[str, ...], tuple[np.ndarray, np.ndarray]] = {}
         if LOCAL_PLACEMENT and sim.placement_draws is not None:
             ranked = sorted([f for f in fits if f.refined and f.effects], key=lambda f: f.bic)
             if ranked:
