@@ -10,10 +10,10 @@ that lands within 0.1 m of the target (2, 0) m with no joint limit violated, or 
 Targets (issue 5): success in every run for every subject, median episodes to success <= 500; wall
 time of one run printed [paper: < 2,200 episodes in at least one of 6 runs for 9 of 10 subjects].
 ``--subjects`` / ``--runs`` reduce the work (the JSON says what ran). The defaults are
-``besdrake.search.refinement``'s (separable elitist CMA-ES; three short independent scouts from the start throw, the
-best goes on; then BIPOP restarts on a plateau: small local restarts from the best throw alternate with large ones);
-``--scouts 0`` is the previous default (no scouting), ``--scouts 0 --regimes large`` the one before (every restart with
-the full step), ``--regimes local`` small restarts unless stuck (``--patience``), ``--plain`` is plain CMA-ES (the search before issue 5); ``--popsize-growth`` (IPOP-like large restarts), ``--diagonal``, ``--elitist``, ``--stagnation``,
+``besdrake.search.refinement``'s (separable elitist CMA-ES with BIPOP restarts on a plateau: small local restarts from
+the best throw alternate with large ones); ``--regimes large`` is the previous default (every restart with the full
+step), ``--scouts 3`` tries three short independent first attempts (the best goes on), ``--regimes local`` small
+restarts unless stuck (``--patience``), ``--plain`` is plain CMA-ES (the search before issue 5); ``--popsize-growth`` (IPOP-like large restarts), ``--diagonal``, ``--elitist``, ``--stagnation``,
 ``--stagnation-tol``, ``--restart-from``, ``--meta-episodes``, ``--dropped-penalty``, ``--position-unit``,
 ``--acceleration-unit``, ``--time-unit``, ``--position-step``/``--time-step`` (initial step per parameter group),
 ``--violation-offset`` and ``--no-slower`` try the alternatives measured in that module's

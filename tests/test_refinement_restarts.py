@@ -331,22 +331,19 @@ def test_cli_search_options_map_to_refine_keywords():
     assert "scouts" not in default and "patience" not in default  # the module's defaults apply
 
 
-def test_default_scouting_refine_resumes_and_rejects_a_folder_of_the_previous_default(base, tmp_path):
-    from besdrake.search.refinement import DEFAULT_SCOUT_GENERATIONS, DEFAULT_SCOUTS
-
-    assert DEFAULT_SCOUTS > 1 and DEFAULT_SCOUT_GENERATIONS >= 1
+def test_scouting_refine_resumes_and_a_default_run_is_another_run(base, tmp_path):
     kw = dict(seed=2, popsize=6, stagnation_generations=50, stop_on_success=False, scout_generations=3)
-    n = (DEFAULT_SCOUTS * 3 + 4) * 6
-    refine(RefinementProblem(base), StandIn(), n_episodes=30, out_dir=tmp_path / "new", **kw)
-    again = refine(RefinementProblem(base), StandIn(), n_episodes=n, out_dir=tmp_path / "new", **kw)
-    fresh = refine(RefinementProblem(base), StandIn(), n_episodes=n, **kw)
+    n = (3 * 3 + 4) * 6
+    refine(RefinementProblem(base), StandIn(), n_episodes=30, out_dir=tmp_path / "scouts", scouts=3, **kw)
+    again = refine(RefinementProblem(base), StandIn(), n_episodes=n, out_dir=tmp_path / "scouts", scouts=3, **kw)
+    fresh = refine(RefinementProblem(base), StandIn(), n_episodes=n, scouts=3, **kw)
     assert again.resumed and np.array_equal(fresh.rewards, again.rewards) and fresh.attempts == again.attempts
-    scouts = fresh.attempts[:DEFAULT_SCOUTS]
-    assert [(a["end"], a["generations"], a["start"]) for a in scouts] == [("scout", 3, 0)] * DEFAULT_SCOUTS
-    # a run folder of the previous default (no scouts) is another run
-    refine(RefinementProblem(base), StandIn(), n_episodes=12, out_dir=tmp_path / "old", **(kw | {"scouts": 0}))
+    assert [(a["end"], a["generations"], a["start"]) for a in fresh.attempts[:3]] == [("scout", 3, 0)] * 3
+    # the default does not scout, and its run folder is not the scouting run's
+    default = refine(RefinementProblem(base), StandIn(), n_episodes=n, **kw)
+    assert all(a["end"] != "scout" for a in default.attempts)
     with pytest.raises(RefinementError, match="another refinement"):
-        refine(RefinementProblem(base), StandIn(), n_episodes=24, out_dir=tmp_path / "old", **kw)
+        refine(RefinementProblem(base), StandIn(), n_episodes=n + 6, out_dir=tmp_path / "scouts", **kw)
     for bad in ({"scouts": -1}, {"scout_generations": 0}, {"patience": 0}):
         with pytest.raises(RefinementError):
             refine(RefinementProblem(base), StandIn(), n_episodes=12, **(kw | bad))
@@ -392,7 +389,7 @@ def test_bipop_small_restart_refines_a_near_miss(tmp_path):
     problems = [RefinementProblem(load_dmp(f)) for f in collect_imitated(["synthetic:5"], tmp_path)]
     with make_executor("serial") as ex:
         index, _ = best_start(problems, ex)
-        result = refine(problems[index], ex, n_episodes=500, seed=1, scouts=0)  # BIPOP without scouting (the default before)
+        result = refine(problems[index], ex, n_episodes=500, seed=1)
     assert result.success, result.summary()
     # the first (large) attempt stalled; the goal came in a later attempt, and the next after the first is small
     first = result.attempts[0]

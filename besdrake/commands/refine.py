@@ -48,7 +48,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="'local' regimes: small restarts in a row without improvement before a large one (default: DEFAULT_PATIENCE)")
     parser.add_argument("--scouts", type=int, default=None, metavar="K",
                         help="the first K attempts are independent short CMA-ES runs from the start throw (--scout-generations each), then the best "
-                             "goes on; 0: none, the search before (default: besdrake.search.refinement.DEFAULT_SCOUTS)")
+                             "goes on; 0: none (default: besdrake.search.refinement.DEFAULT_SCOUTS)")
     parser.add_argument("--scout-generations", type=int, default=None, metavar="G",
                         help="generations of each scout (default: DEFAULT_SCOUT_GENERATIONS)")
     parser.add_argument("--popsize-growth", type=float, default=None, metavar="F",

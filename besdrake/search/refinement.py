@@ -41,8 +41,8 @@ The search (:func:`make_optimizer`, defaults :data:`DEFAULT_CMA_OPTIONS`, :data:
 ``n`` times faster than a full covariance in 49 dimensions) that is *elitist* (``CMA_elitist``: the best throw so
 far stays in the population) and restarts (:class:`~besdrake.search.cmaes.StagnationRestartCMAES`, fresh step size
 ``sigma0``, from the best throw so far) when its best distance has improved by less than :data:`STAGNATION_TOL`
-over 10 generations, with *BIPOP restart regimes* (:data:`DEFAULT_RESTART_REGIMES`, see below), after *scouting*
-(:data:`DEFAULT_SCOUTS`, see below: three short independent first attempts, the best goes on). Why: the successful throws lie far from the imitated one along a few parameters (goal of joint
+over 10 generations, with *BIPOP restart regimes* (:data:`DEFAULT_RESTART_REGIMES`, see below; *scouting* and
+``"local"`` regimes are options, measured, not better). Why: the successful throws lie far from the imitated one along a few parameters (goal of joint
 2 raised by 1.2-2.3 rad, start of joint 3 lowered, execution time changed by up to 1 s; measured on the 10 best
 throws of the plain runs), while the population's median throw lands 0.5-0.7 m from the target when its best lands
 0.1-0.2 m away: plain CMA-ES learns those scales slowly and its mean creeps. Measured before choosing (800
@@ -92,7 +92,7 @@ The issue's target (every run succeeds, median <= 500 episodes) is not met. A sm
 two differ (seed 0 subjects 3 4 6 7 8 9; seed 1 subjects 1 5 9): 976 / 901 / 0.202 m / 1163 / 0.153 m / 952 and
 931 / 221 / 717, i.e. 4 of 6 (as BIPOP; every restart large: 5 of 6) and 3 of 3; not better, so not the default.
 
-Scouting (``refine(scouts=3, scout_generations=12)``, the default; ``scouts=0``, ``--scouts 0``: the search before):
+Scouting (``refine(scouts=3, scout_generations=12)``, ``--scouts 3``; off by default, :data:`DEFAULT_SCOUTS`):
 the first three attempts are independent CMA-ES runs from the start throw (step ``sigma0``, 12 generations = 120
 episodes each, one after the other); the best of them goes on with its CMA-ES state as the first attempt proper, then
 the BIPOP restarts follow. Why (measured on last session's 20 benchmark runs and probes of their best throws): the
@@ -111,7 +111,16 @@ the default. Screened on the hard cases (1500 episodes; seed 0 subjects 0 1 6 7,
 success or best distance in m; shared 2-core machine): BIPOP 0.109 / 0.366 / 0.178 / 0.106 and 931 / 1394, 2 of 6;
 local 0.155 / 0.366 / 0.247 / 0.206 and 931 / 0.247, 1 of 6; scouting 0.150 / 783 / 0.107 / 1232 and 0.241 / 1415,
 3 of 6 (subject 1 of seed 0 reaches the goal for the first time: its third scout found another family).
-All 10 subjects with scouting: see the figures below (benchmark running at the time of writing).
+All 10 subjects, 1500 episodes (``scripts/bench_refinement.py --runs 1 --episodes 1500 --backend serial --scouts 3
+--scout-generations 12``, shared 2-core machine), against BIPOP without scouting (the figures above): seed 0: 8 of 10
+(subjects 1-5 7-9: 783 / 526 / 1447 / 1200 / 767 / 1232 / 239 / 775 episodes), median 779, stalled at 0.150 / 0.107 m
+(subjects 0, 6), against 6 of 10, median 780.5; seed 1: 8 of 10 (subjects 2-9: 111 / 602 / 1437 / 490 / 1415 / 383 /
+450 / 807), median 546, stalled at 0.170 / 0.241 m (subjects 0, 1), against 10 of 10, median 655.5. Together 16 of 20
+runs as BIPOP, pooled median 771 against 720 episodes, and subject 0 reaches the goal in neither seed (BIPOP: every
+subject in at least one of the two, which is what ``besdrake learn``'s two runs need); the price of scouting shows
+where the first attempt would have succeeded soon (subject 2, seed 0: 169 -> 526; subject 0, seed 1: 213 -> no
+success, the first scout was not the best after 120 episodes). Median wall time per run 75 s (seed 0) and 83 s
+(seed 1), 0.07-0.09 s per episode (962 s and 980 s for the 10 runs of a seed). So scouting is not the default.
 
 Options measured against plain CMA-ES (seed 0, synthetic subjects 0-4, shared 2-core machine; see
 ``scripts/bench_refinement.py``): a meta-parameter stage first (:func:`meta_basis`, :class:`~besdrake.search.cmaes.StagedCMAES`:
@@ -192,8 +201,9 @@ DEFAULT_POPSIZE_GROWTH = 1.0
 DEFAULT_PATIENCE = 2
 #: Scouting (:class:`~besdrake.search.cmaes.StagnationRestartCMAES`'s ``scouts``): the first attempts are this many
 #: independent short CMA-ES runs from the start throw, of :data:`DEFAULT_SCOUT_GENERATIONS` generations each; the best
-#: goes on. ``refine(scouts=0)`` (``--scouts 0``) is the search before (see the module docstring for the measurements).
-DEFAULT_SCOUTS = 3
+#: goes on. Off by default (0): ``refine(scouts=3)`` reached the goal in 16 of 20 benchmark runs like the default, with a
+#: higher pooled median and one subject in neither seed (see the module docstring for the measurements).
+DEFAULT_SCOUTS = 0
 DEFAULT_SCOUT_GENERATIONS = 12
 #: The search before issue 5 (plain CMA-ES, no restarts): keyword arguments of :func:`refine`.
 PLAIN_SEARCH: dict[str, Any] = {"cma_options": {}, "stagnation_generations": 0}
