@@ -94,7 +94,9 @@ SELECT_PARAMETERS = True
 #: FORWARD_TOP of them with rollouts. Measured: the default lab (base 3 cm lower + lag) is named base_offset (z -3.1 +- 0.4
 #: cm) + actuator_lag (10.5 / 19.4 ms) instead of actuator_lag + ball; the single-effect benchmark is unchanged (seed 0,
 #: full logs: 33/40 right, 39/40 right or honest; wall median 48 s on the loaded 2 cores; the four lag trials, the
-#: slowest there at 118-173 s, take 31-36 s with 2 workers on unshared cores).
+#: slowest there at 118-173 s, take 31-36 s with 2 workers on unshared cores). Two hidden effects
+#: (scripts/bench_diagnosis_pairs.py, 6 labs): the exact pair named in 6/6 (5 with high confidence), 4/6 without the
+#: step (base + lag and base + gain named joint_offset + X, one of them with high confidence).
 FORWARD_PAIRS = True
 FORWARD_TOP = 2
 
