@@ -43,7 +43,7 @@ def main(argv: list[str] | None = None) -> int:
     from besdrake.imitation import load_dmp
     from besdrake.search.refinement import MIN_EXECUTION_TIME, ParameterScaling, RefinementProblem, ThrowReward, rank_starts, refine, restart_points
     from besdrake.search.refinement import DEFAULT_CMA_OPTIONS, DEFAULT_POPSIZE_GROWTH, DEFAULT_RESTART_REGIMES, DEFAULT_STAGNATION_GENERATIONS, STAGNATION_TOL
-    from besdrake.search.refinement import DEFAULT_SCOUT_GENERATIONS, DEFAULT_SCOUTS
+    from besdrake.search.refinement import DEFAULT_PATIENCE, DEFAULT_SCOUT_GENERATIONS, DEFAULT_SCOUTS
     from besdrake.sim import make_executor
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
@@ -78,7 +78,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--popsize-growth", type=float, default=None, help="IPOP-like restarts: the k-th large attempt has population POPSIZE * GROWTH**k (default: the module's)")
     parser.add_argument("--regimes", choices=["large", "bipop", "local"], default=None, help="restart regimes (bipop: small local restarts from the best alternate with large ones; default: the module's)")
     parser.add_argument("--small-share", type=float, default=1.0, help="bipop: small restarts while their episodes are fewer than SHARE times the large ones")
-    parser.add_argument("--patience", type=int, default=2, help="local: small restarts in a row without improvement before a large one")
+    parser.add_argument("--patience", type=int, default=DEFAULT_PATIENCE, help="local: small restarts in a row without improvement before a large one (default: the module's)")
     parser.add_argument("--scouts", type=int, default=None, help="independent short first attempts (scouts) before the best goes on (0/1: none; default: the module's)")
     parser.add_argument("--scout-generations", type=int, default=None, help="generations of each scout (default: the module's)")
     parser.add_argument("--position-step", type=float, default=None, help="initial step of start/goal parameters, in multiples of --sigma0 (cma's CMA_stds; default: the module's)")
