@@ -23,7 +23,7 @@ def test_run_subject_records_and_resumes_after_a_kill(tmp_path, monkeypatch, scr
     for f in files:
         shutil.copy(f, imitated / "imit_s0" / f.name)
     kwargs = dict(refine_episodes=20, population=4, max_transfers=3, lab_seed=1000, tag="ta_test",
-                  ta_options={"transfer_choice": "predicted"})
+                  ta_options={"transfer_choice": "predicted"}, refine_runs=2)
 
     calls = {"n": 0}
     real_execute = VirtualLab.execute
@@ -42,12 +42,18 @@ def test_run_subject_records_and_resumes_after_a_kill(tmp_path, monkeypatch, scr
     refinement = json.loads((out / "refine_r20_full" / "refinement.json").read_text())
     assert refinement["episodes"] == 20 and refinement["n_imitated_throws"] == len(files)
     assert refinement["whole_budget"]  # the budget is spent on the closest throw, not stopped at the first success
+    # a second run (the next seed) only when the first did not reach the goal
+    second = out / "refine_r20_full_seed1" / "refinement.json"
+    assert second.is_file() != refinement["success"]
+    runs = [refinement] + ([json.loads(second.read_text())] if second.is_file() else [])
+    assert [r["seed"] for r in runs] == list(range(len(runs)))
 
     monkeypatch.setattr(VirtualLab, "execute", real_execute)
     rec = bench.run_subject(0, "nominal", out, imitated, **kwargs)
     # the refinement was not redone, the two logged trials were not thrown again
     assert json.loads((out / "refine_r20_full" / "refinement.json").read_text()) == refinement
-    assert rec["refinement"] == refinement
+    assert rec["refinement"]["run_distances_m"] == [r["sim_distance_m"] for r in runs]
+    assert rec["refinement"]["sim_distance_m"] == min(r["sim_distance_m"] for r in runs)  # the search starts from the closest
     from besdrake.transfer.log import LabLog
 
     assert len(LabLog.open(out / "ta_test" / "lab_log")) == rec["lab_trials"] == len(rec["trial_kinds"])
