@@ -72,6 +72,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--restart-from", choices=["start", "ranked", "best"], default="best",
                         help="restart attempts from the start throw, from the imitated throws in reward order, or from the best throw so far")
     parser.add_argument("--n-starts", type=int, default=4, help="with --restart-from ranked: how many of the best imitated throws")
+    parser.add_argument("--scout-starts", type=int, default=0,
+                        help="with --scouts K: scout k starts from the (k mod N)-th best imitated throw instead of the best one; restarts still follow --restart-from")
     parser.add_argument("--diagonal", type=int, default=None, help="separable CMA-ES (cma's CMA_diagonal) for this many generations (-1: always, 0: never; default: the module's)")
     parser.add_argument("--elitist", action=argparse.BooleanOptionalAction, default=None,
                         help="elitist CMA-ES (cma's CMA_elitist: the best throw so far stays in the population; default: the module's)")
@@ -125,8 +127,9 @@ def main(argv: list[str] | None = None) -> int:
             ranked = rank_starts(problems, ex)
             index, start = ranked[0]
             starts = None
-            if args.restart_from == "ranked":
-                starts = restart_points(problems[index], [problems[i] for i, _ in ranked[: args.n_starts]])
+            if args.restart_from == "ranked" or args.scout_starts > 1:
+                n_starts = args.n_starts if args.restart_from == "ranked" else args.scout_starts
+                starts = restart_points(problems[index], [problems[i] for i, _ in ranked[:n_starts]])
             runs = []
             for k in range(args.runs):
                 out_dir = None if args.out is None else args.out / f"s{s}_run{k}"
@@ -152,7 +155,7 @@ def main(argv: list[str] | None = None) -> int:
         "subjects_run": args.subjects, "runs_per_subject": args.runs, "episode_budget": args.episodes,
         "population": args.popsize, "sigma0": args.sigma0, "penalty_scale": args.penalty_scale, "violation_offset_m": reward.violation_offset,
         "dropped_penalty_m": reward.dropped_penalty, "meta_episodes": args.meta_episodes, "meta_sigma": args.meta_sigma, "position_unit_rad": args.position_unit, "acceleration_unit": args.acceleration_unit, "time_unit_s": args.time_unit, "no_slower": args.no_slower, "stagnation_generations": stagnation, "stagnation_tol_m": STAGNATION_TOL if args.stagnation_tol is None else args.stagnation_tol,
-        "max_attempt_generations": args.max_attempt_generations, "restart_from": args.restart_from, "n_starts": args.n_starts, "cma_options": cma_options, "popsize_growth": DEFAULT_POPSIZE_GROWTH if args.popsize_growth is None else args.popsize_growth,
+        "max_attempt_generations": args.max_attempt_generations, "restart_from": args.restart_from, "n_starts": args.n_starts, "scout_starts": args.scout_starts, "cma_options": cma_options, "popsize_growth": DEFAULT_POPSIZE_GROWTH if args.popsize_growth is None else args.popsize_growth,
         "restart_regimes": DEFAULT_RESTART_REGIMES if args.regimes is None else args.regimes, "small_share": args.small_share, "patience": args.patience, "scouts": DEFAULT_SCOUTS if args.scouts is None else args.scouts,
         "scout_generations": DEFAULT_SCOUT_GENERATIONS if args.scout_generations is None else args.scout_generations, "plain": args.plain, "target_m": [2.0, 0.0], "backend": args.backend,
         "success_rate": float(np.mean([r["success"] for r in all_runs])),
