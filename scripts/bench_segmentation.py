@@ -10,6 +10,8 @@ Prints one JSON object:
   over +-0.1 s and +-0.2 s on a small grid; the public reference vMCI figures are quoted
   constants (not measured here). ``vmci_rules_*`` variants (sensitivity of the choices
   :func:`~besdrake.segmentation.tune_vmci` makes): the pause-merging rule in the rule grid,
+  the pause-splitting rule (``PAUSE_TUNING_RULE_GRID``: both ends of every stretch slower than
+  5 cm/s for 0.4 s are borders),
   priors chosen before the rules, selection on the two scored tolerances only, the minimum
   movement / rest durations in the prior grid.
 * ``defaults``: the shipped default vMCI on each subject.
@@ -20,10 +22,14 @@ Prints one JSON object:
 * ``stability`` (``--stability``): the cross-subject tuning repeated without each training
   recording in turn (median, min, max of the F1 on the other subject): how much the choice
   depends on single recordings.
+* ``ceiling`` (``--ceiling``): the rules tuned on the *scored* subject itself (not a
+  cross-subject figure; an upper bound of the rule family): the Pareto front of (F1 at
+  +-0.2 s, F1 at +-0.1 s) over the prior grid and a finer rule grid with the pause rules, and
+  whether any point reaches both targets.
 * ``synthetic`` (``--synthetic DIR`` or generated with ``--generate``): borders F1 and the
   fraction of demonstrated throws whose start and end are both found within +-0.2 s.
 
-Usage: python3 scripts/bench_segmentation.py [--data DIR] [--synthetic DIR | --generate] [--stability]
+Usage: python3 scripts/bench_segmentation.py [--data DIR] [--synthetic DIR | --generate] [--stability] [--ceiling]
 """
 
 from __future__ import annotations
@@ -46,7 +52,7 @@ import numpy as np  # noqa: E402
 from besdrake.mocap.preprocess import preprocess  # noqa: E402
 from besdrake.segmentation import VMCI, ZeroVelocitySegmenter, tune_vmci  # noqa: E402
 from besdrake.segmentation.placement import DEFAULT_RULE_GRID  # noqa: E402
-from besdrake.segmentation.tuning import DEFAULT_VMCI_GRID  # noqa: E402
+from besdrake.segmentation.tuning import DEFAULT_VMCI_GRID, PAUSE_TUNING_RULE_GRID  # noqa: E402
 from besdrake.segmentation.evaluation import (  # noqa: E402
     BORDER_DEFINITION,
     evaluate_segmenter,
@@ -134,6 +140,41 @@ def stability(by_subject: dict, pre: dict) -> dict:
     return out
 
 
+#: The rule grid of ``--ceiling``: finer speed levels, the pause-splitting and pause-merging rules.
+CEILING_RULE_GRID = {**DEFAULT_RULE_GRID, "min_rest_s": [0.0, 0.3],
+                     "end_level": [0.0, 0.05, 0.08, 0.1, 0.12, 0.15], "start_level": [0.0, 0.05, 0.08, 0.1, 0.12, 0.15],
+                     "pause_s": [0.0, 0.25, 0.3, 0.4], "pause_speed": [0.05, 0.07]}
+
+
+def ceiling(by_subject: dict, pre: dict, targets=(0.90, 0.75)) -> dict:
+    """Per subject: the Pareto front of (F1 0.2 s, F1 0.1 s) of priors x rules chosen on that subject itself."""
+    from besdrake.segmentation.placement import rule_grid, score_cases
+    from besdrake.segmentation.tuning import DEFAULT_TUNING_BASE, rule_cases
+
+    out = {}
+    for subj, recs in by_subject.items():
+        points = []
+        for prior in grid(VMCI_GRID):
+            params = {**DEFAULT_TUNING_BASE, **prior}
+            cases = rule_cases(VMCI(**params), recs, pre)
+            for rules in rule_grid(CEILING_RULE_GRID):
+                f = score_cases(cases, rules, (0.1, 0.2))
+                points.append((round(f[0.2], 4), round(f[0.1], 4), params, rules))
+        front, seen = [], set()
+        for a, b, params, rules in sorted(points, key=lambda p: (-p[0], -p[1])):
+            if (a, b) in seen or any(q[0] >= a and q[1] >= b and (q[0], q[1]) != (a, b) for q in front):
+                continue
+            seen.add((a, b))
+            front.append((a, b, params, rules))
+        out[subj] = {
+            "pareto_front": [{"f1_0.2": a, "f1_0.1": b, "params": params,
+                              "rules": {k: v for k, v in r.to_dict().items() if v}} for a, b, params, r in front],
+            "reaches_targets": any(a >= targets[0] and b >= targets[1] for a, b, _, _ in front),
+            "n_candidates": len(points),
+        }
+    return out
+
+
 def speed_figures(recs, pre) -> dict:
     per_rec = []
     seg = VMCI()
@@ -180,6 +221,8 @@ def main() -> None:
     ap.add_argument("--generate", action="store_true", help="generate 10 synthetic subjects in a temp folder")
     ap.add_argument("--stability", action="store_true",
                     help="repeat the cross-subject tuning without each training recording (a few minutes)")
+    ap.add_argument("--ceiling", action="store_true",
+                    help="rules tuned on the scored subject itself: the rule family's upper bound (about a minute)")
     args = ap.parse_args()
 
     recs = labelled_recordings(args.data)
@@ -208,6 +251,7 @@ def main() -> None:
         # what the choices left out of the default search would have given (sensitivity)
         variants = {
             "vmci_rules_full_grid": dict(rule_grid=DEFAULT_RULE_GRID),
+            "vmci_rules_pause": dict(rule_grid=PAUSE_TUNING_RULE_GRID),
             "vmci_rules_two_stage": dict(joint=False),
             "vmci_rules_scored_tolerances_only": dict(tolerances=(0.1, 0.2)),
             "vmci_rules_min_lengths_in_grid": dict(vmci_grid={**VMCI_GRID, "min_length_s": [0.15, 0.4],
@@ -230,6 +274,8 @@ def main() -> None:
     report["cross_subject"] = cross
     if args.stability:
         report["stability"] = stability(by_subject, pre)
+    if args.ceiling:
+        report["ceiling"] = ceiling(by_subject, pre)
     report["targets"] = {"f1_0.2": 0.90, "f1_0.1": 0.75}
     report["defaults"] = {s: summary(evaluate_segmenter(VMCI(), by_subject[s], (0.1, 0.2), pre)) for s in subjects}
     report["default_params"] = VMCI().json_params()

@@ -14,18 +14,24 @@ The rules, in the order they are applied, on the segments and their models ("mov
 
 1. ``merge_end_rests``: a rest segment at the start (end) of the recording is merged into the
    segment after (before) it, so its border goes.
-2. ``dip_ratio``: a border between two movement segments is dropped when the speed there is
+2. ``pause_s`` / ``pause_speed``: every interior stretch where the hand speed stays below
+   ``pause_speed`` (m/s) for at least ``pause_s`` seconds and that no rest segment of the
+   inference overlaps becomes a rest segment (the borders inside it go, one border at each
+   end; rule 6 then moves them to the speed levels). The scored border definition counts
+   both ends of a pause (:data:`~besdrake.segmentation.evaluation.BORDER_DEFINITION`); vMCI
+   sometimes explains a pause by the tails of two bell-shaped movements instead.
+3. ``dip_ratio``: a border between two movement segments is dropped when the speed there is
    above ``dip_ratio`` times the smaller of the two segments' peak speeds (no real minimum).
-3. ``min_rest_s``: an interior rest segment shorter than this becomes a single border at its
+4. ``min_rest_s``: an interior rest segment shorter than this becomes a single border at its
    speed minimum.
-4. ``snap_s``: a border between two movement segments moves to the lowest speed within
+5. ``snap_s``: a border between two movement segments moves to the lowest speed within
    ``snap_s`` seconds.
-5. ``end_level`` / ``start_level``: a movement -> rest border moves back to where the speed
+6. ``end_level`` / ``start_level``: a movement -> rest border moves back to where the speed
    drops below ``end_level`` times the movement's peak speed; a rest -> movement border moves
    forward to where it rises above ``start_level`` times the peak (each at most half the
    movement segment away).
 
-A value of 0 (or False) switches a rule off.
+A value of 0 (or False) switches a rule off (``pause_speed`` only matters with ``pause_s``).
 """
 
 from __future__ import annotations
@@ -48,12 +54,16 @@ class BorderRules:
     snap_s: float = 0.0
     end_level: float = 0.0
     start_level: float = 0.0
+    pause_s: float = 0.0
+    pause_speed: float = 0.05
 
     def __post_init__(self) -> None:
         for f in fields(self):
             v = getattr(self, f.name)
             if f.name != "merge_end_rests" and not (np.isfinite(v) and v >= 0):
                 raise ValueError(f"BorderRules.{f.name} must be a number >= 0, got {v!r}")
+        if self.pause_s > 0 and self.pause_speed <= 0:
+            raise ValueError(f"BorderRules.pause_speed must be > 0 (m/s) when pause_s is set, got {self.pause_speed}")
         for name in ("end_level", "start_level"):
             if getattr(self, name) >= 1:
                 raise ValueError(f"BorderRules.{name} is a fraction of the peak speed (< 1), got {getattr(self, name)}")
@@ -71,8 +81,19 @@ class BorderRules:
 
     @property
     def is_identity(self) -> bool:
-        return self == BorderRules()
+        """True when no rule is switched on (``pause_speed`` alone does nothing)."""
+        from dataclasses import replace
 
+        return replace(self, pause_speed=BorderRules.pause_speed) == BorderRules()
+
+
+#: The pause rule (``pause_s`` / ``pause_speed``) as measured on the pick-and-place data: the hand
+#: at rest is slower than 5 cm/s, and 0.4 s is vMCI's own shortest rest segment
+#: (``rest_min_length_s``). Manual borders within 0.2 s of the interior stretches below 5 cm/s:
+#: subject 2's annotator draws two at both stretches of 0.4 s or more and one (or none) at 29 of
+#: the 30 shorter ones; subject 1's draws two at 21 of 28 and at 5 of 17. Not a default (see
+#: ``scripts/bench_segmentation.py``, variant ``vmci_rules_pause``).
+PAUSE_RULE = {"pause_s": 0.4, "pause_speed": 0.05}
 
 #: The grid :func:`learn_rules` searches by default (2 * 4 * 4 * 3 * 5 * 4 = 1920 rule sets).
 #: Each list runs from the rule switched off to its strongest setting (for ``dip_ratio`` a
@@ -113,7 +134,10 @@ def apply_rules(result: SegmentationResult, speed: np.ndarray, frequency: float,
             del edges[1], models[0]
         if len(models) > 1 and models[-1] == "rest":
             del edges[-2], models[-1]
-    # 2. no border without a real dip between two movements
+    # 2. a pause (speed below pause_speed for pause_s or longer) is a rest segment
+    if rules.pause_s > 0:
+        edges, models = _insert_pauses(edges, models, speed, frequency, rules)
+    # 3. no border without a real dip between two movements
     if rules.dip_ratio > 0:
         i = 1
         while i < len(edges) - 1:
@@ -121,7 +145,7 @@ def apply_rules(result: SegmentationResult, speed: np.ndarray, frequency: float,
                 del edges[i], models[i]
             else:
                 i += 1
-    # 3. a short pause is one border, at its speed minimum
+    # 4. a short pause is one border, at its speed minimum
     if rules.min_rest_s > 0:
         lim = rules.min_rest_s * frequency
         i = 1
@@ -133,7 +157,7 @@ def apply_rules(result: SegmentationResult, speed: np.ndarray, frequency: float,
                 del models[i]
             else:
                 i += 1
-    # 4. borders between movements at the nearest speed minimum
+    # 5. borders between movements at the nearest speed minimum
     if rules.snap_s > 0:
         w = int(round(rules.snap_s * frequency))
         for i in range(1, len(edges) - 1):
@@ -141,7 +165,7 @@ def apply_rules(result: SegmentationResult, speed: np.ndarray, frequency: float,
                 lo, hi = max(edges[i - 1] + 1, edges[i] - w), min(edges[i + 1] - 1, edges[i] + w)
                 if hi >= lo:
                     edges[i] = lo + int(np.argmin(speed[lo:hi + 1]))
-    # 5. movement ends / starts at a fraction of the movement's peak speed
+    # 6. movement ends / starts at a fraction of the movement's peak speed
     for i in range(1, len(edges) - 1):
         left, right = models[i - 1], models[i]
         if left == "movement" and right == "rest" and rules.end_level > 0:
@@ -168,6 +192,28 @@ def apply_rules(result: SegmentationResult, speed: np.ndarray, frequency: float,
     if hasattr(out, "segment_models"):
         out.segment_models = models
     return out
+
+
+def _low_runs(low: np.ndarray) -> list[tuple[int, int]]:
+    """``(first, last)`` sample of every run of True in ``low``."""
+    d = np.diff(np.r_[0, low.astype(int), 0])
+    return list(zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1) - 1))
+
+
+def _insert_pauses(edges: list[int], models: list[str], speed: np.ndarray, frequency: float, rules: BorderRules):
+    """Edges and models with every interior pause of the speed a rest segment of its own."""
+    n = len(speed)
+    starts = list(zip(edges[:-1], models))
+    for a, b in _low_runs(speed < rules.pause_speed):
+        if a == 0 or b >= n - 1 or (b - a + 1) < rules.pause_s * frequency:
+            continue
+        seg = [i for i in range(len(starts)) if starts[i][0] <= b and (starts[i + 1][0] if i + 1 < len(starts) else n - 1) > a]
+        if any(starts[i][1] == "rest" for i in seg):
+            continue
+        right_model = starts[max(i for i in range(len(starts)) if starts[i][0] <= b)][1]
+        kept = [(e, m) for e, m in starts if e == 0 or not a <= e <= b]
+        starts = sorted(kept + [(a, "rest"), (b, right_model)])
+    return [e for e, _ in starts] + [n - 1], [m for _, m in starts]
 
 
 @dataclass
