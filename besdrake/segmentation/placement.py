@@ -201,19 +201,19 @@ def _low_runs(low: np.ndarray) -> list[tuple[int, int]]:
 
 
 def _insert_pauses(edges: list[int], models: list[str], speed: np.ndarray, frequency: float, rules: BorderRules):
-    """Edges and models with every interior pause of the speed a rest segment of its own."""
+    """Edges and models with every interior pause of the speed a rest segment of its own (rule 2)."""
     n = len(speed)
-    starts = list(zip(edges[:-1], models))
+    starts = list(zip(edges[:-1], models))  # (first sample, model) of every segment
     for a, b in _low_runs(speed < rules.pause_speed):
-        if a == 0 or b >= n - 1 or (b - a + 1) < rules.pause_s * frequency:
+        if a == 0 or b >= n - 1 or b - a + 1 < rules.pause_s * frequency:
             continue
-        seg = [i for i in range(len(starts)) if starts[i][0] <= b and (starts[i + 1][0] if i + 1 < len(starts) else n - 1) > a]
-        if any(starts[i][1] == "rest" for i in seg):
+        ends = [e for e, _ in starts[1:]] + [n - 1]
+        overlapped = [m for (s, m), e in zip(starts, ends) if s <= b and e > a]
+        if "rest" in overlapped:
             continue
-        right_model = starts[max(i for i in range(len(starts)) if starts[i][0] <= b)][1]
-        kept = [(e, m) for e, m in starts if e == 0 or not a <= e <= b]
-        starts = sorted(kept + [(a, "rest"), (b, right_model)])
-    return [e for e, _ in starts] + [n - 1], [m for _, m in starts]
+        after = [m for s, m in starts if s <= b][-1]  # the model the pause interrupts
+        starts = sorted([(s, m) for s, m in starts if not a <= s <= b] + [(a, "rest"), (b, after)])
+    return [s for s, _ in starts] + [n - 1], [m for _, m in starts]
 
 
 @dataclass
