@@ -145,6 +145,16 @@ class MotionPlan:
             raise ValueError(f"derivative must be 0, 1 or 2, got {derivative}")
         return self._hermite(np.atleast_1d(times))[derivative]
 
+    def _sampled(self, resolution: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Positions, velocities and accelerations of the interpolated plan at the knots and at least every
+        ``resolution`` s; accelerations also just left of each knot (they jump there)."""
+        n = max(2, int(np.ceil(self.duration / resolution)) + 1)
+        ts = np.unique(np.concatenate([np.linspace(0.0, self.duration, n), self.t]))
+        knot_qd = self.knot_velocities()  # one spline fit (when qd is not given) for both evaluations
+        q, qd, qdd = self._hermite(ts, knot_qd)
+        _, _, qdd_left = self._hermite(self.t[1:] - 1e-12, knot_qd)
+        return q, qd, np.vstack([qdd, qdd_left])
+
     def check_limits(
         self,
         position_limits: np.ndarray | None = None,
@@ -158,13 +168,7 @@ class MotionPlan:
         pos = robot.POSITION_LIMITS if position_limits is None else np.asarray(position_limits, float)
         vel = robot.VELOCITY_LIMITS if velocity_limits is None else np.asarray(velocity_limits, float)
         acc = robot.ACCELERATION_LIMITS if acceleration_limits is None else np.asarray(acceleration_limits, float)
-        n = max(2, int(np.ceil(self.duration / resolution)) + 1)
-        ts = np.unique(np.concatenate([np.linspace(0.0, self.duration, n), self.t]))
-        knot_qd = self.knot_velocities()  # one spline fit (when qd is not given) for both evaluations
-        q, qd, qdd = self._hermite(ts, knot_qd)
-        # Accelerations jump at knots: evaluate both one-sided values there.
-        _, _, qdd_left = self._hermite(self.t[1:] - 1e-12, knot_qd)
-        qdd = np.vstack([qdd, qdd_left])
+        q, qd, qdd = self._sampled(resolution)
         p_viol = np.maximum(np.max(pos[:, 0] - q, axis=0), np.max(q - pos[:, 1], axis=0))
         v_viol = np.max(np.abs(qd) - vel, axis=0)
         a_viol = np.max(np.abs(qdd) - acc, axis=0)
@@ -173,6 +177,14 @@ class MotionPlan:
             velocity=np.maximum(v_viol, 0.0),
             acceleration=np.maximum(a_viol, 0.0),
         )
+
+    def peak_limit_ratios(self, resolution: float = 0.002) -> tuple[np.ndarray, np.ndarray]:
+        """Peak |velocity| / velocity limit and peak |acceleration| / acceleration limit per joint (each (6,),
+        dimensionless; > 1 where :meth:`check_limits` reports a violation), sampled as :meth:`check_limits` does.
+        Stretching a plan's time uniformly by ``k`` divides them by ``k`` and ``k**2``."""
+        self.validate()
+        _, qd, qdd = self._sampled(resolution)
+        return np.max(np.abs(qd), axis=0) / robot.VELOCITY_LIMITS, np.max(np.abs(qdd), axis=0) / robot.ACCELERATION_LIMITS
 
     # ------------------------------------------------------------------ I/O
     def to_dict(self) -> dict[str, Any]:

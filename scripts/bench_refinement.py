@@ -72,6 +72,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--restart-from", choices=["start", "ranked", "best"], default="best",
                         help="restart attempts from the start throw, from the imitated throws in reward order, or from the best throw so far")
     parser.add_argument("--n-starts", type=int, default=4, help="with --restart-from ranked: how many of the best imitated throws")
+    parser.add_argument("--retime", action="store_true",
+                        help="stretch each candidate's execution time just enough to keep the velocity and acceleration limits "
+                             "(RefinementProblem(retime=True))")
     parser.add_argument("--scout-starts", type=int, default=0,
                         help="with --scouts K: scout k starts from the (k mod N)-th best imitated throw instead of the best one; restarts still follow --restart-from")
     parser.add_argument("--diagonal", type=int, default=None, help="separable CMA-ES (cma's CMA_diagonal) for this many generations (-1: always, 0: never; default: the module's)")
@@ -108,7 +111,7 @@ def main(argv: list[str] | None = None) -> int:
             unit = {k: v for k, v in (("position_unit", args.position_unit), ("acceleration_unit", args.acceleration_unit),
                                       ("time_unit", args.time_unit)) if v is not None}
             problems = [RefinementProblem(dm, reward, ParameterScaling.for_dmp(
-                dm, max_execution_time=max(dm.execution_time, MIN_EXECUTION_TIME + 0.05) if args.no_slower else None, **unit)) for dm in dmps]
+                dm, max_execution_time=max(dm.execution_time, MIN_EXECUTION_TIME + 0.05) if args.no_slower else None, **unit), retime=args.retime) for dm in dmps]
             cma_options = {} if args.plain else dict(DEFAULT_CMA_OPTIONS)
             if args.diagonal is not None and not args.plain:
                 cma_options["CMA_diagonal"] = True if args.diagonal < 0 else args.diagonal
@@ -155,7 +158,7 @@ def main(argv: list[str] | None = None) -> int:
         "subjects_run": args.subjects, "runs_per_subject": args.runs, "episode_budget": args.episodes,
         "population": args.popsize, "sigma0": args.sigma0, "penalty_scale": args.penalty_scale, "violation_offset_m": reward.violation_offset,
         "dropped_penalty_m": reward.dropped_penalty, "meta_episodes": args.meta_episodes, "meta_sigma": args.meta_sigma, "position_unit_rad": args.position_unit, "acceleration_unit": args.acceleration_unit, "time_unit_s": args.time_unit, "no_slower": args.no_slower, "stagnation_generations": stagnation, "stagnation_tol_m": STAGNATION_TOL if args.stagnation_tol is None else args.stagnation_tol,
-        "max_attempt_generations": args.max_attempt_generations, "restart_from": args.restart_from, "n_starts": args.n_starts, "scout_starts": args.scout_starts, "cma_options": cma_options, "popsize_growth": DEFAULT_POPSIZE_GROWTH if args.popsize_growth is None else args.popsize_growth,
+        "max_attempt_generations": args.max_attempt_generations, "restart_from": args.restart_from, "n_starts": args.n_starts, "scout_starts": args.scout_starts, "retime": args.retime, "cma_options": cma_options, "popsize_growth": DEFAULT_POPSIZE_GROWTH if args.popsize_growth is None else args.popsize_growth,
         "restart_regimes": DEFAULT_RESTART_REGIMES if args.regimes is None else args.regimes, "small_share": args.small_share, "patience": args.patience, "scouts": DEFAULT_SCOUTS if args.scouts is None else args.scouts,
         "scout_generations": DEFAULT_SCOUT_GENERATIONS if args.scout_generations is None else args.scout_generations, "plain": args.plain, "target_m": [2.0, 0.0], "backend": args.backend,
         "success_rate": float(np.mean([r["success"] for r in all_runs])),

@@ -218,3 +218,30 @@ def test_refine_cli_writes_summary_figure_and_resumes(base, tmp_path):
     summary = json.loads((out / "summary.json").read_text())
     assert summary["runs"][0]["resumed"] and summary["runs"][0]["n_episodes"] == 12
     assert main(["refine", str(tmp_path / "missing.dmp.json"), "--out", str(out), "--backend", "serial"]) == 2
+
+
+def test_retiming_stretches_a_plan_beyond_the_speed_limits_and_leaves_others_alone(base):
+    problem = RefinementProblem(base, retime=True)
+    plain = RefinementProblem(base)
+    x_ok = np.zeros(problem.n_params)
+    vel, acc = plain.plan(x_ok).peak_limit_ratios()
+    assert max(vel.max(), acc.max()) <= 1.0  # the default throw keeps its limits: nothing to mend
+    assert np.array_equal(problem.theta(x_ok), plain.theta(x_ok))
+    # the same throw at the shortest execution time breaks a velocity or acceleration limit ...
+    x_fast = x_ok.copy()
+    x_fast[-1] = problem.scaling.x_bounds[-1, 0]
+    vel, acc = plain.plan(x_fast).peak_limit_ratios()
+    k = max(vel.max(), np.sqrt(acc.max()))
+    assert k > 1.2
+    # ... and retimed it is stretched by about that factor and keeps them (a stretch divides velocities by k)
+    theta = problem.theta(x_fast)
+    assert np.array_equal(theta[:-1], plain.theta(x_fast)[:-1])
+    assert theta[-1] == pytest.approx(plain.theta(x_fast)[-1] * k, rel=0.05)
+    vel, acc = problem.plan(x_fast).peak_limit_ratios()
+    assert vel.max() <= 1.0 + 1e-6 and acc.max() <= 1.0 + 1e-6
+    assert ThrowReward().penalty(problem.plan(x_fast)) == 0.0 < ThrowReward().penalty(plain.plan(x_fast))
+    # never beyond the execution-time bound; the setting travels with the problem's record
+    tight = RefinementProblem(base, scaling=ParameterScaling.for_dmp(base, max_execution_time=MIN_EXECUTION_TIME + 0.01), retime=True)
+    assert tight.theta(np.full(tight.n_params, 0.0))[-1] <= MIN_EXECUTION_TIME + 0.01
+    assert RefinementProblem.from_description(json.loads(json.dumps(problem.describe()))).retime
+    assert "retime" not in plain.describe() and not RefinementProblem.from_description(plain.describe()).retime

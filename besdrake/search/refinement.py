@@ -217,6 +217,11 @@ PLAIN_SEARCH: dict[str, Any] = {"cma_options": {}, "stagnation_generations": 0}
 #: Offset (rad) of the whole movement per unit of the meta-parameter stage (:func:`meta_basis`).
 META_OFFSET_UNIT = 1.0
 
+#: Retiming (``RefinementProblem(retime=True)``): at most this many stretch-and-check rounds, each stretching by the
+#: measured peak ratio times ``1 + RETIME_MARGIN`` (the DMP's goal velocity makes a stretch only nearly uniform).
+RETIME_ROUNDS = 4
+RETIME_MARGIN = 0.002
+
 DETAILS_FILE = "details.csv"
 PROBLEM_FILE = "problem.json"
 
@@ -438,6 +443,7 @@ class RefinementProblem:
         reward: ThrowReward | None = None,
         scaling: ParameterScaling | None = None,
         dt: float = PLAN_DT,
+        retime: bool = False,
     ) -> None:
         if not isinstance(template, DMP):
             raise RefinementError(f"template must be a besdrake.imitation.DMP, got {type(template).__name__}")
@@ -449,6 +455,7 @@ class RefinementProblem:
         if not (np.isfinite(dt) and dt > 0):
             raise RefinementError(f"dt must be > 0 s, got {dt!r}")
         self.dt = float(dt)
+        self.retime = bool(retime)
         self.records: dict[str, RewardBreakdown] = {}
 
     @property
@@ -460,7 +467,29 @@ class RefinementProblem:
         return self.reward.target
 
     def theta(self, x: np.ndarray) -> np.ndarray:
-        return self.scaling.to_theta(x)
+        """DMP parameters of normalised candidate ``x`` (retimed when the problem retimes, see :meth:`retimed`)."""
+        theta = self.scaling.to_theta(x)
+        return self.retimed(theta) if self.retime else theta
+
+    def retimed(self, theta: np.ndarray) -> np.ndarray:
+        """``theta`` with its execution time stretched just enough that the plan keeps every joint's velocity and
+        acceleration limit, as the embodiment mapping's temporal scaling does (:mod:`besdrake.embodiment.scaling`):
+        stretching by ``k`` divides velocities by ``k`` and accelerations by ``k**2``. Never faster than ``theta``,
+        never beyond the execution-time bound; what a stretch cannot mend (a position limit, the acceleration of the
+        DMP's final approach to its goal velocity, which a stretch does not slow) is left to the reward's penalty.
+        A ``theta`` without a valid rollout is returned unchanged (its evaluation fails as before)."""
+        theta = np.array(theta, dtype=float)
+        upper = self.scaling.bounds[-1, 1]
+        for _ in range(RETIME_ROUNDS):
+            try:
+                vel, acc = self.parameterization.motion_plan(theta, dt=self.dt).peak_limit_ratios()
+            except (DMPParameterError, PlanError, ValueError):
+                return theta
+            k = max(float(vel.max()), float(np.sqrt(acc.max())))
+            if not np.isfinite(k) or k <= 1.0 or theta[-1] >= upper:
+                break
+            theta[-1] = min(upper, theta[-1] * k * (1.0 + RETIME_MARGIN))
+        return theta
 
     def plan(self, x: np.ndarray) -> MotionPlan:
         """Motion plan of normalised candidate ``x`` (raises DMPParameterError/PlanError for a bad one)."""
@@ -514,7 +543,7 @@ class RefinementProblem:
             "scaling": self.scaling.to_dict(),
             "dt": self.dt,
             "names": list(self.parameterization.names),
-        }
+        } | ({"retime": True} if self.retime else {})
 
     @classmethod
     def from_description(cls, d: dict[str, Any]) -> "RefinementProblem":
@@ -522,7 +551,8 @@ class RefinementProblem:
             template = DMP.from_dict(d["template"])
         except (KeyError, TypeError, ValueError) as err:
             raise RefinementError(f"bad problem record: {err}") from err
-        return cls(template, ThrowReward.from_dict(d["reward"]), ParameterScaling.from_dict(d["scaling"]), float(d["dt"]))
+        return cls(template, ThrowReward.from_dict(d["reward"]), ParameterScaling.from_dict(d["scaling"]), float(d["dt"]),
+                   retime=bool(d.get("retime", False)))
 
 
 _DETAIL_COLUMNS = ["key", "reward", "distance", "penalty", "touchdown_x", "touchdown_y", "flags", "message"]
