@@ -41,7 +41,7 @@ import numpy as np  # noqa: E402
 def main(argv: list[str] | None = None) -> int:
     from besdrake.commands.refine import collect_imitated
     from besdrake.imitation import load_dmp
-    from besdrake.search.refinement import MIN_EXECUTION_TIME, ParameterScaling, RefinementProblem, ThrowReward, rank_starts, refine, restart_points
+    from besdrake.search.refinement import MIN_EXECUTION_TIME, ParameterScaling, RefinementProblem, ThrowReward, rank_starts, refine, restart_points, scout_start_points, DEFAULT_RETIME, DEFAULT_SCOUT_STARTS
     from besdrake.search.refinement import DEFAULT_CMA_OPTIONS, DEFAULT_POPSIZE_GROWTH, DEFAULT_RESTART_REGIMES, DEFAULT_STAGNATION_GENERATIONS, STAGNATION_TOL
     from besdrake.search.refinement import DEFAULT_PATIENCE, DEFAULT_SCOUT_GENERATIONS, DEFAULT_SCOUTS
     from besdrake.sim import make_executor
@@ -72,11 +72,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--restart-from", choices=["start", "ranked", "best"], default="best",
                         help="restart attempts from the start throw, from the imitated throws in reward order, or from the best throw so far")
     parser.add_argument("--n-starts", type=int, default=4, help="with --restart-from ranked: how many of the best imitated throws")
-    parser.add_argument("--retime", action="store_true",
+    parser.add_argument("--retime", action=argparse.BooleanOptionalAction, default=None,
                         help="stretch each candidate's execution time just enough to keep the velocity and acceleration limits "
-                             "(RefinementProblem(retime=True))")
-    parser.add_argument("--scout-starts", type=int, default=0,
-                        help="with --scouts K: scout k starts from the (k mod N)-th best imitated throw instead of the best one; restarts still follow --restart-from")
+                             "(RefinementProblem(retime=True); default: refinement.DEFAULT_RETIME)")
+    parser.add_argument("--scout-starts", type=int, default=None,
+                        help="scout k starts from the (k mod N)-th best imitated throw instead of the best one; restarts still follow "
+                             "--restart-from (default: refinement.DEFAULT_SCOUT_STARTS)")
     parser.add_argument("--diagonal", type=int, default=None, help="separable CMA-ES (cma's CMA_diagonal) for this many generations (-1: always, 0: never; default: the module's)")
     parser.add_argument("--elitist", action=argparse.BooleanOptionalAction, default=None,
                         help="elitist CMA-ES (cma's CMA_elitist: the best throw so far stays in the population; default: the module's)")
@@ -130,9 +131,10 @@ def main(argv: list[str] | None = None) -> int:
             ranked = rank_starts(problems, ex)
             index, start = ranked[0]
             starts = None
-            if args.restart_from == "ranked" or args.scout_starts > 1:
-                n_starts = args.n_starts if args.restart_from == "ranked" else args.scout_starts
-                starts = restart_points(problems[index], [problems[i] for i, _ in ranked[:n_starts]])
+            if args.restart_from == "ranked":
+                starts = restart_points(problems[index], [problems[i] for i, _ in ranked[: args.n_starts]])
+            else:
+                starts = scout_start_points(problems, ranked, args.scout_starts)
             runs = []
             for k in range(args.runs):
                 out_dir = None if args.out is None else args.out / f"s{s}_run{k}"
@@ -158,7 +160,8 @@ def main(argv: list[str] | None = None) -> int:
         "subjects_run": args.subjects, "runs_per_subject": args.runs, "episode_budget": args.episodes,
         "population": args.popsize, "sigma0": args.sigma0, "penalty_scale": args.penalty_scale, "violation_offset_m": reward.violation_offset,
         "dropped_penalty_m": reward.dropped_penalty, "meta_episodes": args.meta_episodes, "meta_sigma": args.meta_sigma, "position_unit_rad": args.position_unit, "acceleration_unit": args.acceleration_unit, "time_unit_s": args.time_unit, "no_slower": args.no_slower, "stagnation_generations": stagnation, "stagnation_tol_m": STAGNATION_TOL if args.stagnation_tol is None else args.stagnation_tol,
-        "max_attempt_generations": args.max_attempt_generations, "restart_from": args.restart_from, "n_starts": args.n_starts, "scout_starts": args.scout_starts, "retime": args.retime, "cma_options": cma_options, "popsize_growth": DEFAULT_POPSIZE_GROWTH if args.popsize_growth is None else args.popsize_growth,
+        "max_attempt_generations": args.max_attempt_generations, "restart_from": args.restart_from, "n_starts": args.n_starts, "scout_starts": DEFAULT_SCOUT_STARTS if args.scout_starts is None else args.scout_starts,
+        "retime": DEFAULT_RETIME if args.retime is None else args.retime, "cma_options": cma_options, "popsize_growth": DEFAULT_POPSIZE_GROWTH if args.popsize_growth is None else args.popsize_growth,
         "restart_regimes": DEFAULT_RESTART_REGIMES if args.regimes is None else args.regimes, "small_share": args.small_share, "patience": args.patience, "scouts": DEFAULT_SCOUTS if args.scouts is None else args.scouts,
         "scout_generations": DEFAULT_SCOUT_GENERATIONS if args.scout_generations is None else args.scout_generations, "plain": args.plain, "target_m": [2.0, 0.0], "backend": args.backend,
         "success_rate": float(np.mean([r["success"] for r in all_runs])),

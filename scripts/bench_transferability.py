@@ -118,7 +118,7 @@ def run_subject(
     ``refine_runs``: refinement runs with seeds ``refine_seed + k`` until one reaches the goal (the paper ran 6 per subject,
     ``besdrake learn`` runs 2); the search starts from the closest throw of all runs."""
     from besdrake.imitation import DMPParameterization, load_dmp
-    from besdrake.search.refinement import ParameterScaling, RefinementProblem, ThrowReward, best_start, refine
+    from besdrake.search.refinement import ParameterScaling, RefinementProblem, ThrowReward, rank_starts, refine, scout_start_points
     from besdrake.sim import make_executor
     from besdrake.transfer.lab import SafetyGate
     from besdrake.transfer.log import LabLog
@@ -144,10 +144,12 @@ def run_subject(
                 if problem is None:
                     files = imitated_throws(subject, imitated)
                     problems = [RefinementProblem(load_dmp(f), ThrowReward(target=TARGET)) for f in files]
-                    index, start = best_start(problems, executor)
+                    ranking = rank_starts(problems, executor)
+                    index, start = ranking[0]
                     problem = problems[index]
+                    starts = scout_start_points(problems, ranking)
                 ref = refine(problem, executor, n_episodes=refine_episodes, seed=refine_seed + k, out_dir=ref_dir,
-                             stop_on_success=not whole_budget)
+                             stop_on_success=not whole_budget, starts=starts)
                 DMPParameterization(problem.parameterization.template).from_vector(ref.best_theta).save(ref_dir / "refined.dmp.json")
                 write_json(ref_done, {
                     "budget": refine_episodes, "whole_budget": whole_budget, "seed": refine_seed + k, "n_imitated_throws": len(files),

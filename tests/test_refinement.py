@@ -222,7 +222,7 @@ def test_refine_cli_writes_summary_figure_and_resumes(base, tmp_path):
 
 def test_retiming_stretches_a_plan_beyond_the_speed_limits_and_leaves_others_alone(base):
     problem = RefinementProblem(base, retime=True)
-    plain = RefinementProblem(base)
+    plain = RefinementProblem(base, retime=False)
     x_ok = np.zeros(problem.n_params)
     vel, acc = plain.plan(x_ok).peak_limit_ratios()
     assert max(vel.max(), acc.max()) <= 1.0  # the default throw keeps its limits: nothing to mend

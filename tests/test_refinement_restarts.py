@@ -8,7 +8,8 @@ import pytest
 
 from besdrake.search.base import load_state, save_state
 from besdrake.search.cmaes import StagnationRestartCMAES
-from besdrake.search.refinement import RefinementError, RefinementProblem, rank_starts, refine, restart_points
+from besdrake.search.refinement import (DEFAULT_SCOUTS, RefinementError, RefinementProblem, ThrowReward, rank_starts, refine,
+                                        restart_points, scout_start_points)
 from besdrake.search.templates import fitted_default_throw
 from tests.test_refinement import StandIn
 
@@ -243,15 +244,18 @@ def test_rank_starts_and_restart_points(base):
     far.goal[1] += 0.5  # StandIn: lands 0.5 m farther out (beyond the target)
     near.goal = near.goal.copy()
     near.goal[1] += 0.8  # lands 0.8 m out: closest to the target 2 m (StandIn x = goal of joint 2 + 1)
-    problems = [RefinementProblem(base), RefinementProblem(far), RefinementProblem(near)]
+    problems = [RefinementProblem(b, retime=False) for b in (base, far, near)]  # the mapping itself, unretimed
     ranked = rank_starts(problems, StandIn())
-    d = [r.distance for _, r in ranked]
-    assert d == sorted(d) and ranked[0][0] == 2
+    rewards = [r.reward for _, r in ranked]
+    assert rewards == sorted(rewards, reverse=True)
+    # the closest throw breaks a limit (goal of joint 2 + 0.8 rad): the limit offset ranks it last
+    assert [i for i, _ in ranked] == [1, 0, 2] and ranked[2][1].penalty >= ThrowReward().violation_offset
+    assert ranked[2][1].distance < ranked[0][1].distance
     pts = restart_points(problems[0], [problems[i] for i, _ in ranked])
     assert pts.shape == (3, problems[0].n_params)
     for row, (i, _) in zip(pts, ranked):
         assert np.allclose(problems[0].theta(row), problems[i].scaling.theta0)
-    assert np.allclose(pts[-1], 0.0)
+    assert np.allclose(pts[1], 0.0)  # problem 0's own throw (second in the ranking) is its origin
 
 
 def test_refine_with_restarts_succeeds_records_attempts_and_resumes(base, tmp_path):
@@ -339,9 +343,11 @@ def test_scouting_refine_resumes_and_a_default_run_is_another_run(base, tmp_path
     fresh = refine(RefinementProblem(base), StandIn(), n_episodes=n, scouts=3, **kw)
     assert again.resumed and np.array_equal(fresh.rewards, again.rewards) and fresh.attempts == again.attempts
     assert [(a["end"], a["generations"], a["start"]) for a in fresh.attempts[:3]] == [("scout", 3, 0)] * 3
-    # the default does not scout, and its run folder is not the scouting run's
+    # without scouts no attempt is a scout; the default (DEFAULT_SCOUTS scouts) is another run than three scouts
+    unscouted = refine(RefinementProblem(base), StandIn(), n_episodes=n, scouts=0, **kw)
+    assert all(a["end"] != "scout" for a in unscouted.attempts)
     default = refine(RefinementProblem(base), StandIn(), n_episodes=n, **kw)
-    assert all(a["end"] != "scout" for a in default.attempts)
+    assert [a["end"] for a in default.attempts[:DEFAULT_SCOUTS]] == ["scout"] * DEFAULT_SCOUTS
     with pytest.raises(RefinementError, match="another refinement"):
         refine(RefinementProblem(base), StandIn(), n_episodes=n + 6, out_dir=tmp_path / "scouts", **kw)
     for bad in ({"scouts": -1}, {"scout_generations": 0}, {"patience": 0}):
@@ -396,3 +402,22 @@ def test_bipop_small_restart_refines_a_near_miss(tmp_path):
     assert first["regime"] == "large" and first["end"] == "stagnation", result.attempts
     assert result.episodes_to_success > first["generations"] * first["popsize"], (result.episodes_to_success, result.attempts)
     assert len(result.attempts) == 1 or result.attempts[1]["regime"] == "small", result.attempts
+
+
+def test_scout_start_points_are_the_best_imitated_throws_in_order(base):
+    far, near = base.copy(), base.copy()
+    far.goal = far.goal.copy()
+    far.goal[1] -= 0.5
+    near.goal = near.goal.copy()
+    near.goal[1] += 0.8
+    problems = [RefinementProblem(b, retime=False) for b in (base, far, near)]
+    ranked = rank_starts(problems, StandIn())
+    assert scout_start_points(problems, ranked, 1) is None  # every scout from the start throw
+    pts = scout_start_points(problems, ranked, 2)
+    assert pts.shape == (2, problems[0].n_params)
+    best = problems[ranked[0][0]]
+    assert np.allclose(pts[0], 0.0)  # the start throw itself first
+    assert np.allclose(best.theta(pts[1]), problems[ranked[1][0]].scaling.theta0)
+    assert scout_start_points(problems, ranked, 10).shape[0] == 3  # no more than there are throws
+    with pytest.raises(RefinementError):
+        scout_start_points(problems, ranked, 0)

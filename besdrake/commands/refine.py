@@ -47,10 +47,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--patience", type=int, default=None, metavar="K",
                         help="'local' regimes: small restarts in a row without improvement before a large one (default: DEFAULT_PATIENCE)")
     parser.add_argument("--scouts", type=int, default=None, metavar="K",
-                        help="the first K attempts are independent short CMA-ES runs from the start throw (--scout-generations each), then the best "
+                        help="the first K attempts are independent short CMA-ES runs (--scout-generations each, from the --scout-starts best imitated throws), then the best "
                              "goes on; 0: none (default: besdrake.search.refinement.DEFAULT_SCOUTS)")
     parser.add_argument("--scout-generations", type=int, default=None, metavar="G",
                         help="generations of each scout (default: DEFAULT_SCOUT_GENERATIONS)")
+    parser.add_argument("--scout-starts", type=int, default=None, metavar="N",
+                        help="scout k starts from the (k mod N)-th best imitated throw; 1: every scout from the best (default: DEFAULT_SCOUT_STARTS)")
+    parser.add_argument("--retime", action=argparse.BooleanOptionalAction, default=None,
+                        help="stretch each candidate's execution time just enough to keep the velocity and acceleration limits "
+                             "(default: besdrake.search.refinement.DEFAULT_RETIME)")
+    parser.add_argument("--violation-offset", type=float, default=None,
+                        help="reward offset (m) of a throw beyond any joint limit (default: ThrowReward's)")
     parser.add_argument("--popsize-growth", type=float, default=None, metavar="F",
                         help="IPOP-like: the k-th large restart has population POPSIZE * F**k (default: DEFAULT_POPSIZE_GROWTH)")
     parser.add_argument("--plain", action="store_true", help="the search before issue 5: plain CMA-ES, no restarts (overrides the search options above; "
@@ -147,7 +154,8 @@ def run(args: argparse.Namespace) -> int:
     from besdrake.cli import UserError
     from besdrake.imitation import DMPParameterError, load_dmp, save_dmp
     from besdrake.search.loop import ResumeError
-    from besdrake.search.refinement import RefinementError, RefinementProblem, ThrowReward, best_start, refine
+    from besdrake.search.refinement import (DEFAULT_SCOUT_STARTS, RefinementError, RefinementProblem, ThrowReward, rank_starts,
+                                            refine, restart_points)
     from besdrake.sim import make_executor
     from besdrake.sim.scenario import ScenarioError
 
@@ -176,8 +184,13 @@ def run(args: argparse.Namespace) -> int:
         raise UserError("no imitated throws to refine")
     try:
         extra = {} if args.dropped_penalty is None else {"dropped_penalty": args.dropped_penalty}
+        if args.violation_offset is not None:
+            extra["violation_offset"] = args.violation_offset
         reward = ThrowReward(target=tuple(args.target), **extra)
-        problems = [RefinementProblem(load_dmp(f), reward) for f in files]
+        problems = [RefinementProblem(load_dmp(f), reward, retime=args.retime) for f in files]
+        scout_starts = DEFAULT_SCOUT_STARTS if args.scout_starts is None else args.scout_starts
+        if scout_starts < 1:
+            raise RefinementError(f"--scout-starts must be >= 1, got {scout_starts}")
     except (DMPParameterError, RefinementError) as err:
         raise UserError(str(err)) from None
     show = not args.quiet and sys.stderr.isatty()
@@ -195,11 +208,18 @@ def run(args: argparse.Namespace) -> int:
                 raise UserError(f"{args.out} holds a refinement of other throws or another target; use another --out")
             index = int(start["index"])
         else:
-            index, rec = best_start(problems, executor)
+            start = None
+        if start is None or (scout_starts > 1 and "ranking" not in start):
+            ranking = rank_starts(problems, executor)
+            index, rec = ranking[0]
             start = {"files": [str(f) for f in files], "target": list(args.target), "index": index,
-                     "start_distance_m": rec.distance, "start_touchdown_m": rec.touchdown, "start_flags": rec.flags}
+                     "start_distance_m": rec.distance, "start_touchdown_m": rec.touchdown, "start_flags": rec.flags,
+                     "ranking": [int(i) for i, r in ranking if np.isfinite(r.reward)]}
             start_file.write_text(json.dumps(start, indent=1))
         problem = problems[index]
+        starts = None
+        if scout_starts > 1:  # the imitated throws in the ranking's order (those that could be simulated)
+            starts = restart_points(problem, [problems[i] for i in start["ranking"][:scout_starts]])
         for k in range(args.runs):
             run_dir = args.out / f"run{k}"
             bar = None
@@ -216,7 +236,8 @@ def run(args: argparse.Namespace) -> int:
             try:
                 result = refine(problem, executor, args.episodes, seed=args.seed + k, out_dir=run_dir, sigma0=args.sigma0,
                                 popsize=args.popsize, stop_on_success=not args.continue_after_success, progress=progress,
-                                meta_episodes=args.meta_episodes, meta_sigma=args.meta_sigma, **search)
+                                meta_episodes=args.meta_episodes, meta_sigma=args.meta_sigma, **search,
+                                **({} if starts is None else {"starts": starts}))
             except (RefinementError, ResumeError) as err:
                 raise UserError(str(err)) from None
             finally:
