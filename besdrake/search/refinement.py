@@ -154,8 +154,8 @@ serial``, 2-core machine shared by two benchmarks; episodes to 0.1 m, or the bes
 median 720. Ablations (same benchmark, 20 runs each unless said): scouts from the four best throws + retiming with
 the 0.2 m offset: 15 of 20 (stalled: subject 0 seed 0, subject 1 and 6 both seeds), pooled median of successes 356;
 the same with a retiming that kept a stretch even when it did not mend the plan: 17 of 20; scouts + 1 m offset
-without retiming: 13 of 18 (stalled: subject 0 seed 0, subjects 1 and 6 both seeds); the 1 m offset alone (BIPOP,
-no scouts, no retiming): 14 of 19 (the same five stall). Only the three together reach the goal with every subject in
+without retiming: 15 of 20, median 745 (stalled: subject 0 seed 0, subjects 1 and 6 both seeds); the 1 m offset alone
+(BIPOP, no scouts, no retiming): 15 of 20, median 556 (the same five stall). Only the three together reach the goal with every subject in
 both seeds but one run. The target (every run, median <= 500 episodes) is still not met: subject 1 seed 1 stalls at
 0.277 m and the pooled median is 581.
 
