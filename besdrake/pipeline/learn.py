@@ -291,10 +291,12 @@ def _executor(ctx: Context, scenario: str):
 
 
 def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int, tag: str) -> dict[str, Any]:
-    """CMA-ES from the best of ``dmps`` (the paper uses all available plans) in ``scenario``."""
+    """CMA-ES from the best of ``dmps`` (the paper uses all available plans) in ``scenario``. The default search's scouts
+    (short first attempts from the best throws) run only where they take at most half of ``budget``: a re-refinement
+    on a small budget from throws refined already goes straight to CMA-ES from the best of them."""
     from besdrake.imitation import DMPParameterization
-    from besdrake.search.refinement import (RefinementProblem, ThrowReward, plot_learning_curves, rank_starts, refine,
-                                            scout_start_points)
+    from besdrake.search.refinement import (DEFAULT_SCOUT_GENERATIONS, DEFAULT_SCOUTS, RefinementProblem, ThrowReward,
+                                            plot_learning_curves, rank_starts, refine, scout_start_points)
 
     cfg = ctx.config["refinement"]
     reward = ThrowReward(target=tuple(cfg["target"]))
@@ -305,11 +307,12 @@ def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int
         index, start = ranking[0]
         problem = problems[index]
         starts = scout_start_points(problems, ranking)  # None unless the default search scouts from several throws
+        scouts = DEFAULT_SCOUTS if 2 * DEFAULT_SCOUTS * DEFAULT_SCOUT_GENERATIONS * int(cfg["population"]) <= int(budget) else 0
         for k in range(int(cfg["plans"])):
             ctx.progress(f"{tag}: CMA-ES run {k + 1}/{cfg['plans']} from throw {index} ({start.distance:.2f} m from the target)")
             result = refine(problem, executor, n_episodes=int(budget), seed=int(cfg["seed"]) + k,
                             out_dir=out / f"run{k}", popsize=int(cfg["population"]),
-                            stop_on_success=bool(cfg.get("stop_on_success", True)), starts=starts)
+                            stop_on_success=bool(cfg.get("stop_on_success", True)), starts=starts, scouts=scouts)
             dmp = DMPParameterization(problem.parameterization.template).from_vector(result.best_theta)
             dmp.save(out / f"refined{k}.dmp.json")
             DMPParameterization(dmp).motion_plan(DMPParameterization(dmp).to_vector(), dt=0.01).save(out / f"refined{k}.plan.json")
