@@ -238,8 +238,8 @@ DEFAULT_POPSIZE_GROWTH = 1.0
 #: ``"local"`` regimes: small restarts in a row that did not improve the best throw by :data:`STAGNATION_TOL` before a large one.
 DEFAULT_PATIENCE = 2
 #: Scouting (:class:`~besdrake.search.cmaes.StagnationRestartCMAES`'s ``scouts``): the first attempts are this many
-#: independent short CMA-ES runs from the start throw, of :data:`DEFAULT_SCOUT_GENERATIONS` generations each; the best
-#: goes on. Four, from the four best imitated throws (:data:`DEFAULT_SCOUT_STARTS`), with retiming and the limit offset of
+#: independent short CMA-ES runs, of :data:`DEFAULT_SCOUT_GENERATIONS` generations each; the best goes on. Four, from
+#: the four best imitated throws (:data:`DEFAULT_SCOUT_STARTS`), with retiming and the limit offset of
 #: :class:`ThrowReward`: 19 of 20 benchmark runs (see "Scouting across throw families" in the module docstring).
 DEFAULT_SCOUTS = 4
 DEFAULT_SCOUT_GENERATIONS = 12
