@@ -287,6 +287,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--transfer-choice", choices=["likely", "predicted", "diverse"], default="likely",
                         help="which plan the Transferability Approach transfers: most likely to pass 3/3, closest predicted lab touchdown, or the paper's most diverse")
     args = parser.parse_args(argv)
+    if args.refine_runs < 1:
+        parser.error(f"--refine-runs must be >= 1, got {args.refine_runs}")
     logging.getLogger("drake").setLevel(logging.ERROR)
 
     t0 = time.perf_counter()
