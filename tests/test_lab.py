@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -227,6 +229,19 @@ def test_shipped_lab_configs_load():
     assert not only.record_ball_path and not only.record_joints
     default = load_lab_config(labs[[p.stem for p in labs].index("default_lab")])
     assert default.effects["base_offset"]["z"] == pytest.approx(-0.03)
+
+
+def test_the_default_lab_path_works_from_any_working_folder(tmp_path, monkeypatch):
+    # besdrake learn's default (diagrams/labs/default_lab.yaml) from outside the checkout: found in the checkout
+    monkeypatch.chdir(tmp_path)
+    assert load_lab_config("diagrams/labs/default_lab.yaml").name == "default_lab"
+    mine = tmp_path / "diagrams" / "labs" / "default_lab.yaml"  # a file of the same path in the working folder wins
+    mine.parent.mkdir(parents=True)
+    mine.write_text((Path(__file__).resolve().parents[1] / "diagrams" / "labs" / "default_lab.yaml").read_text().replace(
+        "name: default_lab", "name: my_lab"))
+    assert load_lab_config("diagrams/labs/default_lab.yaml").name == "my_lab"
+    with pytest.raises(LabConfigError, match="not found"):
+        load_lab_config("diagrams/labs/no_such_lab.yaml")
 
 
 # ---------------------------------------------------------------------------------------- plugins

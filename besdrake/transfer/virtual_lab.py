@@ -250,9 +250,22 @@ def parse_lab_config(data: Any, base_dir: Path | None = None, name: str = "lab")
     )
 
 
-def load_lab_config(path: str | Path) -> LabConfig:
-    """Read and validate a lab YAML file; :class:`LabConfigError` naming the file and the problem."""
+def resolve_lab_path(path: str | Path) -> Path:
+    """``path`` as given where it names a file; else a relative path is looked up from the besdrake checkout
+    (``diagrams/labs/default_lab.yaml`` works from any working folder). Unchanged when neither exists."""
     p = Path(path)
+    if p.is_file() or p.is_absolute():
+        return p
+    from besdrake.sim.scenario import DIAGRAMS_DIR
+
+    q = DIAGRAMS_DIR.parent / p
+    return q if q.is_file() else p
+
+
+def load_lab_config(path: str | Path) -> LabConfig:
+    """Read and validate a lab YAML file (see :func:`resolve_lab_path`); :class:`LabConfigError` naming the file and
+    the problem."""
+    p = resolve_lab_path(path)
     if not p.is_file():
         raise LabConfigError(f"lab config file not found: {p}")
     try:
