@@ -226,6 +226,62 @@ def test_resumed_scouting_asks_the_same_candidates(tmp_path):
         assert a.attempt >= 5
 
 
+def test_halving_races_the_scouts_and_the_better_half_goes_on():
+    n = 3
+    starts = np.array([[-3.0] * n, [3.0] * n, [0.0] * n, [-6.0] * n])  # the global optimum is at +3 (start 1)
+    opt = StagnationRestartCMAES(starts, 0.5, np.random.default_rng(2), popsize=6, stagnation_generations=50,
+                                 restart_from_best=True, regimes="bipop", scouts=4, scout_generations=3, scout_halving=True)
+    inners = {}
+    for _ in range(6 * 3):  # rung 0: 4 scouts x 3 generations; rung 1: the better 2 x 3 more
+        inners.setdefault(id(opt.inner), opt.inner)
+        assert opt.scouting()
+        X = opt.ask()
+        opt.tell(X, two_basins(X))
+    hist = opt.attempt_history
+    assert [(h["scout"], h["rung"], h["generations"], h["end"]) for h in hist[:4]] == [(k, 0, 3, "scout") for k in range(4)]
+    assert [h["start"] for h in hist[:4]] == [0, 1, 2, 3]
+    better = sorted(range(4), key=lambda k: -hist[k]["best_reward"])[:2]
+    assert [(h["scout"], h["rung"], h["generations"]) for h in hist[4:6]] == [(k, 1, 6) for k in better]  # the better first
+    assert len(inners) == 4  # rung 1 went on with the scouts' own CMA-ES, no new one
+    winner = max(hist[4:6], key=lambda h: h["best_reward"])["scout"]
+    assert 1 in better and not opt.scouting() and opt.continued_scout == winner
+    assert len(opt.attempt_best) == 6 and opt.attempt_best[-1] == max(h["best_reward"] for h in hist[4:6])
+    X = opt.ask()
+    opt.tell(X, two_basins(X))
+    assert opt.inner is not None and len(opt.attempt_best) == 7
+
+
+def test_halving_drops_stalled_scouts_and_resumes_anywhere(tmp_path):
+    n = 4
+    kw = dict(popsize=6, bounds=np.tile([-10.0, 10.0], (n, 1)), stagnation_generations=3, tol=0.05, regimes="bipop",
+              restart_from_best=True, scouts=4, scout_generations=4, scout_halving=True)
+    starts = np.array([[-1.0] * n, [2.0] * n, [-3.0] * n, [1.0] * n])
+    a = StagnationRestartCMAES(starts, 0.5, np.random.default_rng(5), **kw)
+    run(a, 60)
+    scout_ends = [h for h in a.attempt_history if "rung" in h]
+    stalled = {h["scout"]: h["rung"] for h in scout_ends if h["end"] != "scout"}
+    assert stalled  # (this seed: scouts stall, the race goes on without them)
+    for h in scout_ends:
+        assert h["rung"] <= stalled.get(h["scout"], h["rung"])  # a scout that stalled does not race on
+    for told in (3, 9, 17, 21):  # rung 0, rung 0 with scouts filed, rung 1, about the hand-over
+        a = StagnationRestartCMAES(starts, 0.5, np.random.default_rng(5), **kw)
+        run(a, told)
+        b = restored(a, tmp_path)
+        assert (b.rung, b.current_scout, [k for k, _, _ in b.rung_queue]) == (a.rung, a.current_scout, [k for k, _, _ in a.rung_queue])
+        assert_same_asks(a, b, 30)
+
+
+def test_scouting_episodes_counts_every_rung():
+    from besdrake.search.refinement import scouting_episodes
+
+    assert scouting_episodes(10, scouts=4, scout_generations=12, scout_halving=False) == 480  # 4 scouts one after the other
+    assert scouting_episodes(10, scouts=4, scout_generations=4, scout_halving=True) == (4 + 2) * 4 * 10
+    assert scouting_episodes(10, scouts=5, scout_generations=4, scout_halving=True) == (5 + 3 + 2) * 4 * 10
+    assert scouting_episodes(20, scouts=1, scout_generations=4, scout_halving=True) == 0  # no race with one scout
+    with pytest.raises(RefinementError):
+        scouting_episodes(10, scouts=-1)
+
+
 def test_bad_regime_settings_are_rejected():
     for kw in ({"regimes": "ipop"}, {"popsize_growth": 0.5}, {"small_decades": -1.0}, {"small_share": 0.0},
                {"regimes": "local", "patience": 0}, {"regimes": "local", "patience": 1.5}, {"scouts": -1}, {"scout_generations": 0}):
@@ -332,7 +388,8 @@ def test_cli_search_options_map_to_refine_keywords():
     assert regimes["restart_regimes"] == "large" and regimes["popsize_growth"] == 2.0
     local = search_options(parser.parse_args(["x", "--regimes", "local", "--patience", "3", "--scouts", "0", "--scout-generations", "5"]))
     assert (local["restart_regimes"], local["patience"], local["scouts"], local["scout_generations"]) == ("local", 3, 0, 5)
-    assert "scouts" not in default and "patience" not in default  # the module's defaults apply
+    assert "scouts" not in default and "patience" not in default and "scout_halving" not in default  # the module's defaults apply
+    assert search_options(parser.parse_args(["x", "--no-scout-halving"]))["scout_halving"] is False
 
 
 def test_scouting_refine_resumes_and_a_default_run_is_another_run(base, tmp_path):

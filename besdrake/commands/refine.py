@@ -50,7 +50,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="the first K attempts are independent short CMA-ES runs (--scout-generations each, from the --scout-starts best imitated throws), then the best "
                              "goes on; 0: none (default: besdrake.search.refinement.DEFAULT_SCOUTS)")
     parser.add_argument("--scout-generations", type=int, default=None, metavar="G",
-                        help="generations of each scout (default: DEFAULT_SCOUT_GENERATIONS)")
+                        help="generations of each scout, or of each rung of the race with --scout-halving (default: DEFAULT_SCOUT_GENERATIONS)")
+    parser.add_argument("--scout-halving", action=argparse.BooleanOptionalAction, default=None,
+                        help="race the scouts by successive halving: all run --scout-generations, the better half runs as many more, "
+                             "... until one is left (default: besdrake.search.refinement.DEFAULT_SCOUT_HALVING)")
     parser.add_argument("--scout-starts", type=int, default=None, metavar="N",
                         help="scout k starts from the (k mod N)-th best imitated throw; 1: every scout from the best (default: DEFAULT_SCOUT_STARTS)")
     parser.add_argument("--retime", action=argparse.BooleanOptionalAction, default=None,
@@ -143,6 +146,8 @@ def search_options(args: argparse.Namespace) -> dict:
         out["scouts"] = args.scouts
     if args.scout_generations is not None:
         out["scout_generations"] = args.scout_generations
+    if args.scout_halving is not None:
+        out["scout_halving"] = args.scout_halving
     return out
 
 

@@ -290,13 +290,13 @@ def _executor(ctx: Context, scenario: str):
     return make_executor("serial", scenario=scenario)
 
 
-def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int, tag: str) -> dict[str, Any]:
+def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int, tag: str, scouting: bool = True) -> dict[str, Any]:
     """CMA-ES from the best of ``dmps`` (the paper uses all available plans) in ``scenario``. The default search's scouts
-    (short first attempts from the best throws) run only where they take at most half of ``budget``: a re-refinement
-    on a small budget from throws refined already goes straight to CMA-ES from the best of them."""
+    (short first attempts from the best throws) run only with ``scouting`` and where they take at most half of
+    ``budget``: a re-refinement from throws refined already goes straight to CMA-ES from the best of them."""
     from besdrake.imitation import DMPParameterization
-    from besdrake.search.refinement import (DEFAULT_SCOUT_GENERATIONS, DEFAULT_SCOUTS, RefinementProblem, ThrowReward,
-                                            plot_learning_curves, rank_starts, refine, scout_start_points)
+    from besdrake.search.refinement import (DEFAULT_SCOUTS, RefinementProblem, ThrowReward, plot_learning_curves, rank_starts,
+                                            refine, scout_start_points, scouting_episodes)
 
     cfg = ctx.config["refinement"]
     reward = ThrowReward(target=tuple(cfg["target"]))
@@ -307,7 +307,7 @@ def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int
         index, start = ranking[0]
         problem = problems[index]
         starts = scout_start_points(problems, ranking)  # None unless the default search scouts from several throws
-        scouts = DEFAULT_SCOUTS if 2 * DEFAULT_SCOUTS * DEFAULT_SCOUT_GENERATIONS * int(cfg["population"]) <= int(budget) else 0
+        scouts = DEFAULT_SCOUTS if scouting and 2 * scouting_episodes(int(cfg["population"])) <= int(budget) else 0
         for k in range(int(cfg["plans"])):
             ctx.progress(f"{tag}: CMA-ES run {k + 1}/{cfg['plans']} from throw {index} ({start.distance:.2f} m from the target)")
             result = refine(problem, executor, n_episodes=int(budget), seed=int(cfg["seed"]) + k,
@@ -350,7 +350,9 @@ def _lab(ctx: Context):
     from besdrake.transfer.virtual_lab import VirtualLab
 
     if "lab" not in ctx.cache:
-        ctx.run.record_inputs({"lab": Path(ctx.config["lab"])})
+        from besdrake.transfer.virtual_lab import resolve_lab_path
+
+        ctx.run.record_inputs({"lab": resolve_lab_path(ctx.config["lab"])})
         ctx.cache["lab"] = SafetyGate(VirtualLab(ctx.config["lab"]))
     return ctx.cache["lab"]
 
@@ -435,7 +437,7 @@ def stage_transfer_refined(ctx: Context, out: Path) -> dict[str, Any]:
     scenario = _refined_scenario(ctx)
     seeds = [load_dmp(f) for f in sorted((ctx.run.root / "04_refine").glob("refined*.dmp.json"))]
     budget = max(int(ctx.config["refinement"]["evaluations"]) // 2, 20)
-    refined = _refine_from(ctx, seeds, scenario, out / "refine", budget, "re-refine")
+    refined = _refine_from(ctx, seeds, scenario, out / "refine", budget, "re-refine", scouting=False)
     summary = _transfer(ctx, sorted((out / "refine").glob("refined*.dmp.json")), scenario, out)
     return summary | {"re_refinement": refined}
 

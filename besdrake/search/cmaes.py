@@ -546,6 +546,10 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
     each from ``starts[k % len(starts)]``, at most ``scout_generations`` generations each, one after the other);
     then the scout with the best reward goes on (its CMA-ES state, not a fresh one) as the first attempt proper,
     and the restarts above follow. Meant for landscapes where the basin a run ends up in is decided early.
+    With ``scout_halving`` the scouts are raced by successive halving (Jamieson & Talwalkar 2016): every scout
+    runs ``scout_generations`` generations (a *rung*), then the better half of those that did not stall
+    (rounded up) runs another ``scout_generations`` generations each, its own CMA-ES going on, and so on until
+    one is left; it goes on as the first attempt proper. Four scouts cost 6 rungs of generations instead of 4.
 
     Budget and stop belong to the caller (the loop): :meth:`stop` is never true. One Generator drives
     every attempt; :meth:`state_dict` saves the attempt counter and regime bookkeeping, the per-generation
@@ -573,6 +577,7 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
         patience: int = 2,
         scouts: int = 0,
         scout_generations: int = 10,
+        scout_halving: bool = False,
     ) -> None:
         starts = np.atleast_2d(np.asarray(starts, dtype=float))
         if starts.size == 0 or not np.isfinite(starts).all():
@@ -616,6 +621,13 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
         self.patience = int(patience)
         self.scouts = int(scouts)
         self.scout_generations = int(scout_generations)
+        self.scout_halving = bool(scout_halving)
+        #: successive halving (``scout_halving``): the rung, the scout now running, the scouts still to run in this rung
+        #: (their CMA-ES and per-generation best; ``None``: a fresh scout from its start point) and those that finished it
+        self.rung = 0
+        self.current_scout = 0
+        self.rung_queue: list[tuple[int, CMAES | None, list[float]]] = [(k, None, []) for k in range(1, self.scouts)] if self.scout_halving else []
+        self.rung_done: list[tuple[int, CMAES, list[float]]] = []
         #: scouting: the best scout so far (its CMA-ES, and its per-generation best), kept to go on after the last scout
         self.kept: CMAES | None = None
         self.kept_best: list[float] = []
@@ -639,6 +651,8 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
 
     def scouting(self) -> bool:
         """True while the current attempt is one of the scouts (see the class docstring)."""
+        if self.scouts > 1 and self.scout_halving:
+            return self.current_scout >= 0
         return self.scouts > 1 and self.attempt < self.scouts
 
     def _start_point(self) -> tuple[int, np.ndarray]:
@@ -691,7 +705,7 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
         G = self.stagnation_generations
         if g > G and self.attempt_best[-1] - self.attempt_best[-1 - G] < self.tol:
             return "stagnation"
-        if self.scouting() and g >= self.scout_generations:
+        if self.scouting() and g >= self.scout_generations * (self.rung + 1 if self.scout_halving else 1):
             return "scout"
         return None
 
@@ -706,15 +720,23 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
         self.attempt_best.append(max(prev, float(ok.max())) if ok.size else prev)
         why = self.stalled()
         if why is not None:
+            halving = self.scout_halving and self.scouting()
             index, _ = self._start_point()
+            if halving:
+                index = self.current_scout % len(self.starts)
             if self.continued_scout is not None:
                 index = self.continued_scout % len(self.starts)  # the scout's start point
             entry = {"start": index, "generations": len(self.attempt_best), "best_reward": float(self.attempt_best[-1]), "end": why}
+            if halving:
+                entry |= {"scout": self.current_scout, "rung": self.rung}
             if self.continued_scout is not None:
                 entry["continues_scout"] = self.continued_scout
             if self.regimes != "large" or self.popsize_growth != 1.0:
                 entry |= {"regime": self.regime, "sigma0": float(self.inner.sigma0), "popsize": int(self.inner.popsize0)}
             self.attempt_history.append(entry)
+            if halving:
+                self._next_scout(why)
+                return
             if why == "scout" and (not self.kept_best or self.attempt_best[-1] > self.kept_best[-1]):
                 self.kept, self.kept_best, self.kept_scout = self.inner, list(self.attempt_best), self.attempt
             self.attempt += 1
@@ -729,6 +751,40 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
             else:
                 self.inner = self._new_attempt(self._next_regime())
             self.attempt_start_best = float(self._best_reward)
+
+    def _next_scout(self, why: str) -> None:
+        """Successive halving: file the scout that just ended (``why``) and switch to the next one, the next rung,
+        or, with one scout left (or none that did not stall), to the first attempt proper."""
+        if why == "scout":
+            self.rung_done.append((self.current_scout, self.inner, list(self.attempt_best)))
+        self.attempt += 1
+        if not self.rung_queue and len(self.rung_done) > 1:
+            ranked = sorted(self.rung_done, key=lambda e: -e[2][-1])  # stable: an earlier scout wins a tie
+            self.rung_queue = [(k, cma, best) for k, cma, best in ranked[: (len(ranked) + 1) // 2]]
+            self.rung_done = []
+            self.rung += 1
+            if len(self.rung_queue) == 1:  # the race is decided
+                self.rung_done, self.rung_queue = self.rung_queue, []
+        if self.rung_queue:
+            k, cma, best = self.rung_queue.pop(0)
+            self.current_scout, self.attempt_best = k, list(best)
+            if cma is None:
+                x = self.starts[k % len(self.starts)].copy()
+                if self.bounds is not None:
+                    span = self.bounds[:, 1] - self.bounds[:, 0]
+                    x = np.clip(x, self.bounds[:, 0] + 1e-9 * span, self.bounds[:, 1] - 1e-9 * span)
+                cma = CMAES(x, self.sigma0, self.rng, popsize=self.attempt_popsize(), bounds=self.bounds, cma_options=self.cma_options)
+            self.inner = cma
+        else:  # scouting is over: the winner goes on as a large attempt (a fresh one if every scout stalled)
+            self.current_scout = -1
+            self.attempt_best = []
+            if self.rung_done:
+                k, cma, best = self.rung_done[0]
+                self.inner, self.attempt_best, self.continued_scout = cma, list(best), k
+                self.rung_done = []
+            else:
+                self.inner = self._new_attempt(self._next_regime())
+        self.attempt_start_best = float(self._best_reward)
 
     @property
     def mean(self) -> np.ndarray:
@@ -747,6 +803,14 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
                 extra_cfg["patience"] = self.patience
         if self.scouts > 1:
             extra_cfg |= {"scouts": self.scouts, "scout_generations": self.scout_generations}
+            if self.scout_halving:
+                extra_cfg["scout_halving"] = True
+        halving_state: dict[str, Any] = {}
+        if self.scouts > 1 and self.scout_halving:
+            halving_state = {"halving": {
+                "rung": self.rung, "current_scout": self.current_scout,
+                "queue": [{"scout": k, "cma": None if c is None else c.state_dict(), "best": [float(v) for v in b]} for k, c, b in self.rung_queue],
+                "done": [{"scout": k, "cma": c.state_dict(), "best": [float(v) for v in b]} for k, c, b in self.rung_done]}}
         return {
             "type": "StagnationRestartCMAES",
             "config": {
@@ -770,6 +834,7 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
             "inner": self.inner.state_dict(),
             **({"kept": None if self.kept is None else self.kept.state_dict(), "kept_best": [float(v) for v in self.kept_best],
                 "kept_scout": self.kept_scout, "continued_scout": self.continued_scout} if self.scouts > 1 else {}),
+            **halving_state,
         }
 
     @classmethod
@@ -796,6 +861,20 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
         opt.patience = int(cfg.get("patience", 2))
         opt.scouts = int(cfg.get("scouts", 0))
         opt.scout_generations = int(cfg.get("scout_generations", 10))
+        opt.scout_halving = bool(cfg.get("scout_halving", False))
+        hv = state.get("halving", {})
+
+        def _cma(d):
+            if d is None:
+                return None
+            c = CMAES.from_state(d)
+            c.rng = inner.rng  # one Generator drives every attempt
+            return c
+
+        opt.rung = int(hv.get("rung", 0))
+        opt.current_scout = int(hv.get("current_scout", -1))
+        opt.rung_queue = [(int(e["scout"]), _cma(e["cma"]), [float(v) for v in e["best"]]) for e in hv.get("queue", [])]
+        opt.rung_done = [(int(e["scout"]), _cma(e["cma"]), [float(v) for v in e["best"]]) for e in hv.get("done", [])]
         opt.kept = None if state.get("kept") is None else CMAES.from_state(state["kept"])
         if opt.kept is not None:
             opt.kept.rng = inner.rng  # one Generator drives every attempt

@@ -42,7 +42,7 @@ The search (:func:`make_optimizer`, defaults :data:`DEFAULT_CMA_OPTIONS`, :data:
 far stays in the population) and restarts (:class:`~besdrake.search.cmaes.StagnationRestartCMAES`, fresh step size
 ``sigma0``, from the best throw so far) when its best distance has improved by less than :data:`STAGNATION_TOL`
 over 10 generations, with *BIPOP restart regimes* (:data:`DEFAULT_RESTART_REGIMES`, see below), after four *scouts*
-from the four best imitated throws, on *retimed* candidates and a reward whose limit offset outweighs the target distance
+from the four best imitated throws raced by successive halving, on *retimed* candidates and a reward whose limit offset outweighs the target distance
 (see "Scouting across throw families" below; ``"local"`` regimes are an option, measured, not better). Why: the successful throws lie far from the imitated one along a few parameters (goal of joint
 2 raised by 1.2-2.3 rad, start of joint 3 lowered, execution time changed by up to 1 s; measured on the 10 best
 throws of the plain runs), while the population's median throw lands 0.5-0.7 m from the target when its best lands
@@ -159,6 +159,32 @@ without retiming: 15 of 20, median 745 (stalled: subject 0 seed 0, subjects 1 an
 both seeds but one run. The target (every run, median <= 500 episodes) is still not met: subject 1 seed 1 stalls at
 0.277 m and the pooled median is 581.
 
+Racing the scouts (the default since session 7: :data:`DEFAULT_SCOUT_HALVING`, rungs of
+:data:`DEFAULT_SCOUT_GENERATIONS` = 4 generations). Why: the scouts one after the other cost 480 episodes before the
+best goes on, most of the median; over the 44 session-6 benchmark runs that ran all four scouts, the scout ahead
+after 4 generations (the better two of four) and then after 8 (the better of two) was the one ahead after 12 in 37
+(84%). Successive halving (Jamieson & Talwalkar 2016) keeps that choice for 240 episodes: all four scouts run 4
+generations, the better two 4 more each, the better one goes on. Same benchmark with the paper's budget of at most
+10,000 episodes (``scripts/bench_refinement.py --runs 1 --first-seed S --backend serial``, seeds 0-3, 2-core machine
+shared by up to four benchmarks; episodes to 0.1 m):
+
+    subject          0     1     2    3    4    5     6     7    8    9
+    seed 0        1046  1062   219  495  142  442   669   430  249  339
+    seed 1        7272  3240   199  926  536  266  1601   391  487  321
+    seed 2         264   312   165  365  298  193   694   344  174  799
+    seed 3         440  2500   162  517  421  292  1080  1051  406 2471
+
+40 of 40 runs reach the goal, median 425.5 episodes (35 of 40 within 1,500 episodes, 36 within 2,200); the
+session-6 default (scouts one after the other, 12 generations each; ``--no-scout-halving --scout-generations 12``)
+on the same seeds: 40 of 40, median 534.5 (38 within 1,500; seeds 2 and 3 measured in the same session, seeds 0 and 1
+in session 6 with the one run that did not reach the goal in 1,500 episodes resumed: 2,426): the race takes the
+median to 0.80 of it (per seed 436 / 511.5 / 305 / 478.5 against 507.5 / 695 / 524.5 / 574) and leaves a few more runs
+long (7,272 and 3,240 episodes on seed 1; the longest of the session-6 default: 9,518). Measured alternatives: rungs
+of 6 generations (360 episodes of scouting): 3 of the first 4 runs failed to reach the goal in 1,500 episodes
+(stopped); the race with large restarts from the scouts' start points in turn (``restart_from_best=False``, seeds 0
+and 1): 20 of 20, median 464.5, the longest runs shorter (1,833 and 1,131 instead of 7,272 and 3,240) and others
+longer (2,217 and 3,608 instead of 926 and 1,601) -- not the default.
+
 Options measured against plain CMA-ES (seed 0, synthetic subjects 0-4, shared 2-core machine; see
 ``scripts/bench_refinement.py``): a meta-parameter stage first (:func:`meta_basis`, :class:`~besdrake.search.cmaes.StagedCMAES`:
 ``refine(meta_episodes=...)``), a dropped-ball penalty (:data:`DROPPED_PENALTY`), a coarser position unit and an
@@ -238,14 +264,19 @@ DEFAULT_POPSIZE_GROWTH = 1.0
 #: ``"local"`` regimes: small restarts in a row that did not improve the best throw by :data:`STAGNATION_TOL` before a large one.
 DEFAULT_PATIENCE = 2
 #: Scouting (:class:`~besdrake.search.cmaes.StagnationRestartCMAES`'s ``scouts``): the first attempts are this many
-#: independent short CMA-ES runs, of :data:`DEFAULT_SCOUT_GENERATIONS` generations each; the best goes on. Four, from
-#: the four best imitated throws (:data:`DEFAULT_SCOUT_STARTS`), with retiming and the limit offset of
-#: :class:`ThrowReward`: 19 of 20 benchmark runs (see "Scouting across throw families" in the module docstring).
+#: independent short CMA-ES runs; the best goes on. Four, from the four best imitated throws
+#: (:data:`DEFAULT_SCOUT_STARTS`), with retiming and the limit offset of :class:`ThrowReward` (see "Scouting across
+#: throw families" in the module docstring), raced by successive halving (:data:`DEFAULT_SCOUT_HALVING`) in rungs of
+#: :data:`DEFAULT_SCOUT_GENERATIONS` generations: 240 episodes of scouting instead of 480 (see "Racing the scouts").
 DEFAULT_SCOUTS = 4
-DEFAULT_SCOUT_GENERATIONS = 12
+#: Generations of a rung of the race (of each scout without :data:`DEFAULT_SCOUT_HALVING`; 12 in session 6).
+DEFAULT_SCOUT_GENERATIONS = 4
 #: Where the scouts start (:func:`scout_start_points`): scout ``k`` from the ``(k mod N)``-th best imitated throw; 1: every
 #: scout from the start throw.
 DEFAULT_SCOUT_STARTS = 4
+#: Race the scouts by successive halving (rungs of :data:`DEFAULT_SCOUT_GENERATIONS`; see
+#: :class:`~besdrake.search.cmaes.StagnationRestartCMAES`) instead of running each to the end one after the other.
+DEFAULT_SCOUT_HALVING = True
 #: The search before issue 5 (plain CMA-ES, no restarts): keyword arguments of :func:`refine`.
 PLAIN_SEARCH: dict[str, Any] = {"cma_options": {}, "stagnation_generations": 0}
 #: Offset (rad) of the whole movement per unit of the meta-parameter stage (:func:`meta_basis`).
@@ -781,6 +812,22 @@ def _scouting_defaults(scouts: int | None, scout_generations: int | None) -> tup
     return int(scouts), int(scout_generations)
 
 
+def scouting_episodes(popsize: int = DEFAULT_POPSIZE, scouts: int | None = None, scout_generations: int | None = None,
+                      scout_halving: bool | None = None) -> int:
+    """Episodes the scouts take before the best goes on (none stalling early); defaults where None."""
+    scouts, scout_generations = _scouting_defaults(scouts, scout_generations)
+    halving = DEFAULT_SCOUT_HALVING if scout_halving is None else bool(scout_halving)
+    if scouts < 2:
+        return 0
+    if not halving:
+        return scouts * scout_generations * int(popsize)
+    total, n = 0, scouts
+    while n > 1:  # a rung of n scouts, then the better half races on
+        total += n * scout_generations * int(popsize)
+        n = (n + 1) // 2
+    return total
+
+
 def make_optimizer(
     problem: RefinementProblem,
     seed: int = 0,
@@ -802,6 +849,7 @@ def make_optimizer(
     patience: int = DEFAULT_PATIENCE,
     scouts: int | None = None,
     scout_generations: int | None = None,
+    scout_halving: bool | None = None,
 ):
     """CMA-ES on the normalised space, started at the imitated throw (``x0 = 0``) unless ``x0`` is given.
 
@@ -824,6 +872,7 @@ def make_optimizer(
     cma_options, stagnation_generations, restart_regimes, popsize_growth = _search_defaults(
         cma_options, stagnation_generations, meta_episodes, restart_regimes, popsize_growth)
     scouts, scout_generations = _scouting_defaults(scouts, scout_generations)
+    scout_halving = DEFAULT_SCOUT_HALVING if scout_halving is None else bool(scout_halving)
     if stagnation_generations > 0 and meta_episodes > 0:
         raise RefinementError("stagnation restarts and the meta-parameter stage do not combine; give one of them")
     if stagnation_generations > 0:
@@ -838,7 +887,7 @@ def make_optimizer(
                                       tol=stagnation_tol, max_generations=max_attempt_generations, restart_from_best=restart_from_best,
                                       cma_options=cma_options, popsize_growth=popsize_growth, regimes=restart_regimes,
                                       small_share=small_share, patience=patience, scouts=scouts,
-                                      scout_generations=scout_generations)
+                                      scout_generations=scout_generations, scout_halving=scout_halving)
     if meta_episodes > 0:
         return StagedCMAES(x0, meta_basis(problem), meta_sigma, sigma0, rng, subspace_evaluations=meta_episodes,
                            popsize_subspace=popsize, popsize=popsize, bounds=bounds, cma_options=cma_options)
@@ -871,6 +920,7 @@ def refine(
     patience: int = DEFAULT_PATIENCE,
     scouts: int | None = None,
     scout_generations: int | None = None,
+    scout_halving: bool | None = None,
 ) -> RefinementResult:
     """Refine ``problem`` with CMA-ES for at most ``n_episodes`` episodes (stops at the first
     generation with a success when ``stop_on_success``). With ``out_dir`` the run is resumable:
@@ -888,6 +938,7 @@ def refine(
     if int(patience) != patience or patience < 1:
         raise RefinementError(f"patience must be an integer >= 1, got {patience!r}")
     scouts, scout_generations = _scouting_defaults(scouts, scout_generations)
+    scout_halving = DEFAULT_SCOUT_HALVING if scout_halving is None else bool(scout_halving)
     if meta_episodes < 0 or not (np.isfinite(meta_sigma) and meta_sigma > 0):
         raise RefinementError(f"meta_episodes must be >= 0 and meta_sigma > 0, got {meta_episodes}, {meta_sigma}")
     out = None if out_dir is None else Path(out_dir)
@@ -912,6 +963,8 @@ def refine(
                 desc |= {"patience": int(patience)}
             if scouts > 1:
                 desc |= {"scouts": int(scouts), "scout_generations": int(scout_generations)}
+                if scout_halving:
+                    desc["scout_halving"] = True
         if cma_options:
             desc |= {"cma_options": dict(cma_options)}
         if desc_path.exists():
@@ -929,7 +982,7 @@ def refine(
         problem, seed, sigma0, popsize, meta_episodes=meta_episodes, meta_sigma=meta_sigma, stagnation_generations=stagnation_generations,
         starts=starts, restart_from_best=restart_from_best, stagnation_tol=stagnation_tol, max_attempt_generations=max_attempt_generations,
         cma_options=cma_options, popsize_growth=popsize_growth, restart_regimes=restart_regimes, small_share=small_share,
-        patience=patience, scouts=scouts, scout_generations=scout_generations)
+        patience=patience, scouts=scouts, scout_generations=scout_generations, scout_halving=scout_halving)
     t0 = time.perf_counter()
     best = [np.inf]
     last = [t0]
@@ -985,7 +1038,7 @@ def _result(problem: RefinementProblem, loop, wall: float) -> RefinementResult:
 __all__ = [
     "SUCCESS_DISTANCE", "DEFAULT_TARGET", "DEFAULT_POPSIZE", "MIN_EXECUTION_TIME", "MAX_EXECUTION_TIME", "PAPER_POPSIZE",
     "RefinementError", "RewardBreakdown", "ThrowReward", "ParameterScaling", "RefinementProblem",
-    "RefinementResult", "best_start", "rank_starts", "restart_points", "scout_start_points", "make_optimizer", "refine", "read_details", "params_key", "failed_breakdown",
+    "RefinementResult", "best_start", "rank_starts", "restart_points", "scout_start_points", "scouting_episodes", "make_optimizer", "refine", "read_details", "params_key", "failed_breakdown",
 ]
 
 
