@@ -661,8 +661,10 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
         i = self.attempt % len(self.starts)
         return i, self.starts[i].copy()
 
-    def _new_attempt(self, sigma: float) -> CMAES:
-        _, x = self._start_point()
+    def _new_attempt(self, sigma: float, x: np.ndarray | None = None) -> CMAES:
+        """A fresh CMA-ES of step ``sigma`` from ``x`` (default: :meth:`_start_point`), clipped into the bounds."""
+        if x is None:
+            _, x = self._start_point()
         if self.bounds is not None:
             span = self.bounds[:, 1] - self.bounds[:, 0]
             x = np.clip(x, self.bounds[:, 0] + 1e-9 * span, self.bounds[:, 1] - 1e-9 * span)
@@ -768,13 +770,7 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
         if self.rung_queue:
             k, cma, best = self.rung_queue.pop(0)
             self.current_scout, self.attempt_best = k, list(best)
-            if cma is None:
-                x = self.starts[k % len(self.starts)].copy()
-                if self.bounds is not None:
-                    span = self.bounds[:, 1] - self.bounds[:, 0]
-                    x = np.clip(x, self.bounds[:, 0] + 1e-9 * span, self.bounds[:, 1] - 1e-9 * span)
-                cma = CMAES(x, self.sigma0, self.rng, popsize=self.attempt_popsize(), bounds=self.bounds, cma_options=self.cma_options)
-            self.inner = cma
+            self.inner = cma if cma is not None else self._new_attempt(self.sigma0, self.starts[k % len(self.starts)].copy())
         else:  # scouting is over: the winner goes on as a large attempt (a fresh one if every scout stalled)
             self.current_scout = -1
             self.attempt_best = []
