@@ -803,20 +803,21 @@ def _search_defaults(cma_options: dict[str, Any] | None, stagnation_generations:
     return cma_options, int(stagnation_generations), regimes, growth
 
 
-def _scouting_defaults(scouts: int | None, scout_generations: int | None) -> tuple[int, int]:
-    """:data:`DEFAULT_SCOUTS` and :data:`DEFAULT_SCOUT_GENERATIONS` where a setting is None, checked."""
+def _scouting_defaults(scouts: int | None, scout_generations: int | None,
+                       scout_halving: bool | None = None) -> tuple[int, int, bool]:
+    """:data:`DEFAULT_SCOUTS`, :data:`DEFAULT_SCOUT_GENERATIONS` and :data:`DEFAULT_SCOUT_HALVING` where a setting is
+    None, checked."""
     scouts = DEFAULT_SCOUTS if scouts is None else scouts
     scout_generations = DEFAULT_SCOUT_GENERATIONS if scout_generations is None else scout_generations
     if int(scouts) != scouts or scouts < 0 or int(scout_generations) != scout_generations or scout_generations < 1:
         raise RefinementError(f"scouts must be an integer >= 0 and scout_generations >= 1, got {scouts!r}, {scout_generations!r}")
-    return int(scouts), int(scout_generations)
+    return int(scouts), int(scout_generations), DEFAULT_SCOUT_HALVING if scout_halving is None else bool(scout_halving)
 
 
 def scouting_episodes(popsize: int = DEFAULT_POPSIZE, scouts: int | None = None, scout_generations: int | None = None,
                       scout_halving: bool | None = None) -> int:
     """Episodes the scouts take before the best goes on (none stalling early); defaults where None."""
-    scouts, scout_generations = _scouting_defaults(scouts, scout_generations)
-    halving = DEFAULT_SCOUT_HALVING if scout_halving is None else bool(scout_halving)
+    scouts, scout_generations, halving = _scouting_defaults(scouts, scout_generations, scout_halving)
     if scouts < 2:
         return 0
     if not halving:
@@ -871,8 +872,7 @@ def make_optimizer(
     rng = np.random.default_rng(seed)
     cma_options, stagnation_generations, restart_regimes, popsize_growth = _search_defaults(
         cma_options, stagnation_generations, meta_episodes, restart_regimes, popsize_growth)
-    scouts, scout_generations = _scouting_defaults(scouts, scout_generations)
-    scout_halving = DEFAULT_SCOUT_HALVING if scout_halving is None else bool(scout_halving)
+    scouts, scout_generations, scout_halving = _scouting_defaults(scouts, scout_generations, scout_halving)
     if stagnation_generations > 0 and meta_episodes > 0:
         raise RefinementError("stagnation restarts and the meta-parameter stage do not combine; give one of them")
     if stagnation_generations > 0:
@@ -937,8 +937,7 @@ def refine(
         raise RefinementError(f"stagnation_generations must be >= 0, got {stagnation_generations}")
     if int(patience) != patience or patience < 1:
         raise RefinementError(f"patience must be an integer >= 1, got {patience!r}")
-    scouts, scout_generations = _scouting_defaults(scouts, scout_generations)
-    scout_halving = DEFAULT_SCOUT_HALVING if scout_halving is None else bool(scout_halving)
+    scouts, scout_generations, scout_halving = _scouting_defaults(scouts, scout_generations, scout_halving)
     if meta_episodes < 0 or not (np.isfinite(meta_sigma) and meta_sigma > 0):
         raise RefinementError(f"meta_episodes must be >= 0 and meta_sigma > 0, got {meta_episodes}, {meta_sigma}")
     out = None if out_dir is None else Path(out_dir)
