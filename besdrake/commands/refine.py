@@ -159,8 +159,8 @@ def run(args: argparse.Namespace) -> int:
     from besdrake.cli import UserError
     from besdrake.imitation import DMPParameterError, load_dmp, save_dmp
     from besdrake.search.loop import ResumeError
-    from besdrake.search.refinement import (DEFAULT_SCOUT_STARTS, RefinementError, RefinementProblem, ThrowReward, rank_starts,
-                                            refine, restart_points)
+    from besdrake.search.refinement import (RefinementError, RefinementProblem, ThrowReward, rank_starts, refine, scout_points,
+                                            scout_starts_checked)
     from besdrake.sim import make_executor
     from besdrake.sim.scenario import ScenarioError
 
@@ -193,9 +193,7 @@ def run(args: argparse.Namespace) -> int:
             extra["violation_offset"] = args.violation_offset
         reward = ThrowReward(target=tuple(args.target), **extra)
         problems = [RefinementProblem(load_dmp(f), reward, retime=args.retime) for f in files]
-        scout_starts = DEFAULT_SCOUT_STARTS if args.scout_starts is None else args.scout_starts
-        if scout_starts < 1:
-            raise RefinementError(f"--scout-starts must be >= 1, got {scout_starts}")
+        scout_starts = scout_starts_checked(args.scout_starts)  # before anything is simulated
     except (DMPParameterError, RefinementError) as err:
         raise UserError(str(err)) from None
     show = not args.quiet and sys.stderr.isatty()
@@ -222,9 +220,7 @@ def run(args: argparse.Namespace) -> int:
                      "ranking": [int(i) for i, r in ranking if np.isfinite(r.reward)]}
             start_file.write_text(json.dumps(start, indent=1))
         problem = problems[index]
-        starts = None
-        if scout_starts > 1:  # the imitated throws in the ranking's order (those that could be simulated)
-            starts = restart_points(problem, [problems[i] for i in start["ranking"][:scout_starts]])
+        starts = scout_points(problems, start.get("ranking", []), scout_starts)  # None with one start point
         for k in range(args.runs):
             run_dir = args.out / f"run{k}"
             bar = None

@@ -748,13 +748,24 @@ def scout_start_points(problems: Sequence[RefinementProblem], ranking: Sequence[
     """Start points of the scouts (``refine(starts=...)``): the ``n`` best imitated throws of ``ranking`` (from
     :func:`rank_starts`; default :data:`DEFAULT_SCOUT_STARTS`) in the normalised space of the best one, the best first;
     None when ``n`` is 1 (every scout from the start throw). A throw that failed in simulation is not a start point."""
+    return scout_points(problems, [i for i, r in ranking if np.isfinite(r.reward)], n)
+
+
+def scout_starts_checked(n: int | None) -> int:
+    """The number of scout start points, :data:`DEFAULT_SCOUT_STARTS` where None; :class:`RefinementError` unless >= 1."""
     n = DEFAULT_SCOUT_STARTS if n is None else n
     if int(n) != n or n < 1:
         raise RefinementError(f"scout starts must be an integer >= 1, got {n!r}")
+    return int(n)
+
+
+def scout_points(problems: Sequence[RefinementProblem], order: Sequence[int], n: int | None = None) -> np.ndarray | None:
+    """:func:`scout_start_points` from ``order``: the indices of the imitated throws that could be simulated, best
+    first (as ``besdrake refine`` keeps them in its start.json)."""
+    n = scout_starts_checked(n)
     if n == 1:
         return None
-    chosen = [i for i, r in ranking if np.isfinite(r.reward)][: int(n)]
-    return restart_points(problems[ranking[0][0]], [problems[i] for i in chosen])
+    return restart_points(problems[order[0]], [problems[i] for i in order[:n]])
 
 
 def meta_basis(problem: RefinementProblem, offset_unit: float = META_OFFSET_UNIT) -> np.ndarray:
@@ -1037,7 +1048,7 @@ def _result(problem: RefinementProblem, loop, wall: float) -> RefinementResult:
 __all__ = [
     "SUCCESS_DISTANCE", "DEFAULT_TARGET", "DEFAULT_POPSIZE", "MIN_EXECUTION_TIME", "MAX_EXECUTION_TIME", "PAPER_POPSIZE",
     "RefinementError", "RewardBreakdown", "ThrowReward", "ParameterScaling", "RefinementProblem",
-    "RefinementResult", "best_start", "rank_starts", "restart_points", "scout_start_points", "scouting_episodes", "make_optimizer", "refine", "read_details", "params_key", "failed_breakdown",
+    "RefinementResult", "best_start", "rank_starts", "restart_points", "scout_start_points", "scout_points", "scout_starts_checked", "scouting_episodes", "make_optimizer", "refine", "read_details", "params_key", "failed_breakdown",
 ]
 
 
