@@ -35,7 +35,7 @@ from scipy import stats
 
 from besdrake.diagnosis import fitting, noise, observables
 from besdrake.diagnosis.observables import group_slices
-from besdrake.sim.effects import list_effects
+from besdrake.sim.effects import ball_placed, list_effects
 from besdrake.sim.scenario import Scenario, load_scenario
 
 #: Lack-of-fit test level: "not explained" when the best candidate's residual is this improbable.
@@ -320,7 +320,6 @@ class _Sim:
         self.placement_draws: np.ndarray | None = None
         self.expand_all = False  # every candidate (not only those that set the placement) averaged over the draws
         self.placement_habit: dict[str, float] = {}
-        self.placement_bounds: dict[str, tuple[float, float]] = {}
 
     @staticmethod
     def key(effects: dict) -> str:
@@ -351,7 +350,7 @@ class _Sim:
         out = []
         for d in self.placement_draws:
             e = {k: dict(v) for k, v in effects.items()}
-            e["ball_placement"] = {ax: float(np.clip(own.get(ax, 0.0) + d[j], *self.placement_bounds[ax])) for j, ax in enumerate(("x", "y"))}
+            e["ball_placement"] = ball_placed(own, d)
             out.append(e)
         return out
 
@@ -401,7 +400,7 @@ class _Sim:
         draws = []
         for d in self.placement_draws:
             e = {k: dict(v) for k, v in effects.items()}
-            e["ball_placement"] = {ax: float(np.clip(self.placement_habit.get(ax, 0.0) + d[j], *self.placement_bounds[ax])) for j, ax in enumerate(("x", "y"))}
+            e["ball_placement"] = ball_placed(self.placement_habit, d)
             draws.append(e)
         rows = range(len(self.plans))
         outs = self.outcomes([effects] + draws, rows)
@@ -450,13 +449,9 @@ def _placement_correction(sim: _Sim, scen: Scenario, sd: float) -> dict[str, Any
     Returns a summary (mean shift per group) for the notes; needs ``sim.layouts`` and the nominal in the cache."""
     if sd <= 0:
         return {}
-    from besdrake.sim.effects import get_effect
-
-    bounds = get_effect("ball_placement").params
     habit = dict(scen.effects.get("ball_placement", {}))
     d = placement_points(sd)
-    draws = [{"ball_placement": {ax: float(np.clip(habit.get(ax, 0.0) + dk[j], bounds[ax].low, bounds[ax].high)) for j, ax in enumerate(("x", "y"))}}
-             for dk in d]
+    draws = [{"ball_placement": ball_placed(habit, dk)} for dk in d]
     rows = range(len(sim.plans))
     outs = sim.outcomes([{}] + draws, rows)
     feats = np.array([[observables.simulated_features(o, sim.layouts[i]) for i, o in zip(rows, per)] for per in outs])
@@ -469,7 +464,6 @@ def _placement_correction(sim: _Sim, scen: Scenario, sd: float) -> dict[str, Any
     sim.full_shift = np.where(np.isfinite(full_shift), full_shift, 0.0)
     sim.placement_draws, sim.placement_habit = d, habit
     sim.expand_all = EXPAND_ALL
-    sim.placement_bounds = {ax: (bounds[ax].low, bounds[ax].high) for ax in ("x", "y")}
     return {g: np.round(np.mean(sim.full_shift[:, s_], axis=0), 4).tolist() for g, s_ in group_slices().items() if g != "joints"}
 
 

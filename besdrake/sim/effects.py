@@ -363,6 +363,14 @@ class BallPlacement(Effect):
         setup.ball_offset = np.array([values["x"], values["y"]], dtype=float)
 
 
+def ball_placed(habit: dict[str, float] | None, offset) -> dict[str, float]:
+    """``ball_placement`` parameters of a ball put ``offset`` (m, scoop x/y) away from ``habit`` (the systematic
+    placement ``{"x": .., "y": ..}``; None: centred), clipped to the effect's bounds (where a ball can sit)."""
+    bounds = get_effect("ball_placement").params
+    habit = habit or {}
+    return {ax: float(np.clip(habit.get(ax, 0.0) + offset[k], bounds[ax].low, bounds[ax].high)) for k, ax in enumerate(("x", "y"))}
+
+
 @register_effect
 class BallProperties(Effect):
     """Ball mass and radius (a different ball). The mass and the solid-sphere inertia 2/5 m r^2 are set in the

@@ -60,7 +60,7 @@ import numpy as np
 import yaml
 
 from besdrake.plan import MotionPlan, PlanError
-from besdrake.sim.effects import get_effect
+from besdrake.sim.effects import ball_placed
 from besdrake.transfer.lab import TrialCounter
 from besdrake.transfer.measurement import Measurement
 from besdrake.transfer.plugins import load_plugins
@@ -354,11 +354,7 @@ class VirtualLab(TrialCounter):
         # This trial's placement adds to any systematic placement offset among the hidden effects.
         effects = {name: dict(values) for name, values in c.effects.items()}
         # The sum stays where a ball can sit in the scoop: within the effect's bounds.
-        habit = effects.get("ball_placement", {})
-        bounds = get_effect("ball_placement").params
-        effects["ball_placement"] = {
-            axis: float(np.clip(habit.get(axis, 0.0) + offset[k], bounds[axis].low, bounds[axis].high)) for k, axis in enumerate(("x", "y"))
-        }
+        effects["ball_placement"] = ball_placed(effects.get("ball_placement"), offset)
         try:
             out = self.rollout.rollout(plan, effects=effects, limits="flag")
         except PlanError as err:
