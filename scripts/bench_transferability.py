@@ -42,6 +42,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 from besdrake._io import write_json  # noqa: E402
+from besdrake.transfer.transferability import PLACEMENT_SD, TransferabilityConfig  # noqa: E402
 
 DEFAULT_LAB = "diagrams/labs/default_lab.yaml"
 TARGET = (2.0, 0.0)
@@ -286,6 +287,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0, help="refinement and search seed")
     parser.add_argument("--transfer-choice", choices=["likely", "predicted", "diverse"], default="likely",
                         help="which plan the Transferability Approach transfers: most likely to pass 3/3, closest predicted lab touchdown, or the paper's most diverse")
+    parser.add_argument("--placement-sd", type=float, default=PLACEMENT_SD,
+                        help="ball placement scatter (m per axis) the search expects of the lab; every plan is simulated at 9 placements "
+                             "(0: at the habit only, the search before session 8)")
+    parser.add_argument("--mutation-sd-min", type=float, default=TransferabilityConfig.mutation_sd_min,
+                        help="smallest mutation step (parameter scales); each child's step is log-uniform up to the largest, "
+                             f"{TransferabilityConfig.mutation_sd} ({TransferabilityConfig.mutation_sd}: one step, the search before session 8)")
     args = parser.parse_args(argv)
     if args.refine_runs < 1:
         parser.error(f"--refine-runs must be >= 1, got {args.refine_runs}")
@@ -311,9 +318,11 @@ def main(argv: list[str] | None = None) -> int:
         rec = run_subject(
             s, scenario, args.out / tag / f"s{s}", imitated, refine_episodes=args.refine_episodes, refine_seed=args.seed,
             population=args.population, max_transfers=args.max_transfers, lab_path=args.lab,
-            lab_seed=args.lab_seed + s, search_seed=args.seed, ta_options={"transfer_choice": args.transfer_choice},
+            lab_seed=args.lab_seed + s, search_seed=args.seed,
+            ta_options={"transfer_choice": args.transfer_choice, "placement_sd": args.placement_sd, "mutation_sd_min": args.mutation_sd_min},
             tag=f"ta_{args.transfer_choice}_p{args.population}_r{args.refine_episodes}" + ("" if args.refine_stop_on_success else "_full")
-            + ("" if args.refine_runs == 1 else f"_k{args.refine_runs}"),
+            + ("" if args.refine_runs == 1 else f"_k{args.refine_runs}") + (f"_pl{args.placement_sd * 1000:g}" if args.placement_sd > 0 else "")
+            + (f"_ms{args.mutation_sd_min:g}" if args.mutation_sd_min < TransferabilityConfig.mutation_sd else ""),
             whole_budget=not args.refine_stop_on_success, refine_runs=args.refine_runs,
         )
         _log(f"subject {s}: transfers to 3/3 success: {rec['transfers_to_success_text']} "
@@ -322,6 +331,8 @@ def main(argv: list[str] | None = None) -> int:
     out = {
         "scenario": tag,
         "transfer_choice": args.transfer_choice,
+        "placement_sd_m": args.placement_sd,
+        "mutation_sd": [args.mutation_sd_min, TransferabilityConfig.mutation_sd],
         "scenario_path": scenario,
         "subjects_run": args.subjects,
         "refine_episodes": args.refine_episodes,

@@ -144,10 +144,11 @@ def test_unknown_transfer_choice_is_refused():
 
 def test_predicted_choice_aims_past_the_target_when_the_lab_throws_short(seed_theta):
     """The default lab's hidden effects land throws short of the nominal simulation: once the offset
-    surrogate has seen that, the transferred plans land beyond the target in simulation."""
+    surrogate has seen that, the transferred plans land beyond the target in simulation (the ball at its habit
+    only: the offset model alone decides)."""
     lab = SafetyGate(VirtualLab("diagrams/labs/default_lab.yaml"))
     cfg = TransferabilityConfig(**(SMALL | {"max_transfers": 4, "stop_on_success": False, "final_pareto": 0, "final_best_in_lab": 0,
-                                            "population": 8, "transfer_choice": "predicted"}))
+                                            "population": 8, "transfer_choice": "predicted", "placement_sd": 0.0}))
     with make_executor("serial", scenario="nominal") as executor:
         search = TransferabilityApproach(to_plan, seed_theta, SCALES, BOUNDS, executor, lab, np.random.default_rng(0), cfg)
         result = search.run()
@@ -177,3 +178,107 @@ def test_likely_choice_stops_retrying_a_plan_that_hits_only_now_and_then():
     fresh_only = TransferabilityApproach(to_plan, np.array([[0.45, 0.0, 19.0]]), SCALES, BOUNDS, None, None, np.random.default_rng(0), cfg)
     p0 = fresh_only._success_probabilities(fresh[None], np.array([[2.0, 0.0]]))[0]
     assert p0 == pytest.approx((1 - np.exp(-0.1**2 / (2 * 0.05**2))) ** 3, rel=1e-6)
+
+
+def test_placement_quadrature_has_the_scatter_s_moments():
+    from besdrake.transfer.transferability import placement_quadrature
+
+    offsets, weights = placement_quadrature(0.002)
+    assert offsets.shape == (9, 2) and np.allclose(offsets[0], 0.0) and weights.sum() == pytest.approx(1.0)
+    assert np.allclose(weights @ offsets, 0.0)
+    assert np.allclose((weights[:, None, None] * offsets[:, :, None] * offsets[:, None, :]).sum(axis=0), 0.002**2 * np.eye(2))
+    assert (weights @ offsets[:, 0] ** 4) == pytest.approx(3 * 0.002**4)  # exact up to the fifth moment
+    centre, one = placement_quadrature(0.0)
+    assert centre.shape == (1, 2) and one.tolist() == [1.0]
+
+
+@pytest.mark.parametrize("field, value", [("placement_sd", np.nan), ("placement_sd", -0.001), ("placement_sd", 0.01),
+                                          ("mutation_sd_min", 0.0), ("mutation_sd_min", 0.5), ("mutation_sd_min", np.nan)])
+def test_bad_placement_or_mutation_settings_are_refused(field, value):
+    with pytest.raises(ValueError, match=field):
+        TransferabilityConfig(**{field: value})
+
+
+def test_plans_are_judged_over_the_ball_placements(seed_theta):
+    """Every plan is simulated at the 9 placements: the objective is the expected target distance, the shifts are
+    each placement's touchdown minus the nominal one, and all rollouts count as simulated episodes."""
+    from besdrake.sim.effects import ball_placed
+    from besdrake.transfer.transferability import placement_quadrature
+
+    thetas = np.vstack([seed_theta, seed_theta + [0.03, 0.02, 0.0]])
+    with make_executor("serial", scenario="nominal") as executor:
+        search = TransferabilityApproach(to_plan, seed_theta, SCALES, BOUNDS, executor, None, np.random.default_rng(0),
+                                         TransferabilityConfig(placement_sd=0.003))
+        f1, D, outcomes, shifts = search._evaluate(thetas)
+        offsets, weights = placement_quadrature(0.003)
+        corner = executor.evaluate([to_plan(thetas[1])], effects={"ball_placement": ball_placed({}, offsets[-1])})[0]
+    assert search.sim_episodes == 18 and shifts.shape == (2, 9, 2) and D.shape == (2, 17)
+    assert np.allclose(shifts[:, 0], 0.0) and np.abs(shifts[:, 1:]).max() > 1e-3  # the placement moves the touchdown
+    assert np.allclose(shifts[1, -1], corner.touchdown - outcomes[1].touchdown)
+    td = np.array([o.touchdown for o in outcomes])[:, None, :] + shifts
+    assert np.allclose(f1, np.linalg.norm(td - [2.0, 0.0], axis=2) @ weights)
+
+
+def test_likely_choice_avoids_a_plan_whose_simulated_placements_fall_off_a_cliff():
+    """Two fresh plans predicted on target: in one, a placement a few millimetres off sends the ball 0.4 m long."""
+    cfg = TransferabilityConfig(transfer_choice="likely")
+    search = TransferabilityApproach(to_plan, np.array([[0.45, 0.0, 19.0]]), SCALES, BOUNDS, None, None, np.random.default_rng(0), cfg)
+    weights = search.placement_weights
+    robust = np.zeros((9, 2))
+    robust[1:, 0] = np.linspace(-0.01, 0.01, 8)
+    cliff = robust.copy()
+    cliff[[2, 5, 8], 0] = 0.4  # the three placements at +sqrt(3) sd along scoop y
+    cliff[4] = np.nan  # and one where the ball does not land at all
+    thetas = np.array([[0.45, 0.0, 19.0], [0.46, 0.0, 19.0]])
+    p = search._success_probabilities(thetas, np.array([[2.0, 0.0], [2.0, 0.0]]), np.stack([robust, cliff]), weights)
+    assert p[1] < 0.6 * p[0]  # 7/36 of the placement mass misses: (29/36)^3 ~ 0.52 of the robust figure
+    hit = 1 - np.exp(-0.1**2 / (2 * 0.05**2))  # Rayleigh: a throw on target within 0.1 m at 5 cm per axis
+    assert p[1] < ((1 - weights[[2, 4, 5, 8]].sum()) * hit) ** 3 + 1e-9
+
+
+def test_mutation_steps_range_from_small_to_large():
+    search = TransferabilityApproach(to_plan, np.array([[0.45, 0.0, 19.0]]), SCALES, BOUNDS, None, None, np.random.default_rng(0),
+                                     TransferabilityConfig(mutation_sd=0.3, mutation_sd_min=0.01))
+    parents = np.tile([0.45, 0.0, 17.0], (4000, 1))
+    steps = np.linalg.norm((search._mutate(parents) - parents) / SCALES, axis=1) / np.sqrt(3)
+    assert np.quantile(steps, 0.1) < 0.03 and np.quantile(steps, 0.9) > 0.15
+    single = TransferabilityApproach(to_plan, np.array([[0.45, 0.0, 19.0]]), SCALES, BOUNDS, None, None, np.random.default_rng(0),
+                                     TransferabilityConfig(mutation_sd=0.3, mutation_sd_min=0.3))
+    expected = parents + 0.3 * SCALES * np.random.default_rng(0).standard_normal(parents.shape)
+    assert np.allclose(single._mutate(parents), np.clip(expected, BOUNDS[:, 0], BOUNDS[:, 1]))
+
+
+def test_a_search_saved_before_placements_resumes_with_its_own_settings(tmp_path, seed_theta):
+    """A state written before the placement and mutation settings existed resumes as it ran: one step, no placements."""
+    import json
+
+    lab = SafetyGate(VirtualLab("diagrams/labs/default_lab.yaml"))
+    old = TransferabilityConfig(**(SMALL | {"max_transfers": 1, "placement_sd": 0.0, "mutation_sd_min": 0.3, "final_pareto": 0,
+                                            "final_best_in_lab": 0}))
+    with make_executor("serial", scenario="nominal") as executor:
+        TransferabilityApproach(to_plan, seed_theta, SCALES, BOUNDS, executor, lab, np.random.default_rng(0), old, out_dir=tmp_path).run()
+        state = tmp_path / "transferability_state.json"
+        meta = json.loads(state.read_text())
+        for key in ("placement_sd", "mutation_sd_min"):
+            del meta["config"][key]
+        del meta["placement_shifts"]
+        state.write_text(json.dumps(meta))
+        with pytest.raises(ValueError, match="other settings"):
+            TransferabilityApproach(to_plan, seed_theta, SCALES, BOUNDS, executor, lab, np.random.default_rng(0),
+                                    TransferabilityConfig(**(SMALL | {"max_transfers": 1})), out_dir=tmp_path)._load()
+        again = TransferabilityApproach(to_plan, seed_theta, SCALES, BOUNDS, executor, lab, np.random.default_rng(0), old, out_dir=tmp_path)
+        P, f1, D, sim_td, shifts = again._load()
+    assert shifts.shape == (len(P), 1, 2) and np.allclose(shifts, 0.0)
+
+
+def test_transfer_command_refuses_a_placement_scatter_beyond_the_scoop(tmp_path, capsys):
+    from besdrake.cli import main
+    from besdrake.imitation import save_dmp
+    from besdrake.search.templates import fitted_default_throw
+
+    save_dmp(fitted_default_throw(), tmp_path / "seed.dmp.json")
+    code = main(["transfer", "--lab", "diagrams/labs/default_lab.yaml", "--seeds", str(tmp_path / "seed.dmp.json"),
+                 "--placement-sd", "0.01", "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert code == 2 and "placement_sd" in err and "Traceback" not in err
+    assert not (tmp_path / "out" / "lab_log").exists()  # refused before the lab is touched

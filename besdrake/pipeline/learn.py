@@ -366,7 +366,7 @@ def _open_log(folder: Path, lab):
 def _transfer(ctx: Context, seed_files: list[Path], scenario: str, out: Path) -> dict[str, Any]:
     from besdrake.imitation import DMPParameterization, load_dmp
     from besdrake.search.refinement import ParameterScaling
-    from besdrake.transfer.transferability import TransferabilityApproach, TransferabilityConfig
+    from besdrake.transfer.transferability import PLACEMENT_SD, TransferabilityApproach, TransferabilityConfig
 
     cfg = ctx.config["transfer"]
     dmps = [load_dmp(f) for f in seed_files]
@@ -377,7 +377,7 @@ def _transfer(ctx: Context, seed_files: list[Path], scenario: str, out: Path) ->
     config = TransferabilityConfig(
         target=tuple(ctx.config["refinement"]["target"]), population=int(cfg["population"]),
         max_transfers=int(cfg["max_transfers"]), final_repetitions=int(cfg["final_repetitions"]),
-        transfer_choice=str(cfg.get("transfer_choice", "likely")),
+        transfer_choice=str(cfg.get("transfer_choice", "likely")), placement_sd=float(cfg.get("placement_sd", PLACEMENT_SD)),
     )
     with _executor(ctx, scenario) as executor:
         search = TransferabilityApproach(

@@ -3,7 +3,10 @@
 A multi-objective evolutionary search over motion-plan parameters, seeded with plans refined in
 simulation, minimises three objectives at once:
 
-1. the target distance of the touchdown **in simulation** (plus a penalty for joint-limit violations);
+1. the target distance of the touchdown **in simulation** (plus a penalty for joint-limit violations), expected over
+   the lab's throw-to-throw ball placement (``placement_sd``; 9 placements of a Gauss-Hermite rule per plan, see
+   :func:`placement_quadrature`): a plan on a cliff, where a few millimetres in the scoop send the ball elsewhere,
+   scores badly even when its nominal throw hits;
 2. the simulation-to-reality **disparity predicted by a surrogate** (a Gaussian process over the
    17-feature behaviour description of :mod:`besdrake.transfer.descriptor`, trained on every plan
    transferred so far: disparity = distance between simulated and measured touchdown);
@@ -30,10 +33,11 @@ plan to the lab, chosen by ``transfer_choice`` (default ``"likely"``; measured w
   faithful-enough simulation the paper's diverse choice sends plans 0.1-0.3 m off target on purpose.
 * ``"likely"``: the plan most likely to pass the success check, P(``success_repetitions`` of them
   within ``success_radius``) for a touchdown scattering isotropically around the predicted one (Rice
-  distribution). The scatter is the lab's (pooled over the plans thrown more than once, starting
+  distribution), averaged over the simulated ball placements (each shifts the touchdown by what it does
+  in simulation). The scatter is the lab's (pooled over the plans thrown more than once, starting
   from ``lab_sd_prior``), and for a plan thrown before its own measured scatter shrunk towards that: a
   plan on a cliff (e.g. the ball sometimes rolls out early) that lands on target only now and then
-  is no longer re-tried, unlike with ``"predicted"``, which uses the mean only.
+  is no longer re-tried, and one whose simulated placements show the cliff is not tried at all.
 
 Its measured disparity trains the surrogate. When a transferred plan lands
 within ``success_radius`` of the target, it is repeated until ``success_repetitions`` lab trials
@@ -59,6 +63,7 @@ import numpy as np
 
 from besdrake.plan import MotionPlan
 from besdrake.search.base import load_state, rng_from_state, rng_state, save_state
+from besdrake.sim.effects import ball_placed
 from besdrake.transfer.descriptor import N_FEATURES, behaviour_descriptor
 from besdrake.transfer.measurement import Measurement, plan_hash
 
@@ -66,6 +71,22 @@ from besdrake.transfer.measurement import Measurement, plan_hash
 NO_TOUCHDOWN_DISTANCE = 5.0
 #: How the update heuristic picks the plan to transfer (see the module docstring).
 TRANSFER_CHOICES = ("diverse", "predicted", "likely")
+#: The lab's ball placement scatter (m per axis) assumed by default: the virtual lab's documented figure (as in
+#: :data:`besdrake.diagnosis.core.PLACEMENT_SD`); a real lab measures its own.
+PLACEMENT_SD = 0.002
+#: Largest placement scatter accepted (m per axis): the quadrature's outer points stay inside the scoop.
+MAX_PLACEMENT_SD = 0.004
+
+
+def placement_quadrature(sd: float) -> tuple[np.ndarray, np.ndarray]:
+    """Ball placements ``(K, 2)`` (m, scoop x/y, around the habit) and weights ``(K,)`` whose weighted mean stands
+    for the N(0, sd^2)-per-axis scatter: the 3 x 3 Gauss-Hermite product rule (nodes 0 and +-sqrt(3) sd, weights
+    2/3 and 1/6 per axis), the centre first. ``sd == 0``: the centre alone."""
+    if sd <= 0:
+        return np.zeros((1, 2)), np.ones(1)
+    nodes, weights = np.array([0.0, -np.sqrt(3.0), np.sqrt(3.0)]) * sd, np.array([2.0, 0.5, 0.5]) / 3.0
+    i, j = (a.ravel() for a in np.meshgrid(range(3), range(3), indexing="ij"))
+    return np.column_stack([nodes[i], nodes[j]]), weights[i] * weights[j]
 
 
 @dataclass
@@ -81,16 +102,22 @@ class TransferabilityConfig:
     final_best_in_lab: int = 2
     final_pareto: int = 4
     final_repetitions: int = 3
-    mutation_sd: float = 0.3  # in units of the parameter scales
+    mutation_sd: float = 0.3  # in units of the parameter scales: the largest mutation step
+    mutation_sd_min: float = 0.02  # the smallest: each child's step is drawn log-uniformly in [min, max]
     transfer_max_sim_distance: float = 0.3
     limit_penalty: float = 1.0  # m of objective per rad (rad/s, rad/s^2) of limit violation
     diversity_neighbours: int = 5
     transfer_choice: str = "likely"  # "likely", "predicted" or "diverse" (the paper's; see the module docstring)
     lab_sd_prior: float = 0.05  # m per axis: the lab's touchdown scatter assumed before repeated plans measure it
+    placement_sd: float = PLACEMENT_SD  # m per axis: the lab's throw-to-throw ball placement scatter (0: nominal only)
 
     def __post_init__(self) -> None:
         if self.transfer_choice not in TRANSFER_CHOICES:
             raise ValueError(f"transfer_choice must be one of {TRANSFER_CHOICES}, got {self.transfer_choice!r}")
+        if not (np.isfinite(self.mutation_sd_min) and 0.0 < self.mutation_sd_min <= self.mutation_sd):
+            raise ValueError(f"mutation_sd_min must lie in (0, mutation_sd = {self.mutation_sd}], got {self.mutation_sd_min!r}")
+        if not (np.isfinite(self.placement_sd) and 0.0 <= self.placement_sd <= MAX_PLACEMENT_SD):
+            raise ValueError(f"placement_sd must be within 0..{MAX_PLACEMENT_SD} m, got {self.placement_sd!r}")
 
 
 @dataclass
@@ -328,26 +355,46 @@ class TransferabilityApproach:
         self.generation = 0
         self.success_at: int | None = None
         self.success_plans: int | None = None
+        self.placements, self.placement_weights = placement_quadrature(self.config.placement_sd)
+        scenario = getattr(executor, "scenario", None)
+        self._habit = dict(scenario.effects.get("ball_placement", {})) if scenario is not None else {}
 
     # -- simulation ---------------------------------------------------------------------------
-    def _evaluate(self, thetas: np.ndarray) -> tuple[np.ndarray, np.ndarray, list]:
-        """Sim objective (distance + penalty), descriptors and outcomes of parameter vectors."""
+    def _evaluate(self, thetas: np.ndarray) -> tuple[np.ndarray, np.ndarray, list, np.ndarray]:
+        """Sim objective, descriptors, outcomes (ball at the habit) and placement shifts of parameter vectors.
+
+        The objective is the target distance expected over the ball placements of :func:`placement_quadrature` (a
+        throw that lands nowhere counts :data:`NO_TOUCHDOWN_DISTANCE`) plus the limit penalty. The shifts ``(n, K, 2)``
+        are each placement's touchdown minus the one at the habit (m; NaN where either does not land)."""
         plans, penalties = [], np.zeros(len(thetas))
         for i, theta in enumerate(thetas):
             plan = self.to_plan(theta)
             lim = plan.check_limits()
             penalties[i] = self.config.limit_penalty * float(lim.position.sum() + lim.velocity.sum() + lim.acceleration.sum())
             plans.append(plan)
-        outcomes = self.executor.evaluate(plans)
-        self.sim_episodes += len(plans)
-        f1 = np.array([
-            (np.linalg.norm(o.touchdown - self.target) if o.touchdown is not None else NO_TOUCHDOWN_DISTANCE) for o in outcomes
-        ]) + penalties
+        k = len(self.placements)
+        if k == 1:
+            runs = self.executor.evaluate(plans)
+        else:
+            effects = [None] + [{"ball_placement": ball_placed(self._habit, d)} for d in self.placements[1:]]
+            runs = self.executor.evaluate([p for p in plans for _ in range(k)], effects=effects * len(plans))
+        self.sim_episodes += len(runs)
+        td = np.array([o.touchdown if o.touchdown is not None else [np.nan, np.nan] for o in runs], dtype=float).reshape(len(plans), k, 2)
+        dist = np.linalg.norm(td - self.target, axis=2)
+        f1 = np.where(np.isfinite(dist), dist, NO_TOUCHDOWN_DISTANCE) @ self.placement_weights + penalties
+        outcomes = runs[::k]
         D = np.array([behaviour_descriptor(p, o) for p, o in zip(plans, outcomes)])
-        return f1, D, outcomes
+        return f1, D, outcomes, td - td[:, :1]
 
     def _mutate(self, parents: np.ndarray) -> np.ndarray:
-        children = parents + self.config.mutation_sd * self.scales * self.rng.standard_normal(parents.shape)
+        """Gaussian mutation, each child with its own step drawn log-uniformly between ``mutation_sd_min`` and
+        ``mutation_sd`` (times the scales): large steps explore, small ones search next to a refined plan, whose
+        neighbours the large steps rarely hit (a plan on a cliff needs a more robust neighbour)."""
+        cfg = self.config
+        step = cfg.mutation_sd
+        if cfg.mutation_sd_min < cfg.mutation_sd:
+            step = np.exp(self.rng.uniform(np.log(cfg.mutation_sd_min), np.log(cfg.mutation_sd), (len(parents), 1)))
+        children = parents + step * self.scales * self.rng.standard_normal(parents.shape)
         return np.clip(children, self.bounds[:, 0], self.bounds[:, 1])
 
     def _objectives(self, f1: np.ndarray, D: np.ndarray) -> np.ndarray:
@@ -416,10 +463,11 @@ class TransferabilityApproach:
         self.progress(f"lab trial {trial} ({kind}): target distance {lab_dist:.3f} m, disparity {disparity:.3f} m")
         return t
 
-    def _choose_transfer(self, P: np.ndarray, f1: np.ndarray, F: np.ndarray, D: np.ndarray, sim_td: np.ndarray) -> int:
+    def _choose_transfer(self, P: np.ndarray, f1: np.ndarray, F: np.ndarray, D: np.ndarray, sim_td: np.ndarray,
+                         shifts: np.ndarray | None = None) -> int:
         limits_ok = np.array([self.to_plan(p).check_limits().ok for p in P])
         if self.config.transfer_choice in ("predicted", "likely"):
-            return self._closest_predicted(limits_ok, f1, D, sim_td, P)
+            return self._closest_predicted(limits_ok, f1, D, sim_td, P, shifts)
         ranks = nondominated_ranks(F)
         pool = np.flatnonzero((ranks == 0) & (f1 <= self.config.transfer_max_sim_distance) & limits_ok)
         if len(pool) == 0:
@@ -438,16 +486,19 @@ class TransferabilityApproach:
         return np.asarray(sim_td, dtype=float) + self.offsets.predict(np.atleast_2d(D))
 
     def _closest_predicted(self, limits_ok: np.ndarray, f1: np.ndarray, D: np.ndarray, sim_td: np.ndarray,
-                           P: np.ndarray | None = None) -> int:
+                           P: np.ndarray | None = None, shifts: np.ndarray | None = None) -> int:
         landed = limits_ok & np.isfinite(sim_td).all(axis=1)
         if not landed.any():
             pool = np.flatnonzero(limits_ok) if limits_ok.any() else np.arange(len(f1))
             return int(pool[np.argmin(f1[pool])])
         pool = np.flatnonzero(landed)
         predicted = self.predicted_lab_touchdowns(D[pool], sim_td[pool])
+        sh = np.zeros((len(pool), 1, 2)) if shifts is None else shifts[pool]
+        w = self.placement_weights if sh.shape[1] == len(self.placement_weights) else np.full(sh.shape[1], 1.0 / sh.shape[1])
         if self.config.transfer_choice != "likely" or P is None:
-            return int(pool[np.argmin(np.linalg.norm(predicted - self.target, axis=1))])
-        return int(pool[np.argmax(self._success_probabilities(P[pool], predicted))])
+            dist = np.linalg.norm(predicted[:, None, :] + sh - self.target, axis=2)
+            return int(pool[np.argmin(np.where(np.isfinite(dist), dist, NO_TOUCHDOWN_DISTANCE) @ w)])
+        return int(pool[np.argmax(self._success_probabilities(P[pool], predicted, sh, w))])
 
     def _lab_groups(self) -> dict[str, np.ndarray]:
         """Measured lab touchdowns ``(k, 2)`` of every plan thrown so far, by plan hash."""
@@ -457,8 +508,17 @@ class TransferabilityApproach:
                 groups.setdefault(t.plan_hash, []).append(t.lab_touchdown)
         return {h: np.asarray(v, dtype=float) for h, v in groups.items()}
 
-    def _success_probabilities(self, thetas: np.ndarray, predicted: np.ndarray) -> np.ndarray:
-        """P(every repetition of the success check lands within the radius) of each plan (see ``"likely"``)."""
+    def _success_probabilities(self, thetas: np.ndarray, predicted: np.ndarray, shifts: np.ndarray | None = None,
+                               weights: np.ndarray | None = None) -> np.ndarray:
+        """P(every repetition of the success check lands within the radius) of each plan (see ``"likely"``).
+
+        ``shifts`` ``(n, K, 2)``: each ball placement's touchdown minus the one at the habit, in simulation, with
+        ``weights`` ``(K,)``: one throw's probability is their weighted mean around the predicted touchdown (a
+        placement that does not land counts as a miss), so a plan on a cliff, where a few millimetres of placement
+        send the ball elsewhere, is unlikely to pass. A plan thrown before is centred on its measurements minus the
+        mean shift (they already hold the placement scatter)."""
+        if shifts is None:
+            shifts, weights = np.zeros((len(thetas), 1, 2)), np.ones(1)
         from scipy.stats import rice
 
         cfg = self.config
@@ -474,18 +534,22 @@ class TransferabilityApproach:
         for j, theta in enumerate(thetas):
             v = groups.get(plan_hash(self.to_plan(theta)))
             centre, var = predicted[j], var0
+            landed = np.isfinite(shifts[j]).all(axis=1)
             if v is not None:
-                centre = v.mean(axis=0)  # its own measurements say where it lands
+                mean = v.mean(axis=0)  # its own measurements say where it lands
                 if len(v) > 1:
-                    own = float(((v - centre) ** 2).sum())
+                    own = float(((v - mean) ** 2).sum())
                     var = (prior_dof * var0 + own) / (prior_dof + 2 * (len(v) - 1))
                 var = var * (1.0 + 1.0 / len(v))  # the mean's own uncertainty
+                w = weights * landed
+                centre = mean - (w @ np.where(landed[:, None], shifts[j], 0.0)) / max(w.sum(), 1e-12)
             sd = np.sqrt(var)
-            out[j] = rice.cdf(cfg.success_radius / sd, np.linalg.norm(centre - self.target) / sd) ** cfg.success_repetitions
+            single = rice.cdf(cfg.success_radius / sd, np.linalg.norm(centre + shifts[j][landed] - self.target, axis=1) / sd)
+            out[j] = float(weights[landed] @ single) ** cfg.success_repetitions
         return out
 
     # -- persistence ------------------------------------------------------------------------------
-    def _save(self, P: np.ndarray, f1: np.ndarray, D: np.ndarray, sim_td: np.ndarray) -> None:
+    def _save(self, P: np.ndarray, f1: np.ndarray, D: np.ndarray, sim_td: np.ndarray, shifts: np.ndarray) -> None:
         if self.out_dir is None:
             return
         state = {
@@ -495,6 +559,7 @@ class TransferabilityApproach:
             "f1": f1,
             "descriptors": D,
             "sim_touchdown": sim_td,
+            "placement_shifts": shifts,
             "transfers": [asdict(t) for t in self.transfers],
             "surrogate_X": self.surrogate.X,
             "surrogate_y": self.surrogate.y,
@@ -512,8 +577,10 @@ class TransferabilityApproach:
         if self.out_dir is None or not (self.out_dir / "transferability_state.json").is_file():
             return None
         s = load_state(self.out_dir / "transferability_state")
-        # fields added since the state was written: their defaults, and the paper's transfer choice (the only one then)
-        saved = json.loads(json.dumps(asdict(TransferabilityConfig()))) | {"transfer_choice": "diverse"} | s["config"]
+        # fields added since the state was written: their defaults, the paper's transfer choice (the only one then)
+        # the ball at its habit only (placements came later) and one mutation step
+        saved = json.loads(json.dumps(asdict(TransferabilityConfig()))) | {"transfer_choice": "diverse", "placement_sd": 0.0,
+                                                                       "mutation_sd_min": s["config"].get("mutation_sd")} | s["config"]
         if saved != json.loads(json.dumps(asdict(self.config))):
             raise ValueError(f"{self.out_dir} holds a search with other settings: use a new output folder")
         self.generation, self.sim_episodes = int(s["generation"]), int(s["sim_episodes"])
@@ -525,7 +592,9 @@ class TransferabilityApproach:
             self.offsets.Y = np.asarray(s["offset_Y"], dtype=float).reshape(-1, 2)
         self.success_at, self.success_plans = s["success_at"], s["success_plans"]
         self.rng = rng_from_state(s["rng"])
-        return np.asarray(s["population"]), np.asarray(s["f1"]), np.asarray(s["descriptors"]), np.asarray(s["sim_touchdown"])
+        P = np.asarray(s["population"])
+        shifts = np.asarray(s["placement_shifts"], dtype=float) if "placement_shifts" in s else np.zeros((len(P), 1, 2))
+        return P, np.asarray(s["f1"]), np.asarray(s["descriptors"]), np.asarray(s["sim_touchdown"]), shifts.reshape(len(P), -1, 2)
 
     # -- the search -------------------------------------------------------------------------------
     def run(self) -> TransferabilityResult:
@@ -536,23 +605,24 @@ class TransferabilityApproach:
             n_seed = len(self.seeds)
             extra = self.seeds[self.rng.integers(0, n_seed, max(cfg.population - n_seed, 0))]
             P = np.vstack([self.seeds, self._mutate(extra)])[: max(cfg.population, n_seed)]
-            f1, D, outcomes = self._evaluate(P)
+            f1, D, outcomes, shifts = self._evaluate(P)
             sim_td = np.array([o.touchdown if o.touchdown is not None else [np.nan, np.nan] for o in outcomes])
         else:
-            P, f1, D, sim_td = loaded
+            P, f1, D, sim_td, shifts = loaded
             self.progress(f"resumed at generation {self.generation} with {len(self.transfers)} lab trials")
         n_plans = sum(1 for t in self.transfers if t.kind == "transfer")
         while n_plans < cfg.max_transfers and not (cfg.stop_on_success and self.success_at is not None):
             self.generation += 1
             F = self._objectives(f1, D)
             children = self._mutate(P[self._tournament(F, cfg.population)])
-            cf1, cD, couts = self._evaluate(children)
+            cf1, cD, couts, cshifts = self._evaluate(children)
             ctd = np.array([o.touchdown if o.touchdown is not None else [np.nan, np.nan] for o in couts])
             P, f1, D, sim_td = np.vstack([P, children]), np.append(f1, cf1), np.vstack([D, cD]), np.vstack([sim_td, ctd])
+            shifts = np.concatenate([shifts, cshifts])
             F = self._objectives(f1, D)
             keep = self._select(F, cfg.population)
-            P, f1, D, sim_td, F = P[keep], f1[keep], D[keep], sim_td[keep], F[keep]
-            i = self._choose_transfer(P, f1, F, D, sim_td)
+            P, f1, D, sim_td, shifts, F = P[keep], f1[keep], D[keep], sim_td[keep], shifts[keep], F[keep]
+            i = self._choose_transfer(P, f1, F, D, sim_td, shifts)
             td = None if np.isnan(sim_td[i]).any() else sim_td[i]
             t = self._lab_trial(P[i], "transfer", td, D[i])
             n_plans += 1
@@ -564,7 +634,7 @@ class TransferabilityApproach:
                 if hits == cfg.success_repetitions:
                     self.success_at = len(self.transfers)
                     self.success_plans = n_plans
-            self._save(P, f1, D, sim_td)
+            self._save(P, f1, D, sim_td, shifts)
         final = self._final_evaluation(P, f1, D, sim_td)
         best = None
         if self.transfers:
