@@ -282,3 +282,49 @@ def test_transfer_command_refuses_a_placement_scatter_beyond_the_scoop(tmp_path,
     err = capsys.readouterr().err
     assert code == 2 and "placement_sd" in err and "Traceback" not in err
     assert not (tmp_path / "out" / "lab_log").exists()  # refused before the lab is touched
+
+
+def _thrown(search, theta, touchdowns, sim=(2.0, 0.0)):
+    """Record lab trials of ``theta`` (the first a transfer, then repeats) as the search would."""
+    from besdrake.transfer.transferability import Transfer
+
+    h = plan_hash(to_plan(np.asarray(theta)))
+    for td in touchdowns:
+        k = len(search.transfers)
+        kind = "transfer" if not any(t.plan_hash == h for t in search.transfers) else "repeat"
+        search.transfers.append(Transfer(k, kind, list(theta), h, list(sim), list(td), 0.0, float(np.linalg.norm(np.subtract(td, (2.0, 0.0))))))
+        search.offsets.add(np.full(17, float(k)), np.subtract(td, sim))
+        search._offset_trials.append(k)
+
+
+def test_a_cliff_event_is_a_miss_but_poisons_neither_the_scatter_nor_the_offset_model():
+    """A plan thrown 5 times lands 4 times within a few cm and once 1.2 m away (the ball rolled out early)."""
+    tight = [[2.02, 0.01], [1.98, -0.02], [2.01, 0.03], [1.99, 0.0]]
+    cliff = [[0.8, 0.1]]
+
+    def search(radius):
+        cfg = TransferabilityConfig(transfer_choice="likely", outlier_radius=radius)
+        s = TransferabilityApproach(to_plan, np.array([[0.45, 0.0, 19.0]]), SCALES, BOUNDS, None, None, np.random.default_rng(0), cfg)
+        _thrown(s, [0.45, 0.0, 19.0], tight[:2] + cliff + tight[2:])
+        _thrown(s, [0.47, 0.0, 19.0], [[2.0, 0.02]])
+        return s
+
+    robust, naive = search(0.25), search(None)
+    assert robust.cliff_trials() == {2} and naive.cliff_trials() == set()
+    thetas = np.array([[0.45, 0.0, 19.0], [0.46, 0.0, 19.0], [0.47, 0.0, 19.0]])  # the erratic plan, a fresh one, one thrown once
+    on_target = np.array([[2.0, 0.0]] * 3)
+    p, p_naive = robust._success_probabilities(thetas, on_target), naive._success_probabilities(thetas, on_target)
+    assert p[1] > 0.5 and p_naive[1] < 0.1  # the lab's pooled scatter without / with the 1.2 m miss
+    assert p[0] < (5 / 6) ** 3 + 1e-9  # the miss still counts against its plan: 4 + 1 of 5 + 1
+    assert p[2] > p[0]
+    D = np.full((1, 17), 1.5)
+    assert np.linalg.norm(robust.predicted_lab_touchdowns(D, [[2.0, 0.0]])[0] - [2.0, 0.0]) < 0.05
+    assert naive.predicted_lab_touchdowns(D, [[2.0, 0.0]])[0, 0] < 1.85  # the naive offset model follows the miss
+
+
+def test_plans_thrown_fewer_than_three_times_have_no_cliff_events():
+    s = TransferabilityApproach(to_plan, np.array([[0.45, 0.0, 19.0]]), SCALES, BOUNDS, None, None, np.random.default_rng(0))
+    _thrown(s, [0.45, 0.0, 19.0], [[2.0, 0.0], [0.9, 0.0]])
+    assert s.cliff_trials() == set()
+    with pytest.raises(ValueError, match="outlier_radius"):
+        TransferabilityConfig(outlier_radius=-0.1)

@@ -13,7 +13,9 @@ simulation, minimises three objectives at once:
 3. minus the **behavioural diversity** (mean distance to the nearest behaviours of the population
    and of the plans already transferred), which keeps the search exploring.
 
-Selection is NSGA-II (non-dominated sorting, crowding distance). After every generation (the paper:
+Selection is NSGA-II (non-dominated sorting, crowding distance); children are Gaussian mutations whose
+step is drawn per child between ``mutation_sd_min`` and ``mutation_sd`` (log-uniform, in parameter scales),
+so the search looks both far from and right next to the refined plans. After every generation (the paper:
 one transfer per 50 simulated episodes, the population size) the update heuristic transfers one
 plan to the lab, chosen by ``transfer_choice`` (default ``"likely"``; measured with
 ``scripts/bench_transferability.py`` on the 4 default subjects whose refined throw landed within
@@ -37,7 +39,10 @@ plan to the lab, chosen by ``transfer_choice`` (default ``"likely"``; measured w
   in simulation). The scatter is the lab's (pooled over the plans thrown more than once, starting
   from ``lab_sd_prior``), and for a plan thrown before its own measured scatter shrunk towards that: a
   plan on a cliff (e.g. the ball sometimes rolls out early) that lands on target only now and then
-  is no longer re-tried, and one whose simulated placements show the cliff is not tried at all.
+  is no longer re-tried, and one whose simulated placements show the cliff is not tried at all. A lab
+  touchdown far (``outlier_radius``) from the median of its plan's touchdowns is a cliff event: a miss
+  of that plan, but left out of the lab's pooled scatter and of the offset model, which one such throw
+  would otherwise skew for every plan.
 
 Its measured disparity trains the surrogate. When a transferred plan lands
 within ``success_radius`` of the target, it is repeated until ``success_repetitions`` lab trials
@@ -110,12 +115,17 @@ class TransferabilityConfig:
     transfer_choice: str = "likely"  # "likely", "predicted" or "diverse" (the paper's; see the module docstring)
     lab_sd_prior: float = 0.05  # m per axis: the lab's touchdown scatter assumed before repeated plans measure it
     placement_sd: float = PLACEMENT_SD  # m per axis: the lab's throw-to-throw ball placement scatter (0: nominal only)
+    # m: a lab touchdown this far from the median of its plan's (>= 3) touchdowns is a cliff event (the ball rolled out
+    # early): a miss of that plan, left out of the lab's scatter and of the offset model (None: every trial counts)
+    outlier_radius: float | None = 0.25
 
     def __post_init__(self) -> None:
         if self.transfer_choice not in TRANSFER_CHOICES:
             raise ValueError(f"transfer_choice must be one of {TRANSFER_CHOICES}, got {self.transfer_choice!r}")
         if not (np.isfinite(self.mutation_sd_min) and 0.0 < self.mutation_sd_min <= self.mutation_sd):
             raise ValueError(f"mutation_sd_min must lie in (0, mutation_sd = {self.mutation_sd}], got {self.mutation_sd_min!r}")
+        if self.outlier_radius is not None and not (np.isfinite(self.outlier_radius) and self.outlier_radius > 0):
+            raise ValueError(f"outlier_radius must be a distance > 0 (m) or None, got {self.outlier_radius!r}")
         if not (np.isfinite(self.placement_sd) and 0.0 <= self.placement_sd <= MAX_PLACEMENT_SD):
             raise ValueError(f"placement_sd must be within 0..{MAX_PLACEMENT_SD} m, got {self.placement_sd!r}")
 
@@ -176,7 +186,19 @@ class _DescriptorGP:
     def __init__(self) -> None:
         self.X = np.zeros((0, N_FEATURES))
         self.T = np.zeros((0, self.width))
+        self.keep: np.ndarray | None = None  # rows used (None: all)
         self._gp = None
+
+    def set_keep(self, keep: np.ndarray | None) -> None:
+        """Use only the rows where ``keep`` is true (None: all), e.g. without a plan's cliff events."""
+        keep = None if keep is None else np.asarray(keep, dtype=bool)
+        if (keep is None) != (self.keep is None) or (keep is not None and not np.array_equal(keep, self.keep)):
+            self.keep, self._gp = keep, None
+
+    def _rows(self) -> tuple[np.ndarray, np.ndarray]:
+        if self.keep is None or len(self.keep) != len(self.T):
+            return self.X, self.T
+        return self.X[self.keep], self.T[self.keep]
 
     def _append(self, descriptor: np.ndarray, value) -> None:
         self.X = np.vstack([self.X, descriptor])
@@ -188,23 +210,25 @@ class _DescriptorGP:
         from sklearn.gaussian_process import GaussianProcessRegressor
         from sklearn.gaussian_process.kernels import ConstantKernel, RBF, WhiteKernel
 
-        self._mean = self.X.mean(axis=0)
-        scale = self.X.std(axis=0)
+        X, T = self._rows()
+        self._mean = X.mean(axis=0)
+        scale = X.std(axis=0)
         scale[scale < 1e-9] = 1.0
         self._scale = scale
         level, bounds = self.noise
         kernel = ConstantKernel(1.0, (1e-2, 1e2)) * RBF(length_scale=3.0, length_scale_bounds=(0.3, 100.0)) + WhiteKernel(level, bounds)
-        target = self.T[:, 0] if self.width == 1 else self.T
+        target = T[:, 0] if self.width == 1 else T
         with warnings.catch_warnings():
             # A handful of transfers often puts a hyperparameter on its bound (all noise, or no signal
             # yet): expected early in the search, not worth a warning per fit.
             warnings.simplefilter("ignore", ConvergenceWarning)
-            self._gp = GaussianProcessRegressor(kernel, normalize_y=True, random_state=0).fit((self.X - self._mean) / self._scale, target)
+            self._gp = GaussianProcessRegressor(kernel, normalize_y=True, random_state=0).fit((X - self._mean) / self._scale, target)
 
     def _predict(self, descriptors: np.ndarray) -> np.ndarray:
         n = len(descriptors)
-        if len(self.T) < self.min_points:
-            return np.tile(self.T.mean(axis=0) if len(self.T) else np.zeros(self.width), (n, 1))
+        T = self._rows()[1]
+        if len(T) < self.min_points:
+            return np.tile(T.mean(axis=0) if len(T) else np.zeros(self.width), (n, 1))
         if self._gp is None:
             self._fit()
         return np.asarray(self._gp.predict((descriptors - self._mean) / self._scale)).reshape(n, self.width)
@@ -349,6 +373,7 @@ class TransferabilityApproach:
         self.target = np.asarray(self.config.target, dtype=float)
         self.surrogate = DisparitySurrogate()
         self.offsets = OffsetSurrogate()
+        self._offset_trials: list[int] | None = []  # lab trial of each offset row (None: unknown, an old state)
         self.transfers: list[Transfer] = []
         self.transferred_descriptors = np.zeros((0, N_FEATURES))
         self.sim_episodes = 0
@@ -460,6 +485,8 @@ class TransferabilityApproach:
                 self.transferred_descriptors = np.vstack([self.transferred_descriptors, descriptor])
             if lab_td is not None and sim_touchdown is not None:
                 self.offsets.add(descriptor, lab_td - sim_touchdown)
+                if self._offset_trials is not None:
+                    self._offset_trials.append(trial)
         self.progress(f"lab trial {trial} ({kind}): target distance {lab_dist:.3f} m, disparity {disparity:.3f} m")
         return t
 
@@ -482,7 +509,11 @@ class TransferabilityApproach:
         return int(pool[np.argmax(d)])
 
     def predicted_lab_touchdowns(self, D: np.ndarray, sim_td: np.ndarray) -> np.ndarray:
-        """Simulated touchdowns ``(n, 2)`` plus the offsets the :class:`OffsetSurrogate` predicts (m)."""
+        """Simulated touchdowns ``(n, 2)`` plus the offsets the :class:`OffsetSurrogate` predicts (m), learned
+        without the cliff events (:meth:`cliff_trials`)."""
+        if self._offset_trials is not None and len(self._offset_trials) == len(self.offsets.Y):
+            cliffs = self.cliff_trials()
+            self.offsets.set_keep(np.array([t not in cliffs for t in self._offset_trials], dtype=bool))
         return np.asarray(sim_td, dtype=float) + self.offsets.predict(np.atleast_2d(D))
 
     def _closest_predicted(self, limits_ok: np.ndarray, f1: np.ndarray, D: np.ndarray, sim_td: np.ndarray,
@@ -500,13 +531,34 @@ class TransferabilityApproach:
             return int(pool[np.argmin(np.where(np.isfinite(dist), dist, NO_TOUCHDOWN_DISTANCE) @ w)])
         return int(pool[np.argmax(self._success_probabilities(P[pool], predicted, sh, w))])
 
-    def _lab_groups(self) -> dict[str, np.ndarray]:
-        """Measured lab touchdowns ``(k, 2)`` of every plan thrown so far, by plan hash."""
+    def _lab_groups(self, inliers: bool = False) -> dict[str, np.ndarray]:
+        """Measured lab touchdowns ``(k, 2)`` of every plan thrown so far, by plan hash (``inliers``: without the
+        cliff events)."""
+        cliffs = self.cliff_trials() if inliers else set()
         groups: dict[str, list] = {}
         for t in self.transfers:
-            if t.lab_touchdown is not None and t.kind in ("transfer", "repeat"):
+            if t.lab_touchdown is not None and t.kind in ("transfer", "repeat") and t.trial not in cliffs:
                 groups.setdefault(t.plan_hash, []).append(t.lab_touchdown)
         return {h: np.asarray(v, dtype=float) for h, v in groups.items()}
+
+    def cliff_trials(self) -> set[int]:
+        """Lab trials (indices) that landed farther than ``outlier_radius`` from the median touchdown of their plan,
+        among plans thrown at least 3 times: the ball rolled out early or the like, a miss that no Gaussian scatter
+        or offset describes."""
+        r = self.config.outlier_radius
+        if r is None:
+            return set()
+        groups: dict[str, list[Transfer]] = {}
+        for t in self.transfers:
+            if t.lab_touchdown is not None and t.kind in ("transfer", "repeat"):
+                groups.setdefault(t.plan_hash, []).append(t)
+        out: set[int] = set()
+        for ts in groups.values():
+            if len(ts) >= 3:
+                v = np.array([t.lab_touchdown for t in ts], dtype=float)
+                far = np.linalg.norm(v - np.median(v, axis=0), axis=1) > r
+                out.update(t.trial for t, f in zip(ts, far) if f)
+        return out
 
     def _success_probabilities(self, thetas: np.ndarray, predicted: np.ndarray, shifts: np.ndarray | None = None,
                                weights: np.ndarray | None = None) -> np.ndarray:
@@ -516,13 +568,16 @@ class TransferabilityApproach:
         ``weights`` ``(K,)``: one throw's probability is their weighted mean around the predicted touchdown (a
         placement that does not land counts as a miss), so a plan on a cliff, where a few millimetres of placement
         send the ball elsewhere, is unlikely to pass. A plan thrown before is centred on its measurements minus the
-        mean shift (they already hold the placement scatter)."""
+        mean shift (they already hold the placement scatter). Its cliff events (:meth:`cliff_trials`) are left out of
+        its and the pooled scatter and count as misses: one throw's probability is multiplied by (inliers + 1) /
+        (trials + 1)."""
         if shifts is None:
             shifts, weights = np.zeros((len(thetas), 1, 2)), np.ones(1)
         from scipy.stats import rice
 
         cfg = self.config
-        groups = self._lab_groups()
+        groups = self._lab_groups(inliers=True)
+        thrown = {h: len(v) for h, v in self._lab_groups().items()}
         ss, dof = 0.0, 0
         for v in groups.values():
             if len(v) > 1:
@@ -532,9 +587,13 @@ class TransferabilityApproach:
         var0 = (prior_dof * cfg.lab_sd_prior**2 + ss) / (prior_dof + dof)  # pooled per-axis variance
         out = np.zeros(len(thetas))
         for j, theta in enumerate(thetas):
-            v = groups.get(plan_hash(self.to_plan(theta)))
-            centre, var = predicted[j], var0
+            h = plan_hash(self.to_plan(theta))
+            v = groups.get(h)
+            centre, var, kept = predicted[j], var0, 1.0
             landed = np.isfinite(shifts[j]).all(axis=1)
+            if h in thrown:
+                kept = (0 if v is None else len(v)) + 1.0
+                kept /= thrown[h] + 1.0
             if v is not None:
                 mean = v.mean(axis=0)  # its own measurements say where it lands
                 if len(v) > 1:
@@ -545,7 +604,7 @@ class TransferabilityApproach:
                 centre = mean - (w @ np.where(landed[:, None], shifts[j], 0.0)) / max(w.sum(), 1e-12)
             sd = np.sqrt(var)
             single = rice.cdf(cfg.success_radius / sd, np.linalg.norm(centre + shifts[j][landed] - self.target, axis=1) / sd)
-            out[j] = float(weights[landed] @ single) ** cfg.success_repetitions
+            out[j] = (kept * float(weights[landed] @ single)) ** cfg.success_repetitions
         return out
 
     # -- persistence ------------------------------------------------------------------------------
@@ -566,6 +625,7 @@ class TransferabilityApproach:
             "transferred_descriptors": self.transferred_descriptors,
             "offset_X": self.offsets.X,
             "offset_Y": self.offsets.Y,
+            "offset_trials": self._offset_trials,
             "success_at": self.success_at,
             "success_plans": self.success_plans,
             "rng": rng_state(self.rng),
@@ -578,9 +638,10 @@ class TransferabilityApproach:
             return None
         s = load_state(self.out_dir / "transferability_state")
         # fields added since the state was written: their defaults, the paper's transfer choice (the only one then)
-        # the ball at its habit only (placements came later) and one mutation step
+        # the ball at its habit only (placements came later), one mutation step and no cliff events
         saved = json.loads(json.dumps(asdict(TransferabilityConfig()))) | {"transfer_choice": "diverse", "placement_sd": 0.0,
-                                                                       "mutation_sd_min": s["config"].get("mutation_sd")} | s["config"]
+                                                                       "mutation_sd_min": s["config"].get("mutation_sd"),
+                                                                       "outlier_radius": None} | s["config"]
         if saved != json.loads(json.dumps(asdict(self.config))):
             raise ValueError(f"{self.out_dir} holds a search with other settings: use a new output folder")
         self.generation, self.sim_episodes = int(s["generation"]), int(s["sim_episodes"])
@@ -590,6 +651,7 @@ class TransferabilityApproach:
         if "offset_X" in s:
             self.offsets.X = np.asarray(s["offset_X"], dtype=float).reshape(-1, N_FEATURES)
             self.offsets.Y = np.asarray(s["offset_Y"], dtype=float).reshape(-1, 2)
+        self._offset_trials = [int(t) for t in s["offset_trials"]] if s.get("offset_trials") is not None else None
         self.success_at, self.success_plans = s["success_at"], s["success_plans"]
         self.rng = rng_from_state(s["rng"])
         P = np.asarray(s["population"])
