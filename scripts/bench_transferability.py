@@ -293,6 +293,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--mutation-sd-min", type=float, default=TransferabilityConfig.mutation_sd_min,
                         help="smallest mutation step (parameter scales); each child's step is log-uniform up to the largest, "
                              f"{TransferabilityConfig.mutation_sd} ({TransferabilityConfig.mutation_sd}: one step, the search before session 8)")
+    parser.add_argument("--outlier-radius", type=float, default=TransferabilityConfig.outlier_radius,
+                        help="m: a lab throw this far from its plan's median is a cliff event (a miss left out of the scatter and offset "
+                             "models); 0: off, every throw counts (the search before session 8)")
     args = parser.parse_args(argv)
     if args.refine_runs < 1:
         parser.error(f"--refine-runs must be >= 1, got {args.refine_runs}")
@@ -319,10 +322,12 @@ def main(argv: list[str] | None = None) -> int:
             s, scenario, args.out / tag / f"s{s}", imitated, refine_episodes=args.refine_episodes, refine_seed=args.seed,
             population=args.population, max_transfers=args.max_transfers, lab_path=args.lab,
             lab_seed=args.lab_seed + s, search_seed=args.seed,
-            ta_options={"transfer_choice": args.transfer_choice, "placement_sd": args.placement_sd, "mutation_sd_min": args.mutation_sd_min},
+            ta_options={"transfer_choice": args.transfer_choice, "placement_sd": args.placement_sd, "mutation_sd_min": args.mutation_sd_min,
+                        "outlier_radius": args.outlier_radius or None},
             tag=f"ta_{args.transfer_choice}_p{args.population}_r{args.refine_episodes}" + ("" if args.refine_stop_on_success else "_full")
             + ("" if args.refine_runs == 1 else f"_k{args.refine_runs}") + (f"_pl{args.placement_sd * 1000:g}" if args.placement_sd > 0 else "")
-            + (f"_ms{args.mutation_sd_min:g}" if args.mutation_sd_min < TransferabilityConfig.mutation_sd else ""),
+            + (f"_ms{args.mutation_sd_min:g}" if args.mutation_sd_min < TransferabilityConfig.mutation_sd else "")
+            + (f"_out{args.outlier_radius:g}" if args.outlier_radius else ""),
             whole_budget=not args.refine_stop_on_success, refine_runs=args.refine_runs,
         )
         _log(f"subject {s}: transfers to 3/3 success: {rec['transfers_to_success_text']} "
@@ -333,6 +338,7 @@ def main(argv: list[str] | None = None) -> int:
         "transfer_choice": args.transfer_choice,
         "placement_sd_m": args.placement_sd,
         "mutation_sd": [args.mutation_sd_min, TransferabilityConfig.mutation_sd],
+        "outlier_radius_m": args.outlier_radius or None,
         "scenario_path": scenario,
         "subjects_run": args.subjects,
         "refine_episodes": args.refine_episodes,
