@@ -328,3 +328,19 @@ def test_plans_thrown_fewer_than_three_times_have_no_cliff_events():
     assert s.cliff_trials() == set()
     with pytest.raises(ValueError, match="outlier_radius"):
         TransferabilityConfig(outlier_radius=-0.1)
+
+
+def test_the_final_evaluation_sends_no_pareto_plan_beyond_the_joint_limits():
+    """A plan beyond the limits can sit on the Pareto front by its novelty alone: it is not sent to the lab."""
+    ok, beyond, near = np.array([0.45, 0.0, 19.0]), np.array([1.5, 0.0, 19.5]), np.array([0.46, 0.0, 19.0])
+    assert to_plan(ok).check_limits().ok and not to_plan(beyond).check_limits().ok
+    cfg = TransferabilityConfig(final_best_in_lab=0, final_pareto=4, final_repetitions=1)
+    lab = SafetyGate(VirtualLab("diagrams/labs/ideal_lab.yaml"))
+    search = TransferabilityApproach(to_plan, ok[None], SCALES, BOUNDS, None, lab, np.random.default_rng(0), cfg)
+    P = np.array([ok, beyond, near])
+    D = np.array([np.zeros(17), np.full(17, 10.0), np.full(17, 0.1)])  # the plan beyond the limits is the most novel
+    F = search._objectives(np.array([0.05, 0.1, 0.3]), D)
+    assert nondominated_ranks(F).tolist() == [0, 0, 1]
+    final = search._final_evaluation(P, np.array([0.05, 0.1, 0.3]), D, np.array([[2.0, 0.0], [2.1, 0.0], [2.3, 0.0]]))
+    assert len(final) == 1 and [t.plan_hash for t in search.transfers] == [plan_hash(to_plan(ok))]
+    assert not any("refused_by_safety_gate" in t.flags for t in search.transfers)

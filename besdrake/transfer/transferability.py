@@ -718,7 +718,8 @@ class TransferabilityApproach:
         )
 
     def _final_evaluation(self, P, f1, D, sim_td) -> list[dict[str, Any]]:
-        """2 best plans in the lab and 4 of the Pareto front, each repeated ``final_repetitions`` times."""
+        """2 best plans in the lab and 4 of the Pareto front (within every joint limit), each repeated
+        ``final_repetitions`` times."""
         cfg = self.config
         candidates: list[tuple[str, np.ndarray, np.ndarray | None]] = []
         lab_plans = {}
@@ -731,6 +732,7 @@ class TransferabilityApproach:
             candidates.append(("best_in_lab", np.asarray(ts[0].theta), td))
         F = self._objectives(f1, D)
         front = np.flatnonzero(nondominated_ranks(F) == 0)
+        front = front[[self.to_plan(P[i]).check_limits().ok for i in front]]  # a plan beyond the limits never reaches the lab
         front = front[np.argsort(F[front, 0] + F[front, 1])][: cfg.final_pareto]
         for i in front:
             candidates.append(("pareto", P[i], None if np.isnan(sim_td[i]).any() else sim_td[i]))
