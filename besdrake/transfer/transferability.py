@@ -642,7 +642,7 @@ class TransferabilityApproach:
         if self.out_dir is None or not (self.out_dir / "transferability_state.json").is_file():
             return None
         s = load_state(self.out_dir / "transferability_state")
-        # fields added since the state was written: their defaults, the paper's transfer choice (the only one then)
+        # fields added since the state was written: their defaults, the paper's transfer choice (the only one then),
         # the ball at its habit only (placements came later), one mutation step and no cliff events
         saved = json.loads(json.dumps(asdict(TransferabilityConfig()))) | {"transfer_choice": "diverse", "placement_sd": 0.0,
                                                                        "mutation_sd_min": s["config"].get("mutation_sd"),
