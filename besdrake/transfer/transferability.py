@@ -84,8 +84,9 @@ TRANSFER_CHOICES = ("diverse", "predicted", "likely")
 #: The lab's ball placement scatter (m per axis) assumed by default: the virtual lab's documented figure (as in
 #: :data:`besdrake.diagnosis.core.PLACEMENT_SD`); a real lab measures its own.
 PLACEMENT_SD = 0.002
-#: Largest placement scatter accepted (m per axis): the quadrature's outer points stay inside the scoop.
-MAX_PLACEMENT_SD = 0.004
+#: Largest placement scatter accepted (m per axis): the virtual lab's largest; the quadrature's outer points
+#: (sqrt(3) of it) are clipped to where a ball can sit in the scoop.
+MAX_PLACEMENT_SD = 0.005
 
 
 def placement_quadrature(sd: float) -> tuple[np.ndarray, np.ndarray]:
