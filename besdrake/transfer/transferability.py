@@ -45,9 +45,10 @@ plan to the lab, chosen by ``transfer_choice`` (default ``"likely"``; measured w
   would otherwise skew for every plan.
 
 Placements, mixed mutation steps and cliff events together, measured with ``scripts/bench_transferability.py``
-(refined simulation, population 10, the 10 default subjects x lab seeds 1000-4000): 40 of 40 subject-seed pairs
-reach 3/3 within 10 transfers (mean 2.45 transfers, one pair at 10); without them 39 of 40 (mean 2.9, four pairs at
-9 or more). The search simulates 9 times the episodes (17-180 s per subject on one core instead of 3-34 s).
+(refined simulation, population 10, the 10 default subjects x lab seeds 1000-6000): 60 of 60 subject-seed pairs
+reach 3/3 within 10 transfers (mean 2.4 transfers, one pair at 10); without them 58 of 60 (subject 1 twice; mean 2.7
+with a failure counted as 11, five pairs at 9 or more). The search simulates 9 times the episodes (14-180 s per
+subject on one core instead of 2-34 s).
 
 Its measured disparity trains the surrogate. When a transferred plan lands
 within ``success_radius`` of the target, it is repeated until ``success_repetitions`` lab trials
