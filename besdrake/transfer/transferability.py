@@ -531,22 +531,26 @@ class TransferabilityApproach:
             return int(pool[np.argmin(f1[pool])])
         pool = np.flatnonzero(landed)
         predicted = self.predicted_lab_touchdowns(D[pool], sim_td[pool])
-        sh = np.zeros((len(pool), 1, 2)) if shifts is None else shifts[pool]
-        w = self.placement_weights if sh.shape[1] == len(self.placement_weights) else np.full(sh.shape[1], 1.0 / sh.shape[1])
+        sh, w = (np.zeros((len(pool), 1, 2)), np.ones(1)) if shifts is None else (shifts[pool], self.placement_weights)
         if self.config.transfer_choice != "likely" or P is None:
             dist = np.linalg.norm(predicted[:, None, :] + sh - self.target, axis=2)
             return int(pool[np.argmin(np.where(np.isfinite(dist), dist, NO_TOUCHDOWN_DISTANCE) @ w)])
         return int(pool[np.argmax(self._success_probabilities(P[pool], predicted, sh, w))])
 
+    def _thrown(self) -> dict[str, list[Transfer]]:
+        """The lab trials (transfers and repeats) that landed, by plan hash."""
+        groups: dict[str, list[Transfer]] = {}
+        for t in self.transfers:
+            if t.lab_touchdown is not None and t.kind in ("transfer", "repeat"):
+                groups.setdefault(t.plan_hash, []).append(t)
+        return groups
+
     def _lab_groups(self, inliers: bool = False) -> dict[str, np.ndarray]:
         """Measured lab touchdowns ``(k, 2)`` of every plan thrown so far, by plan hash (``inliers``: without the
         cliff events)."""
         cliffs = self.cliff_trials() if inliers else set()
-        groups: dict[str, list] = {}
-        for t in self.transfers:
-            if t.lab_touchdown is not None and t.kind in ("transfer", "repeat") and t.trial not in cliffs:
-                groups.setdefault(t.plan_hash, []).append(t.lab_touchdown)
-        return {h: np.asarray(v, dtype=float) for h, v in groups.items()}
+        groups = {h: [t.lab_touchdown for t in ts if t.trial not in cliffs] for h, ts in self._thrown().items()}
+        return {h: np.asarray(v, dtype=float) for h, v in groups.items() if v}
 
     def cliff_trials(self) -> set[int]:
         """Lab trials (indices) that landed farther than ``outlier_radius`` from the median touchdown of their plan,
@@ -555,12 +559,8 @@ class TransferabilityApproach:
         r = self.config.outlier_radius
         if r is None:
             return set()
-        groups: dict[str, list[Transfer]] = {}
-        for t in self.transfers:
-            if t.lab_touchdown is not None and t.kind in ("transfer", "repeat"):
-                groups.setdefault(t.plan_hash, []).append(t)
         out: set[int] = set()
-        for ts in groups.values():
+        for ts in self._thrown().values():
             if len(ts) >= 3:
                 v = np.array([t.lab_touchdown for t in ts], dtype=float)
                 far = np.linalg.norm(v - np.median(v, axis=0), axis=1) > r
@@ -584,7 +584,7 @@ class TransferabilityApproach:
 
         cfg = self.config
         groups = self._lab_groups(inliers=True)
-        thrown = {h: len(v) for h, v in self._lab_groups().items()}
+        thrown = {h: len(ts) for h, ts in self._thrown().items()}
         ss, dof = 0.0, 0
         for v in groups.values():
             if len(v) > 1:
