@@ -299,6 +299,12 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.refine_runs < 1:
         parser.error(f"--refine-runs must be >= 1, got {args.refine_runs}")
+    ta_options = {"transfer_choice": args.transfer_choice, "placement_sd": args.placement_sd, "mutation_sd_min": args.mutation_sd_min,
+                  "outlier_radius": args.outlier_radius or None}
+    try:
+        TransferabilityConfig(**ta_options)  # refused here, not after a subject's refinement
+    except ValueError as err:
+        parser.error(str(err))
     logging.getLogger("drake").setLevel(logging.ERROR)
 
     t0 = time.perf_counter()
@@ -322,8 +328,7 @@ def main(argv: list[str] | None = None) -> int:
             s, scenario, args.out / tag / f"s{s}", imitated, refine_episodes=args.refine_episodes, refine_seed=args.seed,
             population=args.population, max_transfers=args.max_transfers, lab_path=args.lab,
             lab_seed=args.lab_seed + s, search_seed=args.seed,
-            ta_options={"transfer_choice": args.transfer_choice, "placement_sd": args.placement_sd, "mutation_sd_min": args.mutation_sd_min,
-                        "outlier_radius": args.outlier_radius or None},
+            ta_options=ta_options,
             tag=f"ta_{args.transfer_choice}_p{args.population}_r{args.refine_episodes}" + ("" if args.refine_stop_on_success else "_full")
             + ("" if args.refine_runs == 1 else f"_k{args.refine_runs}") + (f"_pl{args.placement_sd * 1000:g}" if args.placement_sd > 0 else "")
             + (f"_ms{args.mutation_sd_min:g}" if args.mutation_sd_min < TransferabilityConfig.mutation_sd else "")
@@ -338,7 +343,7 @@ def main(argv: list[str] | None = None) -> int:
         "transfer_choice": args.transfer_choice,
         "placement_sd_m": args.placement_sd,
         "mutation_sd": [args.mutation_sd_min, TransferabilityConfig.mutation_sd],
-        "outlier_radius_m": args.outlier_radius or None,
+        "outlier_radius_m": ta_options["outlier_radius"],
         "scenario_path": scenario,
         "subjects_run": args.subjects,
         "refine_episodes": args.refine_episodes,

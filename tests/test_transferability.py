@@ -42,6 +42,11 @@ def seed_theta():
     return np.array([[float(np.interp(2.0, xs, amps)), 0.0, 19.0]])
 
 
+def _offline(config: TransferabilityConfig | None = None) -> TransferabilityApproach:
+    """A search without simulation or lab, seeded at the default throw: for its bookkeeping and probabilities."""
+    return TransferabilityApproach(to_plan, np.array([[0.45, 0.0, 19.0]]), SCALES, BOUNDS, None, None, np.random.default_rng(0), config)
+
+
 def test_nondominated_ranks_and_crowding():
     F = np.array([[0, 3], [1, 1], [3, 0], [2, 2], [3, 3]], dtype=float)
     assert nondominated_ranks(F).tolist() == [0, 0, 0, 1, 2]
@@ -166,7 +171,7 @@ def test_likely_choice_stops_retrying_a_plan_that_hits_only_now_and_then():
     from besdrake.transfer.transferability import Transfer
 
     cfg = TransferabilityConfig(transfer_choice="likely")
-    search = TransferabilityApproach(to_plan, np.array([[0.45, 0.0, 19.0]]), SCALES, BOUNDS, None, None, np.random.default_rng(0), cfg)
+    search = _offline(cfg)
     erratic, fresh = np.array([0.45, 0.0, 19.0]), np.array([0.46, 0.0, 19.0])
     h = plan_hash(to_plan(erratic))
     for k, x in enumerate([2.03, 2.28, 1.99, 2.30, 2.02]):  # 3 of 5 within 0.1 m, the others 0.3 m long
@@ -175,7 +180,7 @@ def test_likely_choice_stops_retrying_a_plan_that_hits_only_now_and_then():
     assert 0 <= p[0] < p[1] <= 1
     assert p[0] < 0.2  # its own scatter (SD ~0.14 m per axis) makes 3/3 unlikely
     # with no lab trial at all, a plan predicted on target gets the Rayleigh figure of the prior scatter
-    fresh_only = TransferabilityApproach(to_plan, np.array([[0.45, 0.0, 19.0]]), SCALES, BOUNDS, None, None, np.random.default_rng(0), cfg)
+    fresh_only = _offline(cfg)
     p0 = fresh_only._success_probabilities(fresh[None], np.array([[2.0, 0.0]]))[0]
     assert p0 == pytest.approx((1 - np.exp(-0.1**2 / (2 * 0.05**2))) ** 3, rel=1e-6)
 
@@ -222,7 +227,7 @@ def test_plans_are_judged_over_the_ball_placements(seed_theta):
 def test_likely_choice_avoids_a_plan_whose_simulated_placements_fall_off_a_cliff():
     """Two fresh plans predicted on target: in one, a placement a few millimetres off sends the ball 0.4 m long."""
     cfg = TransferabilityConfig(transfer_choice="likely")
-    search = TransferabilityApproach(to_plan, np.array([[0.45, 0.0, 19.0]]), SCALES, BOUNDS, None, None, np.random.default_rng(0), cfg)
+    search = _offline(cfg)
     weights = search.placement_weights
     robust = np.zeros((9, 2))
     robust[1:, 0] = np.linspace(-0.01, 0.01, 8)
@@ -237,13 +242,11 @@ def test_likely_choice_avoids_a_plan_whose_simulated_placements_fall_off_a_cliff
 
 
 def test_mutation_steps_range_from_small_to_large():
-    search = TransferabilityApproach(to_plan, np.array([[0.45, 0.0, 19.0]]), SCALES, BOUNDS, None, None, np.random.default_rng(0),
-                                     TransferabilityConfig(mutation_sd=0.3, mutation_sd_min=0.01))
+    search = _offline(TransferabilityConfig(mutation_sd=0.3, mutation_sd_min=0.01))
     parents = np.tile([0.45, 0.0, 17.0], (4000, 1))
     steps = np.linalg.norm((search._mutate(parents) - parents) / SCALES, axis=1) / np.sqrt(3)
     assert np.quantile(steps, 0.1) < 0.03 and np.quantile(steps, 0.9) > 0.15
-    single = TransferabilityApproach(to_plan, np.array([[0.45, 0.0, 19.0]]), SCALES, BOUNDS, None, None, np.random.default_rng(0),
-                                     TransferabilityConfig(mutation_sd=0.3, mutation_sd_min=0.3))
+    single = _offline(TransferabilityConfig(mutation_sd=0.3, mutation_sd_min=0.3))
     expected = parents + 0.3 * SCALES * np.random.default_rng(0).standard_normal(parents.shape)
     assert np.allclose(single._mutate(parents), np.clip(expected, BOUNDS[:, 0], BOUNDS[:, 1]))
 
@@ -304,7 +307,7 @@ def test_a_cliff_event_is_a_miss_but_poisons_neither_the_scatter_nor_the_offset_
 
     def search(radius):
         cfg = TransferabilityConfig(transfer_choice="likely", outlier_radius=radius)
-        s = TransferabilityApproach(to_plan, np.array([[0.45, 0.0, 19.0]]), SCALES, BOUNDS, None, None, np.random.default_rng(0), cfg)
+        s = _offline(cfg)
         _thrown(s, [0.45, 0.0, 19.0], tight[:2] + cliff + tight[2:])
         _thrown(s, [0.47, 0.0, 19.0], [[2.0, 0.02]])
         return s
@@ -323,7 +326,7 @@ def test_a_cliff_event_is_a_miss_but_poisons_neither_the_scatter_nor_the_offset_
 
 
 def test_plans_thrown_fewer_than_three_times_have_no_cliff_events():
-    s = TransferabilityApproach(to_plan, np.array([[0.45, 0.0, 19.0]]), SCALES, BOUNDS, None, None, np.random.default_rng(0))
+    s = _offline()
     _thrown(s, [0.45, 0.0, 19.0], [[2.0, 0.0], [0.9, 0.0]])
     assert s.cliff_trials() == set()
     with pytest.raises(ValueError, match="outlier_radius"):
