@@ -61,6 +61,14 @@ def test_unknown_stage_is_refused(tmp_path, capsys):
     assert "unknown stage" in capsys.readouterr().err
 
 
+
+@pytest.mark.parametrize("override", ["transfer.placement_sd=0.01", "transfer.transfer_choice=random", "transfer.population=many"])
+def test_a_bad_transfer_setting_is_refused_before_any_stage_runs(tmp_path, capsys, override):
+    code = main(["learn", "--quick", "--set", override, "--out", str(tmp_path / "run")])
+    err = capsys.readouterr().err
+    assert code == 2 and "transfer:" in err and "Traceback" not in err
+    assert not (tmp_path / "run").exists()
+
 @pytest.mark.slow
 def test_quick_run_goes_from_demonstrations_to_a_template_pool(tmp_path, capsys):
     out = tmp_path / "run"

@@ -32,7 +32,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from besdrake.cli import UserError
     from besdrake.pipeline.config import ConfigError, load_config
-    from besdrake.pipeline.learn import STAGES, learn
+    from besdrake.pipeline.learn import STAGES, learn, transfer_config
     from besdrake.pipeline.run import RunError, RunFolder
 
     overrides = list(args.set)
@@ -46,6 +46,7 @@ def run(args: argparse.Namespace) -> int:
         overrides.append(f"workers={args.workers}")
     try:
         config = load_config(args.config, quick=args.quick, overrides=overrides)
+        transfer_config(config)  # a bad value is refused now, not after the refinement
         run_folder = RunFolder(args.out, config)
     except (ConfigError, RunError) as err:
         raise UserError(str(err)) from None

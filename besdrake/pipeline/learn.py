@@ -363,10 +363,27 @@ def _open_log(folder: Path, lab):
     return LabLog.open(folder) if (folder / "log.json").is_file() else LabLog.create(folder, lab.description())
 
 
+def transfer_config(config: dict[str, Any]):
+    """The Transferability Approach's settings of a learn configuration (checked before any stage runs);
+    :class:`~besdrake.pipeline.config.ConfigError` names a bad value."""
+    from besdrake.pipeline.config import ConfigError
+    from besdrake.transfer.transferability import PLACEMENT_SD, TransferabilityConfig
+
+    cfg = config["transfer"]
+    try:
+        return TransferabilityConfig(
+            target=tuple(config["refinement"]["target"]), population=int(cfg["population"]),
+            max_transfers=int(cfg["max_transfers"]), final_repetitions=int(cfg["final_repetitions"]),
+            transfer_choice=str(cfg.get("transfer_choice", "likely")), placement_sd=float(cfg.get("placement_sd", PLACEMENT_SD)),
+        )
+    except (TypeError, ValueError) as err:
+        raise ConfigError(f"transfer: {err}") from None
+
+
 def _transfer(ctx: Context, seed_files: list[Path], scenario: str, out: Path) -> dict[str, Any]:
     from besdrake.imitation import DMPParameterization, load_dmp
     from besdrake.search.refinement import ParameterScaling
-    from besdrake.transfer.transferability import PLACEMENT_SD, TransferabilityApproach, TransferabilityConfig
+    from besdrake.transfer.transferability import TransferabilityApproach
 
     cfg = ctx.config["transfer"]
     dmps = [load_dmp(f) for f in seed_files]
@@ -374,11 +391,7 @@ def _transfer(ctx: Context, seed_files: list[Path], scenario: str, out: Path) ->
     scaling = ParameterScaling.for_dmp(dmps[0])
     lab = _lab(ctx)
     log = _open_log(out / "lab_log", lab)
-    config = TransferabilityConfig(
-        target=tuple(ctx.config["refinement"]["target"]), population=int(cfg["population"]),
-        max_transfers=int(cfg["max_transfers"]), final_repetitions=int(cfg["final_repetitions"]),
-        transfer_choice=str(cfg.get("transfer_choice", "likely")), placement_sd=float(cfg.get("placement_sd", PLACEMENT_SD)),
-    )
+    config = transfer_config(ctx.config)
     with _executor(ctx, scenario) as executor:
         search = TransferabilityApproach(
             lambda theta: param.motion_plan(theta, dt=0.01), np.array([param.to_vector(d) for d in dmps]),
