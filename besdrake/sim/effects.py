@@ -371,6 +371,19 @@ def ball_placed(habit: dict[str, float] | None, offset) -> dict[str, float]:
     return {ax: float(np.clip(habit.get(ax, 0.0) + offset[k], bounds[ax].low, bounds[ax].high)) for k, ax in enumerate(("x", "y"))}
 
 
+def placement_quadrature(sd: float) -> tuple[np.ndarray, np.ndarray]:
+    """Ball placements ``(K, 2)`` (m, scoop x/y, around the habit) and weights ``(K,)`` whose weighted mean stands
+    for the N(0, sd^2)-per-axis scatter of the ball in the scoop: the 3 x 3 Gauss-Hermite product rule (nodes 0
+    and +-sqrt(3) sd, weights 2/3 and 1/6 per axis), the centre first; exact for anything quadratic in the
+    placement. ``sd == 0``: the centre alone. Used by the Transferability Approach (a plan's expected landing)
+    and the diagnosis (how much a throw scatters)."""
+    if sd <= 0:
+        return np.zeros((1, 2)), np.ones(1)
+    nodes, weights = np.array([0.0, -np.sqrt(3.0), np.sqrt(3.0)]) * sd, np.array([2.0, 0.5, 0.5]) / 3.0
+    i, j = (a.ravel() for a in np.meshgrid(range(3), range(3), indexing="ij"))
+    return np.column_stack([nodes[i], nodes[j]]), weights[i] * weights[j]
+
+
 @register_effect
 class BallProperties(Effect):
     """Ball mass and radius (a different ball). The mass and the solid-sphere inertia 2/5 m r^2 are set in the

@@ -74,7 +74,7 @@ import numpy as np
 
 from besdrake.plan import MotionPlan
 from besdrake.search.base import load_state, rng_from_state, rng_state, save_state
-from besdrake.sim.effects import ball_placed
+from besdrake.sim.effects import ball_placed, placement_quadrature
 from besdrake.transfer.descriptor import N_FEATURES, behaviour_descriptor
 from besdrake.transfer.measurement import Measurement, plan_hash
 
@@ -88,17 +88,6 @@ PLACEMENT_SD = 0.002
 #: Largest placement scatter accepted (m per axis): the virtual lab's largest; the quadrature's outer points
 #: (sqrt(3) of it) are clipped to where a ball can sit in the scoop.
 MAX_PLACEMENT_SD = 0.005
-
-
-def placement_quadrature(sd: float) -> tuple[np.ndarray, np.ndarray]:
-    """Ball placements ``(K, 2)`` (m, scoop x/y, around the habit) and weights ``(K,)`` whose weighted mean stands
-    for the N(0, sd^2)-per-axis scatter: the 3 x 3 Gauss-Hermite product rule (nodes 0 and +-sqrt(3) sd, weights
-    2/3 and 1/6 per axis), the centre first. ``sd == 0``: the centre alone."""
-    if sd <= 0:
-        return np.zeros((1, 2)), np.ones(1)
-    nodes, weights = np.array([0.0, -np.sqrt(3.0), np.sqrt(3.0)]) * sd, np.array([2.0, 0.5, 0.5]) / 3.0
-    i, j = (a.ravel() for a in np.meshgrid(range(3), range(3), indexing="ij"))
-    return np.column_stack([nodes[i], nodes[j]]), weights[i] * weights[j]
 
 
 @dataclass
