@@ -163,12 +163,14 @@ def _signature_size(sig: np.ndarray, d, k: int) -> dict:
     from besdrake.diagnosis.core import INDISTINGUISHABLE_DBIC
     from besdrake.diagnosis.observables import group_slices
 
-    sd = d.noise.vector()
+    # The diagnosis' own SD per throw and feature (placement scatter per throw); its group SDs when some trials
+    # were not used (the rows would not line up).
+    sd = d.noise.matrix(len(sig)) if d.n_used == len(sig) else np.broadcast_to(d.noise.vector()[None, :], sig.shape)
     per_group = {}
     for g, s_ in group_slices().items():
         if g not in d.groups_measured:
             continue
-        z = sig[:, s_] / sd[s_]
+        z = sig[:, s_] / sd[:, s_]
         per_group[g] = float(np.nansum(z * z))
     lam = float(sum(per_group.values()))
     n = d.causes[0].n if d.causes else 1
@@ -281,6 +283,7 @@ def main(argv=None) -> int:
     ap.add_argument("--unknown", type=int, default=4, help="trials with an effect the registry does not know")
     ap.add_argument("--throws", type=int, default=25)
     ap.add_argument("--repeats", type=int, default=8)
+    ap.add_argument("--probes", type=int, default=None, help="tilt probes among the throws (default: the diagnosis design's, 2; 0: throws only, the design before session 9)")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--modes", default="full,touchdown")
@@ -303,6 +306,7 @@ def main(argv=None) -> int:
         return 0
 
     from besdrake.diagnosis import diagnose, diagnosis_plans
+    from besdrake.diagnosis.design import DEFAULT_PROBES
     from besdrake.sim import Rollout
     from besdrake.sim.effects import list_effects
     from besdrake.sim.executors import make_executor
@@ -333,7 +337,7 @@ def main(argv=None) -> int:
                 k_known += 1
             if only is not None and i not in only:
                 continue
-            plans = diagnosis_plans(args.throws, args.repeats, seed=1000 * args.seed + i)
+            plans = diagnosis_plans(args.throws, args.repeats, seed=1000 * args.seed + i, probes=DEFAULT_PROBES if args.probes is None else args.probes)
             lab = VirtualLab({"name": "bench_lab", "effects": hidden, "seed": 1000 * args.seed + i})
             try:
                 ms = [lab.execute(p) for p in plans]

@@ -29,11 +29,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--trials", type=int, default=len(PAIRS))
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--seed", type=int, default=7)
+    ap.add_argument("--probes", type=int, default=None, help="tilt probes among the 25 throws (default: the diagnosis design's, 2; 0: throws only)")
     args = ap.parse_args(argv)
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     import bench_diagnosis as single
 
     from besdrake.diagnosis import core, diagnose, diagnosis_plans
+    from besdrake.diagnosis.design import DEFAULT_PROBES
     from besdrake.sim.effects import list_effects
     from besdrake.sim.executors import make_executor
     from besdrake.transfer.virtual_lab import VirtualLab
@@ -50,7 +52,7 @@ def main(argv: list[str] | None = None) -> int:
                 hidden = {**single._draw(a, rng), **single._draw(b, rng)}
                 lab_seed = 1000 * args.seed + i
                 lab = VirtualLab({"name": "bench_pair_lab", "effects": hidden, "seed": lab_seed})
-                ms = [lab.execute(p) for p in diagnosis_plans(25, 8, seed=lab_seed)]
+                ms = [lab.execute(p) for p in diagnosis_plans(25, 8, seed=lab_seed, probes=DEFAULT_PROBES if args.probes is None else args.probes)]
                 cache: dict = {}
                 for forward in (True, False):
                     core.FORWARD_PAIRS = forward

@@ -2,7 +2,7 @@
 """Benchmark the Transferability Approach per subject with the refined simulation (besdrake issue 6); prints JSON.
 
 Step 1 (once per output folder): the default lab throws the diagnosis plans
-(:func:`besdrake.diagnosis.diagnosis_plans`, 25 throws of which 8 repeats, as ``besdrake learn`` does),
+(:func:`besdrake.diagnosis.diagnosis_plans`, 25 throws of which 8 repeats and 2 tilt probes, as ``besdrake learn`` does),
 :func:`besdrake.diagnosis.diagnose` explains the log and writes the refined scenario
 (``OUT/diagnosis/report/refined_scenario.yaml``; ``--refined-scenario PATH`` reuses one).
 
@@ -55,6 +55,7 @@ def _log(msg: str) -> None:
 def refined_scenario(out: Path, lab_path: str, throws: int = 25, repeats: int = 8, seed: int = 0) -> dict[str, Any]:
     """Step 1: diagnosis plans in the default lab, diagnosis, refined scenario; cached in ``out/diagnosis``."""
     from besdrake.diagnosis import diagnose, diagnosis_plans
+    from besdrake.diagnosis.design import DEFAULT_PROBES
     from besdrake.diagnosis.report import write_report
     from besdrake.sim import make_executor
     from besdrake.transfer.lab import SafetyGate
@@ -69,7 +70,7 @@ def refined_scenario(out: Path, lab_path: str, throws: int = 25, repeats: int = 
     lab = SafetyGate(VirtualLab(load_lab_config(lab_path)))  # the lab's own seed, as 'besdrake learn' runs it
     log_dir = folder / "lab_log"
     log = LabLog.open(log_dir) if (log_dir / "log.json").is_file() else LabLog.create(log_dir, lab.description(), run={"purpose": "diagnosis"})
-    run_plans(lab, diagnosis_plans(n=throws, repeats=repeats, seed=seed), log)
+    run_plans(lab, diagnosis_plans(n=throws, repeats=repeats, seed=seed, probes=DEFAULT_PROBES), log)
     with make_executor("serial", scenario="nominal") as executor:
         diag = diagnose(log.measurements(), scenario="nominal", pairs=True, executor=executor)
     paths = write_report(diag, folder / "report")

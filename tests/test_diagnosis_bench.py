@@ -36,12 +36,18 @@ def test_signature_size_is_in_units_of_the_detection_limit(script):
     sl = group_slices()
     sd = np.ones(N_FEATURES)
     sd[sl["touchdown"]] = 0.05
-    d = SimpleNamespace(noise=SimpleNamespace(vector=lambda: sd), groups_measured=["touchdown"], causes=[SimpleNamespace(n=50)])
+    per_throw = np.tile(sd, (10, 1))
+    per_throw[0, sl["touchdown"]] = 0.1  # the diagnosis weighs the first throw half (its placement scatters it)
+    d = SimpleNamespace(noise=SimpleNamespace(vector=lambda: sd, matrix=lambda n: per_throw[:n]), n_used=10,
+                        groups_measured=["touchdown"], causes=[SimpleNamespace(n=50)])
     sig = np.full((10, N_FEATURES), np.nan)
     sig[:, sl["touchdown"]] = [0.05, 0.0]  # one noise SD on every throw's touchdown x
     sig[:, sl["ball_pos"]] = 1.0  # not logged: does not count
     out = bench._signature_size(sig, d, k=1)
-    assert out["signature_chi2"] == pytest.approx(10.0)
+    assert out["signature_chi2"] == pytest.approx(9.25)
     assert out["detection_limit_chi2"] == pytest.approx(INDISTINGUISHABLE_DBIC + np.log(50))
-    assert out["signature_over_limit"] == pytest.approx(10.0 / (INDISTINGUISHABLE_DBIC + np.log(50)))
+    assert out["signature_over_limit"] == pytest.approx(9.25 / (INDISTINGUISHABLE_DBIC + np.log(50)))
     assert set(out["signature_chi2_by_group"]) == {"touchdown"}
+    # A trial the diagnosis did not use: the rows do not line up, the group SDs count.
+    d.n_used = 9
+    assert bench._signature_size(sig, d, k=1)["signature_chi2"] == pytest.approx(10.0)

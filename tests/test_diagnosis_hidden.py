@@ -14,6 +14,7 @@ import pytest
 
 from besdrake.cli import main
 from besdrake.diagnosis import diagnose, diagnosis_plans
+from besdrake.diagnosis.design import DEFAULT_PROBES
 from besdrake.sim.effects import Effect, Param, register_effect, unregister_effect
 from besdrake.sim.scenario import load_scenario
 from besdrake.transfer.log import LabLog, read_log
@@ -35,9 +36,9 @@ def draw_effect(rng: np.random.Generator, choices: list[tuple[str, str]]) -> dic
     return {effect: {param: round(v, 4)}}
 
 
-def run_lab(effects: dict, n: int, repeats: int, seed: int, full: bool = True, logdir=None):
+def run_lab(effects: dict, n: int, repeats: int, seed: int, full: bool = True, logdir=None, probes: int = 0):
     lab = VirtualLab({"name": "test_lab", "effects": effects, "seed": seed, "record_ball_path": full, "record_joints": full})
-    plans = diagnosis_plans(n, repeats, seed=seed)
+    plans = diagnosis_plans(n, repeats, seed=seed, probes=probes)
     ms = [lab.execute(p) for p in plans]
     if logdir is not None:
         log = LabLog.create(logdir, lab.description())
@@ -112,6 +113,12 @@ def test_cli_design_writes_a_plan_set_the_lab_runner_reads(tmp_path):
     from besdrake.transfer.measurement import plan_hash
 
     assert len({plan_hash(p) for p in plans}) == 7
+    # The default design has two tilt probes, each thrown twice (they show the ball-scoop friction); --probes 0: throws only.
+    probes = [p for p in plans if p.meta.get("generator") == "tilt_probe"]
+    assert len(probes) == 4 and len({plan_hash(p) for p in probes}) == 2
+    assert main(["diagnose", "--design", str(tmp_path / "throws"), "--throws", "10", "--repeats", "3", "--probes", "0"]) == 0
+    assert not any(p.meta.get("generator") == "tilt_probe" for p in load_plans(tmp_path / "throws"))
+    assert main(["diagnose", "--design", str(tmp_path / "bad"), "--throws", "10", "--repeats", "3", "--probes", "9"]) == 2
 
 
 def test_cli_reports_a_missing_log_clearly(tmp_path, capsys):
@@ -135,7 +142,7 @@ ALL = ["base_offset", "joint_offset", "actuator_lag", "gain_scale", "air_drag", 
 def test_full_registry_full_log(seed):
     rng = np.random.default_rng(seed)
     hidden = draw_effect(rng, list(MAGNITUDES))
-    d = diagnose(run_lab(hidden, 25, 8, seed), candidates=ALL, backend="process", workers=2)
+    d = diagnose(run_lab(hidden, 25, 8, seed, probes=DEFAULT_PROBES), candidates=ALL, backend="process", workers=2)
     assert d.best.effects == tuple(hidden), (hidden, d.verdict)
     assert d.explained
     assert d.gain.median_disparity_after_m < d.gain.median_disparity_before_m
@@ -155,7 +162,7 @@ def test_touchdown_only_log_names_the_cause_or_says_what_it_cannot_tell():
 @pytest.mark.slow
 def test_two_hidden_effects_at_once():
     hidden = {"base_offset": {"z": -0.04}, "air_drag": {"cd": 0.6}}
-    d = diagnose(run_lab(hidden, 25, 8, 11), candidates=ALL, backend="process", workers=2)
+    d = diagnose(run_lab(hidden, 25, 8, 11, probes=DEFAULT_PROBES), candidates=ALL, backend="process", workers=2)
     assert set(d.best.effects) == set(hidden), d.verdict
     assert d.explained
 
@@ -176,7 +183,7 @@ class _Wind(Effect):
 def test_an_unknown_effect_is_not_reported_as_explained_with_confidence():
     register_effect(_Wind, replace=True)
     try:
-        d = diagnose(run_lab({"test_cross_wind": {"vy": 4.0}}, 25, 8, 13), candidates=ALL, backend="process", workers=2)
+        d = diagnose(run_lab({"test_cross_wind": {"vy": 4.0}}, 25, 8, 13, probes=DEFAULT_PROBES), candidates=ALL, backend="process", workers=2)
     finally:
         unregister_effect("test_cross_wind")
     assert not (d.explained and d.confidence == "high"), d.verdict
@@ -187,7 +194,21 @@ def test_a_placement_habit_is_named_not_taken_for_another_effect():
     # Benchmark seed 0, trial 41: a habit of -4.5 mm was named joint_offset while the ball_placement candidate was
     # judged on the linear model at the centred ball (the expected throw is kinked in the placement).
     hidden = {"ball_placement": {"x": -0.0045}}
-    d = diagnose(run_lab(hidden, 25, 8, 41), candidates=ALL + ["ball_placement"], backend="process", workers=1)
+    d = diagnose(run_lab(hidden, 25, 8, 41, probes=DEFAULT_PROBES), candidates=ALL + ["ball_placement"], backend="process", workers=1)
     assert d.best.effects == ("ball_placement",), d.verdict
     assert d.explained
     assert any("placement scatter" in n for n in d.notes)
+
+
+@pytest.mark.slow
+def test_a_slippery_scoop_is_named_from_a_log_with_tilt_probes():
+    """Ball-scoop friction at a realistic value hardly moves a throw (the benchmark found it at 0.00-0.16x its
+    detection limit in 25 throws); the default design's two tilt probes show it, and the noise model that weighs
+    each throw by its own placement scatter lets the diagnosis name it."""
+    hidden = {"scoop_friction": {"mu_static": 0.2, "mu_dynamic": 0.16}}
+    d = diagnose(run_lab(hidden, 25, 8, 16, probes=DEFAULT_PROBES), candidates=ALL + ["ball_placement"], backend="process", workers=2)
+    assert d.best is not None and d.best.effects == ("scoop_friction",), d.verdict
+    assert d.explained
+    # The throws and probes see the sliding (dynamic) friction; the fit reports what it could measure.
+    mu = next(p for p in d.best.parameters if p["parameter"] == "mu_dynamic")
+    assert abs(mu["value"] - 0.16) < max(4 * mu["stderr"], 0.03), mu

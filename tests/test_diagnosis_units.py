@@ -447,3 +447,68 @@ def test_forward_pairs_does_nothing_when_the_lead_fits():
     before, calls = list(fits), world.calls
     assert _forward_pairs(world.prob, fits, sens, world, singles, world.nm, ["touchdown"], 8) == []
     assert world.calls == calls and all(a is b for a, b in zip(before, fits))
+
+
+def test_tilt_probes_join_the_diagnosis_plans():
+    from besdrake.diagnosis.design import PROBES, tilt_probe
+    from besdrake.transfer.measurement import plan_hash
+
+    plans = diagnosis_plans(25, 8, seed=3, probes=2)
+    names = [p.meta["name"] for p in plans]
+    probes = [p for p in plans if p.meta.get("generator") == "tilt_probe"]
+    # 15 distinct throws, 2 distinct probes, each probe and 6 of the throws thrown twice.
+    assert len(plans) == 25 and len(probes) == 4 and sum(n.startswith("probe_") for n in names) == 4
+    assert len({plan_hash(p) for p in plans}) == 17 and len({plan_hash(p) for p in probes}) == 2
+    assert sorted({p.meta["yaw"] for p in probes}) == sorted(y for y, *_ in PROBES[:2])
+    # Fewer repeats than probes: the first probes are repeated, no throw is.
+    few = diagnosis_plans(12, 1, seed=3, probes=2)
+    assert len(few) == 12 and len({plan_hash(p) for p in few}) == 11
+    assert sum(p.meta.get("generator") == "tilt_probe" for p in few) == 3
+    assert all(p.check_limits().ok for p in plans)
+    # No probes: the plan set of earlier versions, unchanged.
+    assert [plan_hash(p) for p in diagnosis_plans(20, 6, seed=2, probes=0)] == [plan_hash(p) for p in diagnosis_plans(20, 6, seed=2)]
+    with pytest.raises(ValueError, match="probes"):
+        diagnosis_plans(10, 4, probes=5)
+    with pytest.raises(ValueError, match="tilt_time"):
+        tilt_probe(tilt_time=0.0)
+    with pytest.raises(ValueError, match="finite"):
+        tilt_probe(yaw=float("nan"))
+
+
+def test_noise_model_weighs_each_throw_by_its_placement_scatter_and_axis():
+    """Plans thrown 4 times: "throws" whose simulated placement scatter is 2 cm vertically (the lab's is 1.5 times
+    that variance) and "probes" the placement does not move; 3 mm of other vertical scatter, 3 cm horizontal.
+    The base SDs come out per axis class, the scale on the simulated placement variance is fitted, and the
+    matrix weighs each throw by its own SD."""
+    rng = np.random.default_rng(1)
+    sl = group_slices()
+    pos = sl["ball_pos"]
+    plans = 12
+    keys = [f"p{j}" for j in range(plans) for _ in range(4)]
+    n = len(keys)
+    f = np.full((n, N_FEATURES), np.nan)
+    place_var = np.zeros((n, N_FEATURES))
+    for i, k in enumerate(keys):
+        j = int(k[1:])
+        pv = 0.02**2 if j % 2 == 0 else 0.0
+        f[i, pos] = [j + rng.normal(0, 0.03), rng.normal(0, 0.03), 1.0 + rng.normal(0, np.sqrt(0.003**2 + 1.5 * pv))]
+        place_var[i, pos.start + 2] = pv
+    f[:, sl["touchdown"]] = rng.normal(0, 0.05, (n, 2))
+    nm = noise.estimate_noise(f, keys, mocap_sd=0.0005, encoder_sd=None, place_var=place_var)
+    h, v = nm.feature_sd[pos.start], nm.feature_sd[pos.start + 2]
+    assert 0.022 < h < 0.04 and nm.feature_sd[pos.start + 1] == h
+    assert 0.002 <= v < 0.0045
+    scale = nm.place_scale[pos.start + 2]
+    assert 0.8 < scale < 2.5
+    assert nm.sd["ball_pos"] > 0.01  # the pooled group figure of the report stays
+    m = nm.matrix(n)
+    assert m.shape == (n, N_FEATURES)
+    assert m[0, pos.start + 2] == pytest.approx(np.sqrt(v**2 + scale * 0.02**2)) and m[4, pos.start + 2] == pytest.approx(v)
+    axis = nm.axis_sd()["ball_pos"]
+    assert axis["vertical"] == v and axis["vertical_placement_scale"] == scale
+    # Groups without a per-axis estimate (joints here) keep their group SD; no repeats: the group SDs only.
+    assert np.all(m[:, sl["joints"]] == nm.sd["joints"])
+    nm0 = noise.estimate_noise(f, [f"q{i}" for i in range(n)], mocap_sd=0.0005, encoder_sd=None, place_var=place_var)
+    assert nm0.feature_sd is None and np.allclose(nm0.matrix(n), nm0.vector()[None, :])
+    nm.scale_group("ball_pos", 2.0)
+    assert nm.feature_sd[pos.start + 2] == pytest.approx(2 * v) and nm.place_scale[pos.start + 2] == pytest.approx(4 * scale)

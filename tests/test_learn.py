@@ -69,6 +69,15 @@ def test_a_bad_transfer_setting_is_refused_before_any_stage_runs(tmp_path, capsy
     assert code == 2 and "transfer:" in err and "Traceback" not in err
     assert not (tmp_path / "run").exists()
 
+
+@pytest.mark.parametrize("override", ["diagnosis.probes=9", "diagnosis.repeats=-1", "diagnosis.throws=lots"])
+def test_a_bad_diagnosis_design_is_refused_before_any_stage_runs(tmp_path, capsys, override):
+    code = main(["learn", "--quick", "--set", override, "--out", str(tmp_path / "run")])
+    err = capsys.readouterr().err
+    assert code == 2 and "diagnosis:" in err and "Traceback" not in err
+    assert not (tmp_path / "run").exists()
+
+
 @pytest.mark.slow
 def test_quick_run_goes_from_demonstrations_to_a_template_pool(tmp_path, capsys):
     out = tmp_path / "run"

@@ -16,6 +16,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="instead of diagnosing: write a diagnosis plan set (diverse throws with repeats) as DIR/NNN_*.plan.json for 'besdrake lab run --plans DIR'")
     parser.add_argument("--throws", type=int, default=25, help="with --design: number of throws (default 25)")
     parser.add_argument("--repeats", type=int, default=8, help="with --design: how many of them repeat an earlier plan (default 8)")
+    parser.add_argument("--probes", type=int, default=None,
+                        help="with --design: how many of them are slow tilt probes that show the ball-scoop friction (default 2)")
     parser.add_argument("--out", type=Path, default=None, help="folder for report.md, diagnosis.json, refined_scenario.yaml, figures (default: runs/diagnosis/<log name>)")
     parser.add_argument("--scenario", default="nominal", help="the simulation the lab is compared with (name or YAML path)")
     parser.add_argument("--candidates", default=None, help="comma-separated effect names to consider (default: every registered effect)")
@@ -41,15 +43,17 @@ def run(args: argparse.Namespace) -> int:
 
     if args.design is not None:
         from besdrake.diagnosis import diagnosis_plans
+        from besdrake.diagnosis.design import DEFAULT_PROBES
 
+        probes = DEFAULT_PROBES if args.probes is None else args.probes
         try:
-            plans = diagnosis_plans(args.throws, args.repeats, seed=args.seed)
+            plans = diagnosis_plans(args.throws, args.repeats, seed=args.seed, probes=probes)
         except ValueError as err:
             raise UserError(str(err)) from None
         args.design.mkdir(parents=True, exist_ok=True)
         for i, p in enumerate(plans):
             p.save(args.design / f"{i:03d}_{p.meta['name']}.plan.json")
-        print(f"wrote {len(plans)} plans ({args.repeats} repeats) to {args.design}")
+        print(f"wrote {len(plans)} plans ({args.repeats} repeats, {probes} tilt probes) to {args.design}")
         return 0
     if args.logdir is None:
         raise UserError("give a log folder to diagnose (or --design DIR to write a plan set)")

@@ -32,7 +32,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from besdrake.cli import UserError
     from besdrake.pipeline.config import ConfigError, load_config
-    from besdrake.pipeline.learn import STAGES, learn, transfer_config
+    from besdrake.pipeline.learn import STAGES, diagnosis_design, learn, transfer_config
     from besdrake.pipeline.run import RunError, RunFolder
 
     overrides = list(args.set)
@@ -47,6 +47,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         config = load_config(args.config, quick=args.quick, overrides=overrides)
         transfer_config(config)  # a bad value is refused now, not after the refinement
+        if config["diagnosis"].get("enabled", True):
+            diagnosis_design(config)
         run_folder = RunFolder(args.out, config)
     except (ConfigError, RunError) as err:
         raise UserError(str(err)) from None

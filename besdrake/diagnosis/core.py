@@ -35,7 +35,7 @@ from scipy import stats
 
 from besdrake.diagnosis import fitting, noise, observables
 from besdrake.diagnosis.observables import group_slices
-from besdrake.sim.effects import ball_placed, list_effects
+from besdrake.sim.effects import ball_placed, list_effects, placement_quadrature
 from besdrake.sim.scenario import Scenario, load_scenario
 
 #: Lack-of-fit test level: "not explained" when the best candidate's residual is this improbable.
@@ -315,6 +315,8 @@ class _Sim:
         self.full_cache: dict[str, np.ndarray] = {}
         # Expected-placement corrections (N, F) added to every simulated feature vector (zeros: none).
         self.shift = np.zeros((len(plans), observables.N_FEATURES))
+        #: Predicted placement variance per throw and feature (None: the lab's placement does not scatter).
+        self.place_var: np.ndarray | None = None
         self.full_shift = np.zeros((len(plans), observables.N_FEATURES))
         # Placement draws (K, 2) around the scenario's placement (``placement_habit``), clipped to the bounds.
         self.placement_draws: np.ndarray | None = None
@@ -451,15 +453,27 @@ def _placement_correction(sim: _Sim, scen: Scenario, sd: float) -> dict[str, Any
         return {}
     habit = dict(scen.effects.get("ball_placement", {}))
     d = placement_points(sd)
-    draws = [{"ball_placement": ball_placed(habit, dk)} for dk in d]
+    # The scatter of each throw over the placements: the 3 x 3 Gauss-Hermite rule (exact for quadratics; the funnel's
+    # kink, which the four points above all see alike, comes out larger than it is: the safe side for a weight).
+    q, w = placement_quadrature(sd)
+    draws = [{"ball_placement": ball_placed(habit, dk)} for dk in d] + [{"ball_placement": ball_placed(habit, dk)} for dk in q[1:]]
     rows = range(len(sim.plans))
     outs = sim.outcomes([{}] + draws, rows)
     feats = np.array([[observables.simulated_features(o, sim.layouts[i]) for i, o in zip(rows, per)] for per in outs])
-    full = np.array([[observables.simulated_features(o, sim.full_layouts[i]) for i, o in zip(rows, per)] for per in outs])
+    full = np.array([[observables.simulated_features(o, sim.full_layouts[i]) for i, o in zip(rows, per)] for per in outs[: 1 + len(d)]])
+    k = 1 + len(d)
     with np.errstate(invalid="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        shift = np.nanmean(feats[1:], axis=0) - feats[0]
+        shift = np.nanmean(feats[1:k], axis=0) - feats[0]
         full_shift = np.nanmean(full[1:], axis=0) - full[0]
+        gh = np.concatenate([feats[:1], feats[k:]])  # the centre and the quadrature's other 8 placements
+        ok = np.isfinite(gh)
+        ww = np.where(ok, w[:, None, None], 0.0)
+        ww = ww / ww.sum(axis=0)  # a placement that did not land is left out (NaN where none did)
+        g0 = np.where(ok, gh, 0.0)
+        mean = np.sum(ww * g0, axis=0)
+        place_var = np.sum(ww * np.where(ok, (g0 - mean) ** 2, 0.0), axis=0)
+    sim.place_var = np.where(np.isfinite(place_var), place_var, np.nan)
     sim.shift = np.where(np.isfinite(shift), shift, 0.0)
     sim.full_shift = np.where(np.isfinite(full_shift), full_shift, 0.0)
     sim.placement_draws, sim.placement_habit = d, habit
@@ -513,7 +527,7 @@ def _lack_of_fit_p(prob: fitting.Problem, y_fit: np.ndarray, k: int, noise_model
         nu = noise_model.dof.get(g, 0)
         ps[g] = float(stats.f.sf(c2[g] / dof, dof, nu)) if nu > 0 else float(stats.chi2.sf(c2[g], dof))
         # Systematic offset left over: t test of each feature's mean residual (Bonferroni within the group).
-        r = (prob.y_meas[:, sl[g]] - y_fit[:, sl[g]]) / prob.sd[sl[g]]
+        r = (prob.y_meas[:, sl[g]] - y_fit[:, sl[g]]) / prob.sd[:, sl[g]]
         m = prob.mask[:, sl[g]]
         tp = []
         for j in range(r.shape[1]):
@@ -696,7 +710,7 @@ def _forward_pairs(prob: fitting.Problem, fits: list[fitting.CandidateFit], sens
         return []
     lead_e = lead.effects[0]
     lead_theta = {s_.key: v for s_, v in zip(lead.specs, lead.theta)}
-    sd_full = np.broadcast_to(prob.sd[None, :], prob.y_meas.shape)[prob.mask]
+    sd_full = prob.sd[prob.mask]
     local, dy = [], []
     for i, s_ in enumerate(sens.specs):
         d = sens.dy[i]
@@ -802,7 +816,7 @@ def diagnose(
         mocap_sd = observables.mocap_noise_from_residuals(rms)
         enc_sd = observables.encoder_noise(used)
         ball_sd = noise.ball_fit_sd([lay.ball_times for lay in layouts], [lay.ball_center for lay in layouts], mocap_sd)
-        nm = noise.estimate_noise(y_meas, keys, mocap_sd, enc_sd, ball_sd)
+        nm = noise.estimate_noise(y_meas, keys, mocap_sd, enc_sd, ball_sd, place_var=sim.place_var)
         timings["replay"] = time.perf_counter() - t_start
 
         comparison = []
@@ -826,7 +840,7 @@ def diagnose(
         timings["sensitivity"] = time.perf_counter() - t0
 
         def fit_all(nm_: noise.NoiseModel):
-            prob_ = fitting.Problem(y_meas, y0, nm_.vector())
+            prob_ = fitting.Problem(y_meas, y0, nm_.matrix(len(y_meas)))
             fits_ = [fitting.linear_fit(prob_, sens, c, select=SELECT_PARAMETERS) for c in fitting.candidate_sets(cands, pairs)]
             fits_.sort(key=lambda f: f.bic)
             return prob_, fits_
@@ -848,7 +862,7 @@ def diagnose(
                     continue
                 n_g = int(prob.mask[:, sl[g]].sum())
                 if n_g and c2.get(g, 0) / n_g > 1.0:
-                    nm.sd[g] *= float(np.sqrt(c2[g] / n_g))
+                    nm.scale_group(g, float(np.sqrt(c2[g] / n_g)))
                     nm.source[g] += "; scaled to the best candidate's residual scatter (no repeated plans)"
                     changed = True
             if changed:
@@ -1052,7 +1066,7 @@ def diagnose(
                 train = [i for i in range(len(used)) if fold_of.get(keys[i], -1) != k]
                 if not test or len(train) < 3:
                     continue
-                prob_k = fitting.Problem(y_meas, y0, nm.vector(), rows=train)
+                prob_k = fitting.Problem(y_meas, y0, nm.matrix(len(y_meas)), rows=train)
                 fit_k = fitting.linear_fit(prob_k, sens, best_fit.effects, select=SELECT_PARAMETERS)
                 # Warm start at the all-data optimum (its simulated features of the training throws are known),
                 # then Gauss-Newton on the training throws only.

@@ -5,6 +5,15 @@ effects with different signatures, e.g. a higher base vs a slower drive, predict
 patterns) and *repeats* (the same plan thrown again measures the noise floor directly, the pure error
 against which "explained" is tested). :func:`diagnosis_plans` gives both, from the smooth parametric default
 throw (:func:`besdrake.sim.throws.default_throw`, landing 1-2.5 m).
+
+Some causes hardly move a throw at all: the default throw presses the ball into the funnel and catapults it
+out along the wall normal, so ball-scoop friction changes its landing by millimetres. A *tilt probe*
+(:func:`tilt_probe`) is a slow roll-out instead: the arm turns round (joint 1 near pi, so the ball leaves
+forwards into the capture volume) and tips the scoop over with the wrist and elbow until the ball rolls out
+over the rim. Whether the ball rolls or slides down the funnel wall is decided by friction (rolling needs
+mu >= 2/7 tan of the wall's slope), so a slippery scoop releases it earlier and faster: 3-8 ms earlier and
+6-7 cm/s faster at mu 0.3 than at the nominal 0.6 in the nominal simulation, while the ball's start in the
+scoop is forgotten (it settles in the funnel before it rolls). ``diagnosis_plans(..., probes=k)`` mixes ``k`` of them into a log.
 """
 
 from __future__ import annotations
@@ -12,21 +21,48 @@ from __future__ import annotations
 import numpy as np
 
 from besdrake.plan import MotionPlan
-from besdrake.sim.throws import default_throw
+from besdrake.sim.throws import START_POSE, default_throw
 
 #: Ranges of the default-throw parameters used for diagnosis plans.
 AMPLITUDE_RANGE = (0.25, 0.53)
 YAW_RANGE = (-0.35, 0.35)
 ACCEL_RANGE = (18.5, 19.0)
+#: Tilt probes in a diagnosis experiment by default (``besdrake diagnose --design``, ``besdrake learn``).
+DEFAULT_PROBES = 2
+#: Tilt probes: (joint-1 yaw, wrist tilt, elbow/shoulder tilt, tilt time) of the first two; more alternate their yaw sign.
+PROBES = ((2.8, -1.4, -0.15, 1.0), (-2.8, -1.2, -0.3, 1.2))
 
 
-def diagnosis_plans(n: int = 25, repeats: int = 8, seed: int = 0) -> list[MotionPlan]:
-    """``n`` plans: ``n - repeats`` distinct throws (stratified amplitudes, random yaw and acceleration) plus
-    ``repeats`` of them thrown a second time, in random order. Seeded with ``numpy.random.default_rng(seed)``."""
-    if n < 2 or not (0 <= repeats <= n // 2):
-        raise ValueError(f"diagnosis_plans: need n >= 2 and 0 <= repeats <= n/2, got n={n}, repeats={repeats}")
+def tilt_probe(yaw: float = 2.8, wrist: float = -1.4, arm: float = -0.15, tilt_time: float = 1.0, hold: float = 0.05, duration: float = 2.0, dt: float = 0.01) -> MotionPlan:
+    """A slow roll-out (see the module docstring): from the cocked start pose turned to ``yaw`` (rad), joints 2
+    and 3 move by ``arm`` and the wrist (joint 5) by ``wrist`` (rad) along a minimum-jerk profile of
+    ``tilt_time`` s after ``hold`` s, then the pose is held until ``duration`` s."""
+    for name, v in (("yaw", yaw), ("wrist", wrist), ("arm", arm), ("tilt_time", tilt_time), ("hold", hold), ("duration", duration), ("dt", dt)):
+        if not np.isfinite(v):
+            raise ValueError(f"tilt_probe: {name} must be finite, got {v}")
+    if tilt_time <= 0 or dt <= 0 or hold < 0 or hold + tilt_time > duration:
+        raise ValueError(f"tilt_probe: need tilt_time, dt > 0, hold >= 0 and hold + tilt_time <= duration (got {tilt_time}, {dt}, {hold}, {duration})")
+    t = np.arange(0.0, duration + dt / 2, dt)
+    t[-1] = duration
+    x = np.clip((t - hold) / tilt_time, 0.0, 1.0)
+    s = 10 * x**3 - 15 * x**4 + 6 * x**5
+    ds = (30 * x**2 - 60 * x**3 + 30 * x**4) / tilt_time
+    start = START_POSE.copy()
+    start[0] = yaw
+    delta = np.array([0.0, arm, arm, 0.0, wrist, 0.0])
+    meta = {"generator": "tilt_probe", "yaw": yaw, "wrist": wrist, "arm": arm, "tilt_time": tilt_time}
+    return MotionPlan(t=t, q=start + np.outer(s, delta), qd=np.outer(ds, delta), meta=meta)
+
+
+def diagnosis_plans(n: int = 25, repeats: int = 8, seed: int = 0, probes: int = 0) -> list[MotionPlan]:
+    """``n`` plans in random order: ``n - repeats - probes`` distinct throws (stratified amplitudes, random yaw and
+    acceleration), ``probes`` tilt probes (:data:`PROBES`) and ``repeats`` plans thrown a second time: every probe
+    first (while the repeats last), then randomly chosen throws. Seeded with ``numpy.random.default_rng(seed)``;
+    ``probes=0`` gives the throws-only design of earlier versions."""
+    if n < 2 or not (0 <= repeats <= n // 2) or not (0 <= probes <= n - repeats - 2):
+        raise ValueError(f"diagnosis_plans: need n >= 2, 0 <= repeats <= n/2 and 0 <= probes <= n - repeats - 2, got n={n}, repeats={repeats}, probes={probes}")
     rng = np.random.default_rng(seed)
-    k = n - repeats
+    k = n - repeats - probes
     lo, hi = AMPLITUDE_RANGE
     amps = lo + (hi - lo) * (np.arange(k) + rng.uniform(0.1, 0.9, k)) / k
     yaws = rng.uniform(*YAW_RANGE, k)
@@ -36,10 +72,17 @@ def diagnosis_plans(n: int = 25, repeats: int = 8, seed: int = 0) -> list[Motion
         p = default_throw(amplitude=float(a), yaw=float(y), accel=float(c))
         p.meta["name"] = f"diag_{i:02d}"
         plans.append(p)
-    rep = rng.choice(k, size=repeats, replace=False) if repeats else np.zeros(0, int)
+    # Every probe is thrown twice (while the repeats last): its own scatter, without the placement's, is measured.
+    probe_repeats = min(probes, repeats)
+    rep = rng.choice(k, size=repeats - probe_repeats, replace=False) if repeats > probe_repeats else np.zeros(0, int)
     allp = plans + [plans[int(i)] for i in rep]
+    for j in range(probes):
+        yaw, wrist, arm, tt = PROBES[j % len(PROBES)]
+        p = tilt_probe(yaw=yaw if (j // len(PROBES)) % 2 == 0 else -yaw, wrist=wrist, arm=arm, tilt_time=tt)
+        p.meta["name"] = f"probe_{j:02d}"
+        allp += [p] * (2 if j < probe_repeats else 1)
     order = rng.permutation(len(allp))
     return [allp[int(i)] for i in order]
 
 
-__all__ = ["diagnosis_plans", "AMPLITUDE_RANGE", "YAW_RANGE", "ACCEL_RANGE"]
+__all__ = ["diagnosis_plans", "tilt_probe", "PROBES", "DEFAULT_PROBES", "AMPLITUDE_RANGE", "YAW_RANGE", "ACCEL_RANGE"]

@@ -182,7 +182,9 @@ class Problem:
     def __init__(self, y_meas: np.ndarray, y0: np.ndarray, sd: np.ndarray, rows: np.ndarray | None = None) -> None:
         self.y_meas = y_meas
         self.y0 = y0
-        self.sd = sd
+        sd = np.asarray(sd, float)
+        # SD per entry (N, F): a per-feature vector is the same for every throw.
+        self.sd = np.broadcast_to(sd if sd.ndim == 2 else sd[None, :], y_meas.shape)
         self.rows = np.arange(len(y_meas)) if rows is None else np.asarray(rows)
         mask = np.isfinite(y_meas) & np.isfinite(y0)
         keep = np.zeros(len(y_meas), bool)
@@ -192,14 +194,14 @@ class Problem:
 
     def weighted(self, y_sim: np.ndarray) -> np.ndarray:
         """Weighted residuals (measured - simulated) / sd on the usable entries; NaN sims count as huge."""
-        r = (self.y_meas - y_sim) / self.sd[None, :]
+        r = (self.y_meas - y_sim) / self.sd
         r = r[self.mask]
         r[~np.isfinite(r)] = 1e3
         return r
 
     def weighted_jac(self, dy: np.ndarray) -> np.ndarray:
         """Weighted Jacobian of the residual entries (n, P) from feature derivatives (P, N, F)."""
-        return np.stack([(d / self.sd[None, :])[self.mask] for d in dy], axis=1) if len(dy) else np.zeros((self.n, 0))
+        return np.stack([(d / self.sd)[self.mask] for d in dy], axis=1) if len(dy) else np.zeros((self.n, 0))
 
 
 def _prior_rows(specs: list[ParamSpec], theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -233,7 +235,7 @@ def stderr_from(A: np.ndarray, specs: list[ParamSpec]) -> np.ndarray:
 
 
 def chi2_by_group(prob: Problem, y_sim: np.ndarray, slices: dict[str, slice]) -> dict[str, float]:
-    r = (prob.y_meas - y_sim) / prob.sd[None, :]
+    r = (prob.y_meas - y_sim) / prob.sd
     out = {}
     for g, s in slices.items():
         m = prob.mask[:, s]

@@ -131,6 +131,10 @@ def _markdown(diag: Diagnosis, figures: list[str], scenario_path: Path | None) -
     L.append("Measurement noise per signal (never read from the lab's configuration):")
     for g, src in diag.noise.source.items():
         L.append(f"- {g}: SD {diag.noise.sd[g]:.3g} ({src})")
+    axis = diag.noise.axis_sd()
+    if axis:
+        L.append("- the fit weighs every throw by its own SD: the scatter its ball placement gives it in simulation, times a scale, "
+                 "plus a base SD, both fitted to the repeats per axis: " + "; ".join(f"{g} " + ", ".join(f"{k.replace('_placement_scale', ' scale')} {v:.3g}" for k, v in d.items()) for g, d in axis.items()))
     L += ["", "## 2. The cause: candidates ranked by BIC", ""]
     L.append("| rank | candidate | delta BIC | lack-of-fit p | fitted parameters (+- 1 SE) |")
     L.append("|---|---|---|---|---|")

@@ -380,6 +380,19 @@ def transfer_config(config: dict[str, Any]):
         raise ConfigError(f"transfer: {err}") from None
 
 
+def diagnosis_design(config: dict[str, Any]) -> list:
+    """The diagnosis experiment's plans of a learn configuration (checked before any stage runs);
+    :class:`~besdrake.pipeline.config.ConfigError` names a bad value."""
+    from besdrake.diagnosis import diagnosis_plans
+    from besdrake.pipeline.config import ConfigError
+
+    cfg = config["diagnosis"]
+    try:
+        return diagnosis_plans(n=int(cfg["throws"]), repeats=int(cfg["repeats"]), seed=int(config["transfer"]["seed"]), probes=int(cfg.get("probes", 0)))
+    except (TypeError, ValueError) as err:
+        raise ConfigError(f"diagnosis: {err}") from None
+
+
 def _transfer(ctx: Context, seed_files: list[Path], scenario: str, out: Path) -> dict[str, Any]:
     from besdrake.imitation import DMPParameterization, load_dmp
     from besdrake.search.refinement import ParameterScaling
@@ -418,14 +431,14 @@ def stage_transfer(ctx: Context, out: Path) -> dict[str, Any]:
 # --------------------------------------------------------------------------------------------
 def stage_diagnose(ctx: Context, out: Path) -> dict[str, Any]:
     """Run the diagnosis experiment in the lab, diagnose its log, write the refined scenario."""
-    from besdrake.diagnosis import diagnose, diagnosis_plans
+    from besdrake.diagnosis import diagnose
     from besdrake.diagnosis.report import write_report
     from besdrake.transfer.log import run_plans
 
     lab = _lab(ctx)
     log = _open_log(out / "lab_log", lab)
     cfg = ctx.config["diagnosis"]
-    plans = diagnosis_plans(n=int(cfg["throws"]), repeats=int(cfg["repeats"]), seed=int(ctx.config["transfer"]["seed"]))
+    plans = diagnosis_design(ctx.config)
     run_plans(lab, plans, log)
     t0 = time.perf_counter()
     with _executor(ctx, ctx.config["scenario"]) as executor:
