@@ -62,19 +62,12 @@ def test_unknown_stage_is_refused(tmp_path, capsys):
 
 
 
-@pytest.mark.parametrize("override", ["transfer.placement_sd=0.01", "transfer.transfer_choice=random", "transfer.population=many"])
-def test_a_bad_transfer_setting_is_refused_before_any_stage_runs(tmp_path, capsys, override):
+@pytest.mark.parametrize("override", ["transfer.placement_sd=0.01", "transfer.transfer_choice=random", "transfer.population=many",
+                                      "diagnosis.probes=9", "diagnosis.repeats=-1", "diagnosis.throws=lots"])
+def test_a_bad_transfer_or_diagnosis_setting_is_refused_before_any_stage_runs(tmp_path, capsys, override):
     code = main(["learn", "--quick", "--set", override, "--out", str(tmp_path / "run")])
     err = capsys.readouterr().err
-    assert code == 2 and "transfer:" in err and "Traceback" not in err
-    assert not (tmp_path / "run").exists()
-
-
-@pytest.mark.parametrize("override", ["diagnosis.probes=9", "diagnosis.repeats=-1", "diagnosis.throws=lots"])
-def test_a_bad_diagnosis_design_is_refused_before_any_stage_runs(tmp_path, capsys, override):
-    code = main(["learn", "--quick", "--set", override, "--out", str(tmp_path / "run")])
-    err = capsys.readouterr().err
-    assert code == 2 and "diagnosis:" in err and "Traceback" not in err
+    assert code == 2 and override.split(".")[0] + ":" in err and "Traceback" not in err
     assert not (tmp_path / "run").exists()
 
 

@@ -315,9 +315,9 @@ class _Sim:
         self.full_cache: dict[str, np.ndarray] = {}
         # Expected-placement corrections (N, F) added to every simulated feature vector (zeros: none).
         self.shift = np.zeros((len(plans), observables.N_FEATURES))
-        #: Predicted placement variance per throw and feature (None: the lab's placement does not scatter).
-        self.place_var: np.ndarray | None = None
         self.full_shift = np.zeros((len(plans), observables.N_FEATURES))
+        # Predicted placement variance per throw and feature (None: the lab's placement does not scatter).
+        self.place_var: np.ndarray | None = None
         # Placement draws (K, 2) around the scenario's placement (``placement_habit``), clipped to the bounds.
         self.placement_draws: np.ndarray | None = None
         self.expand_all = False  # every candidate (not only those that set the placement) averaged over the draws

@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from besdrake.plan import MotionPlan
-from besdrake.sim.throws import START_POSE, default_throw
+from besdrake.sim.throws import START_POSE, default_throw, min_jerk_plan
 
 #: Ranges of the default-throw parameters used for diagnosis plans.
 AMPLITUDE_RANGE = (0.25, 0.53)
@@ -42,16 +42,10 @@ def tilt_probe(yaw: float = 2.8, wrist: float = -1.4, arm: float = -0.15, tilt_t
             raise ValueError(f"tilt_probe: {name} must be finite, got {v}")
     if tilt_time <= 0 or dt <= 0 or hold < 0 or hold + tilt_time > duration:
         raise ValueError(f"tilt_probe: need tilt_time, dt > 0, hold >= 0 and hold + tilt_time <= duration (got {tilt_time}, {dt}, {hold}, {duration})")
-    t = np.arange(0.0, duration + dt / 2, dt)
-    t[-1] = duration
-    x = np.clip((t - hold) / tilt_time, 0.0, 1.0)
-    s = 10 * x**3 - 15 * x**4 + 6 * x**5
-    ds = (30 * x**2 - 60 * x**3 + 30 * x**4) / tilt_time
     start = START_POSE.copy()
     start[0] = yaw
-    delta = np.array([0.0, arm, arm, 0.0, wrist, 0.0])
     meta = {"generator": "tilt_probe", "yaw": yaw, "wrist": wrist, "arm": arm, "tilt_time": tilt_time}
-    return MotionPlan(t=t, q=start + np.outer(s, delta), qd=np.outer(ds, delta), meta=meta)
+    return min_jerk_plan(start, np.array([0.0, arm, arm, 0.0, wrist, 0.0]), tilt_time, hold, duration, dt, meta)
 
 
 def diagnosis_plans(n: int = 25, repeats: int = 8, seed: int = 0, probes: int = 0) -> list[MotionPlan]:

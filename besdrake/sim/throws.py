@@ -53,16 +53,21 @@ def default_throw(
     T = swing_time(amplitude, accel)
     if hold + T > duration:
         raise ValueError(f"default_throw: hold {hold} s + swing {T:.3f} s exceed the duration {duration} s")
-    t = np.arange(0.0, duration + dt / 2, dt)
-    t[-1] = duration
-    x = np.clip((t - hold) / T, 0.0, 1.0)
-    s = 10 * x**3 - 15 * x**4 + 6 * x**5
-    ds = (30 * x**2 - 60 * x**3 + 30 * x**4) / T
     start = START_POSE.copy()
     start[0] = yaw
-    delta = SWING * amplitude
     meta = {"generator": "default_throw", "amplitude": amplitude, "yaw": yaw, "accel": accel, "swing_time": T}
+    return min_jerk_plan(start, SWING * amplitude, T, hold, duration, dt, meta)
+
+
+def min_jerk_plan(start: np.ndarray, delta: np.ndarray, move_time: float, hold: float, duration: float, dt: float, meta: dict) -> MotionPlan:
+    """A plan of ``duration`` s sampled every ``dt`` s: hold ``start`` for ``hold`` s, move by ``delta`` (rad) along
+    the minimum-jerk profile s(x) = 10x^3 - 15x^4 + 6x^5 in ``move_time`` s, hold the end pose."""
+    t = np.arange(0.0, duration + dt / 2, dt)
+    t[-1] = duration
+    x = np.clip((t - hold) / move_time, 0.0, 1.0)
+    s = 10 * x**3 - 15 * x**4 + 6 * x**5
+    ds = (30 * x**2 - 60 * x**3 + 30 * x**4) / move_time
     return MotionPlan(t=t, q=start + np.outer(s, delta), qd=np.outer(ds, delta), meta=meta)
 
 
-__all__ = ["default_throw", "swing_time", "START_POSE", "SWING"]
+__all__ = ["default_throw", "min_jerk_plan", "swing_time", "START_POSE", "SWING"]
