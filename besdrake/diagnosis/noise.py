@@ -107,14 +107,19 @@ class NoiseModel:
                 "axis_sd_beyond_placement": self.axis_sd()}
 
 
+def repeat_groups(keys: list[str]) -> list[list[int]]:
+    """Row indices of the plans thrown more than once (rows sharing a key), in order of first appearance."""
+    by_key: dict[str, list[int]] = {}
+    for i, k in enumerate(keys):
+        by_key.setdefault(k, []).append(i)
+    return [idx for idx in by_key.values() if len(idx) > 1]
+
+
 def pure_error(features: np.ndarray, keys: list[str]) -> dict[str, tuple[float, int]]:
     """Pooled within-plan SD and its dof per group, from rows of ``features`` sharing a key."""
     sl = group_slices()
     out: dict[str, tuple[float, int]] = {}
-    by_key: dict[str, list[int]] = {}
-    for i, k in enumerate(keys):
-        by_key.setdefault(k, []).append(i)
-    groups = [idx for idx in by_key.values() if len(idx) > 1]
+    groups = repeat_groups(keys)
     for g, s in sl.items():
         ss, dof, n_feat = 0.0, 0, s.stop - s.start
         for idx in groups:
@@ -136,13 +141,8 @@ def _class_fit(features: np.ndarray, keys: list[str], place_var: np.ndarray | No
     the lab's), fitted by maximum likelihood (a within-plan variance with d dof is a scaled chi-square). A repeated
     probe, which the placement hardly moves, pins the base; the throws, the scale. Returns (base SD, scale, dof)
     or None without enough repeats."""
-    by_key: dict[str, list[int]] = {}
-    for i, k in enumerate(keys):
-        by_key.setdefault(k, []).append(i)
     v, pv, d = [], [], []
-    for idx in by_key.values():
-        if len(idx) < 2:
-            continue
+    for idx in repeat_groups(keys):
         block = features[idx][:, cols]
         ok = np.all(np.isfinite(block), axis=1)
         rows = block[ok]
@@ -185,7 +185,7 @@ def estimate_noise(features: np.ndarray, keys: list[str], mocap_sd: float | None
     """Noise per group from repeated plans where possible, else priors and signal-derived values; with repeats, also
     the per-axis-class base SDs beyond the predicted placement variance ``place_var`` (N, F) of each throw."""
     pe = pure_error(features, keys)
-    n_rep = len({k for k in keys if keys.count(k) > 1})
+    n_rep = len(repeat_groups(keys))
     sd, dof, source, notes = {}, {}, {}, []
     for g in group_names():
         if g in pe and pe[g][1] >= MIN_DOF:
@@ -240,4 +240,4 @@ def ball_fit_sd(layout_times: list[np.ndarray], centers: list[float], mocap_sd: 
     return {"ball_pos": float(v[0]), "ball_vel": float(v[1]), "ball_acc": float(v[2])}
 
 
-__all__ = ["NoiseModel", "estimate_noise", "pure_error", "ball_fit_sd", "PRIOR_TOUCHDOWN_SD", "N_JOINT_TIMES"]
+__all__ = ["NoiseModel", "estimate_noise", "pure_error", "repeat_groups", "ball_fit_sd", "PRIOR_TOUCHDOWN_SD", "N_JOINT_TIMES"]
