@@ -13,7 +13,8 @@ forwards into the capture volume) and tips the scoop over with the wrist and elb
 over the rim. Whether the ball rolls or slides down the funnel wall is decided by friction (rolling needs
 mu >= 2/7 tan of the wall's slope), so a slippery scoop releases it earlier and faster: 3-8 ms earlier and
 6-7 cm/s faster at mu 0.3 than at the nominal 0.6 in the nominal simulation, while the ball's start in the
-scoop is forgotten (it settles in the funnel before it rolls). ``diagnosis_plans(..., probes=k)`` mixes ``k`` of them into a log.
+scoop is forgotten (it settles in the funnel before it rolls). ``diagnosis_plans(..., probes=k)`` mixes ``k``
+of them into a log, each thrown twice: a repeated probe measures the lab's scatter without the placement's.
 """
 
 from __future__ import annotations
