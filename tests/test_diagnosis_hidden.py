@@ -190,6 +190,32 @@ def test_an_unknown_effect_is_not_reported_as_explained_with_confidence():
 
 
 @pytest.mark.slow
+def test_an_unknown_effect_in_a_touchdown_only_log_is_never_named_with_confidence():
+    # Benchmark seed 0, trial 26: on touchdowns alone a cross wind was named base_offset (y, z), 8.6 BIC ahead.
+    register_effect(_Wind, replace=True)
+    try:
+        d = diagnose(run_lab({"test_cross_wind": {"vy": -3.7}}, 25, 8, 26, full=False, probes=DEFAULT_PROBES), candidates=ALL,
+                     backend="process", workers=2)
+    finally:
+        unregister_effect("test_cross_wind")
+    assert d.groups_measured == ["touchdown"]
+    assert d.confidence == "low", d.verdict
+    if d.explained and d.best.effects:
+        assert "records only touchdowns" in d.verdict
+
+
+@pytest.mark.slow
+def test_a_small_placement_habit_is_named_from_where_the_ball_sits():
+    # Benchmark seed 0, trial 14: a 2.5 mm habit hardly moves a touchdown (0.05 noise SD) and was left at "cannot tell
+    # nominal from ball_placement (y 1.0..2.9 mm)"; the ball's position in the scoop before the throw shows it.
+    d = diagnose(run_lab({"ball_placement": {"y": 0.0025}}, 25, 8, 14, probes=DEFAULT_PROBES), candidates=ALL + ["ball_placement"],
+                 backend="process", workers=2)
+    assert d.best.effects == ("ball_placement",), d.verdict
+    y = next(p for p in d.best.parameters if p["parameter"] == "y")
+    assert abs(y["value"] - 0.0025) < max(4 * y["stderr"], 0.001), y
+
+
+@pytest.mark.slow
 def test_a_placement_habit_is_named_not_taken_for_another_effect():
     # Benchmark seed 0, trial 41: a habit of -4.5 mm was named joint_offset while the ball_placement candidate was
     # judged on the linear model at the centred ball (the expected throw is kinked in the placement).

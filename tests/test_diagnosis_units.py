@@ -137,8 +137,8 @@ def test_lack_of_fit_flags_a_residual_above_the_pure_error():
 
     rng = np.random.default_rng(4)
     N = 25
-    sd = noise.NoiseModel(sd={"touchdown": 0.05, "ball_pos": 0.01, "ball_vel": 0.05, "ball_acc": 0.3, "joints": 1e-3},
-                          dof={"touchdown": 16, "ball_pos": 0, "ball_vel": 0, "ball_acc": 0, "joints": 0}, source={})
+    sd = noise.NoiseModel(sd={"touchdown": 0.05, "ball_pos": 0.01, "ball_vel": 0.05, "ball_acc": 0.3, "ball_rest": 0.003, "joints": 1e-3},
+                          dof={"touchdown": 16, "ball_pos": 0, "ball_vel": 0, "ball_acc": 0, "ball_rest": 0, "joints": 0}, source={})
     y_fit = rng.normal(0, 1, (N, N_FEATURES))
     y_meas = np.full_like(y_fit, np.nan)
     sl = group_slices()
@@ -363,6 +363,10 @@ def test_an_extra_effect_is_claimed_only_if_significant_over_plans():
         bic_claims += big.bic < small.bic
         prob, big, small, keys = _nested_world(seed, extra=1.0)
         real_claims += _extra_effect_significant(prob, big, "b", keys)[0]
+        # The level is the caller's (the diagnosis divides ALPHA by the number of effects the extra one was picked from).
+        p_real = _extra_effect_significant(prob, big, "b", keys)[1]
+        assert not _extra_effect_significant(prob, big, "b", keys, alpha=p_real / 2)[0]
+        assert _extra_effect_significant(prob, big, "b", keys, alpha=min(1.0, 2 * p_real + 1e-300))[0]
         # The effect every fit needs ("a") is significant whatever "b" does.
         assert _extra_effect_significant(prob, big, "a", keys)[0]
     # "b" only fits the mean of the shared per-throw noise: rarely claimed (level ALPHA per test, 20 tests), while BIC
@@ -384,8 +388,8 @@ class _LagBaseWorld:
         self.sig = {e: rng.normal(0, 1, (self.N, 2)) for e in ("actuator_lag", "base_offset", "air_drag")}
         self.y0 = np.full((self.N, N_FEATURES), np.nan)
         self.y0[:, self.sl] = rng.normal(0, 1, (self.N, 2))
-        self.nm = noise.NoiseModel(sd={"touchdown": 0.05, "ball_pos": 0.01, "ball_vel": 0.05, "ball_acc": 0.3, "joints": 1e-3},
-                                   dof={"touchdown": 16, "ball_pos": 0, "ball_vel": 0, "ball_acc": 0, "joints": 0}, source={})
+        self.nm = noise.NoiseModel(sd={"touchdown": 0.05, "ball_pos": 0.01, "ball_vel": 0.05, "ball_acc": 0.3, "ball_rest": 0.003, "joints": 1e-3},
+                                   dof={"touchdown": 16, "ball_pos": 0, "ball_vel": 0, "ball_acc": 0, "ball_rest": 0, "joints": 0}, source={})
         y_meas = self.one({"actuator_lag": {"tau": tau}, "base_offset": {"z": z}})
         y_meas[:, self.sl] += rng.normal(0, 0.05, (self.N, 2))
         self.prob = fitting.Problem(y_meas, self.y0, self.nm.vector())

@@ -50,6 +50,11 @@ MIN_THROWS = 6
 MATERIAL = 0.25
 #: For the ball-path groups the materiality threshold is this many times higher (1 noise SD).
 MATERIAL_BALL_FACTOR = 4.0
+#: A single effect this much better by BIC than the nominal simulation ("very strong" evidence) is named even when it
+#: changes the predictions by less than MATERIAL (and significant with the plans as the units): e.g. a ball placed
+#: 2.5 mm off centre, which the ball's position in the scoop shows and the touchdowns hardly do (benchmark seed 0,
+#: trial 14: 23.8 BIC better, "cannot tell nominal from ball_placement (y 1.0..2.9 mm)" before).
+STRONG_DBIC = 10.0
 #: An explanation is "confident" when its lack-of-fit p-value is at least this and no rival is as good.
 CONFIDENT_P = 0.05
 #: When the nominal simulation agrees with the log, an effect counts as *excluded* only if the data rule out (at
@@ -81,7 +86,8 @@ EXPAND_ALL = False
 #: confusions) now right; wall time median 49 s, max 141 s (was 28 / 60 s).
 LOCAL_PLACEMENT = True
 #: Claim the second effect of a pair only if its parameters are significant with the plans as the independent
-#: units (:func:`_extra_effect_significant`); needs at least NESTED_TEST_MIN_PLANS distinct plans.
+#: units (:func:`_extra_effect_significant`) at ALPHA / (the number of candidate effects it was chosen from); needs at
+#: least NESTED_TEST_MIN_PLANS distinct plans.
 ROBUST_NESTED_TEST = True
 NESTED_TEST_MIN_PLANS = 6
 LOCAL_TOP = 3
@@ -227,6 +233,8 @@ class Diagnosis:
     that means only "no discrepancy beyond the noise": ``cannot_tell`` then lists the candidate effects the log
     cannot exclude (with the magnitudes it still allows and what would show them) and ``excluded`` those it rules
     out; ``confidence`` is "high" only if every candidate is excluded. Both lists are empty when a cause was named.
+    A named cause has ``confidence`` "high" when it passes the lack-of-fit test at :data:`CONFIDENT_P`, no rival fits
+    about as well, and the log records more than the touchdowns (on touchdowns alone an unknown effect can pass).
     """
 
     explained: bool
@@ -418,7 +426,7 @@ class _Sim:
 
 def _full_layout(layout: observables.ThrowLayout) -> observables.ThrowLayout:
     """A layout with every group (100 Hz flight window, joint grid) for predictions of unmeasured signals."""
-    full = observables.ThrowLayout(ball_times=layout.ball_times, ball_center=layout.ball_center, joint_times=layout.joint_times,
+    full = observables.ThrowLayout(ball_times=layout.ball_times, ball_center=layout.ball_center, rest_times=layout.rest_times, joint_times=layout.joint_times,
                                    release_time_nominal=layout.release_time_nominal, touchdown_time_nominal=layout.touchdown_time_nominal)
     if layout.release_time_nominal is None:
         return full
@@ -426,6 +434,8 @@ def _full_layout(layout: observables.ThrowLayout) -> observables.ThrowLayout:
         t = np.arange(layout.release_time_nominal + observables.WINDOW_AFTER_RELEASE, layout.touchdown_time_nominal - observables.WINDOW_BEFORE_TOUCHDOWN, 0.01)
         if len(t) >= observables.MIN_BALL_SAMPLES:
             full.ball_times, full.ball_center = t, float(t.mean())
+    if full.rest_times is None:
+        full.rest_times = np.arange(0.0, observables.REST_TIME + 1e-9, 0.005)
     if full.joint_times is None:
         t_end = layout.release_time_nominal
         full.joint_times = np.linspace(t_end / observables.N_JOINT_TIMES, t_end, observables.N_JOINT_TIMES)
@@ -496,7 +506,7 @@ def _material_change(y_a: np.ndarray, y_b: np.ndarray, nm: noise.NoiseModel, gro
     ball-path groups (when measured)."""
     sl = group_slices()
     out = {}
-    for g in ("touchdown", "joints", "ball_pos", "ball_vel", "ball_acc"):
+    for g in ("touchdown", "joints", "ball_pos", "ball_vel", "ball_acc", "ball_rest"):
         if g != "touchdown" and g not in groups:
             continue
         d = y_a[:, sl[g]] - y_b[:, sl[g]]
@@ -542,11 +552,11 @@ def _lack_of_fit_p(prob: fitting.Problem, y_fit: np.ndarray, k: int, noise_model
     return p, ps
 
 
-def _extra_effect_significant(prob: fitting.Problem, big: fitting.CandidateFit, effect: str, keys: Sequence[str]) -> tuple[bool, float]:
+def _extra_effect_significant(prob: fitting.Problem, big: fitting.CandidateFit, effect: str, keys: Sequence[str], alpha: float = ALPHA) -> tuple[bool, float]:
     """Whether ``effect``'s parameters in the refined candidate ``big`` differ from nominal significantly when the
     plans, not the residual entries, are the independent units: Wald test with the cluster-robust (sandwich)
     covariance H^-1 (sum_u g_u g_u^T) H^-1 U/(U-1), g_u the score of plan u's throws (weighted Jacobian^T residual),
-    H the Gauss-Newton information with the fit's weak prior; F(q, U-1) reference at level :data:`ALPHA`. The
+    H the Gauss-Newton information with the fit's weak prior; F(q, U-1) reference at level ``alpha``. The
     residuals within a throw are strongly correlated (the touchdown scatter also moves the ball path and its speed),
     so a chi-square over entries counts one throw's noise several times and lets a small effect (a joint offset)
     absorb it; the plan-level scatter of the scores does not. Returns (significant, p-value)."""
@@ -574,7 +584,7 @@ def _extra_effect_significant(prob: fitting.Problem, big: fitting.CandidateFit, 
     W = float(delta @ np.linalg.pinv(C) @ delta)
     q = len(idx)
     p = float(stats.f.sf(W / q, q, U - 1))
-    return p < ALPHA, p
+    return p < alpha, p
 
 
 def _separation_advice(a: fitting.CandidateFit, b: fitting.CandidateFit, sim: _Sim, measured: list[str], plans_meta: list[dict]) -> dict:
@@ -598,10 +608,9 @@ def _separation_advice(a: fitting.CandidateFit, b: fitting.CandidateFit, sim: _S
         i = int(np.nanargmax(td))
         advice["most_separating_throw"] = {"index": i, "touchdown_difference_m": float(td[i]), "plan": plans_meta[i]}
     unmeasured = [s for s in advice["signals"] if not s["measured"] and s["in_noise_sd"] > 3]
-    names = {"ball_pos": "record the ball path (motion capture)", "ball_vel": "record the ball path (motion capture): the release speed/direction", "ball_acc": "record the ball path (motion capture): the in-flight deceleration", "joints": "record the joint encoders (tracking error)", "touchdown": "measure the touchdown"}
     if unmeasured:
         best = unmeasured[0]
-        advice["recommendation"] = f"{names[best['group']]}: the fitted candidates differ by up to {best['max_difference']:.3g} {best['unit']} there (~{best['in_noise_sd']:.0f} x typical noise)"
+        advice["recommendation"] = f"{_RECORD[best['group']]}: the fitted candidates differ by up to {best['max_difference']:.3g} {best['unit']} there (~{best['in_noise_sd']:.0f} x typical noise)"
     else:
         advice["recommendation"] = ("throw plans that spread the release speed and height more widely (e.g. amplitudes outside the logged range, other accelerations) "
                                     "and repeat each several times: the fitted candidates predict nearly the same signals for the logged throws")
@@ -612,7 +621,7 @@ def _separation_advice(a: fitting.CandidateFit, b: fitting.CandidateFit, sim: _S
 
 _RECORD = {"ball_pos": "record the ball path (motion capture)", "ball_vel": "record the ball path (motion capture): the release speed/direction",
            "ball_acc": "record the ball path (motion capture): the in-flight deceleration", "joints": "record the joint encoders (tracking error)",
-           "touchdown": "measure the touchdown"}
+           "touchdown": "measure the touchdown", "ball_rest": "record the ball in the scoop before the throw (motion capture)"}
 
 
 def _allowed_effects(prob: fitting.Problem, sens: fitting.Sensitivity, effects: Sequence[str], sim: _Sim, measured: list[str],
@@ -815,7 +824,8 @@ def diagnose(
         measured_groups = [g for g, s in sl.items() if np.isfinite(y_meas[:, s]).all(axis=1).sum() >= 2]
         mocap_sd = observables.mocap_noise_from_residuals(rms)
         enc_sd = observables.encoder_noise(used)
-        ball_sd = noise.ball_fit_sd([lay.ball_times for lay in layouts], [lay.ball_center for lay in layouts], mocap_sd)
+        ball_sd = noise.ball_fit_sd([lay.ball_times for lay in layouts], [lay.ball_center for lay in layouts], mocap_sd,
+                                    [lay.rest_times for lay in layouts])
         nm = noise.estimate_noise(y_meas, keys, mocap_sd, enc_sd, ball_sd, place_var=sim.place_var)
         timings["replay"] = time.perf_counter() - t_start
 
@@ -939,6 +949,7 @@ def diagnose(
         # only absorbs small systematic differences that no throw outcome depends on.
         # A nested pair's extra effect is also dropped when it is not significant with the plans as the independent
         # units (ROBUST_NESTED_TEST, :func:`_extra_effect_significant`). When several effects could go, the model kept is the best (BIC) of them.
+        # A single effect is not dropped for the nominal model when it is STRONG_DBIC better and significant per plan.
         best_fit = fits[0]
         by_effects = {f.effects: f for f in fits if f.refined}
         changed = True
@@ -953,14 +964,29 @@ def diagnose(
                 size = _material_change(best_fit.y_fit, sub_fit.y_fit, nm, measured_groups)
                 # Drop only if the smaller model is still adequate (lack-of-fit test): an effect the data need is kept.
                 sub_adequate = _lack_of_fit_p(prob, sub_fit.y_fit, sub_fit.k, nm, measured_groups)[0] >= ALPHA
-                if sub_adequate and all(v < MATERIAL for v in size.values()):
+                # The effect was the best of the candidates that could join ``sub``: Bonferroni over them (benchmark
+                # seed 0, trial 18: a chance 2 cm sideways mean of the touchdown scatter made a wrist offset
+                # significant at p = 0.009 next to the hidden base offset).
+                alpha_extra = ALPHA / max(1, len([c for c in cands if c not in sub]))
+                immaterial = sub_adequate and all(v < MATERIAL for v in size.values())
+                strong = not sub and sub_fit.bic - best_fit.bic >= STRONG_DBIC
+                if immaterial and strong:
+                    # The nominal model is not kept against very strong evidence: a single effect the log shows
+                    # consistently (throws as the independent units) is named even if it hardly moves an outcome.
+                    sig, p_w = _extra_effect_significant(prob, best_fit, e, keys, alpha_extra)
+                    if sig:
+                        notes.append(f"{e} changes the predictions by only " + ", ".join(f"{g} {v:.2f} noise SD" for g, v in size.items())
+                                     + f" (median), but fits {sub_fit.bic - best_fit.bic:.1f} BIC better than the nominal simulation, "
+                                     f"consistently over the plans (p = {p_w:.2g}): named, although it hardly matters for the throws' outcomes")
+                        continue
+                if immaterial:
                     drops.append((sub_fit.bic, e, sub_fit, f"{best_fit.name} fits better by BIC ({sub_fit.bic - best_fit.bic:.1f}) but {e} changes the predictions by only "
                                   + ", ".join(f"{g} {v:.2f} noise SD" for g, v in size.items()) + f" (median): not claimed, below the {MATERIAL} SD materiality threshold"))
                 elif ROBUST_NESTED_TEST and sub:
-                    sig, p_w = _extra_effect_significant(prob, best_fit, e, keys)
+                    sig, p_w = _extra_effect_significant(prob, best_fit, e, keys, alpha_extra)
                     if not sig:
                         drops.append((sub_fit.bic, e, sub_fit, f"{best_fit.name} fits better by BIC ({sub_fit.bic - best_fit.bic:.1f}) but {e} is not significant "
-                                      f"with the throws' plans as the independent units (cluster-robust Wald test p = {p_w:.2g} >= {ALPHA}): not claimed"))
+                                      f"with the throws' plans as the independent units (cluster-robust Wald test p = {p_w:.2g} >= {alpha_extra:.2g}): not claimed"))
             if drops:
                 _b, _e, best_fit, note = min(drops, key=lambda x: x[0])
                 notes.append(note)
@@ -969,7 +995,15 @@ def diagnose(
         # too, so that "cannot tell apart" is judged on real rollouts.
         rivals = [f for f in fits if not f.refined and f.effects and not set(best_fit.effects) <= set(f.effects)
                   and f.chi2 < best_fit.chi2 + INDISTINGUISHABLE_DBIC]
-        for f in sorted(rivals, key=lambda f: f.chi2)[:3]:
+        rivals = sorted(rivals, key=lambda f: f.chi2)[:3]
+        outcome_only = set(measured_groups) <= {"touchdown"}
+        if outcome_only and best_fit.effects:
+            # Two numbers per throw: many effects move the touchdowns alike, and a linear fit at nominal is a poor guide
+            # to which (drag, the ball's mass). Refine every single effect, so that "cannot tell it from" lists each
+            # one that fits about as well (benchmark seed 0: a hidden drag, joint offset or ball mass was otherwise
+            # missing from the list in 3 of 40 touchdown-only logs).
+            rivals += [f for f in fits if not f.refined and len(f.effects) == 1 and f.effects != best_fit.effects and f not in rivals]
+        for f in rivals:
             fitting.refine(prob, f, lambda e: sim.one(e), iterations=refine_iterations)
         fits.remove(best_fit)
         fits.sort(key=lambda f: (f.bic if f.refined else np.inf, f.bic))
@@ -1001,7 +1035,10 @@ def diagnose(
             adv["delta_bic"] = c.delta_bic
             indist.append(adv)
         explained = bool(best.effects) and best.p_value >= ALPHA
-        confidence = "high" if explained and not indist and best.p_value >= CONFIDENT_P else "low"
+        # A touchdown-only log cannot vouch for the cause: the lack-of-fit test, the only guard against an effect the
+        # registry does not know, has no power on two numbers per throw (benchmark seed 0: all 5 unknown effects passed
+        # it; a cross wind was taken for a base offset, 8.6 BIC ahead of the next candidate).
+        confidence = "high" if explained and not indist and best.p_value >= CONFIDENT_P and not outcome_only else "low"
         nothing_wrong = not best.effects or (none_c.p_value >= ALPHA and none_c.delta_bic < INDISTINGUISHABLE_DBIC)
         cannot_tell: list[AllowedEffect] = []
         excluded: list[AllowedEffect] = []
@@ -1046,6 +1083,9 @@ def diagnose(
             verdict = f"explained by {fits[0].name}, but cannot tell it from " + ", ".join(a["b"] for a in indist)
         else:
             verdict = f"explained by {fits[0].name} (next candidate {causes[1].delta_bic:.1f} BIC worse)"
+        if explained and best.effects and outcome_only:
+            verdict += ("; the log records only touchdowns, so an effect outside the registry that moves them alike cannot be "
+                        "excluded (record the ball path and the joints to confirm the cause)")
         if not explained and indist:
             verdict += "; candidates that fit about equally: " + ", ".join(a["b"] for a in indist)
 

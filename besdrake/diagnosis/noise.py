@@ -29,15 +29,15 @@ from besdrake.diagnosis.observables import N_JOINT_TIMES, group_names, group_sli
 PRIOR_TOUCHDOWN_SD = 0.05
 #: Smallest SD per group: what a simulation can be trusted to reproduce (2.5 ms step, linearisation; joint tracking
 #: of a simulated servo is not accurate to better than ~1 mrad even when the encoders are finer).
-FLOORS = {"touchdown": 0.003, "ball_pos": 0.002, "ball_vel": 0.01, "ball_acc": 0.05, "joints": 1e-3}
+FLOORS = {"touchdown": 0.003, "ball_pos": 0.002, "ball_vel": 0.01, "ball_acc": 0.05, "ball_rest": 0.001, "joints": 1e-3}
 #: Typical noise of a group that the log does not contain (used only to judge what *would* separate causes).
-TYPICAL = {"touchdown": 0.05, "ball_pos": 0.01, "ball_vel": 0.05, "ball_acc": 0.3, "joints": 1e-3}
+TYPICAL = {"touchdown": 0.05, "ball_pos": 0.01, "ball_vel": 0.05, "ball_acc": 0.3, "ball_rest": 0.003, "joints": 1e-3}
 #: Minimum degrees of freedom of the pure error before it is trusted.
 MIN_DOF = 4
 #: Largest factor on the simulated placement variance (the lab's scatter measured from repeats / the simulation's).
 MAX_PLACEMENT_SCALE = 10.0
 #: Feature indices within a group that share a base SD: horizontal (x, y) and vertical (z) parts of the ball path.
-AXIS_CLASSES = {"touchdown": ((0, 1),), "ball_pos": ((0, 1), (2,)), "ball_vel": ((0, 1), (2,)), "ball_acc": ((0, 1), (2,))}
+AXIS_CLASSES = {"touchdown": ((0, 1),), "ball_pos": ((0, 1), (2,)), "ball_vel": ((0, 1), (2,)), "ball_acc": ((0, 1), (2,)), "ball_rest": ((0, 1), (2,))}
 
 
 @dataclass
@@ -223,10 +223,14 @@ def estimate_noise(features: np.ndarray, keys: list[str], mocap_sd: float | None
     return NoiseModel(sd=sd, dof=dof, source=source, n_repeat_groups=n_rep, notes=notes, feature_sd=feature_sd, place_var=place_var, place_scale=place_scale)
 
 
-def ball_fit_sd(layout_times: list[np.ndarray], centers: list[float], mocap_sd: float | None) -> dict[str, float]:
-    """SD of the flight-fit coefficients (position, velocity, acceleration) for marker noise ``mocap_sd``."""
+def ball_fit_sd(layout_times: list[np.ndarray], centers: list[float], mocap_sd: float | None,
+                rest_times: list[np.ndarray | None] | None = None) -> dict[str, float]:
+    """SD of the flight-fit coefficients (position, velocity, acceleration) for marker noise ``mocap_sd``, and of the
+    mean ball position at rest (``ball_rest``, from the rest samples per throw)."""
     if mocap_sd is None:
         return {}
+    rest = [len(t) for t in (rest_times or []) if t is not None and len(t)]
+    out_rest = {"ball_rest": float(mocap_sd / np.sqrt(np.median(rest)))} if rest else {}
     vals = []
     for t, tc in zip(layout_times, centers):
         if t is None:
@@ -235,9 +239,9 @@ def ball_fit_sd(layout_times: list[np.ndarray], centers: list[float], mocap_sd: 
         A = np.column_stack([np.ones_like(s), s, 0.5 * s * s])
         vals.append(np.sqrt(np.diag(np.linalg.inv(A.T @ A))) * mocap_sd)
     if not vals:
-        return {}
+        return out_rest
     v = np.median(np.array(vals), axis=0)
-    return {"ball_pos": float(v[0]), "ball_vel": float(v[1]), "ball_acc": float(v[2])}
+    return {"ball_pos": float(v[0]), "ball_vel": float(v[1]), "ball_acc": float(v[2]), **out_rest}
 
 
 __all__ = ["NoiseModel", "estimate_noise", "pure_error", "repeat_groups", "ball_fit_sd", "PRIOR_TOUCHDOWN_SD", "N_JOINT_TIMES"]

@@ -9,6 +9,10 @@ of the same plan, so that sim and lab are compared like for like:
   at the measured sample times: position (m) and velocity (m/s) at the window's centre time and the
   acceleration (m/s^2). They carry the release state (position, speed, direction, timing) and the in-flight
   forces (drag shows as a horizontal deceleration).
+* ``ball_rest`` (3): the ball's marker in the scoop before the throw, m (mean of the samples in the first
+  :data:`REST_TIME` s). Where the ball sits shows the arm's base and posture (base and joint offsets, servo sag),
+  the ball's size and how it is put into the scoop (the funnel lifts an off-centre ball), independently of the
+  flight.
 * ``joints`` (6 x :data:`N_JOINT_TIMES`): tracking error, measured minus commanded joint angle (rad), at
   fixed times spread over the nominal swing up to the nominal release. Lag, delay and servo gains show here.
 
@@ -28,6 +32,7 @@ GROUPS: dict[str, tuple[int, str]] = {
     "ball_pos": (3, "m"),
     "ball_vel": (3, "m/s"),
     "ball_acc": (3, "m/s^2"),
+    "ball_rest": (3, "m"),
 }
 #: Number of sample times of the joint tracking error per joint.
 N_JOINT_TIMES = 8
@@ -37,6 +42,11 @@ WINDOW_AFTER_RELEASE = 0.08
 WINDOW_BEFORE_TOUCHDOWN = 0.05
 #: Minimum number of measured ball samples in the window for the path features.
 MIN_BALL_SAMPLES = 8
+#: The ball at rest: marker samples from the start of the trial up to this time (s); at least MIN_REST_SAMPLES.
+#: A plan may start moving at once, but 30 ms into a smooth start the scoop has hardly moved, and the simulation is
+#: read at the same sample times.
+REST_TIME = 0.03
+MIN_REST_SAMPLES = 2
 #: Measurement flags that make a trial unusable for the comparison.
 UNUSABLE_FLAGS = ("refused_by_safety_gate", "never_released", "dropped_early", "aborted")
 
@@ -63,6 +73,7 @@ class ThrowLayout:
 
     ball_times: np.ndarray | None = None  # measured sample times inside the flight window
     ball_center: float = 0.0  # centre time of the quadratic fit (s)
+    rest_times: np.ndarray | None = None  # measured sample times of the ball at rest in the scoop
     joint_times: np.ndarray | None = None  # times of the tracking-error samples (s)
     release_time_nominal: float | None = None
     touchdown_time_nominal: float | None = None
@@ -97,6 +108,9 @@ def make_layout(measurement, nominal) -> ThrowLayout:
             lay.ball_center = float(np.mean(t[ok]))
         else:
             lay.notes.append(f"only {int(ok.sum())} ball samples in the flight window")
+        rest = (t >= 0.0) & (t <= REST_TIME + 1e-9) & np.all(np.isfinite(p), axis=1)
+        if rest.sum() >= MIN_REST_SAMPLES:
+            lay.rest_times = t[rest]
     if measurement.joint_t is not None and len(measurement.joint_t) > 2:
         jt = np.asarray(measurement.joint_t, float)
         t_end = min(nominal.release_time, jt[-1])
@@ -124,6 +138,12 @@ def measured_features(measurement, layout: ThrowLayout) -> tuple[np.ndarray, flo
         p0, v, a, res = _quadratic_fit(t[sel], p[sel], layout.ball_center)
         f[sl["ball_pos"]], f[sl["ball_vel"]], f[sl["ball_acc"]] = p0, v, a
         rms = float(np.sqrt(np.mean(res**2)))
+    if layout.rest_times is not None:
+        t = np.asarray(measurement.ball_t, float)
+        p = np.asarray(measurement.ball_path, float)
+        sel = np.isin(t, layout.rest_times) & np.all(np.isfinite(p), axis=1)
+        if sel.sum() >= MIN_REST_SAMPLES:
+            f[sl["ball_rest"]] = p[sel].mean(axis=0)
     if layout.joint_times is not None:
         jt = np.asarray(measurement.joint_t, float)
         err = np.asarray(measurement.q_measured, float) - np.asarray(measurement.q_commanded, float)
@@ -142,6 +162,8 @@ def simulated_features(outcome, layout: ThrowLayout) -> np.ndarray:
         path = _interp_rows(layout.ball_times, outcome.ball_t, outcome.ball_path)
         p0, v, a, _ = _quadratic_fit(layout.ball_times, path, layout.ball_center)
         f[sl["ball_pos"]], f[sl["ball_vel"]], f[sl["ball_acc"]] = p0, v, a
+    if layout.rest_times is not None and len(outcome.ball_t) > 1:
+        f[sl["ball_rest"]] = _interp_rows(layout.rest_times, outcome.ball_t, outcome.ball_path).mean(axis=0)
     if layout.joint_times is not None and len(outcome.joint_t) > 1:
         err = outcome.q_measured - outcome.q_commanded
         f[sl["joints"]] = _interp_rows(layout.joint_times, outcome.joint_t, err).T.ravel()
