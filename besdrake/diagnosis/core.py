@@ -1,7 +1,8 @@
 """``diagnose(measurements)``: what the simulation gets wrong, the cause, the refined model and the gain.
 
 1. *Comparison*: every usable logged plan is replayed in the nominal simulation and compared throw by throw
-   (touchdown, the ball's flight state, joint tracking; :mod:`~besdrake.diagnosis.observables`); the mean
+   (touchdown, the ball's flight state, joint tracking, the ball at rest in the scoop;
+   :mod:`~besdrake.diagnosis.observables`); the mean
    residual of each group is tested against the measurement noise (systematic vs noise). A simulated throw is the
    *expected* throw of a lab whose ball placement scatters (``placement_sd``, :func:`placement_points`): the throw is
    nonlinear in the placement, so the scatter shifts the mean and would otherwise be taken for an effect.
@@ -9,14 +10,15 @@
    and ranked by BIC (the leading candidates with the placement correction recomputed at their own parameters,
    :meth:`_Sim.local_shift`; a pair's second effect claimed only if it is significant with the throws' plans as the
    independent units, :func:`_extra_effect_significant`, since residuals within a throw are strongly correlated and
-   BIC over entries counts one throw's noise several times); candidates within :data:`INDISTINGUISHABLE_DBIC` of the best that are not merely the
+   BIC over entries counts one throw's noise several times; an effect that hardly moves the predictions is dropped
+   unless it alone is :data:`STRONG_DBIC` better than nominal); candidates within :data:`INDISTINGUISHABLE_DBIC` of the best that are not merely the
    best plus an unneeded effect are reported as "cannot tell apart", with the recording or throw that would
    separate them (predicted by simulating both fitted candidates). When even the best candidate leaves a
    residual above the noise (lack-of-fit test at :data:`ALPHA`), the result is "not explained". When no candidate
    improves significantly on the nominal simulation, the answer is "no discrepancy beyond the noise" together with
    the effects the log cannot exclude and the magnitudes it still allows (``cannot_tell``; ``unconstrained`` marks
    those of which any realistic value fits, apart from those a larger deviation would have shown), never a confident
-   "the nominal model is right".
+   "the nominal model is right". A cause named from touchdowns alone is never reported with high confidence.
 3. *Refined model*: the scenario with the fitted effects (:meth:`Diagnosis.refined_scenario`).
 4. *Gain*: touchdown disparity before/after on throws held out from the fit (K-fold: each throw is predicted
    by a model fitted without it), medians with bootstrap confidence intervals.
