@@ -131,17 +131,17 @@ def measured_features(measurement, layout: ThrowLayout) -> tuple[np.ndarray, flo
     if measurement.touchdown is not None and not measurement.flags.get("ball_not_seen", False):
         f[sl["touchdown"]] = measurement.touchdown
     rms = None
-    if layout.ball_times is not None:
+    if layout.ball_times is not None or layout.rest_times is not None:
         t = np.asarray(measurement.ball_t, float)
         p = np.asarray(measurement.ball_path, float)
-        sel = np.isin(t, layout.ball_times) & np.all(np.isfinite(p), axis=1)
+        seen = np.all(np.isfinite(p), axis=1)
+    if layout.ball_times is not None:
+        sel = np.isin(t, layout.ball_times) & seen
         p0, v, a, res = _quadratic_fit(t[sel], p[sel], layout.ball_center)
         f[sl["ball_pos"]], f[sl["ball_vel"]], f[sl["ball_acc"]] = p0, v, a
         rms = float(np.sqrt(np.mean(res**2)))
     if layout.rest_times is not None:
-        t = np.asarray(measurement.ball_t, float)
-        p = np.asarray(measurement.ball_path, float)
-        sel = np.isin(t, layout.rest_times) & np.all(np.isfinite(p), axis=1)
+        sel = np.isin(t, layout.rest_times) & seen
         if sel.sum() >= MIN_REST_SAMPLES:
             f[sl["ball_rest"]] = p[sel].mean(axis=0)
     if layout.joint_times is not None:
