@@ -505,10 +505,10 @@ def _bootstrap_median_ci(x: np.ndarray, rng: np.random.Generator, n_boot: int = 
 def _material_change(y_a: np.ndarray, y_b: np.ndarray, nm: noise.NoiseModel, groups: list[str]) -> dict[str, float]:
     """Median over throws of the RMS prediction difference of two fits, in units of the materiality scale: noise
     SDs for the touchdown (always: it is what a refined model is for) and joint tracking, 4 noise SDs for the
-    ball-path groups (when measured)."""
+    ball groups (path and rest position, when measured)."""
     sl = group_slices()
     out = {}
-    for g in ("touchdown", "joints", "ball_pos", "ball_vel", "ball_acc", "ball_rest"):
+    for g in observables.group_names():
         if g != "touchdown" and g not in groups:
             continue
         d = y_a[:, sl[g]] - y_b[:, sl[g]]
@@ -971,19 +971,19 @@ def diagnose(
                 # significant at p = 0.009 next to the hidden base offset).
                 alpha_extra = ALPHA / max(1, len([c for c in cands if c not in sub]))
                 immaterial = sub_adequate and all(v < MATERIAL for v in size.values())
+                size_txt = f"{e} changes the predictions by only " + ", ".join(f"{g} {v:.2f} noise SD" for g, v in size.items()) + " (median)"
                 strong = not sub and sub_fit.bic - best_fit.bic >= STRONG_DBIC
                 if immaterial and strong:
                     # The nominal model is not kept against very strong evidence: a single effect the log shows
                     # consistently (throws as the independent units) is named even if it hardly moves an outcome.
                     sig, p_w = _extra_effect_significant(prob, best_fit, e, keys, alpha_extra)
                     if sig:
-                        notes.append(f"{e} changes the predictions by only " + ", ".join(f"{g} {v:.2f} noise SD" for g, v in size.items())
-                                     + f" (median), but fits {sub_fit.bic - best_fit.bic:.1f} BIC better than the nominal simulation, "
+                        notes.append(f"{size_txt}, but fits {sub_fit.bic - best_fit.bic:.1f} BIC better than the nominal simulation, "
                                      f"consistently over the plans (p = {p_w:.2g}): named, although it hardly matters for the throws' outcomes")
                         continue
                 if immaterial:
-                    drops.append((sub_fit.bic, e, sub_fit, f"{best_fit.name} fits better by BIC ({sub_fit.bic - best_fit.bic:.1f}) but {e} changes the predictions by only "
-                                  + ", ".join(f"{g} {v:.2f} noise SD" for g, v in size.items()) + f" (median): not claimed, below the {MATERIAL} SD materiality threshold"))
+                    drops.append((sub_fit.bic, e, sub_fit, f"{best_fit.name} fits better by BIC ({sub_fit.bic - best_fit.bic:.1f}) but {size_txt}: "
+                                  f"not claimed, below the {MATERIAL} SD materiality threshold"))
                 elif ROBUST_NESTED_TEST and sub:
                     sig, p_w = _extra_effect_significant(prob, best_fit, e, keys, alpha_extra)
                     if not sig:
