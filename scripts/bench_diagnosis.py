@@ -8,7 +8,9 @@ removed). ``--unknown`` more trials hide an effect the registry does not know (r
 
 Figures (targets of issue 6): right cause named on full logs (>= 95%), right cause or an honest "cannot tell
 X from Y" on touchdown-only logs (>= 95%; "no discrepancy beyond the noise, cannot tell nominal from {...}" counts
-as honest only if every hidden effect is in the set; the mean set size is printed next to the registry size), unknown effects never explained with high confidence, held-out
+as honest only if every hidden effect is in the set; the mean set size is printed next to the registry size; "lenient"
+counts any such set that holds the hidden effect, "value_checked" only those whose stated interval also holds the
+hidden value), unknown effects never explained with high confidence, held-out
 median touchdown disparity after refinement / the lab's noise floor (<= 1.2; the floor is the median
 disparity of the true model on the same throws, measured in the same run), and diagnosis wall time per log
 (<= 120 s on 2 cores). Prints the confusion tables.
@@ -208,6 +210,9 @@ def _summarize(results: list[dict], modes: list[str], args, t_bench: float, regi
         # Lenient: any "cannot tell nominal from {...}" set that holds the hidden effect counts, whatever its size.
         holds = {id(r): bool(r.get("cannot_tell")) and all(e in r["cannot_tell"] for e in r["hidden"]) for r in known}
         lenient = [r["correct"] or r["honest_cannot_tell"] or holds[id(r)] for r in known]
+        # Value-checked: as lenient, but a "cannot tell nominal from {...}" answer counts only when the hidden value lies
+        # inside the interval the answer states for it ("larger deviations would have been seen" must hold).
+        value_checked = [r["correct"] or r["honest_cannot_tell"] or r.get("hidden_within_allowed", False) for r in known]
         # Touchdown-only logs cannot show an effect that does not move the touchdown: there "the nominal
         # simulation agrees within the noise" is the honest answer.
         detect = [r for r in known if r.get("touchdown_detectable", True)]
@@ -238,6 +243,8 @@ def _summarize(results: list[dict], modes: list[str], args, t_bench: float, regi
                                                "honest_cannot_tell": r["honest_cannot_tell"]} for r in known if "detectable" in r and not r["detectable"]],
             "right_or_honest_cannot_tell_rate": float(np.mean(ok_or_honest)) if ok_or_honest else None,
             "right_or_honest_rate_lenient": float(np.mean(lenient)) if lenient else None,
+            "right_or_honest_rate_value_checked": float(np.mean(value_checked)) if value_checked else None,
+            "cannot_tell_hidden_value_outside_stated_interval": [r["trial"] for r in known if holds[id(r)] and not r.get("hidden_within_allowed", False)],
             "explained_rate_known": rate(known, "explained"),
             "n_touchdown_detectable": len(detect),
             "right_or_honest_rate_touchdown_detectable": float(np.mean([r["correct"] or r["honest_cannot_tell"] for r in detect])) if detect else None,

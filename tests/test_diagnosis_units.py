@@ -192,8 +192,27 @@ def test_a_sparse_multi_parameter_effect_beats_a_catch_all_and_pairs(seed):
     assert full.k == 6 and full.bic > catch_all.bic
 
 
+def _model_sim(specs, y0, response):
+    """A :class:`_Sim` without rollouts: features = y0 + sum over parameters of ``response[key](value)`` (N, F)."""
+    from besdrake.diagnosis.core import _Sim
+
+    class ModelSim(_Sim):
+        def features(self, effects_list, rows=None, shift=None):
+            out = []
+            for e in effects_list:
+                self.n_rollouts += len(y0)
+                y = y0.copy()
+                for s_ in specs:
+                    v = e.get(s_.effect, {}).get(s_.name, s_.nominal)
+                    y = y + response[s_.key](v)
+                out.append(y)
+            return np.array(out)
+
+    return ModelSim(None, [], [], [], [])
+
+
 def test_allowed_effects_excludes_what_the_data_would_show_and_lists_what_they_cannot():
-    from besdrake.diagnosis.core import EXCLUDE_FRACTION, _allowed_effects, _Sim
+    from besdrake.diagnosis.core import EXCLUDE_FRACTION, _allowed_effects
 
     rng = np.random.default_rng(7)
     specs = [fitting.ParamSpec("base_offset", "z", 0.0, -0.2, 0.2, 0.02, "m"), fitting.ParamSpec("scoop_friction", "mu_static", 0.6, 0.05, 1.5, -0.07, "1")]
@@ -202,7 +221,7 @@ def test_allowed_effects_excludes_what_the_data_would_show_and_lists_what_they_c
     dy[0] = rng.normal(0, 1, (N, F))  # the base height shows strongly in every feature
     y0 = rng.normal(0, 1, (N, F))
     prob = fitting.Problem(y0 + rng.normal(0, sd, (N, F)), y0, np.full(F, sd))  # nominal world: no effect at all
-    sim = _Sim(None, [], [], [], [])
+    sim = _model_sim(specs, y0, {"base_offset.z": lambda v: dy[0] * v, "scoop_friction.mu_static": lambda v: 0.0 * dy[0]})
     allowed = {a.effect: a for a in _allowed_effects(prob, fitting.Sensitivity(specs, y0, dy), ["base_offset", "scoop_friction"], sim, ["touchdown"], N)}
     base, fric = allowed["base_offset"], allowed["scoop_friction"]
     assert base.excluded and base.max_fraction < EXCLUDE_FRACTION
@@ -215,6 +234,53 @@ def test_allowed_effects_excludes_what_the_data_would_show_and_lists_what_they_c
     # ... so the log does not constrain friction at all, while it bounds the base height (a larger offset would show).
     assert fric.unconstrained and not base.unconstrained
     assert fric.to_dict()["unconstrained"] is True
+
+
+def test_allowed_intervals_are_checked_where_the_throws_respond_nonlinearly():
+    """A gain whose touchdowns barely change between 0.45 and 0.9 of nominal and steeply outside (as the position gain
+    on the benchmark's plans): the slope at nominal states a lower end near 0.8, which a lab at 0.6 would contradict;
+    the checked interval holds every value the data allow, and no more than needed."""
+    from besdrake.diagnosis.core import ALPHA, _allowed_effects
+
+    from scipy import stats
+
+    rng = np.random.default_rng(3)
+    spec = fitting.ParamSpec("gain_scale", "kp_scale", 1.0, 0.2, 2.0, 0.09, "1")
+    N, sd = 25, 0.05
+    direction = np.zeros((N, N_FEATURES))
+    direction[:, group_slices()["touchdown"]] = rng.normal(0, 1, (N, 2))
+
+    def shape(v):  # m of touchdown per unit direction: the slope at nominal, a plateau, then a cliff
+        v = float(v)
+        if v >= 0.9:
+            return 0.25 * (v - 1.0)
+        if v >= 0.45:
+            return -0.025 - 0.01 * (0.9 - v)
+        return -0.0295 - 2.0 * (0.45 - v) ** 2 * 10
+
+    y0 = np.zeros((N, N_FEATURES))
+    sim = _model_sim([spec], y0, {spec.key: lambda v: direction * shape(v)})
+    dy = (sim.features([{"gain_scale": {"kp_scale": 1.0 + spec.step}}])[0] - y0)[None] / spec.step
+    truth = 0.6
+    y_meas = y0 + direction * shape(truth) + rng.normal(0, sd, (N, N_FEATURES))
+    prob = fitting.Problem(y_meas, y0, np.full(N_FEATURES, sd))
+    allowed = _allowed_effects(prob, fitting.Sensitivity([spec], y0, dy), ["gain_scale"], sim, ["touchdown"], N)[0]
+    lo, hi = allowed.allowed["kp_scale"]
+    # What the data really allow: every grid value whose chi-square is within the level's quantile of the lowest.
+    grid = np.linspace(0.2, 2.0, 721)
+    prior = ((grid - 1.0) / (fitting.PRIOR_FRACTION * 1.8)) ** 2
+    chi = np.array([np.sum(prob.weighted(y0 + direction * shape(v)) ** 2) for v in grid]) + prior
+    ok = grid[chi - chi.min() < stats.chi2.ppf(1.0 - ALPHA, 1)]
+    # The linear interval would have left the lab's own value out ...
+    a = prob.weighted_jac(dy)[:, 0]
+    var = 1.0 / (a @ a + (1.0 / (fitting.PRIOR_FRACTION * 1.8)) ** 2)
+    lo_lin = 1.0 + var * float(a @ prob.weighted(y0)) - np.sqrt(stats.chi2.ppf(1.0 - ALPHA, 1) * var)
+    assert lo_lin > truth
+    # ... the checked one holds it and every value the data allow, and still rules out the cliff.
+    assert lo <= truth <= hi
+    assert lo <= ok.min() + 1e-9 and hi >= ok.max() - 1e-9
+    assert lo > 0.25 and lo > ok.min() - 0.1  # bisected to within a tenth of the distance
+    assert not allowed.excluded and not allowed.unconstrained
 
 
 def test_placement_points_stand_for_the_scatter():
