@@ -30,7 +30,7 @@ import json
 import time
 import warnings
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any, NamedTuple, Sequence
 
 import numpy as np
 from scipy import stats
@@ -629,10 +629,21 @@ _RECORD = {"ball_pos": "record the ball path (motion capture)", "ball_vel": "rec
            "touchdown": "measure the touchdown", "ball_rest": "record the ball in the scoop before the throw (motion capture)"}
 
 
-def _verify_interval_ends(prob: fitting.Problem, sim: _Sim, lin: dict[str, tuple[fitting.ParamSpec, float, float, float, float]], c0: float,
-                          q: float, rounds: int = VERIFY_ROUNDS) -> dict[str, tuple[float, float]]:
-    """The allowed interval of each parameter (key -> (spec, linear estimate, lo, hi, half-width)) with its ends
-    checked by rollouts. An end inside the realistic bounds stands when the real chi-square there (with the weak
+class _Line(NamedTuple):
+    """One parameter's linearised allowed interval: estimate, ends (within the realistic bounds), half-width, and
+    the information (squared weighted sensitivity) behind it."""
+
+    spec: fitting.ParamSpec
+    est: float
+    lo: float
+    hi: float
+    half: float
+    info: float
+
+
+def _verify_interval_ends(prob: fitting.Problem, sim: _Sim, lin: dict[str, _Line], c0: float, q: float,
+                          rounds: int = VERIFY_ROUNDS) -> dict[str, tuple[float, float]]:
+    """The allowed interval of each parameter (key -> :class:`_Line`) with its ends checked by rollouts. An end inside the realistic bounds stands when the real chi-square there (with the weak
     prior) exceeds the lowest one seen on that parameter's line (nominal ``c0``, the estimate, the points tried) by
     ``q``. Otherwise the end moves outwards (quadratic profile through the lowest point, at most twice as far per
     round, the bound itself as the last try) until a point passes, and then is bisected back towards the last point
@@ -643,28 +654,28 @@ def _verify_interval_ends(prob: fitting.Problem, sim: _Sim, lin: dict[str, tuple
     def prior(s_: fitting.ParamSpec, v: float) -> float:
         return ((v - s_.nominal) / (fitting.PRIOR_FRACTION * (s_.high - s_.low))) ** 2
 
-    best = {k: (c0, s_.nominal) for k, (s_, *_r) in lin.items()}  # lowest chi2 seen on the line and where
+    best = {k: (c0, ln.spec.nominal) for k, ln in lin.items()}  # lowest chi2 seen on the line and where
     # Per end still open: [key, side, point to try, inner (seen, not ruled out), outer (ruled out)].
-    ends = {k: [lo, hi] for k, (_s, _e, lo, hi, _h) in lin.items()}
-    todo = [[k, side, v, None, None] for k, (s_, _e, lo, hi, _h) in lin.items() if lo <= hi
-            for side, v in ((0, lo), (1, hi)) if s_.low < v < s_.high]
-    extra = [(k, lin[k][1]) for k in {t[0] for t in todo}
-             if lin[k][0].low < lin[k][1] < lin[k][0].high and abs(lin[k][1] - lin[k][0].nominal) > 0.25 * lin[k][4]]
+    ends = {k: [ln.lo, ln.hi] for k, ln in lin.items()}
+    todo = [[k, side, v, None, None] for k, ln in lin.items() if ln.lo <= ln.hi
+            for side, v in ((0, ln.lo), (1, ln.hi)) if ln.spec.low < v < ln.spec.high]
+    extra = [(k, lin[k].est) for k in {t[0] for t in todo}
+             if lin[k].spec.low < lin[k].est < lin[k].spec.high and abs(lin[k].est - lin[k].spec.nominal) > 0.25 * lin[k].half]
     for _ in range(rounds):
         if not todo:
             break
         pts = extra + [(t[0], t[2]) for t in todo]
-        Y = sim.features([fitting.effects_from([lin[k][0]], np.array([v])) for k, v in pts])
+        Y = sim.features([fitting.effects_from([lin[k].spec], np.array([v])) for k, v in pts])
         chi = {}
         for (k, v), y in zip(pts, Y):
             r = prob.weighted(y)
-            chi[(k, v)] = c = float(r @ r) + prior(lin[k][0], v)
+            chi[(k, v)] = c = float(r @ r) + prior(lin[k].spec, v)
             if c < best[k][0]:
                 best[k] = (c, v)
         extra, nxt = [], []
         for t in todo:
             k, side, v, inner, outer = t
-            s_ = lin[k][0]
+            s_ = lin[k].spec
             bound = s_.low if side == 0 else s_.high
             c_min, v_min = best[k]
             gap = chi[(k, v)] - c_min
@@ -679,8 +690,8 @@ def _verify_interval_ends(prob: fitting.Problem, sim: _Sim, lin: dict[str, tuple
                 ends[k][side] = outer  # the linear end itself holds, or the bracket is narrow enough
                 continue
             if outer is None:  # step outwards
-                if v == v_min:  # the lowest point seen: the line falls further out
-                    d = abs(v - v_min) + lin[k][4]
+                if v == v_min:  # the lowest point seen: the line falls further out, one half-width on
+                    d = lin[k].half
                 else:
                     d = abs(v - v_min) * min(2.0, 1.1 * np.sqrt(q / max(gap, 1e-12)))
                 nv = v_min - d if side == 0 else v_min + d
@@ -691,7 +702,7 @@ def _verify_interval_ends(prob: fitting.Problem, sim: _Sim, lin: dict[str, tuple
             ends[k][side] = outer if outer is not None else bound
         todo = nxt
     for k, side, _v, _i, outer in todo:  # rounds used up: the innermost point ruled out, else the bound
-        ends[k][side] = outer if outer is not None else (lin[k][0].low if side == 0 else lin[k][0].high)
+        ends[k][side] = outer if outer is not None else (lin[k].spec.low if side == 0 else lin[k].spec.high)
     return {k: (float(lo), float(hi)) for k, (lo, hi) in ends.items()}
 
 
@@ -708,8 +719,7 @@ def _allowed_effects(prob: fitting.Problem, sens: fitting.Sensitivity, effects: 
     # Linearised intervals first (each parameter on its own, the effect's others at nominal: the same sparse view as
     # the fit; a realistic deviation moves one or two of an effect's parameters, and the joint profile of e.g. six
     # encoder offsets would allow almost anything through their trade-offs and tell nothing) ...
-    lin: dict[str, tuple[fitting.ParamSpec, float, float, float, float]] = {}
-    infos: dict[str, float] = {}
+    lin: dict[str, _Line] = {}
     for e in effects:
         idx = [j for j, s_ in enumerate(sens.specs) if s_.effect == e]
         if not idx:
@@ -723,22 +733,20 @@ def _allowed_effects(prob: fitting.Problem, sens: fitting.Sensitivity, effects: 
             var = 1.0 / (info + P[j, j] ** 2)
             est = s_.nominal + var * float(a @ r0)
             half = np.sqrt(q * var)
-            lin[s_.key] = (s_, est, max(s_.low, est - half), min(s_.high, est + half), half)
-            infos[s_.key] = info
+            lin[s_.key] = _Line(s_, est, max(s_.low, est - half), min(s_.high, est + half), half, info)
     # ... then every end that the data (not a realistic bound) set is checked with rollouts and widened where the
     # linear model overstated how far the throws respond (e.g. the gains: benchmark seed 0, touchdown-only trials 21
     # and 30 stated "kp_scale 0.73..1.19, larger deviations would have been seen" of a lab with kp_scale 0.68).
     checked = _verify_interval_ends(prob, sim, lin, float(r0 @ r0), q)
     out = []
     for e in effects:
-        specs = [s_ for s_, *_ in lin.values() if s_.effect == e]
+        specs = [ln.spec for ln in lin.values() if ln.spec.effect == e]
         if not specs:
             continue
         allowed, nominal, units, fracs, needed = {}, {}, {}, [], []
         for s_ in specs:
-            est = lin[s_.key][1]
+            est, info = lin[s_.key].est, lin[s_.key].info
             lo, hi = checked[s_.key]
-            info = infos[s_.key]
             if lo > hi:  # the estimate lies beyond a bound: only the bound itself is allowed
                 lo = hi = s_.low if est < s_.low else s_.high
             rng_ = s_.high - s_.low
