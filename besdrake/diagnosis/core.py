@@ -643,9 +643,9 @@ class _Line(NamedTuple):
 
 def _verify_interval_ends(prob: fitting.Problem, sim: _Sim, lin: dict[str, _Line], c0: float, q: float,
                           rounds: int = VERIFY_ROUNDS) -> dict[str, tuple[float, float]]:
-    """The allowed interval of each parameter (key -> :class:`_Line`) with its ends checked by rollouts. An end inside the realistic bounds stands when the real chi-square there (with the weak
-    prior) exceeds the lowest one seen on that parameter's line (nominal ``c0``, the estimate, the points tried) by
-    ``q``. Otherwise the end moves outwards (quadratic profile through the lowest point, at most twice as far per
+    """The allowed interval of each parameter (key -> :class:`_Line`) with its ends checked by rollouts. An end
+    inside the realistic bounds stands when the real chi-square there (with the weak prior) exceeds the lowest one
+    seen on that parameter's line (nominal ``c0``, the estimate, the points tried) by ``q``. Otherwise the end moves outwards (quadratic profile through the lowest point, at most twice as far per
     round, the bound itself as the last try) until a point passes, and then is bisected back towards the last point
     that did not (to within a tenth of its distance from the lowest point or 1% of the range): the end reported is the
     innermost point that passed, or the bound when none did within ``rounds``.
@@ -699,7 +699,6 @@ def _verify_interval_ends(prob: fitting.Problem, sim: _Sim, lin: dict[str, _Line
             else:  # bisect between the last point not ruled out and the innermost one ruled out
                 nv = 0.5 * (inner + outer)
             nxt.append([k, side, float(nv), inner, outer])
-            ends[k][side] = outer if outer is not None else bound
         todo = nxt
     for k, side, _v, _i, outer in todo:  # rounds used up: the innermost point ruled out, else the bound
         ends[k][side] = outer if outer is not None else (lin[k].spec.low if side == 0 else lin[k].spec.high)
