@@ -651,8 +651,8 @@ def _verify_interval_ends(prob: fitting.Problem, sim: _Sim, lin: dict[str, _Line
     innermost point that passed, or the bound when none did within ``rounds``.
     So the answer may say less than the data allow, never that a deviation "would have been seen" which the
     simulation does not show. One batch of rollouts per round."""
-    def prior(s_: fitting.ParamSpec, v: float) -> float:
-        return ((v - s_.nominal) / (fitting.PRIOR_FRACTION * (s_.high - s_.low))) ** 2
+    def prior(s_: fitting.ParamSpec, v: float) -> float:  # the fit's weak prior, as a chi-square term
+        return float(fitting._prior_rows([s_], np.array([v]))[1][0] ** 2)
 
     best = {k: (c0, ln.spec.nominal) for k, ln in lin.items()}  # lowest chi2 seen on the line and where
     # Per end still open: [key, side, point to try, inner (seen, not ruled out), outer (ruled out)].
