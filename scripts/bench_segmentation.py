@@ -17,6 +17,10 @@ Prints one JSON object:
 * ``defaults``: the shipped default vMCI on each subject.
 * ``border_at_speed_minimum``: fraction of borders within +-0.1 s of a local minimum of the
   hand speed (manual, vMCI, baseline).
+* ``annotation_conventions``: per subject, how its annotator places borders
+  (:func:`besdrake.segmentation.conventions.annotation_conventions`: pauses left between
+  labelled segments, the hand speed at the borders as a fraction of the peak, the time from the
+  nearest speed minimum): what rules learned on one subject can carry to the other.
 * ``speed``: CPU seconds per second of data at the full recording rate, one core (median
   over recordings), and the factor faster than real time.
 * ``stability`` (``--stability``): the cross-subject tuning repeated without each training
@@ -26,10 +30,15 @@ Prints one JSON object:
   cross-subject figure; an upper bound of the rule family): the Pareto front of (F1 at
   +-0.2 s, F1 at +-0.1 s) over the prior grid and a finer rule grid with the pause rules, and
   whether any point reaches both targets.
+* ``within_subject`` (``--within-subject``): :func:`~besdrake.segmentation.tune_vmci` on all
+  recordings of a subject but one, scored on the one left out, pooled over the subject's
+  recordings: the figure when the training and scored annotations come from the same
+  annotator (other recordings of the same subject), beside the cross-subject one.
 * ``synthetic`` (``--synthetic DIR`` or generated with ``--generate``): borders F1 and the
   fraction of demonstrated throws whose start and end are both found within +-0.2 s.
 
 Usage: python3 scripts/bench_segmentation.py [--data DIR] [--synthetic DIR | --generate] [--stability] [--ceiling]
+       [--within-subject]
 """
 
 from __future__ import annotations
@@ -51,6 +60,7 @@ import numpy as np  # noqa: E402
 
 from besdrake.mocap.preprocess import preprocess  # noqa: E402
 from besdrake.segmentation import VMCI, ZeroVelocitySegmenter, tune_vmci  # noqa: E402
+from besdrake.segmentation.conventions import annotation_conventions  # noqa: E402
 from besdrake.segmentation.placement import DEFAULT_RULE_GRID  # noqa: E402
 from besdrake.segmentation.tuning import DEFAULT_VMCI_GRID, PAUSE_TUNING_RULE_GRID  # noqa: E402
 from besdrake.segmentation.evaluation import (  # noqa: E402
@@ -140,6 +150,25 @@ def stability(by_subject: dict, pre: dict) -> dict:
     return out
 
 
+def within_subject(by_subject: dict, pre: dict) -> dict:
+    """Per subject: tune_vmci on its other recordings, scored on each one left out (pooled counts)."""
+    out = {}
+    for subj, recs in by_subject.items():
+        counts = {t: [0, 0, 0] for t in (0.1, 0.2)}  # matched, true, predicted
+        for i, left_out in enumerate(recs):
+            tuned = tune_vmci(recs[:i] + recs[i + 1:], VMCI_GRID, preprocessed=pre)
+            ev = evaluate_segmenter(tuned.segmenter(), [left_out], (0.1, 0.2), pre)
+            for t, c in counts.items():
+                s = ev.scores["starts_and_ends"][t]
+                c[0] += s.n_matched
+                c[1] += s.n_true
+                c[2] += s.n_pred
+        out[subj] = {f"f1_{t}": round(2 * m / (n_true + n_pred), 4) if n_true + n_pred else float("nan")
+                     for t, (m, n_true, n_pred) in counts.items()}
+        out[subj]["n_true"] = counts[0.1][1]
+    return out
+
+
 #: The rule grid of ``--ceiling``: finer speed levels, the pause-splitting and pause-merging rules.
 CEILING_RULE_GRID = {**DEFAULT_RULE_GRID, "min_rest_s": [0.0, 0.3],
                      "end_level": [0.0, 0.05, 0.08, 0.1, 0.12, 0.15], "start_level": [0.0, 0.05, 0.08, 0.1, 0.12, 0.15],
@@ -221,6 +250,8 @@ def main() -> None:
     ap.add_argument("--generate", action="store_true", help="generate 10 synthetic subjects in a temp folder")
     ap.add_argument("--stability", action="store_true",
                     help="repeat the cross-subject tuning without each training recording (a few minutes)")
+    ap.add_argument("--within-subject", action="store_true",
+                    help="tune on all recordings of a subject but one, score the one left out (a few minutes)")
     ap.add_argument("--ceiling", action="store_true",
                     help="rules tuned on the scored subject itself: the rule family's upper bound (about a minute)")
     args = ap.parse_args()
@@ -274,8 +305,11 @@ def main() -> None:
     report["cross_subject"] = cross
     if args.stability:
         report["stability"] = stability(by_subject, pre)
+    if args.within_subject:
+        report["within_subject"] = within_subject(by_subject, pre)
     if args.ceiling:
         report["ceiling"] = ceiling(by_subject, pre)
+    report["annotation_conventions"] = {s: annotation_conventions(by_subject[s], pre).to_dict() for s in subjects}
     report["targets"] = {"f1_0.2": 0.90, "f1_0.1": 0.75}
     report["defaults"] = {s: summary(evaluate_segmenter(VMCI(), by_subject[s], (0.1, 0.2), pre)) for s in subjects}
     report["default_params"] = VMCI().json_params()

@@ -21,6 +21,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "in DIR (another subject: tuned on one, scored on the other)")
     parser.add_argument("--save-segmenter", type=Path, default=None, metavar="FILE",
                         help="with --tune-on: write the tuned segmenter as JSON (for 'besdrake segment --segmenter')")
+    parser.add_argument("--conventions", action="store_true",
+                        help="also measure how the manual segmentations place their borders (pauses left between "
+                             "segments, hand speed at the borders, distance from speed minima), for --data and "
+                             "--tune-on: rules learned on one annotator carry over only as far as these agree")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -40,11 +44,13 @@ def run(args: argparse.Namespace) -> int:
     if not args.no_baseline:
         methods["zero_velocity"] = ZeroVelocitySegmenter()
     report = {"data": str(args.data), "n_recordings": len(recs)}
+    conventions = {}
     if args.tune_on:
         from besdrake.segmentation import tune_vmci
 
         try:
-            tuned = tune_vmci(labelled_recordings(args.tune_on))
+            train = labelled_recordings(args.tune_on)
+            tuned = tune_vmci(train)
         except (OSError, ValueError) as err:
             raise UserError(f"--tune-on: {err}") from None
         methods["vmci_tuned"] = tuned.segmenter()
@@ -57,6 +63,13 @@ def run(args: argparse.Namespace) -> int:
     try:
         for name, seg in methods.items():
             report[name] = evaluate_segmenter(seg, recs, args.tolerances).to_dict()
+        if args.conventions:
+            from besdrake.segmentation.conventions import annotation_conventions
+
+            conventions["data"] = annotation_conventions(recs).to_dict()
+            if args.tune_on:
+                conventions["tune_on"] = annotation_conventions(train).to_dict()
+            report["annotation_conventions"] = conventions
     except ValueError as err:
         raise UserError(str(err)) from None
     if args.json:
@@ -66,4 +79,8 @@ def run(args: argparse.Namespace) -> int:
             r = report[name]
             for tol, s in r["scores"].items():
                 print(f"{name:14s} +-{tol} s  P {s['precision']:.3f}  R {s['recall']:.3f}  F1 {s['f1']:.3f}")
+        for which, c in conventions.items():
+            print(f"conventions of {which}: {c['n_borders']} borders, {c['pause_edge_share']:.0%} at the edges of "
+                  f"{c['n_pauses']} pauses; speed at a border / peak: median {c['speed_fraction_quartiles'][1]:.3f}; "
+                  f"within 0.1 s of a speed minimum: {c['near_minimum_share']:.0%}")
     return 0

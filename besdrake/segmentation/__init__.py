@@ -7,6 +7,8 @@
   (``VMCI(rules=...)``), learned on a labelled subject by :func:`tune_vmci`.
 * :class:`SegmentClassifier`: 1-NN classifier of segments (``fit(segments, labels)``, ``predict``).
 * :mod:`besdrake.segmentation.evaluation`: border scoring and labelled-folder loading.
+* :mod:`besdrake.segmentation.conventions`: how an annotator places borders (pauses, speed
+  levels, distance from speed minima), to compare two annotators before tuning on one.
 """
 
 from besdrake.segmentation.base import SegmentationError, SegmentationResult

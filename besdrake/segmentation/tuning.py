@@ -22,6 +22,13 @@ annotator draws borders subject 2's does not (part borders at high speed; both e
 of 0.2-0.35 s, where subject 2's draws one border or none at 29 of its 30 pauses under 0.4 s)
 and places the ends of pauses with a spread of +-0.2 s around any speed level (the best level
 puts 79-82% of them within 0.1 s).
+Measured with :func:`~besdrake.segmentation.conventions.annotation_conventions`: 53% of subject
+1's 87 interior borders are the edges of 23 pauses it leaves between segments, against 12% of
+subject 2's 34 (2 pauses); subject 2 cuts back-to-back movements at the speed minimum (median
+2.3% of the peak speed, 79% of all borders within 0.1 s of a minimum), subject 1 at a median 8%
+(41% near a minimum). Subject 1's annotations also vary from recording to recording: tuned on
+eight of its recordings and scored on the ninth (bench ``--within-subject``), the pooled score is
+0.791 / 0.605 -- below the 0.867 / 0.675 from subject 2 (subject 2 the same way: 0.930 / 0.845).
 Measured and not adopted (2 -> 1, default grid 0.867 / 0.675): the pause rule
 (:data:`PAUSE_TUNING_RULE_GRID`) 0.886 / 0.695; start level tied to the end level (one
 symmetric convention) 0.843 / 0.614; selection regularised to the fewest rules within 0.005 of
