@@ -60,7 +60,7 @@ import numpy as np  # noqa: E402
 
 from besdrake.mocap.preprocess import preprocess  # noqa: E402
 from besdrake.segmentation import VMCI, ZeroVelocitySegmenter, tune_vmci  # noqa: E402
-from besdrake.segmentation.conventions import annotation_conventions  # noqa: E402
+from besdrake.segmentation.conventions import annotation_conventions, speed_minima  # noqa: E402
 from besdrake.segmentation.placement import DEFAULT_RULE_GRID  # noqa: E402
 from besdrake.segmentation.tuning import DEFAULT_VMCI_GRID, PAUSE_TUNING_RULE_GRID  # noqa: E402
 from besdrake.segmentation.evaluation import (  # noqa: E402
@@ -115,9 +115,7 @@ def near_minimum_fraction(recs, pre, segmenter=None) -> float:
     near = total = 0
     for rec in recs:
         p = pre[str(rec.path)]
-        speed = np.linalg.norm(p.hand_velocity, axis=1)
-        i = np.arange(1, len(speed) - 1)
-        minima = i[(speed[i] <= speed[i - 1]) & (speed[i] <= speed[i + 1])]
+        minima = speed_minima(np.linalg.norm(p.hand_velocity, axis=1))
         if segmenter is None:
             b = manual_borders(rec.segments, int(p.frames[0]), int(p.frames[-1]), p.frequency) - p.frames[0]
         else:

@@ -75,6 +75,12 @@ def pauses(segments: list[Segment], frequency: float, merge_s: float = 0.1) -> l
     return out
 
 
+def speed_minima(speed: np.ndarray) -> np.ndarray:
+    """Indices of the interior local minima of ``speed`` (a sample no higher than either neighbour)."""
+    i = np.arange(1, len(speed) - 1)
+    return i[(speed[i] <= speed[i - 1]) & (speed[i] <= speed[i + 1])]
+
+
 def border_contexts(segments: list[Segment], speed: np.ndarray, frequency: float, first_frame: int,
                     merge_s: float = 0.1, window_s: float = DEFAULT_WINDOW_S) -> list[BorderContext]:
     """The interior manual borders of one recording with the hand speed around them.
@@ -88,8 +94,7 @@ def border_contexts(segments: list[Segment], speed: np.ndarray, frequency: float
     last_frame = first_frame + n - 1
     borders = manual_borders(segments, first_frame, last_frame, frequency, merge_s=merge_s)
     edges = [e for gap in pauses(segments, frequency, merge_s) for e in gap]
-    i = np.arange(1, n - 1)
-    minima = i[(speed[i] <= speed[i - 1]) & (speed[i] <= speed[i + 1])]
+    minima = speed_minima(speed)
     w = max(1, int(round(window_s * frequency)))
     out = []
     for b in borders:
