@@ -67,7 +67,6 @@ from besdrake.segmentation.evaluation import (  # noqa: E402
     BORDER_DEFINITION,
     evaluate_segmenter,
     labelled_recordings,
-    manual_borders,
     matching_segments,
 )
 
@@ -112,14 +111,15 @@ def summary(ev) -> dict:
 
 
 def near_minimum_fraction(recs, pre, segmenter=None) -> float:
+    """Share of borders within 0.1 s of a hand speed minimum: the manual ones (``segmenter=None``)
+    or the segmenter's."""
+    if segmenter is None:
+        return annotation_conventions(recs, pre).near_minimum_share
     near = total = 0
     for rec in recs:
         p = pre[str(rec.path)]
         minima = speed_minima(np.linalg.norm(p.hand_velocity, axis=1))
-        if segmenter is None:
-            b = manual_borders(rec.segments, int(p.frames[0]), int(p.frames[-1]), p.frequency) - p.frames[0]
-        else:
-            b = segmenter.fit(p).borders_
+        b = segmenter.fit(p).borders_
         w = 0.1 * p.frequency
         for x in b:
             total += 1
