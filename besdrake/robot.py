@@ -44,7 +44,7 @@ ACCELERATION_LIMITS: np.ndarray = np.full(6, 20.0)
 ACCELERATION_LIMITS.setflags(write=False)
 
 #: Repository folder that holds the model files and ``package.xml`` (package ``besdrake_models``).
-MODELS_DIR: Path = Path(__file__).resolve().parents[1] / "models"
+MODELS_DIR: Path = Path(__file__).resolve().parent / "models"
 PACKAGE_NAME = "besdrake_models"
 
 #: Model instance name of the arm in the plant.

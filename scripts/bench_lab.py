@@ -25,7 +25,7 @@ REPO = Path(__file__).resolve().parents[1]
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--lab", type=Path, default=REPO / "diagrams" / "labs" / "default_lab.yaml")
+    parser.add_argument("--lab", type=Path, default=REPO / "besdrake" / "diagrams" / "labs" / "default_lab.yaml")
     parser.add_argument("--repeats", type=int, default=20)
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()

@@ -220,7 +220,7 @@ def test_lab_config_errors_name_the_problem(tmp_path):
 def test_shipped_lab_configs_load():
     from pathlib import Path
 
-    labs = sorted((Path(__file__).resolve().parents[1] / "diagrams" / "labs").glob("*.yaml"))
+    labs = sorted((Path(__file__).resolve().parents[1] / "besdrake" / "diagrams" / "labs").glob("*.yaml"))
     assert {p.stem for p in labs} >= {"default_lab", "touchdown_only_lab"}
     for p in labs:
         cfg = load_lab_config(p)
@@ -237,7 +237,7 @@ def test_the_default_lab_path_works_from_any_working_folder(tmp_path, monkeypatc
     assert load_lab_config("diagrams/labs/default_lab.yaml").name == "default_lab"
     mine = tmp_path / "diagrams" / "labs" / "default_lab.yaml"  # a file of the same path in the working folder wins
     mine.parent.mkdir(parents=True)
-    mine.write_text((Path(__file__).resolve().parents[1] / "diagrams" / "labs" / "default_lab.yaml").read_text().replace(
+    mine.write_text((Path(__file__).resolve().parents[1] / "besdrake" / "diagrams" / "labs" / "default_lab.yaml").read_text().replace(
         "name: default_lab", "name: my_lab"))
     assert load_lab_config("diagrams/labs/default_lab.yaml").name == "my_lab"
     with pytest.raises(LabConfigError, match="not found"):

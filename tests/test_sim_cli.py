@@ -84,7 +84,7 @@ def test_record_writes_self_contained_html(tmp_path, capsys):
 
 def test_render_diagrams_writes_dot(tmp_path, script):
     mod = script("render_diagrams")
-    written = mod.render(REPO / "diagrams" / "nominal.yaml", tmp_path)
+    written = mod.render(REPO / "besdrake" / "diagrams" / "nominal.yaml", tmp_path)
     dot = written[0].read_text()
     assert written[0].suffix == ".dot"
     assert "MultibodyPlant" in dot and "motion_plan" in dot and "state_logger" in dot

@@ -11,7 +11,7 @@ HELP = "execute motion plans in a virtual lab (behind the safety gate) and fill 
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--lab", type=Path, required=True, help="lab YAML (e.g. diagrams/labs/default_lab.yaml)")
+    parser.add_argument("--lab", type=Path, required=True, help="lab YAML path, or a built-in lab by name (default_lab, ideal_lab, touchdown_only_lab)")
     parser.add_argument("--plans", type=Path, required=True,
                         help="a plan JSON file, a JSON list of plans, or a folder of *.plan.json (sorted by name)")
     parser.add_argument("--seed", type=int, default=None, help="noise seed of the lab (default: the YAML's seed)")

@@ -22,7 +22,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="override one setting, e.g. --set refinement.evaluations=500 (repeatable)")
     parser.add_argument("--quick", action="store_true", help="smoke profile: every stage on a small budget (about a minute or two)")
     parser.add_argument("--demonstrations", default=None, help="folder of your own TSV/C3D recordings (default: the synthetic demonstrator)")
-    parser.add_argument("--lab", default=None, help="lab YAML (default: diagrams/labs/default_lab.yaml)")
+    parser.add_argument("--lab", default=None, help="lab YAML path or built-in lab name (default: default_lab)")
     parser.add_argument("--workers", type=int, default=None, help="simulation processes (default 2)")
     parser.add_argument("--ray", default=None, metavar="ADDRESS", help="run rollouts on a Ray cluster (e.g. 'auto'; needs besdrake[cluster])")
     parser.add_argument("--stage", action="append", default=None, help="run only these stages (repeatable)")

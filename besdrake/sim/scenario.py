@@ -16,7 +16,7 @@ import yaml
 
 from besdrake import robot
 
-DIAGRAMS_DIR: Path = Path(__file__).resolve().parents[2] / "diagrams"
+DIAGRAMS_DIR: Path = Path(__file__).resolve().parents[1] / "diagrams"
 
 CONTACT_APPROXIMATIONS = ("sap", "lagged", "similar")
 CONTROLLERS = ("joint_pd",)

@@ -251,15 +251,18 @@ def parse_lab_config(data: Any, base_dir: Path | None = None, name: str = "lab")
 
 
 def resolve_lab_path(path: str | Path) -> Path:
-    """``path`` as given where it names a file; else a relative path is looked up from the besdrake checkout
-    (``diagrams/labs/default_lab.yaml`` works from any working folder). Unchanged when neither exists."""
+    """``path`` as given where it names a file; else a built-in lab by name (``default_lab`` is
+    ``besdrake/diagrams/labs/default_lab.yaml``) or a relative path looked up in the installed package
+    (``diagrams/labs/default_lab.yaml`` works from any working folder). Unchanged when none exists."""
     p = Path(path)
     if p.is_file() or p.is_absolute():
         return p
     from besdrake.sim.scenario import DIAGRAMS_DIR
 
-    q = DIAGRAMS_DIR.parent / p
-    return q if q.is_file() else p
+    for q in (DIAGRAMS_DIR / "labs" / f"{p}.yaml", DIAGRAMS_DIR.parent / p):
+        if q.is_file():
+            return q
+    return p
 
 
 def load_lab_config(path: str | Path) -> LabConfig:

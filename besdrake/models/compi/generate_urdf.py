@@ -1,6 +1,6 @@
 """Generate ``compi.urdf`` (arm + scoop) from the published kinematics and our documented assumptions.
 
-Run ``python3 models/compi/generate_urdf.py`` after changing a scoop constant in ``besdrake/robot.py``
+Run ``python3 besdrake/models/compi/generate_urdf.py`` after changing a scoop constant in ``besdrake/robot.py``
 (the scoop geometry lives there so that the simulation and the model agree). The URDF is committed.
 """
 
