@@ -1,8 +1,10 @@
 """Joint-space motion plans: the currency between the learning stages and the simulation.
 
-A :class:`MotionPlan` is a sampled joint trajectory of COMPI: times ``t`` (N,) in s starting
-at 0, positions ``q`` (N, 6) in rad and optionally velocities ``qd`` (N, 6) in rad/s. DMPs
-and inverse kinematics produce plans; :class:`besdrake.sim.Rollout` executes them.
+A :class:`MotionPlan` is a sampled joint trajectory of a robot's arm: times ``t`` (N,) in s starting
+at 0, positions ``q`` (N, n) in rad and optionally velocities ``qd`` (N, n) in rad/s, for the robot's n
+arm joints (their names travel with the plan when known). DMPs and inverse kinematics produce plans;
+:class:`besdrake.sim.Rollout` executes them. Limits are checked against a robot's
+:class:`~besdrake.robot.JointLimits`.
 
 Between samples the plan is a cubic Hermite through ``(q, qd)``; when ``qd`` is not given it is taken
 from the not-a-knot cubic spline through ``q`` (so the plan is that spline). :meth:`MotionPlan.sample`,
@@ -19,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from besdrake import robot
+from besdrake.robot import JointLimits
 
 
 class PlanError(ValueError):
@@ -30,12 +32,14 @@ class PlanError(ValueError):
 class LimitReport:
     """Largest violation per joint (0 where within the limit), in the limit's units.
 
-    ``position`` in rad, ``velocity`` in rad/s, ``acceleration`` in rad/s^2; each has shape (6,).
+    ``position`` in rad, ``velocity`` in rad/s, ``acceleration`` in rad/s^2; each has shape (n,) for the
+    joints ``names``.
     """
 
     position: np.ndarray
     velocity: np.ndarray
     acceleration: np.ndarray
+    names: tuple[str, ...] = ()
 
     @property
     def ok(self) -> bool:
@@ -50,7 +54,8 @@ class LimitReport:
             ("velocity", self.velocity, "rad/s"),
             ("acceleration", self.acceleration, "rad/s^2"),
         ):
-            for name, v in zip(robot.JOINT_NAMES, values):
+            names = self.names or tuple(f"joint{i + 1}" for i in range(len(values)))
+            for name, v in zip(names, values):
                 if v > 0:
                     out.append(f"{name} {kind} +{v:.3f} {unit}")
         return out
@@ -66,12 +71,14 @@ class LimitReport:
 
 @dataclass
 class MotionPlan:
-    """A joint trajectory: ``t`` (N,) s from 0, ``q`` (N, 6) rad, optional ``qd`` (N, 6) rad/s."""
+    """A joint trajectory: ``t`` (N,) s from 0, ``q`` (N, n) rad, optional ``qd`` (N, n) rad/s; ``joint_names``
+    (n) when known."""
 
     t: np.ndarray
     q: np.ndarray
     qd: np.ndarray | None = None
     meta: dict[str, Any] = field(default_factory=dict)
+    joint_names: tuple[str, ...] | None = None
 
     def __post_init__(self) -> None:
         self.t = np.asarray(self.t, dtype=float)
@@ -87,11 +94,15 @@ class MotionPlan:
 
     def validate(self) -> "MotionPlan":
         """Raise :class:`PlanError` naming the problem if the plan is malformed; return self."""
-        n_joints = len(robot.JOINT_NAMES)
         if self.t.ndim != 1:
             raise PlanError(f"plan time must be a 1-D array, got shape {self.t.shape}")
         if self.t.size < 2:
             raise PlanError(f"plan needs at least 2 samples, got {self.t.size}")
+        if self.q.ndim != 2 or self.q.shape[1] == 0:
+            raise PlanError(f"plan q must be a 2-D array (samples x joints), got shape {self.q.shape}")
+        if self.joint_names and len(set(self.joint_names)) != len(self.joint_names):
+            raise PlanError(f"plan joint_names must be distinct, got {list(self.joint_names)}")
+        n_joints = len(self.joint_names) if self.joint_names else self.q.shape[1]
         if self.q.shape != (self.t.size, n_joints):
             raise PlanError(f"plan q must have shape ({self.t.size}, {n_joints}), got {self.q.shape}")
         if self.qd is not None and self.qd.shape != self.q.shape:
@@ -155,19 +166,22 @@ class MotionPlan:
         _, _, qdd_left = self._hermite(self.t[1:] - 1e-12, knot_qd)
         return q, qd, np.vstack([qdd, qdd_left])
 
-    def check_limits(
-        self,
-        position_limits: np.ndarray | None = None,
-        velocity_limits: np.ndarray | None = None,
-        acceleration_limits: np.ndarray | None = None,
-        resolution: float = 0.002,
-    ) -> LimitReport:
-        """Largest violation per joint of the interpolated plan (sampled at the knots and at least every
-        ``resolution`` s). Never raises for limit violations (it raises :class:`PlanError` for a malformed plan)."""
+    def _limits_for(self, limits: JointLimits) -> JointLimits:
+        if not isinstance(limits, JointLimits):
+            raise TypeError(f"limits must be a robot's JointLimits, got {type(limits).__name__}")
         self.validate()
-        pos = robot.POSITION_LIMITS if position_limits is None else np.asarray(position_limits, float)
-        vel = robot.VELOCITY_LIMITS if velocity_limits is None else np.asarray(velocity_limits, float)
-        acc = robot.ACCELERATION_LIMITS if acceleration_limits is None else np.asarray(acceleration_limits, float)
+        if self.q.shape[1] != limits.n_joints:
+            raise PlanError(f"plan has {self.q.shape[1]} joints, the robot {limits.n_joints} ({list(limits.names)})")
+        if self.joint_names and tuple(self.joint_names) != tuple(limits.names):
+            raise PlanError(f"plan joints {list(self.joint_names)} differ from the robot's {list(limits.names)}")
+        return limits
+
+    def check_limits(self, limits: JointLimits, resolution: float = 0.002) -> LimitReport:
+        """Largest violation per joint of the interpolated plan against a robot's ``limits`` (sampled at the
+        knots and at least every ``resolution`` s). Never raises for limit violations (it raises
+        :class:`PlanError` for a malformed plan or one for other joints)."""
+        limits = self._limits_for(limits)
+        pos, vel, acc = limits.position, limits.velocity, limits.acceleration
         q, qd, qdd = self._sampled(resolution)
         p_viol = np.maximum(np.max(pos[:, 0] - q, axis=0), np.max(q - pos[:, 1], axis=0))
         v_viol = np.max(np.abs(qd) - vel, axis=0)
@@ -176,20 +190,23 @@ class MotionPlan:
             position=np.maximum(p_viol, 0.0),
             velocity=np.maximum(v_viol, 0.0),
             acceleration=np.maximum(a_viol, 0.0),
+            names=limits.names,
         )
 
-    def peak_limit_ratios(self, resolution: float = 0.002) -> tuple[np.ndarray, np.ndarray]:
+    def peak_limit_ratios(self, limits: JointLimits, resolution: float = 0.002) -> tuple[np.ndarray, np.ndarray]:
         """Peak |velocity| / velocity limit and peak |acceleration| / acceleration limit per joint (each (6,),
         dimensionless; > 1 where :meth:`check_limits` reports a violation), sampled as :meth:`check_limits` does.
         Stretching a plan's time uniformly by ``k`` divides them by ``k`` and ``k**2``."""
-        self.validate()
+        limits = self._limits_for(limits)
         _, qd, qdd = self._sampled(resolution)
-        return np.max(np.abs(qd), axis=0) / robot.VELOCITY_LIMITS, np.max(np.abs(qdd), axis=0) / robot.ACCELERATION_LIMITS
+        return np.max(np.abs(qd), axis=0) / limits.velocity, np.max(np.abs(qdd), axis=0) / limits.acceleration
 
     # ------------------------------------------------------------------ I/O
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict (units: s, rad, rad/s)."""
-        d: dict[str, Any] = {"t": self.t.tolist(), "q": self.q.tolist(), "joint_names": list(robot.JOINT_NAMES)}
+        d: dict[str, Any] = {"t": self.t.tolist(), "q": self.q.tolist()}
+        if self.joint_names:
+            d["joint_names"] = list(self.joint_names)
         if self.qd is not None:
             d["qd"] = self.qd.tolist()
         if self.meta:
@@ -205,14 +222,15 @@ class MotionPlan:
         if missing:
             raise PlanError(f"motion plan is missing key(s) {missing}")
         names = d.get("joint_names")
-        if names is not None and list(names) != list(robot.JOINT_NAMES):
-            raise PlanError(f"motion plan joint_names {names} differ from COMPI's {list(robot.JOINT_NAMES)}")
+        if names is not None and (not isinstance(names, list) or not all(isinstance(n, str) for n in names)):
+            raise PlanError(f"motion plan joint_names must be a list of names, got {names!r}")
         try:
             plan = cls(
                 t=np.asarray(d["t"], dtype=float),
                 q=np.asarray(d["q"], dtype=float),
                 qd=None if d.get("qd") is None else np.asarray(d["qd"], dtype=float),
                 meta=dict(d.get("meta") or {}),
+                joint_names=tuple(names) if names else None,
             )
         except (TypeError, ValueError) as err:
             raise PlanError(f"motion plan arrays are not numeric or ragged: {err}") from err

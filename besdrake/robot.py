@@ -1,77 +1,224 @@
-"""Facts about the COMPI arm (DFKI) with its throwing scoop: joint names, limits, model files.
+"""Robots as data: a :class:`Robot` is read from a YAML description file and handed to every stage.
 
-Kinematics follow DFKI's published URDF (see ``models/compi/compi.urdf``). Position limits
-for joints 1-5 and the 3.14 rad/s motor speed limit are the published values used for COMPI;
-the others are our documented choices:
+A robot file names the model file(s) and the packages they need, the base link that is welded to the
+world, the arm's joints with their position / velocity / acceleration / effort limits (and where each
+limit comes from), the tool frame, the end effector (a tool without joints, or a gripper with its
+joints and open / closed positions), a home pose, the joint servo gains, what the safety gate needs
+(longest plan, control period, start tolerance) and the hints the embodiment mapping reads (which
+demonstrated body part drives the tool, which tool axis matches the palm).
 
-* joint6 position limit: +-pi (not published; the wrist roll has no hard stop in the model).
-* acceleration limit: 20 rad/s^2 on every joint. Not published; chosen so that a full-speed
-  joint (3.14 rad/s) can stop within ~0.16 s, which matches the short, snappy throws of the
-  BesMan experiments while staying well inside what small servo drives deliver.
-
-Other stages (inverse kinematics, the lab's safety gate) import these constants; the
-simulation uses them to validate motion plans.
+Built-in robots live beside their model files, ``besdrake/models/<name>/robot.yaml``, and are found by
+name (``load_robot("compi")``); any other file is found by path. Relative model and package paths in a
+file are read from the file's folder. Every field is checked when the file is read, the names against
+the model itself, so a mistake is reported as one :class:`RobotError` naming the file and the field.
 """
 
 from __future__ import annotations
 
+import functools
+import sys
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
+import yaml
 
-#: The six revolute joints, base to wrist.
-JOINT_NAMES: tuple[str, ...] = ("joint1", "joint2", "joint3", "joint4", "joint5", "joint6")
-
-#: Position limits in rad, one row [lower, upper] per joint (joint6: our choice, +-pi).
-POSITION_LIMITS: np.ndarray = np.array(
-    [
-        [-np.pi, np.pi],
-        [-1.8, 2.09],
-        [-2.3, 2.3],
-        [-np.pi, np.pi],
-        [-2.0, 2.0],
-        [-np.pi, np.pi],
-    ]
-)
-POSITION_LIMITS.setflags(write=False)
-
-#: Motor speed limit in rad/s (published: 3.14 rad/s for every joint).
-VELOCITY_LIMITS: np.ndarray = np.full(6, 3.14)
-VELOCITY_LIMITS.setflags(write=False)
-
-#: Acceleration limit in rad/s^2 (our documented choice, see module docstring).
-ACCELERATION_LIMITS: np.ndarray = np.full(6, 20.0)
-ACCELERATION_LIMITS.setflags(write=False)
-
-#: Repository folder that holds the model files and ``package.xml`` (package ``besdrake_models``).
+#: Folder with the built-in models and robot files, and ``package.xml`` (package ``besdrake_models``).
 MODELS_DIR: Path = Path(__file__).resolve().parent / "models"
 PACKAGE_NAME = "besdrake_models"
-
-#: Model instance name of the arm in the plant.
-MODEL_INSTANCE = "compi"
-#: Frame of the arm's base link (welded to the world through a movable base frame).
-BASE_LINK = "linkmount"
-#: Tool centre point: at the wrist flange, 0.05 m beyond joint6 along the last link.
-TCP_FRAME = "tcp"
-#: Body of the scoop (welded to the tcp); its frame's +z is the scoop's opening direction.
-SCOOP_BODY = "scoop"
-#: Body of the ball in the plant.
-BALL_BODY = "ball"
-
-#: Height of the tcp above the base at q = 0 (arm pointing straight up), in m.
-TCP_HEIGHT_AT_ZERO = 0.158 + 0.28 + 0.34 + 0.346 + 0.05
+END_EFFECTOR_TYPES = ("fixed", "gripper")
+_TOP_KEYS = {"name", "description", "model", "base_link", "joints", "tool_frame", "end_effector", "home",
+             "controller", "safety", "mapping", "sources"}
 
 
-def compi_model_path() -> Path:
-    """Path of COMPI's URDF (arm + scoop collision geometry)."""
-    path = MODELS_DIR / "compi" / "compi.urdf"
-    if not path.is_file():
-        raise FileNotFoundError(f"COMPI model file missing: {path}")
-    return path
+class RobotError(ValueError):
+    """A robot description is missing, unreadable or has an invalid field (the message names both)."""
+
+
+@dataclass(frozen=True, eq=False)
+class JointLimits:
+    """Limits of ``names`` (n joints): ``position`` (n, 2) rad, ``velocity`` (n,) rad/s,
+    ``acceleration`` (n,) rad/s^2. The arrays are read-only."""
+
+    names: tuple[str, ...]
+    position: np.ndarray
+    velocity: np.ndarray
+    acceleration: np.ndarray
+
+    def __post_init__(self) -> None:
+        n = len(self.names)
+        for name, shape in (("position", (n, 2)), ("velocity", (n,)), ("acceleration", (n,))):
+            arr = np.array(getattr(self, name), dtype=float)
+            if arr.shape != shape or not np.all(np.isfinite(arr)):
+                raise ValueError(f"JointLimits.{name} must be finite with shape {shape}, got {arr.shape}")
+            arr.setflags(write=False)
+            object.__setattr__(self, name, arr)
+        if np.any(self.position[:, 0] >= self.position[:, 1]):
+            raise ValueError("JointLimits.position: every lower limit must be below its upper limit")
+        if np.any(self.velocity <= 0) or np.any(self.acceleration <= 0):
+            raise ValueError("JointLimits: velocity and acceleration limits must be positive")
+
+    @property
+    def n_joints(self) -> int:
+        return len(self.names)
+
+    def within(self, q: np.ndarray, margin: float = 0.0) -> np.ndarray:
+        """Boolean mask: which entries of ``q`` (..., n) lie within the position limits less ``margin``."""
+        q = np.asarray(q, dtype=float)
+        return (q >= self.position[:, 0] + margin) & (q <= self.position[:, 1] - margin)
+
+    def clip(self, q: np.ndarray, margin: float = 0.0) -> np.ndarray:
+        """``q`` clipped into the position limits less ``margin``."""
+        return np.clip(q, self.position[:, 0] + margin, self.position[:, 1] - margin)
+
+
+@dataclass(frozen=True, eq=False)
+class Gripper:
+    """A gripper's joints, their actuators, open and closed positions (m or rad) and servo gains."""
+
+    joints: tuple[str, ...]
+    actuators: tuple[str | None, ...]
+    open: np.ndarray
+    closed: np.ndarray
+    kp: np.ndarray
+    kd: np.ndarray
+    effort: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class EndEffector:
+    """The tool: ``type`` "fixed" (no joints, e.g. a scoop) or "gripper"; its ``body``; task parameters
+    of the tool in ``params`` (e.g. a scoop's geometry), read by the task that uses them."""
+
+    type: str
+    body: str
+    gripper: Gripper | None = None
+    params: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class SafetyDefaults:
+    """What the safety gate needs beyond the joint limits: the longest plan (s), the control period
+    (s; knots closer than this are refused) and how far (rad) a plan may start from the current pose."""
+
+    max_plan_duration: float = 30.0
+    control_period: float = 0.002
+    start_tolerance: float = 0.05
+
+
+@dataclass(frozen=True, eq=False)
+class Robot:
+    """A validated robot description (see ``besdrake/models/compi/robot.yaml`` for each field)."""
+
+    name: str
+    description: str
+    path: Path | None
+    model: Path
+    packages: dict[str, Path]
+    base_link: str
+    limits: JointLimits
+    actuators: tuple[str | None, ...]
+    effort: np.ndarray
+    tool_frame: str
+    end_effector: EndEffector
+    home: np.ndarray
+    kp: np.ndarray
+    kd: np.ndarray
+    safety: SafetyDefaults
+    mapping: dict[str, Any]
+    sources: dict[str, str]
+
+    @property
+    def reference(self) -> str:
+        """How a file refers to this robot: its name when built in, else its file's path."""
+        builtin = MODELS_DIR / self.name / "robot.yaml"
+        return self.name if self.path is not None and self.path == builtin.resolve() else str(self.path or self.name)
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        return self.limits.names
+
+    @property
+    def n_joints(self) -> int:
+        return self.limits.n_joints
+
+    @property
+    def position_limits(self) -> np.ndarray:
+        return self.limits.position
+
+    @property
+    def velocity_limits(self) -> np.ndarray:
+        return self.limits.velocity
+
+    @property
+    def acceleration_limits(self) -> np.ndarray:
+        return self.limits.acceleration
+
+    def add_packages(self, package_map) -> None:
+        """Make the model's packages (and ``besdrake_models``) known to a Drake ``PackageMap``."""
+        add_package(package_map)
+        for name, folder in self.packages.items():
+            if not package_map.Contains(name):
+                xml = folder / "package.xml"
+                if xml.is_file():
+                    package_map.AddPackageXml(str(xml))
+                else:
+                    package_map.Add(name, str(folder))
+
+    def add_model(self, plant, parser=None):
+        """Parse the robot into ``plant`` (before ``Finalize``); returns its model instance. Joints whose
+        actuator the file leaves out (``actuator: null``; e.g. URDFs without transmissions) get one here,
+        named ``<joint>_motor``, with the file's effort limit."""
+        from pydrake.multibody.parsing import Parser
+
+        parser = parser or Parser(plant)
+        self.add_packages(parser.package_map())
+        instances = parser.AddModels(str(self.model))
+        instance = instances[0]
+        for joint_name, actuator, effort in zip(self._all_joints(), self._all_actuators(), self._all_efforts()):
+            if actuator is None:
+                joint = plant.GetJointByName(joint_name, instance)
+                plant.AddJointActuator(f"{joint_name}_motor", joint, float(effort) if np.isfinite(effort) else np.inf)
+        return instance
+
+    def actuator_name(self, joint: str) -> str:
+        """Name of the actuator that drives ``joint`` (arm or gripper)."""
+        for name, act in zip(self._all_joints(), self._all_actuators()):
+            if name == joint:
+                return act or f"{name}_motor"
+        raise KeyError(f"robot {self.name!r} has no joint {joint!r}")
+
+    def _all_joints(self) -> tuple[str, ...]:
+        g = self.end_effector.gripper
+        return self.joint_names + (g.joints if g else ())
+
+    def _all_actuators(self) -> tuple[str | None, ...]:
+        g = self.end_effector.gripper
+        return self.actuators + (g.actuators if g else ())
+
+    def _all_efforts(self) -> np.ndarray:
+        g = self.end_effector.gripper
+        return np.concatenate([self.effort, g.effort if g else []])
+
+    def describe(self) -> dict[str, Any]:
+        """A JSON-ready summary (name, file, joints and limits, tool, end effector)."""
+        return {
+            "name": self.name,
+            "file": str(self.path) if self.path else None,
+            "model": str(self.model),
+            "joints": list(self.joint_names),
+            "position_limits_rad": self.position_limits.tolist(),
+            "velocity_limits_rad_s": self.velocity_limits.tolist(),
+            "acceleration_limits_rad_s2": self.acceleration_limits.tolist(),
+            "tool_frame": self.tool_frame,
+            "end_effector": {"type": self.end_effector.type, "body": self.end_effector.body,
+                             "gripper_joints": list(self.end_effector.gripper.joints) if self.end_effector.gripper else []},
+        }
 
 
 def package_xml_path() -> Path:
-    """Path of ``models/package.xml`` that makes ``package://besdrake_models/...`` resolve."""
+    """Path of ``besdrake/models/package.xml`` that makes ``package://besdrake_models/...`` resolve."""
     path = MODELS_DIR / "package.xml"
     if not path.is_file():
         raise FileNotFoundError(f"model package file missing: {path}")
@@ -84,73 +231,45 @@ def add_package(package_map) -> None:
         package_map.AddPackageXml(str(package_xml_path()))
 
 
-def package_map():
-    """A fresh Drake ``PackageMap`` that knows ``besdrake_models``."""
-    from pydrake.multibody.parsing import PackageMap
-
-    pm = PackageMap()
-    add_package(pm)
-    return pm
+def known_robots() -> list[str]:
+    """Names of the built-in robots (folders of ``besdrake/models`` with a ``robot.yaml``)."""
+    return sorted(p.parent.name for p in MODELS_DIR.glob("*/robot.yaml"))
 
 
-def in_limits(q: np.ndarray, margin: float = 0.0) -> np.ndarray:
-    """Boolean mask: which entries of ``q`` (..., 6) lie within the position limits (minus margin)."""
-    q = np.asarray(q, dtype=float)
-    return (q >= POSITION_LIMITS[:, 0] + margin) & (q <= POSITION_LIMITS[:, 1] - margin)
+def robot_file(name_or_path: str | Path) -> Path:
+    """The robot file a name (``"compi"``) or a path stands for; :class:`RobotError` if there is none."""
+    p = Path(name_or_path)
+    if p.suffix in (".yaml", ".yml") or "/" in str(name_or_path) or p.is_file():
+        if not p.is_file():
+            raise RobotError(f"robot file not found: {p}")
+        return p.resolve()
+    builtin = MODELS_DIR / str(name_or_path) / "robot.yaml"
+    if not builtin.is_file():
+        raise RobotError(f"unknown robot {str(name_or_path)!r} (built-in robots: {known_robots()}; or give a YAML path)")
+    return builtin
 
 
-# Scoop geometry (must match models/compi/compi.urdf; see the comment there), in the scoop frame
-# whose +z is the opening direction. A square funnel with 45-degree walls.
-SCOOP_BOTTOM_HALF_WIDTH = 0.015  # m, half-width of the funnel at z = 0
-SCOOP_WALL_ANGLE = np.pi / 4  # rad, wall inclination from the scoop's base plane
-SCOOP_LIP_HEIGHT = 0.045  # m, height of the walls' top edge above z = 0
-SCOOP_TOP_HALF_WIDTH = SCOOP_BOTTOM_HALF_WIDTH + SCOOP_LIP_HEIGHT / np.tan(SCOOP_WALL_ANGLE)
-SCOOP_FLOOR_Z = -0.0045  # m, top of the safety floor plate
+def load_robot(name_or_path: str | Path | Robot) -> Robot:
+    """Read and check a robot file (by built-in name or path); a :class:`Robot` is returned as is."""
+    if isinstance(name_or_path, Robot):
+        return name_or_path
+    return _load_cached(robot_file(name_or_path))
 
 
-def ball_rest_height(radius: float) -> float:
-    """Height (m, scoop frame z) of the centre of a ball of ``radius`` resting on the funnel walls."""
-    a = SCOOP_BOTTOM_HALF_WIDTH
-    s = np.sin(SCOOP_WALL_ANGLE)
-    c = np.cos(SCOOP_WALL_ANGLE)
-    return max((radius - a * s) / c, SCOOP_FLOOR_Z + radius)
+@functools.lru_cache(maxsize=32)
+def _load_cached(path: Path) -> Robot:
+    from besdrake.robot_file import robot_from_dict
+
+    try:
+        data = yaml.safe_load(path.read_text())
+    except (OSError, UnicodeDecodeError) as err:
+        raise RobotError(f"{path}: cannot read the robot file: {err}") from err
+    except yaml.YAMLError as err:
+        raise RobotError(f"{path}: not valid YAML: {err}") from err
+    return robot_from_dict(data, path)
 
 
-def scoop_surfaces() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The scoop's contact surfaces as rectangles in the scoop frame: origins (5, 3) (centre of the bottom
-    edge of each wall, centre of the floor plate), unit axes ``u`` (5, 3) (up the wall / along x) and ``w``
-    (5, 3) (along the wall / along y), and half-extents (5, 2) along them (``u`` measured from 0 for walls).
-    The four 45-degree walls' inner faces and the floor plate's top face, as in ``compi.urdf``."""
-    a, h, al = SCOOP_BOTTOM_HALF_WIDTH, SCOOP_LIP_HEIGHT, SCOOP_WALL_ANGLE
-    length = h / np.sin(al)
-    half_w = SCOOP_TOP_HALF_WIDTH + 0.005
-    c, s = np.cos(al), np.sin(al)
-    origins = np.array([[a, 0, 0], [-a, 0, 0], [0, a, 0], [0, -a, 0], [0, 0, SCOOP_FLOOR_Z]], dtype=float)
-    u = np.array([[c, 0, s], [-c, 0, s], [0, c, s], [0, -c, s], [1, 0, 0]], dtype=float)
-    w = np.array([[0, 1, 0], [0, 1, 0], [1, 0, 0], [1, 0, 0], [0, 1, 0]], dtype=float)
-    floor_half = a + 0.005
-    ext = np.array([[length, half_w]] * 4 + [[floor_half, floor_half]], dtype=float)
-    return origins, u, w, ext
-
-
-_SURFACES = None
-
-
-def distance_to_scoop(p_S: np.ndarray) -> np.ndarray | float:
-    """Distance (m) from point(s) in the scoop frame, shape (3,) or (K, 3), to the nearest scoop surface
-    (a ball of radius r touches the scoop when this is < r)."""
-    global _SURFACES
-    if _SURFACES is None:
-        origins, u, w, ext = scoop_surfaces()
-        lo_u = np.where(np.arange(len(origins)) < 4, 0.0, -ext[:, 0])
-        _SURFACES = (origins, u, w, ext, lo_u)
-    origins, u, w, ext, lo_u = _SURFACES
-    pts = np.asarray(p_S, dtype=float)
-    single = pts.ndim == 1
-    pts = np.atleast_2d(pts)
-    rel = pts[:, None, :] - origins[None, :, :]  # (K, 5, 3)
-    cu = np.clip(np.einsum("kij,ij->ki", rel, u), lo_u, ext[:, 0])
-    cw = np.clip(np.einsum("kij,ij->ki", rel, w), -ext[:, 1], ext[:, 1])
-    closest = origins[None] + cu[..., None] * u[None] + cw[..., None] * w[None]
-    d = np.min(np.linalg.norm(pts[:, None, :] - closest, axis=2), axis=1)
-    return float(d[0]) if single else d
+def expand_path(value: str, folder: Path) -> Path:
+    """A path from a robot file: ``{sys_prefix}`` expanded, relative paths read from ``folder``."""
+    p = Path(str(value).replace("{sys_prefix}", sys.prefix))
+    return p if p.is_absolute() else (folder / p).resolve()

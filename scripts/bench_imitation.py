@@ -33,7 +33,9 @@ def main() -> None:
     from besdrake.mocap.synthetic import SyntheticDemonstrator
     from besdrake.pipeline.imitation import prepare
 
-    mapping = EmbodimentMapping()
+    from besdrake.sim.scenario import load_scenario
+
+    mapping = EmbodimentMapping(load_scenario("nominal").robot)
     demo = SyntheticDemonstrator(0)
     rows, problems = [], []
     t_start = time.perf_counter()

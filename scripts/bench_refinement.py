@@ -123,8 +123,9 @@ def main(argv: list[str] | None = None) -> int:
             dmps = [load_dmp(f) for f in files]
             unit = {k: v for k, v in (("position_unit", args.position_unit), ("acceleration_unit", args.acceleration_unit),
                                       ("time_unit", args.time_unit)) if v is not None}
-            problems = [RefinementProblem(dm, reward, ParameterScaling.for_dmp(
-                dm, max_execution_time=max(dm.execution_time, MIN_EXECUTION_TIME + 0.05) if args.no_slower else None, **unit), retime=args.retime) for dm in dmps]
+            robot = ex.scenario.robot
+            problems = [RefinementProblem(robot, dm, reward, ParameterScaling.for_dmp(
+                dm, robot.position_limits, max_execution_time=max(dm.execution_time, MIN_EXECUTION_TIME + 0.05) if args.no_slower else None, **unit), retime=args.retime) for dm in dmps]
             cma_options = {} if args.plain else dict(DEFAULT_CMA_OPTIONS)
             if args.diagonal is not None and not args.plain:
                 cma_options["CMA_diagonal"] = True if args.diagonal < 0 else args.diagonal

@@ -63,10 +63,11 @@ def main(argv: list[str] | None = None) -> int:
     out: dict = {"episodes": args.episodes, "seeds": args.seeds, "base": args.base, "joint1_mode": args.joint1_mode,
                  "test_contexts": len(TEST_CONTEXTS), "machine_note": "shared 2-core machine; wall times are noisy"}
     with make_executor("serial") as ex:
-        bounds = default_meta_bounds(base, joint1_mode=args.joint1_mode)
+        robot = ex.scenario.robot
+        bounds = default_meta_bounds(base, robot, joint1_mode=args.joint1_mode)
         # How far the base can throw within the joint limits: at the fastest safe execution time.
-        free = default_meta_bounds(base, respect_limits=False, joint1_mode=args.joint1_mode)
-        meta = MetaDMP(base, args.joint1_mode)
+        free = default_meta_bounds(base, robot, respect_limits=False, joint1_mode=args.joint1_mode)
+        meta = MetaDMP(base, robot, args.joint1_mode)
         fastest = meta.plan(np.array([bounds[0, 0], base.goal[0]]))
         reach = float(np.linalg.norm(touchdowns([fastest], ex)[0]))
         beyond = np.linalg.norm(TEST_CONTEXTS, axis=1) > reach
@@ -80,7 +81,7 @@ def main(argv: list[str] | None = None) -> int:
             def policy(self, s):
                 return bounds.mean(axis=1)
 
-        untrained = BehaviorTemplate("untrained", MetaDMP(base, args.joint1_mode), bounds, _Centre())
+        untrained = BehaviorTemplate("untrained", MetaDMP(base, robot, args.joint1_mode), bounds, _Centre())
         out["untrained_cm"] = 100.0 * evaluate_template(untrained, ex).mean_distance
         checkpoints = tuple(sorted({c for c in args.checkpoints if c < args.episodes} | {args.episodes}))
         for method in args.methods:

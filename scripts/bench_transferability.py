@@ -145,7 +145,8 @@ def run_subject(
                 t_run = time.perf_counter()
                 if problem is None:
                     files = imitated_throws(subject, imitated)
-                    problems = [RefinementProblem(load_dmp(f), ThrowReward(target=TARGET)) for f in files]
+                    robot = executor.scenario.robot
+                    problems = [RefinementProblem(robot, load_dmp(f), ThrowReward(target=TARGET)) for f in files]
                     ranking = rank_starts(problems, executor)
                     index, start = ranking[0]
                     problem = problems[index]
@@ -170,8 +171,9 @@ def run_subject(
                                        "wall_time_s": sum(r["wall_time_s"] for r in runs)}
 
         # the Transferability Approach against the default lab (fresh log, seeded per subject)
-        param = DMPParameterization(refined)
-        scaling = ParameterScaling.for_dmp(refined)
+        robot = executor.scenario.robot
+        param = DMPParameterization(refined, robot.joint_names)
+        scaling = ParameterScaling.for_dmp(refined, robot.position_limits)
         lab = SafetyGate(VirtualLab(load_lab_config(lab_path).with_seed(lab_seed)))
         log_dir = out / tag / "lab_log"
         log = LabLog.open(log_dir) if (log_dir / "log.json").is_file() else LabLog.create(

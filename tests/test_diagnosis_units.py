@@ -10,6 +10,11 @@ from besdrake.diagnosis.design import diagnosis_plans
 from besdrake.diagnosis.observables import N_FEATURES, group_slices
 
 
+from besdrake.robot import load_robot
+
+COMPI = load_robot("compi")
+
+
 def test_quadratic_flight_fit_recovers_position_velocity_acceleration():
     rng = np.random.default_rng(0)
     t = np.linspace(0.3, 0.8, 60)
@@ -112,7 +117,7 @@ def test_diagnosis_plans_repeat_and_spread():
     assert len(plans) == 20 and len(set(hashes)) == 14
     amps = sorted(p.meta["amplitude"] for p in plans)
     assert amps[0] < 0.3 and amps[-1] > 0.45
-    assert all(p.check_limits().ok for p in plans)
+    assert all(p.check_limits(COMPI.limits).ok for p in plans)
     with pytest.raises(ValueError, match="repeats"):
         diagnosis_plans(10, 8)
 
@@ -534,7 +539,7 @@ def test_tilt_probes_join_the_diagnosis_plans():
     few = diagnosis_plans(12, 1, seed=3, probes=2)
     assert len(few) == 12 and len({plan_hash(p) for p in few}) == 11
     assert sum(p.meta.get("generator") == "tilt_probe" for p in few) == 3
-    assert all(p.check_limits().ok for p in plans)
+    assert all(p.check_limits(COMPI.limits).ok for p in plans)
     # No probes: the plan set of earlier versions, unchanged.
     assert [plan_hash(p) for p in diagnosis_plans(20, 6, seed=2, probes=0)] == [plan_hash(p) for p in diagnosis_plans(20, 6, seed=2)]
     with pytest.raises(ValueError, match="probes"):

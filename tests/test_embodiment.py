@@ -2,28 +2,33 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
 import pytest
 
-from besdrake import robot
 from besdrake.embodiment.ik import ik_trajectory
-from besdrake.embodiment.kinematics import compi_plant, mount_to_transform, mounted_compi_plant
+from besdrake.embodiment.kinematics import mount_to_transform, mounted_plant, welded_plant
 from besdrake.embodiment.mapping import EmbodimentMapping
 from besdrake.embodiment.record_mapping import HandTrajectory, RecordMappingError, hand_trajectory
 from besdrake.embodiment.scaling import ease_in, temporal_scaling
 from besdrake.embodiment.sync_frame import solve_sync_frame
 
 
+from besdrake.robot import load_robot
+
+COMPI = load_robot("compi")
+
+
 @pytest.fixture(scope="module")
 def welded():
-    return compi_plant()
+    return welded_plant(COMPI)
 
 
 @pytest.fixture(scope="module")
 def mounted():
-    return mounted_compi_plant()
+    return mounted_plant(COMPI)
 
 
 @pytest.fixture(scope="module")
@@ -40,15 +45,14 @@ def throw_hand():
 
 def test_tcp_is_1174_mm_above_base_at_zero(welded):
     X = welded.tcp_pose(np.zeros(6))
-    np.testing.assert_allclose(X.translation(), [0, 0, robot.TCP_HEIGHT_AT_ZERO], atol=1e-9)
-    assert robot.TCP_HEIGHT_AT_ZERO == pytest.approx(1.174)
+    np.testing.assert_allclose(X.translation(), [0, 0, 0.158 + 0.28 + 0.34 + 0.346 + 0.05], atol=1e-9)
 
 
 def test_mount_chain_places_the_base_where_mount_to_transform_says(welded, mounted):
     rng = np.random.default_rng(0)
     for _ in range(5):
         mount = rng.uniform(-0.5, 0.5, 6)
-        q = rng.uniform(robot.POSITION_LIMITS[:, 0], robot.POSITION_LIMITS[:, 1])
+        q = rng.uniform(COMPI.position_limits[:, 0], COMPI.position_limits[:, 1])
         X_world_tcp = mounted.tcp_pose(q, mount)
         expected = mount_to_transform(mount) @ welded.tcp_pose(q)
         np.testing.assert_allclose(X_world_tcp.GetAsMatrix4(), expected.GetAsMatrix4(), atol=1e-9)
@@ -89,7 +93,7 @@ def test_sync_frame_reaches_every_demonstrated_pose(throw_hand, mounted):
     result = solve_sync_frame(throw_hand.smoothed(), model=mounted)
     # Position boxes of +-0.5 mm per axis: at most 0.87 mm from the demonstrated point.
     assert result.position_residual.max() <= 1.0e-3
-    assert np.all(result.q >= robot.POSITION_LIMITS[:, 0]) and np.all(result.q <= robot.POSITION_LIMITS[:, 1])
+    assert np.all(result.q >= COMPI.position_limits[:, 0]) and np.all(result.q <= COMPI.position_limits[:, 1])
     assert np.abs(np.diff(result.q, axis=0)).max() < 0.5  # no jump between sampled poses
     # The frame is a proper rigid transform and its inverse.
     np.testing.assert_allclose(result.base_in_back @ result.back_in_base, np.eye(4), atol=1e-12)
@@ -113,12 +117,12 @@ def test_temporal_scaling_matches_the_analytic_factor():
     amp, omega = 0.5, 2 * np.pi * 2.0  # peak velocity 6.28 rad/s, acceleration 79.0 rad/s^2
     q = np.zeros((len(t), 6))
     q[:, 1] = amp * np.sin(omega * t)
-    vmax, amax = np.full(6, 3.14), np.full(6, 15.0)  # factors: velocity 2.00, acceleration 2.29
-    result = temporal_scaling(t, q, vmax, amax, safety=1.0, min_duration=0.5, toppra=False)
+    limits = dataclasses.replace(COMPI.limits, velocity=np.full(6, 3.14), acceleration=np.full(6, 15.0))  # factors 2.00, 2.29
+    result = temporal_scaling(t, q, limits, safety=1.0, min_duration=0.5)
     expected = np.sqrt(amp * omega**2 / 15.0)
     assert result.factor == pytest.approx(expected, rel=1e-3)
     assert result.limiting == "acceleration"
-    slow = temporal_scaling(t, q * 1e-3, vmax, amax, safety=1.0, min_duration=2.0, toppra=False)
+    slow = temporal_scaling(t, q * 1e-3, limits, safety=1.0, min_duration=2.0)
     assert slow.limiting == "minimum execution time" and slow.duration == pytest.approx(2.0)
 
 
@@ -138,11 +142,11 @@ def test_ease_in_starts_at_rest_and_joins_with_the_demonstrated_velocity():
 
 
 def test_imitating_a_synthetic_throw_gives_an_executable_49_parameter_plan(throw_hand, tmp_path):
-    mapping = EmbodimentMapping()
+    mapping = EmbodimentMapping(COMPI)
     result = mapping.imitate(throw_hand, name="s0e0t0")
     assert result.theta.shape == (49,)
     assert result.executable, result.summary()
-    assert result.plan.check_limits().ok
+    assert result.plan.check_limits(COMPI.limits).ok
     assert result.dmp.execution_time >= 0.95
     # The plan reproduces the IK joint path: start and goal are the first and last IK samples.
     np.testing.assert_allclose(result.plan.q[-1], result.ik.q[-1], atol=0.05)
@@ -190,7 +194,7 @@ def test_imitated_throw_holds_the_ball_within_the_cone(throw_hand, welded):
     def tilts(q):
         return np.degrees([np.arccos(np.clip(welded.tcp_pose(x).rotation().matrix()[2, 2], -1, 1)) for x in q[::10]])
 
-    held = EmbodimentMapping(ImitationOptions(hold_cone_deg=35.0)).imitate(throw_hand)
-    free = EmbodimentMapping(ImitationOptions(hold_cone_deg=None)).imitate(throw_hand)
+    held = EmbodimentMapping(COMPI, ImitationOptions(hold_cone_deg=35.0)).imitate(throw_hand)
+    free = EmbodimentMapping(COMPI, ImitationOptions(hold_cone_deg=None)).imitate(throw_hand)
     assert held.executable and tilts(held.ik.q).max() <= 35.0 + 3.0
     assert tilts(free.ik.q).max() > 60.0

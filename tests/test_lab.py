@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 
 from pathlib import Path
 
@@ -16,6 +17,11 @@ from besdrake.transfer.measurement import Measurement
 from besdrake.transfer.plugins import PluginError, load_plugin
 from besdrake.transfer.recorded_lab import PlanNotRecordedError, RecordedLab
 from besdrake.transfer.virtual_lab import LabConfigError, VirtualLab, load_lab_config, parse_lab_config
+
+
+from besdrake.robot import load_robot
+
+COMPI = load_robot("compi")
 
 
 def lab_config(**noise):
@@ -47,6 +53,8 @@ class SpyLab:
 
     name = "spy"
 
+    robot = COMPI
+
     def __init__(self) -> None:
         self.calls: list[int] = []
 
@@ -73,7 +81,7 @@ def test_spy_and_virtual_lab_satisfy_the_protocol(quiet_lab):
     ],
 )
 def test_gate_refuses_each_kind_of_limit_before_running(kind, plan):
-    report = plan.check_limits()
+    report = plan.check_limits(COMPI.limits)
     kinds = {k for k in ("position", "velocity", "acceleration") if np.any(getattr(report, k) > 0)}
     assert kinds == {kind}, "the test plan must violate exactly one kind of limit"
     spy = SpyLab()
@@ -93,11 +101,13 @@ def test_gate_refuses_a_malformed_plan_and_honours_custom_limits():
     bad = MotionPlan(t=[0.0, 1.0], q=np.full((2, 6), np.nan))
     m = SafetyGate(spy).execute(bad)
     assert m.flags["refused_by_safety_gate"] and "malformed" in m.message and spy.calls == []
-    tight = JointLimits(velocity=np.full(6, 0.5))
+    tight = dataclasses.replace(COMPI.limits, velocity=np.full(6, 0.5))
     m2 = SafetyGate(spy, limits=tight).execute(default_throw(0.35))
     assert m2.flags.get("refused_by_safety_gate") and "velocity" in m2.message and spy.calls == []
     with pytest.raises(ValueError, match="velocity"):
-        JointLimits(velocity=np.full(6, -1.0))
+        dataclasses.replace(COMPI.limits, velocity=np.full(6, -1.0))
+    with pytest.raises(TypeError, match="robot"):
+        SafetyGate(type("NoRobotLab", (), {"execute": lambda self, plan, trial=None: None})())
 
 
 # ---------------------------------------------------------------------------------------- virtual lab
@@ -180,7 +190,7 @@ def test_measured_joint_beyond_limit_aborts_the_run(quiet_lab):
     """The gate passes the plan (1.98 rad < 2.0), but a hidden encoder offset drives joint5 to ~2.03 rad."""
     plan = default_throw(0.35)
     plan.q[:, 4] += 1.98 - plan.q[:, 4].max()
-    assert plan.check_limits().ok
+    assert plan.check_limits(COMPI.limits).ok
     cfg = lab_config()
     cfg["effects"] = {"joint_offset": {"joint5": 0.05}}
     quiet_lab.config = parse_lab_config(cfg)

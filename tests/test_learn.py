@@ -12,6 +12,11 @@ from besdrake.pipeline.config import ConfigError, load_config, parse_override
 from besdrake.pipeline.run import RunError, RunFolder
 
 
+from besdrake.robot import load_robot
+
+COMPI = load_robot("compi")
+
+
 def test_quick_profile_user_file_and_overrides_layer_in_order(tmp_path):
     user = tmp_path / "mine.yaml"
     user.write_text(yaml.safe_dump({"refinement": {"evaluations": 321}, "workers": 1}))
@@ -82,4 +87,4 @@ def test_quick_run_goes_from_demonstrations_to_a_template_pool(tmp_path, capsys)
     from besdrake.search.templates import TemplatePool
 
     plan = TemplatePool(out / "09_pool").instantiate("throw", [1.9, 0.2])
-    assert plan.check_limits().ok
+    assert plan.check_limits(COMPI.limits).ok

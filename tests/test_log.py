@@ -110,7 +110,7 @@ class KilledLab:
     """Wraps a lab and raises at trial ``kill_at`` (like a process killed mid-run)."""
 
     def __init__(self, lab, kill_at: int) -> None:
-        self.lab, self.kill_at, self.name = lab, kill_at, lab.name
+        self.lab, self.kill_at, self.name, self.robot = lab, kill_at, lab.name, lab.robot
         self.executed: list[int] = []
 
     def execute(self, plan, trial=None):

@@ -7,8 +7,13 @@ import json
 import numpy as np
 import pytest
 
-from besdrake import robot
+from besdrake.robot import JointLimits
 from besdrake.plan import LimitReport, MotionPlan, PlanError
+
+
+from besdrake.robot import load_robot
+
+COMPI = load_robot("compi")
 
 
 def _plan(n=50, T=1.0, amp=0.5, with_qd=True):
@@ -61,10 +66,10 @@ def test_numpy_interpolation_matches_drake_trajectory(with_qd):
 
 def test_check_limits_reports_each_kind():
     ok = _plan(T=2.0, amp=0.2)
-    rep = ok.check_limits()
+    rep = ok.check_limits(COMPI.limits)
     assert isinstance(rep, LimitReport) and rep.ok and rep.violations() == []
     big = _plan(T=1.0, amp=2.5)  # beyond joint2/3/5 limits, 15.7 rad/s, ~99 rad/s^2
-    rep = big.check_limits()
+    rep = big.check_limits(COMPI.limits)
     assert not rep.ok
     assert rep.position[1] == pytest.approx(max(2.5 - 2.09, 2.5 - 1.8), abs=1e-3)  # lower limit -1.8 is worse
     assert rep.position[2] == pytest.approx(2.5 - 2.3, abs=1e-3)
@@ -73,8 +78,12 @@ def test_check_limits_reports_each_kind():
     assert np.all(rep.acceleration > 0)
     assert any("joint2 position" in v for v in rep.violations())
     # custom limits
-    rep2 = big.check_limits(position_limits=np.tile([-3.0, 3.0], (6, 1)), velocity_limits=np.full(6, 100.0), acceleration_limits=np.full(6, 1e3))
-    assert rep2.ok
+    wide = JointLimits(COMPI.joint_names, np.tile([-3.0, 3.0], (6, 1)), np.full(6, 100.0), np.full(6, 1e3))
+    assert big.check_limits(wide).ok
+    with pytest.raises(PlanError, match="7 joints"):
+        MotionPlan(t=[0.0, 1.0], q=np.zeros((2, 7))).check_limits(COMPI.limits)
+    with pytest.raises(PlanError, match="differ"):
+        MotionPlan(t=[0.0, 1.0], q=np.zeros((2, 6)), joint_names=tuple("abcdef")).check_limits(COMPI.limits)
 
 
 def test_json_round_trip(tmp_path):
@@ -85,7 +94,9 @@ def test_json_round_trip(tmp_path):
     assert np.array_equal(q.t, p.t) and np.array_equal(q.q, p.q) and np.array_equal(q.qd, p.qd)
     assert q.meta == {"source": "test"}
     d = json.loads(path.read_text())
-    assert d["joint_names"] == list(robot.JOINT_NAMES)
+    assert "joint_names" not in d  # a plan without names is written without them
+    named = MotionPlan.load(MotionPlan(t=p.t, q=p.q, joint_names=COMPI.joint_names).save(tmp_path / "named.json"))
+    assert named.joint_names == COMPI.joint_names
     no_qd = MotionPlan.from_dict({"t": [0, 1], "q": [[0] * 6, [0.1] * 6]})
     assert no_qd.qd is None
 

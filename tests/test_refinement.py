@@ -28,6 +28,11 @@ from besdrake.sim.outcome import FLAG_NAMES, Outcome
 logging.getLogger("drake").setLevel(logging.ERROR)
 
 
+from besdrake.robot import load_robot
+
+COMPI = load_robot("compi")
+
+
 def outcome(touchdown=None, ball_end=None, **flags) -> Outcome:
     f = {k: False for k in FLAG_NAMES} | flags
     o = Outcome(flags=f)
@@ -70,44 +75,44 @@ class StandIn:
 
 # ------------------------------------------------------------------------------------------ reward
 def test_reward_is_minus_distance_within_limits(plan_ok):
-    assert plan_ok.check_limits().ok
-    r = ThrowReward(target=(2.0, 0.0))(plan_ok, outcome([1.7, 0.4]))
+    assert plan_ok.check_limits(COMPI.limits).ok
+    r = ThrowReward(target=(2.0, 0.0))(plan_ok, outcome([1.7, 0.4]), COMPI.limits)
     assert r.reward == pytest.approx(-0.5) and r.distance == pytest.approx(0.5) and r.penalty == 0.0
     assert not r.success
-    near = ThrowReward()(plan_ok, outcome([1.95, 0.05]))
+    near = ThrowReward()(plan_ok, outcome([1.95, 0.05]), COMPI.limits)
     assert near.success and near.reward > r.reward
 
 
 def test_reward_decreases_with_distance(plan_ok):
     rew = ThrowReward(target=(2.0, 0.5))
-    values = [rew(plan_ok, outcome([2.0 - d, 0.5])).reward for d in (0.0, 0.1, 0.5, 1.5)]
+    values = [rew(plan_ok, outcome([2.0 - d, 0.5]), COMPI.limits).reward for d in (0.0, 0.1, 0.5, 1.5)]
     assert all(a > b for a, b in zip(values, values[1:]))
 
 
 def test_limit_penalties_make_a_hit_worse_than_a_near_miss(plan_ok):
     fast = MotionPlan(plan_ok.t * 0.5, plan_ok.q, None if plan_ok.qd is None else plan_ok.qd * 2.0)
-    rep = fast.check_limits()
+    rep = fast.check_limits(COMPI.limits)
     assert not rep.ok
     rew = ThrowReward()
-    hit_fast = rew(fast, outcome([2.0, 0.0]))
+    hit_fast = rew(fast, outcome([2.0, 0.0]), COMPI.limits)
     assert hit_fast.penalty >= rew.violation_offset and not hit_fast.success
-    assert hit_fast.reward < rew(plan_ok, outcome([2.0 - SUCCESS_DISTANCE, 0.0])).reward
+    assert hit_fast.reward < rew(plan_ok, outcome([2.0 - SUCCESS_DISTANCE, 0.0]), COMPI.limits).reward
     # more violation, more penalty
     faster = MotionPlan(plan_ok.t * 0.4, plan_ok.q, None if plan_ok.qd is None else plan_ok.qd * 2.5)
-    assert rew.penalty(faster) > rew.penalty(fast)
+    assert rew.penalty(faster, COMPI.limits) > rew.penalty(fast, COMPI.limits)
 
 
 def test_never_released_is_shaped_and_penalised(plan_ok):
     rew = ThrowReward()
-    kept = rew(plan_ok, outcome(None, ball_end=[0.5, 0.0, 1.0], never_released=True))
-    dropped = rew(plan_ok, outcome([0.5, 0.0], dropped_early=True))
+    kept = rew(plan_ok, outcome(None, ball_end=[0.5, 0.0, 1.0], never_released=True), COMPI.limits)
+    dropped = rew(plan_ok, outcome([0.5, 0.0], dropped_early=True), COMPI.limits)
     assert np.isfinite(kept.reward) and kept.reward == pytest.approx(dropped.reward + rew.dropped_penalty - rew.never_released_penalty)
-    closer = rew(plan_ok, outcome(None, ball_end=[1.0, 0.0, 1.0], never_released=True))
+    closer = rew(plan_ok, outcome(None, ball_end=[1.0, 0.0, 1.0], never_released=True), COMPI.limits)
     assert closer.reward > kept.reward
 
 
 def test_failed_simulation_gives_nan(plan_ok):
-    r = ThrowReward()(plan_ok, outcome(sim_failed=True))
+    r = ThrowReward()(plan_ok, outcome(sim_failed=True), COMPI.limits)
     assert np.isnan(r.reward) and r.failed
 
 
@@ -119,7 +124,7 @@ def test_bad_target_is_rejected(target):
 
 # ------------------------------------------------------------------------------------------ scaling
 def test_scaling_round_trip_and_bounds(base):
-    sc = ParameterScaling.for_dmp(base)
+    sc = ParameterScaling.for_dmp(base, COMPI.position_limits)
     assert sc.theta0.size == 49
     rng = np.random.default_rng(0)
     x = rng.normal(size=49)
@@ -138,12 +143,12 @@ def test_scaling_rejects_bad_input(base):
     with pytest.raises(RefinementError):
         ParameterScaling(np.zeros(3), np.array([1.0, 0.0, 1.0]), np.tile([-1.0, 1.0], (3, 1)))
     with pytest.raises(RefinementError):
-        ParameterScaling.for_dmp(base, acceleration_unit=float("nan"))
+        ParameterScaling.for_dmp(base, COMPI.position_limits, acceleration_unit=float("nan"))
 
 
 # ------------------------------------------------------------------------------------------ search
 def test_cma_refines_stand_in_problem_to_success(base):
-    problem = RefinementProblem(base)
+    problem = RefinementProblem(COMPI, base)
     start = problem.evaluate(np.zeros((1, 49)), StandIn())[0]
     assert start.distance > 0.9
     result = refine(problem, StandIn(), n_episodes=1500, seed=1)
@@ -154,7 +159,7 @@ def test_cma_refines_stand_in_problem_to_success(base):
 
 
 def test_failed_episodes_are_recorded_and_search_goes_on(base, tmp_path):
-    problem = RefinementProblem(base)
+    problem = RefinementProblem(COMPI, base)
     ex = StandIn(fail_every=3, raise_every=37)
     result = refine(problem, ex, n_episodes=80, seed=0, popsize=8, out_dir=tmp_path, stop_on_success=False)
     assert result.n_episodes == 80
@@ -165,7 +170,7 @@ def test_failed_episodes_are_recorded_and_search_goes_on(base, tmp_path):
 
 
 def test_nan_candidate_is_a_failed_episode(base):
-    problem = RefinementProblem(base)
+    problem = RefinementProblem(COMPI, base)
     X = np.zeros((3, 49))
     X[1, 5] = np.nan
     res = problem.evaluate(X, StandIn())
@@ -174,16 +179,16 @@ def test_nan_candidate_is_a_failed_episode(base):
 
 
 def test_resume_continues_without_repeating(base, tmp_path):
-    problem = RefinementProblem(base)
+    problem = RefinementProblem(COMPI, base)
     first = refine(problem, StandIn(), n_episodes=24, seed=3, popsize=8, out_dir=tmp_path, stop_on_success=False)
     assert first.n_episodes == 24 and not first.resumed
     ex = StandIn()
-    again = refine(RefinementProblem(base), ex, n_episodes=48, seed=3, popsize=8, out_dir=tmp_path, stop_on_success=False)
+    again = refine(RefinementProblem(COMPI, base), ex, n_episodes=48, seed=3, popsize=8, out_dir=tmp_path, stop_on_success=False)
     assert again.resumed and again.n_episodes == 48 and ex.calls == 24
     assert np.isfinite(again.distances).all()  # per-episode records of the first part were read back
     assert len(read_details(tmp_path / "details.csv")) == 48
     with pytest.raises(RefinementError, match="another refinement"):
-        refine(RefinementProblem(base, ThrowReward(target=(1.5, 0.0))), StandIn(), n_episodes=60, seed=3, popsize=8, out_dir=tmp_path)
+        refine(RefinementProblem(COMPI, base, ThrowReward(target=(1.5, 0.0))), StandIn(), n_episodes=60, seed=3, popsize=8, out_dir=tmp_path)
 
 
 def test_a_few_generations_on_the_real_simulation_improve_the_distance(base):
@@ -191,7 +196,7 @@ def test_a_few_generations_on_the_real_simulation_improve_the_distance(base):
 
     slow = base.copy()
     slow.execution_time = 2.3  # the fitted throw, slowed down: lands ~0.8 m short of the target
-    problem = RefinementProblem(slow)
+    problem = RefinementProblem(COMPI, slow)
     with make_executor("serial") as ex:
         index, start = best_start([problem], ex)
         assert index == 0 and start.distance > 0.5
@@ -221,27 +226,27 @@ def test_refine_cli_writes_summary_figure_and_resumes(base, tmp_path):
 
 
 def test_retiming_stretches_a_plan_beyond_the_speed_limits_and_leaves_others_alone(base):
-    problem = RefinementProblem(base, retime=True)
-    plain = RefinementProblem(base, retime=False)
+    problem = RefinementProblem(COMPI, base, retime=True)
+    plain = RefinementProblem(COMPI, base, retime=False)
     x_ok = np.zeros(problem.n_params)
-    vel, acc = plain.plan(x_ok).peak_limit_ratios()
+    vel, acc = plain.plan(x_ok).peak_limit_ratios(COMPI.limits)
     assert max(vel.max(), acc.max()) <= 1.0  # the default throw keeps its limits: nothing to mend
     assert np.array_equal(problem.theta(x_ok), plain.theta(x_ok))
     # the same throw at the shortest execution time breaks a velocity or acceleration limit ...
     x_fast = x_ok.copy()
     x_fast[-1] = problem.scaling.x_bounds[-1, 0]
-    vel, acc = plain.plan(x_fast).peak_limit_ratios()
+    vel, acc = plain.plan(x_fast).peak_limit_ratios(COMPI.limits)
     k = max(vel.max(), np.sqrt(acc.max()))
     assert k > 1.2
     # ... and retimed it is stretched by about that factor and keeps them (a stretch divides velocities by k)
     theta = problem.theta(x_fast)
     assert np.array_equal(theta[:-1], plain.theta(x_fast)[:-1])
     assert theta[-1] == pytest.approx(plain.theta(x_fast)[-1] * k, rel=0.05)
-    vel, acc = problem.plan(x_fast).peak_limit_ratios()
+    vel, acc = problem.plan(x_fast).peak_limit_ratios(COMPI.limits)
     assert vel.max() <= 1.0 + 1e-6 and acc.max() <= 1.0 + 1e-6
-    assert ThrowReward().penalty(problem.plan(x_fast)) == 0.0 < ThrowReward().penalty(plain.plan(x_fast))
+    assert ThrowReward().penalty(problem.plan(x_fast), COMPI.limits) == 0.0 < ThrowReward().penalty(plain.plan(x_fast), COMPI.limits)
     # never beyond the execution-time bound; the setting travels with the problem's record
-    tight = RefinementProblem(base, scaling=ParameterScaling.for_dmp(base, max_execution_time=MIN_EXECUTION_TIME + 0.01), retime=True)
+    tight = RefinementProblem(COMPI, base, scaling=ParameterScaling.for_dmp(base, COMPI.position_limits, max_execution_time=MIN_EXECUTION_TIME + 0.01), retime=True)
     assert tight.theta(np.full(tight.n_params, 0.0))[-1] <= MIN_EXECUTION_TIME + 0.01
     assert RefinementProblem.from_description(json.loads(json.dumps(problem.describe()))).retime
     assert "retime" not in plain.describe() and not RefinementProblem.from_description(plain.describe()).retime

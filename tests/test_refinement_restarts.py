@@ -14,6 +14,11 @@ from besdrake.search.templates import fitted_default_throw
 from tests.test_refinement import StandIn
 
 
+from besdrake.robot import load_robot
+
+COMPI = load_robot("compi")
+
+
 def two_basins(X: np.ndarray) -> np.ndarray:
     """A deceptive landscape: a broad local optimum (-0.5) at -3 and the global one (0) at +3."""
     X = np.atleast_2d(X)
@@ -300,7 +305,7 @@ def test_rank_starts_and_restart_points(base):
     far.goal[1] += 0.5  # StandIn: lands 0.5 m farther out (beyond the target)
     near.goal = near.goal.copy()
     near.goal[1] += 0.8  # lands 0.8 m out: closest to the target 2 m (StandIn x = goal of joint 2 + 1)
-    problems = [RefinementProblem(b, retime=False) for b in (base, far, near)]  # the mapping itself, unretimed
+    problems = [RefinementProblem(COMPI, b, retime=False) for b in (base, far, near)]  # the mapping itself, unretimed
     ranked = rank_starts(problems, StandIn())
     rewards = [r.reward for _, r in ranked]
     assert rewards == sorted(rewards, reverse=True)
@@ -315,20 +320,20 @@ def test_rank_starts_and_restart_points(base):
 
 
 def test_refine_with_restarts_succeeds_records_attempts_and_resumes(base, tmp_path):
-    problem = RefinementProblem(base)
+    problem = RefinementProblem(COMPI, base)
     kw = dict(seed=0, popsize=8, stagnation_generations=3, stagnation_tol=0.01, stop_on_success=False, starts=np.zeros((2, 49)))
     first = refine(problem, StandIn(), n_episodes=48, out_dir=tmp_path, **kw)
-    again = refine(RefinementProblem(base), StandIn(), n_episodes=400, out_dir=tmp_path, **kw)
+    again = refine(RefinementProblem(COMPI, base), StandIn(), n_episodes=400, out_dir=tmp_path, **kw)
     assert again.resumed and again.n_episodes == 400
-    fresh = refine(RefinementProblem(base), StandIn(), n_episodes=400, **kw)
+    fresh = refine(RefinementProblem(COMPI, base), StandIn(), n_episodes=400, **kw)
     assert np.array_equal(fresh.rewards, again.rewards)  # resuming changes nothing
     assert fresh.attempts == again.attempts
     assert first.n_episodes == 48
     assert np.nanmin(fresh.best_so_far()) < 0.1
     with pytest.raises(RefinementError, match="another refinement"):
-        refine(RefinementProblem(base), StandIn(), n_episodes=480, out_dir=tmp_path, **(kw | {"stagnation_generations": 4}))
+        refine(RefinementProblem(COMPI, base), StandIn(), n_episodes=480, out_dir=tmp_path, **(kw | {"stagnation_generations": 4}))
     with pytest.raises(RefinementError, match="columns"):
-        refine(RefinementProblem(base), StandIn(), n_episodes=8, **(kw | {"starts": np.zeros((2, 3))}))
+        refine(RefinementProblem(COMPI, base), StandIn(), n_episodes=8, **(kw | {"starts": np.zeros((2, 3))}))
 
 
 def test_default_bipop_refine_resumes_and_rejects_a_folder_of_the_previous_default(base, tmp_path):
@@ -336,19 +341,19 @@ def test_default_bipop_refine_resumes_and_rejects_a_folder_of_the_previous_defau
 
     assert DEFAULT_RESTART_REGIMES == "bipop"
     kw = dict(seed=1, popsize=6, stagnation_generations=2, stagnation_tol=0.5, stop_on_success=False)
-    refine(RefinementProblem(base), StandIn(), n_episodes=30, out_dir=tmp_path / "new", **kw)
-    again = refine(RefinementProblem(base), StandIn(), n_episodes=120, out_dir=tmp_path / "new", **kw)
-    fresh = refine(RefinementProblem(base), StandIn(), n_episodes=120, **kw)
+    refine(RefinementProblem(COMPI, base), StandIn(), n_episodes=30, out_dir=tmp_path / "new", **kw)
+    again = refine(RefinementProblem(COMPI, base), StandIn(), n_episodes=120, out_dir=tmp_path / "new", **kw)
+    fresh = refine(RefinementProblem(COMPI, base), StandIn(), n_episodes=120, **kw)
     assert again.resumed and np.array_equal(fresh.rewards, again.rewards) and fresh.attempts == again.attempts
     assert {a["regime"] for a in fresh.attempts} == {"large", "small"}
     small = [a for a in fresh.attempts if a["regime"] == "small"]
     assert all(a["start"] == -1 and a["sigma0"] <= 1.0 for a in small)
     # a run folder of the previous default (every restart large) is another run
-    refine(RefinementProblem(base), StandIn(), n_episodes=12, out_dir=tmp_path / "old", restart_regimes="large", **kw)
+    refine(RefinementProblem(COMPI, base), StandIn(), n_episodes=12, out_dir=tmp_path / "old", restart_regimes="large", **kw)
     with pytest.raises(RefinementError, match="another refinement"):
-        refine(RefinementProblem(base), StandIn(), n_episodes=24, out_dir=tmp_path / "old", **kw)
+        refine(RefinementProblem(COMPI, base), StandIn(), n_episodes=24, out_dir=tmp_path / "old", **kw)
     with pytest.raises(RefinementError, match="restart_regimes"):
-        refine(RefinementProblem(base), StandIn(), n_episodes=12, restart_regimes="ipop", **kw)
+        refine(RefinementProblem(COMPI, base), StandIn(), n_episodes=12, restart_regimes="ipop", **kw)
 
 
 @pytest.mark.parametrize("options", [{"CMA_diagonal": True}, {"CMA_elitist": True}, {"CMA_diagonal": True, "CMA_elitist": True}])
@@ -395,26 +400,26 @@ def test_cli_search_options_map_to_refine_keywords():
 def test_scouting_refine_resumes_and_a_default_run_is_another_run(base, tmp_path):
     kw = dict(seed=2, popsize=6, stagnation_generations=50, stop_on_success=False, scout_generations=3)
     n = (3 * 3 + 4) * 6
-    refine(RefinementProblem(base), StandIn(), n_episodes=30, out_dir=tmp_path / "scouts", scouts=3, **kw)
-    again = refine(RefinementProblem(base), StandIn(), n_episodes=n, out_dir=tmp_path / "scouts", scouts=3, **kw)
-    fresh = refine(RefinementProblem(base), StandIn(), n_episodes=n, scouts=3, **kw)
+    refine(RefinementProblem(COMPI, base), StandIn(), n_episodes=30, out_dir=tmp_path / "scouts", scouts=3, **kw)
+    again = refine(RefinementProblem(COMPI, base), StandIn(), n_episodes=n, out_dir=tmp_path / "scouts", scouts=3, **kw)
+    fresh = refine(RefinementProblem(COMPI, base), StandIn(), n_episodes=n, scouts=3, **kw)
     assert again.resumed and np.array_equal(fresh.rewards, again.rewards) and fresh.attempts == again.attempts
     assert [(a["end"], a["generations"], a["start"]) for a in fresh.attempts[:3]] == [("scout", 3, 0)] * 3
     # without scouts no attempt is a scout; the default (DEFAULT_SCOUTS scouts) is another run than three scouts
-    unscouted = refine(RefinementProblem(base), StandIn(), n_episodes=n, scouts=0, **kw)
+    unscouted = refine(RefinementProblem(COMPI, base), StandIn(), n_episodes=n, scouts=0, **kw)
     assert all(a["end"] != "scout" for a in unscouted.attempts)
-    default = refine(RefinementProblem(base), StandIn(), n_episodes=n, **kw)
+    default = refine(RefinementProblem(COMPI, base), StandIn(), n_episodes=n, **kw)
     assert [a["end"] for a in default.attempts[:DEFAULT_SCOUTS]] == ["scout"] * DEFAULT_SCOUTS
     with pytest.raises(RefinementError, match="another refinement"):
-        refine(RefinementProblem(base), StandIn(), n_episodes=n + 6, out_dir=tmp_path / "scouts", **kw)
+        refine(RefinementProblem(COMPI, base), StandIn(), n_episodes=n + 6, out_dir=tmp_path / "scouts", **kw)
     for bad in ({"scouts": -1}, {"scout_generations": 0}, {"patience": 0}):
         with pytest.raises(RefinementError):
-            refine(RefinementProblem(base), StandIn(), n_episodes=12, **(kw | bad))
+            refine(RefinementProblem(COMPI, base), StandIn(), n_episodes=12, **(kw | bad))
 
 
 def test_meta_stage_and_restarts_do_not_combine(base):
     with pytest.raises(RefinementError, match="do not combine"):
-        refine(RefinementProblem(base), StandIn(), n_episodes=8, meta_episodes=4, stagnation_generations=3)
+        refine(RefinementProblem(COMPI, base), StandIn(), n_episodes=8, meta_episodes=4, stagnation_generations=3)
 
 
 @pytest.mark.slow
@@ -428,7 +433,7 @@ def test_default_search_brings_an_imitated_throw_close_to_the_target(tmp_path):
     from besdrake.sim import make_executor
 
     logging.getLogger("drake").setLevel(logging.ERROR)
-    problems = [RefinementProblem(load_dmp(f)) for f in collect_imitated(["synthetic:2"], tmp_path)]
+    problems = [RefinementProblem(COMPI, load_dmp(f)) for f in collect_imitated(["synthetic:2"], tmp_path)]
     with make_executor("serial") as ex:
         index, start = best_start(problems, ex)
         result = refine(problems[index], ex, n_episodes=300, seed=0, out_dir=tmp_path / "run")
@@ -450,7 +455,7 @@ def test_bipop_small_restart_refines_a_near_miss(tmp_path):
     from besdrake.sim import make_executor
 
     logging.getLogger("drake").setLevel(logging.ERROR)
-    problems = [RefinementProblem(load_dmp(f), ThrowReward(violation_offset=0.2), retime=False)
+    problems = [RefinementProblem(COMPI, load_dmp(f), ThrowReward(violation_offset=0.2), retime=False)
                 for f in collect_imitated(["synthetic:5"], tmp_path)]
     with make_executor("serial") as ex:
         index, _ = best_start(problems, ex)
@@ -469,7 +474,7 @@ def test_scout_start_points_are_the_best_imitated_throws_in_order(base):
     far.goal[1] -= 0.5
     near.goal = near.goal.copy()
     near.goal[1] += 0.8
-    problems = [RefinementProblem(b, retime=False) for b in (base, far, near)]
+    problems = [RefinementProblem(COMPI, b, retime=False) for b in (base, far, near)]
     ranked = rank_starts(problems, StandIn())
     assert scout_start_points(problems, ranked, 1) is None  # every scout from the start throw
     pts = scout_start_points(problems, ranked, 2)
@@ -494,7 +499,7 @@ def test_default_search_reaches_the_goal_where_bipop_alone_stalled(tmp_path):
     from besdrake.sim import make_executor
 
     logging.getLogger("drake").setLevel(logging.ERROR)
-    problems = [RefinementProblem(load_dmp(f)) for f in collect_imitated(["synthetic:0"], tmp_path)]
+    problems = [RefinementProblem(COMPI, load_dmp(f)) for f in collect_imitated(["synthetic:0"], tmp_path)]
     with make_executor("serial") as ex:
         ranking = rank_starts(problems, ex)
         index = ranking[0][0]

@@ -20,6 +20,11 @@ from besdrake.search.templates import fitted_default_throw
 from tests.test_refinement import StandIn, outcome
 
 
+from besdrake.robot import load_robot
+
+COMPI = load_robot("compi")
+
+
 @pytest.fixture(scope="module")
 def base():
     return fitted_default_throw()
@@ -30,14 +35,14 @@ def test_dropped_ball_scores_below_the_same_touchdown_thrown(base):
 
     plan = DMPParameterization(base).motion_plan(DMPParameterization(base).to_vector(), dt=0.01)
     rew = ThrowReward(dropped_penalty=1.0)
-    thrown = rew(plan, outcome([1.5, 0.0]))
-    dropped = rew(plan, outcome([1.5, 0.0], dropped_early=True))
+    thrown = rew(plan, outcome([1.5, 0.0]), COMPI.limits)
+    dropped = rew(plan, outcome([1.5, 0.0], dropped_early=True), COMPI.limits)
     assert dropped.distance == thrown.distance == pytest.approx(0.5)
     assert dropped.reward == pytest.approx(thrown.reward - 1.0)
     # a dropped ball never beats a real throw that lands farther from the target by less than the penalty
-    worse_throw = rew(plan, outcome([1.5 - 0.9, 0.0]))
+    worse_throw = rew(plan, outcome([1.5 - 0.9, 0.0]), COMPI.limits)
     assert worse_throw.reward > dropped.reward
-    default = ThrowReward()(plan, outcome([1.5, 0.0], dropped_early=True))
+    default = ThrowReward()(plan, outcome([1.5, 0.0], dropped_early=True), COMPI.limits)
     assert default.reward == pytest.approx(thrown.reward - DROPPED_PENALTY)
     with pytest.raises(RefinementError):
         ThrowReward(dropped_penalty=-1.0)
@@ -45,7 +50,7 @@ def test_dropped_ball_scores_below_the_same_touchdown_thrown(base):
 
 
 def test_meta_basis_shifts_start_and_goal_together(base):
-    problem = RefinementProblem(base)
+    problem = RefinementProblem(COMPI, base)
     B = meta_basis(problem)
     n = base.n_dims
     assert B.shape == (problem.n_params, 2 * n + 1)
@@ -127,15 +132,15 @@ def test_staged_cmaes_rejects_bad_input():
 
 
 def test_refine_with_meta_stage_succeeds_and_resumes(base, tmp_path):
-    problem = RefinementProblem(base)
+    problem = RefinementProblem(COMPI, base)
     result = refine(problem, StandIn(), n_episodes=1500, seed=1, meta_episodes=100)
     assert result.success, result.summary()
     first = refine(problem, StandIn(), n_episodes=24, seed=3, popsize=8, out_dir=tmp_path, stop_on_success=False, meta_episodes=16)
     ex = StandIn()
-    again = refine(RefinementProblem(base), ex, n_episodes=48, seed=3, popsize=8, out_dir=tmp_path, stop_on_success=False, meta_episodes=16)
+    again = refine(RefinementProblem(COMPI, base), ex, n_episodes=48, seed=3, popsize=8, out_dir=tmp_path, stop_on_success=False, meta_episodes=16)
     assert first.n_episodes == 24 and again.resumed and again.n_episodes == 48 and ex.calls == 24
     with pytest.raises(RefinementError, match="another refinement"):
-        refine(RefinementProblem(base), StandIn(), n_episodes=60, seed=3, popsize=8, out_dir=tmp_path, meta_episodes=32)
+        refine(RefinementProblem(COMPI, base), StandIn(), n_episodes=60, seed=3, popsize=8, out_dir=tmp_path, meta_episodes=32)
     with pytest.raises(RefinementError):
         refine(problem, StandIn(), n_episodes=10, meta_episodes=-1)
 
@@ -163,13 +168,13 @@ def test_refine_cli_meta_stage_and_dropped_penalty(base, tmp_path):
 def test_scaling_max_execution_time_bounds_the_time(base):
     from besdrake.search.refinement import MAX_EXECUTION_TIME, MIN_EXECUTION_TIME, ParameterScaling
 
-    s = ParameterScaling.for_dmp(base, max_execution_time=1.2)
+    s = ParameterScaling.for_dmp(base, COMPI.position_limits, max_execution_time=1.2)
     assert s.bounds[-1].tolist() == [MIN_EXECUTION_TIME, 1.2]
     assert s.to_theta(np.full(s.theta0.size, 50.0))[-1] == pytest.approx(1.2)
-    assert ParameterScaling.for_dmp(base).bounds[-1, 1] == MAX_EXECUTION_TIME
+    assert ParameterScaling.for_dmp(base, COMPI.position_limits).bounds[-1, 1] == MAX_EXECUTION_TIME
     for bad in (MIN_EXECUTION_TIME, MAX_EXECUTION_TIME + 1.0, float("nan")):
         with pytest.raises(RefinementError):
-            ParameterScaling.for_dmp(base, max_execution_time=bad)
+            ParameterScaling.for_dmp(base, COMPI.position_limits, max_execution_time=bad)
 
 
 @pytest.mark.slow
@@ -180,7 +185,7 @@ def test_real_simulation_refines_a_slow_throw_to_success(base):
 
     slow = base.copy()
     slow.execution_time = 2.3
-    problem = RefinementProblem(slow)
+    problem = RefinementProblem(COMPI, slow)
     with make_executor("serial") as ex:
         result = refine(problem, ex, n_episodes=400, seed=0)
     assert result.success, result.summary()

@@ -39,11 +39,12 @@ def test_with_overrides_copies():
         (lambda d: d.update(time_step="fast"), "must be a number"),
         (lambda d: d["contact"].update(approximation="tamsi"), "TAMSI ignores"),
         (lambda d: d.update(colour="red"), "unknown key"),
-        (lambda d: d["models"].update(arm="package://besdrake_models/compi/nope.urdf"), "model file for 'arm' not found"),
-        (lambda d: d["models"].pop("ball"), "missing 'ball'"),
-        (lambda d: d["models"].update(arm="package://other/x.urdf"), "unknown package"),
-        (lambda d: d["controller"].update(kp=[1, 2, 3]), "list of 6"),
-        (lambda d: d["controller"].update(kd=[1, 2, 3, 4, 5, float("nan")]), "finite"),
+        (lambda d: d["models"].update(ball="package://besdrake_models/ball/nope.sdf"), "model file for 'ball' not found"),
+        (lambda d: d["models"].update(ball="package://other/x.sdf"), "unknown package"),
+        (lambda d: d.pop("robot"), "missing 'robot'"),
+        (lambda d: d.update(robot="r2d2"), "unknown robot 'r2d2'"),
+        (lambda d: d.update(controller={"kp": [1, 2, 3]}), "list of 6"),
+        (lambda d: d.update(controller={"kd": [1, 2, 3, 4, 5, float("nan")]}), "finite"),
         (lambda d: d["base"].update(z=-1), "base.z"),
         (lambda d: d.update(effects={"warp_drive": {}}), "unknown effect 'warp_drive'"),
         (lambda d: d.update(effects={"base_offset": {"z": 5.0}}), "outside its bounds"),
@@ -75,3 +76,22 @@ def test_scenario_effects_are_completed_with_nominals():
     d["effects"] = {"air_drag": {"cd": 0.5}}
     s = scenario_from_dict(d)
     assert s.effects == {"air_drag": {"cd": 0.5, "rho": 1.2}}
+
+
+def test_the_throwing_diagram_needs_its_ball_and_floor():
+    from besdrake.sim.diagram import build_diagram
+
+    d = _nominal_dict()
+    d["models"].pop("ball")
+    with pytest.raises(ScenarioError, match="missing 'ball'"):
+        build_diagram(scenario_from_dict(d))
+
+
+def test_a_scenario_moves_to_another_robot_with_its_gains():
+    s = load_scenario("nominal")
+    assert s.robot.name == "compi" and s.to_dict()["robot"] == "compi"
+    assert s.controller.kp == [2000, 4000, 3000, 800, 800, 200]  # the robot file's gains where the scenario gives none
+    moved = s.with_robot("compi")
+    assert moved.robot is s.robot and moved.controller.kp == s.controller.kp
+    with pytest.raises(ScenarioError, match="unknown robot"):
+        s.with_robot("r2d2")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from types import SimpleNamespace
 import logging
 
 import numpy as np
@@ -28,6 +29,11 @@ from besdrake.sim.outcome import FLAG_NAMES, Outcome
 logging.getLogger("drake").setLevel(logging.ERROR)
 
 
+from besdrake.robot import load_robot
+
+COMPI = load_robot("compi")
+
+
 @pytest.fixture(scope="module")
 def base():
     return fitted_default_throw()
@@ -35,6 +41,8 @@ def base():
 
 class PolarStandIn:
     """Cheap stand-in for the simulation: range 3.3 m - execution time, direction = final joint-1 angle."""
+
+    scenario = SimpleNamespace(name="polar-stand-in", robot=COMPI, effects={})
 
     def __init__(self, fail_every: int = 0) -> None:
         self.calls = 0
@@ -62,12 +70,12 @@ def test_test_contexts_are_x_forward_y_lateral():
 
 
 def test_meta_dmp_rotate_shifts_joint1_and_goal_mode_keeps_start(base):
-    m = MetaDMP(base, "rotate")
+    m = MetaDMP(base, COMPI, "rotate")
     tau = base.execution_time
     p0, p1 = m.plan([tau, base.goal[0]]), m.plan([tau, base.goal[0] + 0.4])
     assert np.allclose(p1.q[:, 0], p0.q[:, 0] + 0.4, atol=1e-9)
     assert np.allclose(p1.q[:, 1:], p0.q[:, 1:])
-    g = MetaDMP(base, "goal").plan([tau, base.goal[0] + 0.4])
+    g = MetaDMP(base, COMPI, "goal").plan([tau, base.goal[0] + 0.4])
     assert g.q[0, 0] == pytest.approx(base.start[0]) and g.q[-1, 0] == pytest.approx(base.goal[0] + 0.4, abs=0.05)
     slow = m.plan([1.5 * tau, base.goal[0]])
     assert slow.duration == pytest.approx(1.5 * tau)
@@ -76,25 +84,25 @@ def test_meta_dmp_rotate_shifts_joint1_and_goal_mode_keeps_start(base):
     with pytest.raises(TemplateError):
         m.plan([-1.0, 0.0])
     with pytest.raises(TemplateError):
-        MetaDMP(base, "sideways")
+        MetaDMP(base, COMPI, "sideways")
 
 
 def test_meta_bounds_respect_minimum_execution_time(base):
-    b = default_meta_bounds(base)
+    b = default_meta_bounds(base, COMPI)
     assert b[0, 0] >= 0.95 and b[0, 0] < base.execution_time < b[0, 1]
     assert b[1, 0] < base.goal[0] < b[1, 1]
 
 
 def test_meta_bounds_keep_every_plan_within_the_joint_limits(base):
-    free = default_meta_bounds(base, respect_limits=False)
-    safe = default_meta_bounds(base)
-    m = MetaDMP(base)
-    assert not m.plan([free[0, 0], base.goal[0]]).check_limits().ok  # the free box allows too fast throws
+    free = default_meta_bounds(base, COMPI, respect_limits=False)
+    safe = default_meta_bounds(base, COMPI)
+    m = MetaDMP(base, COMPI)
+    assert not m.plan([free[0, 0], base.goal[0]]).check_limits(COMPI.limits).ok  # the free box allows too fast throws
     assert free[0, 0] < safe[0, 0] < base.execution_time * 1.05
-    assert not m.plan([safe[0, 0] - 0.02, base.goal[0]]).check_limits().ok  # the bound is tight
+    assert not m.plan([safe[0, 0] - 0.02, base.goal[0]]).check_limits(COMPI.limits).ok  # the bound is tight
     for tau in safe[0]:
         for goal in safe[1]:
-            assert m.plan([tau, goal]).check_limits().ok
+            assert m.plan([tau, goal]).check_limits(COMPI.limits).ok
 
     class Fastest:
         def policy(self, s):
@@ -188,10 +196,10 @@ def test_default_template_base_reaches_every_test_context_within_the_limits():
     from besdrake.sim import make_executor
 
     base = default_template_base()
-    bounds = default_meta_bounds(base)
-    meta = MetaDMP(base, "rotate")
+    bounds = default_meta_bounds(base, COMPI)
+    meta = MetaDMP(base, COMPI, "rotate")
     plans = [meta.plan(np.array([tau, base.goal[0]])) for tau in bounds[0]]
-    assert all(p.check_limits().ok for p in plans)
+    assert all(p.check_limits(COMPI.limits).ok for p in plans)
     with make_executor("serial") as ex:
         fastest, slowest = (float(np.linalg.norm(d)) for d in touchdowns(plans, ex))
     distances = np.linalg.norm(TEST_CONTEXTS, axis=1)

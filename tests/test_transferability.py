@@ -23,6 +23,11 @@ from besdrake.transfer.transferability import (
 from besdrake.transfer.virtual_lab import VirtualLab
 
 
+from besdrake.robot import load_robot
+
+COMPI = load_robot("compi")
+
+
 def to_plan(theta: np.ndarray):
     """A cheap 3-parameter stand-in for the 49 DMP parameters: the default throw."""
     return default_throw(amplitude=float(theta[0]), yaw=float(theta[1]), accel=float(theta[2]))
@@ -86,7 +91,7 @@ class _Interrupting:
     """A lab that dies (KeyboardInterrupt) before its ``fail_at``-th execution, counting calls."""
 
     def __init__(self, lab, fail_at: int | None) -> None:
-        self.lab, self.fail_at, self.calls = lab, fail_at, 0
+        self.lab, self.fail_at, self.calls, self.robot = lab, fail_at, 0, lab.robot
 
     def description(self):
         return self.lab.description()
@@ -336,7 +341,7 @@ def test_plans_thrown_fewer_than_three_times_have_no_cliff_events():
 def test_the_final_evaluation_sends_no_pareto_plan_beyond_the_joint_limits():
     """A plan beyond the limits can sit on the Pareto front by its novelty alone: it is not sent to the lab."""
     ok, beyond, near = np.array([0.45, 0.0, 19.0]), np.array([1.5, 0.0, 19.5]), np.array([0.46, 0.0, 19.0])
-    assert to_plan(ok).check_limits().ok and not to_plan(beyond).check_limits().ok
+    assert to_plan(ok).check_limits(COMPI.limits).ok and not to_plan(beyond).check_limits(COMPI.limits).ok
     cfg = TransferabilityConfig(final_best_in_lab=0, final_pareto=4, final_repetitions=1)
     lab = SafetyGate(VirtualLab("diagrams/labs/ideal_lab.yaml"))
     search = TransferabilityApproach(to_plan, ok[None], SCALES, BOUNDS, None, lab, np.random.default_rng(0), cfg)

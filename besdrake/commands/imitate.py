@@ -53,7 +53,12 @@ def run(args: argparse.Namespace) -> int:
             classifier = SegmentClassifier.from_json(json.loads(args.classifier.read_text()))
         except (OSError, ValueError) as err:
             raise UserError(f"classifier {args.classifier}: {err}") from None
-    mapping = EmbodimentMapping()
+    from besdrake.sim.scenario import ScenarioError, load_scenario
+
+    try:
+        mapping = EmbodimentMapping(load_scenario(args.scenario).robot)
+    except ScenarioError as err:
+        raise UserError(str(err)) from None
     rollout = None
     if not args.no_sim:
         from besdrake.sim import Rollout

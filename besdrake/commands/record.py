@@ -19,7 +19,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from besdrake.cli import UserError
     from besdrake.plan import PlanError
-    from besdrake.sim.cliutil import effects_from_args, plan_from_args
+    from besdrake.sim.cliutil import effects_from_args, plan_from_args, scenario_from_args
     from besdrake.sim.effects import EffectError
     from besdrake.sim.scenario import ScenarioError
 
@@ -30,7 +30,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         from besdrake.sim.record import record_html
 
-        path, outcome = record_html(plan_from_args(args), args.out, scenario=args.scenario, effects=effects_from_args(args.effect), fps=args.fps)
+        path, outcome = record_html(plan_from_args(args), args.out, scenario=scenario_from_args(args), effects=effects_from_args(args.effect), fps=args.fps)
     except (PlanError, EffectError, ScenarioError, ValueError) as err:
         raise UserError(str(err)) from err
     td = "none" if outcome.touchdown is None else f"x={outcome.touchdown[0]:.3f} m y={outcome.touchdown[1]:.3f} m"

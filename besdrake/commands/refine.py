@@ -162,7 +162,7 @@ def run(args: argparse.Namespace) -> int:
     from besdrake.search.refinement import (RefinementError, RefinementProblem, ThrowReward, rank_starts, refine, scout_points,
                                             scout_starts_checked)
     from besdrake.sim import make_executor
-    from besdrake.sim.scenario import ScenarioError
+    from besdrake.sim.scenario import ScenarioError, load_scenario
 
     logging.getLogger("drake").setLevel(logging.ERROR)
     for name, v, lo in (("--runs", args.runs, 1), ("--episodes", args.episodes, 1), ("--popsize", args.popsize, 2), ("--workers", args.workers, 1)):
@@ -192,9 +192,10 @@ def run(args: argparse.Namespace) -> int:
         if args.violation_offset is not None:
             extra["violation_offset"] = args.violation_offset
         reward = ThrowReward(target=tuple(args.target), **extra)
-        problems = [RefinementProblem(load_dmp(f), reward, retime=args.retime) for f in files]
+        robot = load_scenario(args.scenario).robot
+        problems = [RefinementProblem(robot, load_dmp(f), reward, retime=args.retime) for f in files]
         scout_starts = scout_starts_checked(args.scout_starts)  # before anything is simulated
-    except (DMPParameterError, RefinementError) as err:
+    except (DMPParameterError, RefinementError, ScenarioError) as err:
         raise UserError(str(err)) from None
     show = not args.quiet and sys.stderr.isatty()
     try:

@@ -23,7 +23,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from besdrake.cli import UserError
     from besdrake.plan import PlanError
-    from besdrake.sim.cliutil import effects_from_args, plan_from_args
+    from besdrake.sim.cliutil import effects_from_args, plan_from_args, scenario_from_args
     from besdrake.sim.effects import EffectError, get_effect, list_effects
     from besdrake.sim.scenario import ScenarioError
 
@@ -38,17 +38,18 @@ def run(args: argparse.Namespace) -> int:
         return 0
     try:
         effects = effects_from_args(args.effect)
+        scenario = scenario_from_args(args)
         plan = plan_from_args(args)
         if args.record:
             if not str(args.record).endswith((".html", ".htm")):
                 raise ValueError(f"--record must be an .html file, got {args.record}")
             from besdrake.sim.record import record_html
 
-            _, outcome = record_html(plan, args.record, scenario=args.scenario, effects=effects, limits=args.limits)
+            _, outcome = record_html(plan, args.record, scenario=scenario, effects=effects, limits=args.limits)
         else:
             from besdrake.sim.rollout import Rollout
 
-            outcome = Rollout(args.scenario).rollout(plan, effects=effects, limits=args.limits)
+            outcome = Rollout(scenario).rollout(plan, effects=effects, limits=args.limits)
     except (PlanError, EffectError, ScenarioError, ValueError) as err:
         raise UserError(str(err)) from err
     if args.json:

@@ -88,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
                 plan.save(args.plan_out)
             data = {"template": template.name, "target_m": list(args.target), "meta_parameters": plan.meta,
                     "duration_s": plan.duration, "plan": str(args.plan_out) if args.plan_out else None,
-                    "within_limits": plan.check_limits().ok}
+                    "within_limits": plan.check_limits(template.meta.robot.limits).ok}
             _emit(args, data, f"{template.name} -> target {args.target}: execution time {plan.meta['execution_time']:.3f} s, "
                               f"joint-1 goal {plan.meta['goal_joint1']:.3f} rad" + (f"; plan: {args.plan_out}" if args.plan_out else ""))
             return 0

@@ -52,6 +52,7 @@ def run(args: argparse.Namespace) -> int:
     from besdrake.transfer.log import LabLog
     from besdrake.transfer.plugins import PluginError, load_plugins
     from besdrake.transfer.transferability import TransferabilityApproach, TransferabilityConfig
+    from besdrake.sim.scenario import load_scenario
     from besdrake.transfer.virtual_lab import LabConfigError, VirtualLab, load_lab_config
 
     files = _dmp_files(args.seeds)
@@ -61,13 +62,16 @@ def run(args: argparse.Namespace) -> int:
         load_plugins(args.plugin)
         cfg = load_lab_config(args.lab)
         dmps = [load_dmp(f) for f in files]
+        robot = load_scenario(args.scenario).robot
     except (PluginError, LabConfigError, OSError, ValueError) as err:
         raise UserError(str(err)) from None
     template = dmps[0]
     if any(d.n_dims != template.n_dims or d.n_weights_per_dim != template.n_weights_per_dim for d in dmps):
         raise UserError("all seed DMPs must have the same number of joints and weights")
-    param = DMPParameterization(template)
-    scaling = ParameterScaling.for_dmp(template)
+    if template.n_dims != robot.n_joints:
+        raise UserError(f"the seed DMPs have {template.n_dims} joints, the scenario's robot {robot.name!r} {robot.n_joints}")
+    param = DMPParameterization(template, robot.joint_names)
+    scaling = ParameterScaling.for_dmp(template, robot.position_limits)
     seeds = np.array([param.to_vector(d) for d in dmps])
     try:
         config = TransferabilityConfig(

@@ -1,4 +1,4 @@
-"""Figures of an imitated throw: demonstrated vs reproduced scoop path, joints against limits."""
+"""Figures of an imitated segment: demonstrated vs reproduced tool path, joints against limits."""
 
 from __future__ import annotations
 
@@ -6,14 +6,13 @@ from pathlib import Path
 
 import numpy as np
 
-from besdrake import robot
 from besdrake.embodiment.kinematics import KinematicModel, mount_to_transform
 from besdrake.embodiment.record_mapping import HandTrajectory
 
 
 def plot_imitation(result, hand: HandTrajectory, welded: KinematicModel, path: str | Path) -> Path:
-    """Write a PNG: the demonstrated hand path and the DMP's scoop path in COMPI's base frame
-    (side and top views), and the six joint trajectories with their position and velocity limits."""
+    """Write a PNG: the demonstrated hand path and the DMP's tool path in the robot's base frame
+    (side and top views), and the joint trajectories with their position and velocity limits."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -25,30 +24,32 @@ def plot_imitation(result, hand: HandTrajectory, welded: KinematicModel, path: s
     plan = result.plan
     tcp = np.array([welded.tcp_pose(q).translation() for q in plan.q])
 
-    fig = plt.figure(figsize=(13, 8))
-    grid = fig.add_gridspec(3, 3)
+    robot = welded.robot
+    rows = max(3, -(-robot.n_joints // 2))
+    fig = plt.figure(figsize=(13, 8 * rows / 3))
+    grid = fig.add_gridspec(rows, 3)
     ax_side = fig.add_subplot(grid[0, 0])
     ax_top = fig.add_subplot(grid[1, 0])
     for ax, (i, j), title in ((ax_side, (0, 2), "side (x-z)"), (ax_top, (0, 1), "top (x-y)")):
         ax.plot(demo[:, i], demo[:, j], "o", ms=3, label="demonstrated hand")
-        ax.plot(tcp[:, i], tcp[:, j], "-", label="DMP scoop path")
+        ax.plot(tcp[:, i], tcp[:, j], "-", label="DMP tool path")
         ax.set_aspect("equal", adjustable="datalim")
         ax.set_title(title)
         ax.set_xlabel("m")
     ax_side.legend(fontsize=7)
-    for k in range(6):
+    for k in range(robot.n_joints):
         ax = fig.add_subplot(grid[k // 2, 1 + k % 2])
-        lo, hi = robot.POSITION_LIMITS[k]
+        lo, hi = robot.position_limits[k]
         ax.plot(plan.t, plan.q[:, k], label="q")
         ax.axhline(lo, color="r", lw=0.8)
         ax.axhline(hi, color="r", lw=0.8)
         if plan.qd is not None:
             ax2 = ax.twinx()
             ax2.plot(plan.t, plan.qd[:, k], color="g", lw=0.8)
-            ax2.axhline(robot.VELOCITY_LIMITS[k], color="g", ls=":", lw=0.8)
-            ax2.axhline(-robot.VELOCITY_LIMITS[k], color="g", ls=":", lw=0.8)
+            ax2.axhline(robot.velocity_limits[k], color="g", ls=":", lw=0.8)
+            ax2.axhline(-robot.velocity_limits[k], color="g", ls=":", lw=0.8)
             ax2.tick_params(labelsize=6)
-        ax.set_title(f"{robot.JOINT_NAMES[k]} (rad; green: rad/s)", fontsize=8)
+        ax.set_title(f"{robot.joint_names[k]} (rad; green: rad/s)", fontsize=8)
         ax.tick_params(labelsize=6)
     s = result.summary()
     fig.suptitle(

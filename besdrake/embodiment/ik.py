@@ -1,10 +1,10 @@
-"""Joint trajectory of a demonstrated segment by inverse kinematics in COMPI's base frame.
+"""Joint trajectory of a demonstrated segment by inverse kinematics in the robot's base frame.
 
 With the synchronization frame fixed, every demonstrated hand pose (at the recording's full
 rate) is solved with Drake's :class:`~pydrake.multibody.inverse_kinematics.InverseKinematics`:
-the scoop origin within ``position_tolerance`` of the hand centre (a constraint), the scoop
-opening towards the palm normal (a cost: a scoop cannot turn like a wrist, so the angle is
-matched as well as the arm allows and reported), and a cost on the distance to the previous
+the tool origin within ``position_tolerance`` of the hand centre (a constraint), the robot file's
+tool axis towards the palm normal (a cost: a tool such as a scoop cannot turn like a wrist, so the
+angle is matched as well as the arm allows and reported), and a cost on the distance to the previous
 solution so that consecutive configurations stay close (no jumps between IK branches). A pose
 whose position constraint cannot be met is solved again with the position as a cost and
 reported as unreachable with its residual.
@@ -19,9 +19,7 @@ from pydrake.math import RigidTransform
 from pydrake.multibody.inverse_kinematics import InverseKinematics
 from pydrake.solvers import SnoptSolver
 
-from besdrake import robot
 from besdrake.embodiment.kinematics import KinematicModel
-from besdrake.embodiment.sync_frame import SCOOP_AXIS
 
 
 @dataclass
@@ -29,7 +27,7 @@ class IKTrajectory:
     """Joint positions for every demonstrated pose and how well they reproduce it."""
 
     t: np.ndarray  # (n,) s
-    q: np.ndarray  # (n, 6) rad
+    q: np.ndarray  # (n, joints) rad
     position_residual: np.ndarray  # (n,) m
     angle_residual: np.ndarray  # (n,) rad
     reachable: np.ndarray  # (n,) bool: position constraint met
@@ -73,17 +71,19 @@ def ik_trajectory(
     continuity_weight: float = 1.0,
     joint_margin: float = 0.05,
 ) -> IKTrajectory:
-    """Solve every pose (positions ``(n, 3)`` and opening axes ``(n, 3)`` in the base frame).
+    """Solve every pose (positions ``(n, 3)`` and palm axes ``(n, 3)`` in the base frame).
 
-    ``q_guess`` ``(n, 6)`` seeds each solve (e.g. the synchronization program's solution
+    ``q_guess`` ``(n, joints)`` seeds each solve (e.g. the synchronization program's solution
     interpolated to ``t``); each solve is pulled towards the previous solution.
     """
     if model.n_mount:
-        raise ValueError("ik_trajectory needs the welded COMPI plant (compi_plant())")
-    plant = model.plant
+        raise ValueError("ik_trajectory needs the welded plant (welded_plant(robot))")
+    plant, robot, tool_axis = model.plant, model.robot, model.tool_axis
+    if plant.num_positions() != robot.n_joints:
+        raise ValueError(f"ik_trajectory solves the arm's {robot.n_joints} joints; the plant has {plant.num_positions()} positions")
     n = len(t)
-    lower = robot.POSITION_LIMITS[:, 0] + joint_margin
-    upper = robot.POSITION_LIMITS[:, 1] - joint_margin
+    lower = robot.position_limits[:, 0] + joint_margin
+    upper = robot.position_limits[:, 1] - joint_margin
     solver = SnoptSolver()
 
     def solve(i: int, anchor: np.ndarray, *guesses: np.ndarray) -> tuple[np.ndarray, bool]:
@@ -101,15 +101,15 @@ def ik_trajectory(
                 )
             else:
                 ik.AddPositionCost(plant.world_frame(), positions[i], model.tcp, np.zeros(3), 1.0e4 * np.eye(3))
-            ik.AddAngleBetweenVectorsCost(plant.world_frame(), axes[i], model.tcp, SCOOP_AXIS, angle_weight)
-            prog.AddQuadraticErrorCost(continuity_weight * np.eye(6), anchor, q)
+            ik.AddAngleBetweenVectorsCost(plant.world_frame(), axes[i], model.tcp, tool_axis, angle_weight)
+            prog.AddQuadraticErrorCost(continuity_weight * np.eye(robot.n_joints), anchor, q)
             prog.SetInitialGuess(q, guess)
             result = solver.Solve(prog)
             if result.is_success() or not hard:
                 break
         return result.GetSolution(q), hard and result.is_success()
 
-    q_out = np.empty((n, 6))
+    q_out = np.empty((n, robot.n_joints))
     reachable = np.ones(n, dtype=bool)
     # Forward pass, each pose pulled towards the previous solution; then a backward pass pulls
     # each pose towards its successor, starting from it, which removes the start-up transient of
@@ -127,6 +127,6 @@ def ik_trajectory(
     for i in range(n):
         X: RigidTransform = model.tcp_pose(q_out[i])
         pos_res[i] = np.linalg.norm(X.translation() - positions[i])
-        axis = X.rotation().matrix() @ SCOOP_AXIS
+        axis = X.rotation().matrix() @ tool_axis
         ang_res[i] = np.arccos(np.clip(axis @ axes[i], -1.0, 1.0))
     return IKTrajectory(t=np.asarray(t, float), q=q_out, position_residual=pos_res, angle_residual=ang_res, reachable=reachable)

@@ -1,13 +1,13 @@
-"""COMPI's kinematics for the embodiment mapping: a Drake MultibodyPlant without the ball.
+"""A robot's kinematics for the embodiment mapping: a Drake MultibodyPlant of the robot alone.
 
-Two variants:
+Two variants, both built from a :class:`~besdrake.robot.Robot`:
 
-* :func:`compi_plant` -- the arm welded to the world at its base (``linkmount``), for inverse
+* :func:`welded_plant` -- the arm welded to the world at its base link, for inverse
   kinematics in the robot's base frame and for time-optimal path parameterisation (Toppra needs
   a plant without free bodies).
-* :func:`mounted_compi_plant` -- the arm on a six-DOF *mount chain* (three prismatic joints along
+* :func:`mounted_plant` -- the arm on a six-DOF *mount chain* (three prismatic joints along
   x, y, z, then revolute yaw, pitch, roll) whose world is the demonstrator's back frame. The six
-  mount coordinates are the pose of COMPI's base in the synchronization frame: one mathematical
+  mount coordinates are the pose of the robot's base in the synchronization frame: one mathematical
   program can then solve that pose together with the joint configurations of every demonstrated
   pose (see :mod:`besdrake.embodiment.sync_frame`).
 """
@@ -22,7 +22,7 @@ from pydrake.multibody.parsing import Parser
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.multibody.tree import PrismaticJoint, RevoluteJoint, SpatialInertia, UnitInertia
 
-from besdrake import robot
+from besdrake.robot import Robot
 
 #: Names of the mount coordinates, in the order of the plant's positions.
 MOUNT_NAMES = ("mount_x", "mount_y", "mount_z", "mount_yaw", "mount_pitch", "mount_roll")
@@ -35,38 +35,44 @@ class KinematicModel:
     plant: MultibodyPlant
     context: object
     n_mount: int  # 0 or 6 leading positions of the mount chain
+    robot: Robot
+
+    @property
+    def tool_axis(self) -> np.ndarray:
+        """The tool axis (tool frame) that matches the demonstrator's palm normal (robot file ``mapping.tool_axis``)."""
+        axis = np.asarray(self.robot.mapping.get("tool_axis", [0.0, 0.0, 1.0]), dtype=float)
+        return axis / np.linalg.norm(axis)
+
+    @property
+    def ik_seed(self) -> np.ndarray:
+        """A joint configuration to start inverse kinematics from (robot file ``mapping.ik_seed``, else home)."""
+        return np.asarray(self.robot.mapping.get("ik_seed", self.robot.home), dtype=float)
 
     @property
     def tcp(self):
-        return self.plant.GetFrameByName(robot.TCP_FRAME)
+        """The robot's tool frame."""
+        return self.plant.GetFrameByName(self.robot.tool_frame)
 
     def tcp_pose(self, q: np.ndarray, mount: np.ndarray | None = None) -> RigidTransform:
-        """Pose of the tcp (= scoop frame) in the plant's world for joint positions ``q``."""
+        """Pose of the tool frame in the plant's world for joint positions ``q``."""
         x = q if self.n_mount == 0 else np.concatenate([mount, q])
         self.plant.SetPositions(self.context, x)
         return self.plant.CalcRelativeTransform(self.context, self.plant.world_frame(), self.tcp)
 
 
-def _parse_compi(plant: MultibodyPlant):
-    parser = Parser(plant)
-    robot.add_package(parser.package_map())
-    (instance,) = parser.AddModels(str(robot.compi_model_path()))
-    return instance
-
-
-def compi_plant() -> KinematicModel:
-    """COMPI welded to the world at its base frame."""
+def welded_plant(robot: Robot) -> KinematicModel:
+    """``robot`` welded to the world at its base link."""
     plant = MultibodyPlant(0.0)
-    _parse_compi(plant)
-    plant.WeldFrames(plant.world_frame(), plant.GetFrameByName(robot.BASE_LINK))
+    robot.add_model(plant, Parser(plant))
+    plant.WeldFrames(plant.world_frame(), plant.GetFrameByName(robot.base_link))
     plant.Finalize()
-    return KinematicModel(plant, plant.CreateDefaultContext(), 0)
+    return KinematicModel(plant, plant.CreateDefaultContext(), 0, robot)
 
 
-def mounted_compi_plant() -> KinematicModel:
-    """COMPI on a six-DOF mount chain (x, y, z, yaw, pitch, roll) from the world to its base."""
+def mounted_plant(robot: Robot) -> KinematicModel:
+    """``robot`` on a six-DOF mount chain (x, y, z, yaw, pitch, roll) from the world to its base link."""
     plant = MultibodyPlant(0.0)
-    _parse_compi(plant)
+    robot.add_model(plant, Parser(plant))
     mount = plant.AddModelInstance("mount")
     inertia = SpatialInertia(1e-3, np.zeros(3), UnitInertia.SolidSphere(0.01))
     axes = ([1, 0, 0], [0, 1, 0], [0, 0, 1], [0, 0, 1], [0, 1, 0], [1, 0, 0])
@@ -76,18 +82,18 @@ def mounted_compi_plant() -> KinematicModel:
         joint_type = PrismaticJoint if i < 3 else RevoluteJoint
         plant.AddJoint(joint_type(name, parent, body.body_frame(), np.array(axis, dtype=float)))
         parent = body.body_frame()
-    plant.WeldFrames(parent, plant.GetFrameByName(robot.BASE_LINK))
+    plant.WeldFrames(parent, plant.GetFrameByName(robot.base_link))
     plant.Finalize()
     # Positions must be ordered mount first, then the arm, for the programs built on this plant.
     starts = [plant.GetJointByName(n).position_start() for n in MOUNT_NAMES]
-    arm = [plant.GetJointByName(n).position_start() for n in robot.JOINT_NAMES]
-    if starts != list(range(6)) or arm != list(range(6, 12)):
+    arm = [plant.GetJointByName(n).position_start() for n in robot.joint_names]
+    if starts != list(range(6)) or arm != list(range(6, 6 + robot.n_joints)):
         raise RuntimeError(f"unexpected position order in the mounted plant: mount {starts}, arm {arm}")
-    return KinematicModel(plant, plant.CreateDefaultContext(), 6)
+    return KinematicModel(plant, plant.CreateDefaultContext(), 6, robot)
 
 
 def mount_to_transform(mount: np.ndarray) -> RigidTransform:
-    """Mount coordinates (x, y, z, yaw, pitch, roll) -> pose of COMPI's base in the mount's world.
+    """Mount coordinates (x, y, z, yaw, pitch, roll) -> pose of the robot's base in the mount's world.
 
     The chain applies yaw about z, then pitch about the new y, then roll about the new x.
     """

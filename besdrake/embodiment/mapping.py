@@ -1,10 +1,10 @@
-"""The embodiment mapping of one demonstrated throw: hand poses -> a joint-space DMP for COMPI.
+"""The embodiment mapping of one demonstrated segment: hand poses -> a joint-space DMP for a robot.
 
 Steps (paper sections 2.3.2 and 3.1.4), each in its own module:
 
 1. synchronization frame (:mod:`~besdrake.embodiment.sync_frame`), one joint program;
-2. inverse kinematics at the recording's rate in COMPI's base frame (:mod:`~besdrake.embodiment.ik`);
-   in both, the scoop's opening is kept within ``hold_cone_deg`` of vertical (the palm's axis is
+2. inverse kinematics at the recording's rate in the robot's base frame (:mod:`~besdrake.embodiment.ik`);
+   in both, the tool axis (for COMPI the scoop's opening) is kept within ``hold_cone_deg`` of vertical (the palm's axis is
    turned into that cone): the paper notes that imitation "does not consider suitability for
    holding and throwing the ball", and with the palm's axis alone every imitated throw of the
    default subjects starts with the scoop tilted 75-119 degrees and drops the ball within 0.15 s;
@@ -13,7 +13,7 @@ Steps (paper sections 2.3.2 and 3.1.4), each in its own module:
    trajectory; its rollout is checked against the limits and, if it still exceeds them, refitted
    with a longer execution time.
 
-The result holds the 49 parameters policy search refines (start, goal, weights, execution time)
+The result holds the parameters policy search refines (49 for COMPI) (start, goal, weights, execution time)
 and everything a report needs: residuals per pose, unreachable poses, peak joint velocities and
 accelerations against the limits, timings.
 """
@@ -28,14 +28,14 @@ from typing import Any
 
 import numpy as np
 
-from besdrake import robot
 from besdrake.embodiment.ik import IKTrajectory, ik_trajectory
-from besdrake.embodiment.kinematics import KinematicModel, compi_plant, mount_to_transform, mounted_compi_plant
+from besdrake.embodiment.kinematics import KinematicModel, mount_to_transform, mounted_plant, welded_plant
 from besdrake.embodiment.record_mapping import HandTrajectory
 from besdrake.embodiment.scaling import TemporalScaling, ease_in, temporal_scaling, toppra_duration
 from besdrake.embodiment.sync_frame import SyncFrameOptions, SyncFrameResult, solve_sync_frame
 from besdrake.imitation import DMP, THROW_WEIGHTS_PER_JOINT, DMPParameterization
 from besdrake.plan import LimitReport, MotionPlan
+from besdrake.robot import Robot
 
 
 def within_cone(axes: np.ndarray, up: np.ndarray, max_angle: float) -> np.ndarray:
@@ -70,7 +70,7 @@ class ImitationOptions:
     max_refits: int = 8
     joint_margins: tuple[float, ...] = (0.1, 0.25)  # rad kept from the position limits, tried in turn
     refit_stretch: float = 1.1
-    #: Task constraint of throwing: the scoop's opening stays within this angle (deg) of COMPI's vertical,
+    #: Task constraint of throwing: the scoop's opening stays within this angle (deg) of the base's vertical,
     #: in the synchronization frame and the inverse kinematics, so the ball stays in the scoop until the
     #: swing releases it (None: the palm's demonstrated axis only, as in the paper).
     hold_cone_deg: float | None = 35.0
@@ -78,8 +78,9 @@ class ImitationOptions:
 
 @dataclass
 class ImitatedThrow:
-    """One demonstrated throw mapped to COMPI."""
+    """One demonstrated segment mapped to the robot."""
 
+    robot: Robot
     dmp: DMP
     plan: MotionPlan
     sync: SyncFrameResult
@@ -91,18 +92,18 @@ class ImitatedThrow:
 
     @property
     def parameterization(self) -> DMPParameterization:
-        return DMPParameterization(self.dmp)
+        return DMPParameterization(self.dmp, self.robot.joint_names)
 
     @property
     def theta(self) -> np.ndarray:
-        """The 49 parameters: start (6), goal (6), weights (36), execution time (1)."""
+        """The parameters: start (n), goal (n), weights (n x k), execution time (1); 49 for COMPI."""
         return self.parameterization.to_vector()
 
     def problems(self) -> list[str]:
         """Why the plan is not executable (empty when it is)."""
         out = [f"pose at t={p['t']:.3f} s unreachable by {1000 * p['position_residual_m']:.1f} mm" for p in self.ik.unreachable_report()]
         for i, j, step in self.ik.jumps():
-            out.append(f"joint{j + 1} jumps by {step:.2f} rad at t={self.ik.t[i]:.3f} s (IK branch switch)")
+            out.append(f"{self.robot.joint_names[j]} jumps by {step:.2f} rad at t={self.ik.t[i]:.3f} s (IK branch switch)")
         out += self.limits.violations()
         return out
 
@@ -128,7 +129,7 @@ class ImitatedThrow:
             "unreachable_poses": self.ik.unreachable_report(),
             "max_joint_step_rad": self.ik.max_joint_step,
             "peak_joint_velocity_rad_s": None if peak_v is None else peak_v.tolist(),
-            "velocity_limit_rad_s": robot.VELOCITY_LIMITS.tolist(),
+            "velocity_limit_rad_s": self.robot.velocity_limits.tolist(),
             "limit_violations": self.limits.violations(),
             "problems": self.problems(),
             "timings_s": self.timings,
@@ -147,9 +148,12 @@ class ImitatedThrow:
 
 
 class EmbodimentMapping:
-    """Maps demonstrated hand trajectories to COMPI; builds its kinematic models once."""
+    """Maps demonstrated hand trajectories to ``robot``; builds its kinematic models once."""
 
-    def __init__(self, options: ImitationOptions | None = None) -> None:
+    def __init__(self, robot: Robot, options: ImitationOptions | None = None) -> None:
+        if not isinstance(robot, Robot):
+            raise TypeError(f"EmbodimentMapping needs a Robot (besdrake.robot.load_robot), got {type(robot).__name__}")
+        self.robot = robot
         self.options = options or ImitationOptions()
         self._mounted: KinematicModel | None = None
         self._welded: KinematicModel | None = None
@@ -157,24 +161,24 @@ class EmbodimentMapping:
     @property
     def mounted(self) -> KinematicModel:
         if self._mounted is None:
-            self._mounted = mounted_compi_plant()
+            self._mounted = mounted_plant(self.robot)
         return self._mounted
 
     @property
     def welded(self) -> KinematicModel:
         if self._welded is None:
-            self._welded = compi_plant()
+            self._welded = welded_plant(self.robot)
         return self._welded
 
     def _fit_within_limits(self, t: np.ndarray, q: np.ndarray, stretch: float):
         """Fit the DMP to ``q(t)`` stretched by ``stretch``; stretch more while its rollout exceeds the
         velocity or acceleration limits (a position overshoot is not cured by slowing down)."""
-        opts = self.options
+        opts, robot = self.options, self.robot
         for _ in range(opts.max_refits):
-            dmp = DMP(6, n_weights_per_dim=opts.n_weights_per_dim).fit(t * stretch, q)
-            parameterization = DMPParameterization(dmp)
+            dmp = DMP(robot.n_joints, n_weights_per_dim=opts.n_weights_per_dim).fit(t * stretch, q)
+            parameterization = DMPParameterization(dmp, robot.joint_names)
             plan = parameterization.motion_plan(parameterization.to_vector(), dt=opts.plan_dt)
-            limits = plan.check_limits()
+            limits = plan.check_limits(robot.limits)
             if not (np.any(limits.velocity > 0) or np.any(limits.acceleration > 0)):
                 break
             stretch *= opts.refit_stretch
@@ -199,7 +203,7 @@ class EmbodimentMapping:
             axes_B = hand.palm_axis @ R.T
             if opts.hold_cone_deg is not None:
                 axes_B = within_cone(axes_B, np.array([0.0, 0.0, 1.0]), np.radians(opts.hold_cone_deg))
-            q_guess = np.stack([np.interp(hand.t, sync.t, sync.q[:, j]) for j in range(6)], axis=1)
+            q_guess = np.stack([np.interp(hand.t, sync.t, sync.q[:, j]) for j in range(self.robot.n_joints)], axis=1)
             t1 = time.perf_counter()
             ik = ik_trajectory(
                 self.welded, hand.t, p_B, axes_B, q_guess, position_tolerance=opts.sync.position_tolerance, joint_margin=margin
@@ -209,8 +213,8 @@ class EmbodimentMapping:
             # Peak velocities and accelerations of the DMP fitted at the demonstrated speed: the DMP
             # is what will be executed, and its derivatives are free of the IK's sample noise.
             t_demo, q_demo = ease_in(hand.t, ik.q, opts.ease_in_s)
-            demo = DMP(6, n_weights_per_dim=opts.n_weights_per_dim).fit(t_demo, q_demo).open_loop(0.001)
-            scaling = temporal_scaling(demo.t, demo.y, safety=opts.velocity_safety, toppra=False)
+            demo = DMP(self.robot.n_joints, n_weights_per_dim=opts.n_weights_per_dim).fit(t_demo, q_demo).open_loop(0.001)
+            scaling = temporal_scaling(demo.t, demo.y, self.robot.limits, safety=opts.velocity_safety)
             timings["temporal_scaling"] = timings.get("temporal_scaling", 0.0) + time.perf_counter() - t2
             t3 = time.perf_counter()
             dmp, plan, limits, stretch = self._fit_within_limits(t_demo, q_demo, scaling.factor)
@@ -219,10 +223,10 @@ class EmbodimentMapping:
                 break
         t4 = time.perf_counter()
         scaling.toppra_duration = toppra_duration(
-            hand.t, ik.q, robot.VELOCITY_LIMITS, robot.ACCELERATION_LIMITS, plant=self.welded.plant
+            hand.t, ik.q, self.robot.velocity_limits, self.robot.acceleration_limits, plant=self.welded.plant
         )
         timings["toppra"] = time.perf_counter() - t4
         timings["total"] = time.perf_counter() - t0
         scaling.factor = float(stretch)
         scaling.duration = float(dmp.execution_time)
-        return ImitatedThrow(dmp=dmp, plan=plan, sync=sync, ik=ik, scaling=scaling, limits=limits, timings=timings, name=name)
+        return ImitatedThrow(robot=self.robot, dmp=dmp, plan=plan, sync=sync, ik=ik, scaling=scaling, limits=limits, timings=timings, name=name)

@@ -1,12 +1,12 @@
-"""Spatial and temporal scaling of a joint trajectory to COMPI's capabilities.
+"""Spatial and temporal scaling of a joint trajectory to a robot's capabilities.
 
-Temporal scaling (paper sections 2.3.2 and 3.1.4): a human throw is faster than COMPI's motors
-allow, so the movement is slowed down uniformly. Stretching time by ``k`` divides joint velocities
+Temporal scaling (paper sections 2.3.2 and 3.1.4): a human throw is faster than a robot's motors
+(COMPI's, for instance) allow, so the movement is slowed down uniformly. Stretching time by ``k`` divides joint velocities
 by ``k`` and accelerations by ``k**2``; the smallest admissible ``k`` is
 
     k = max(1, max|qd| / v_max, sqrt(max|qdd| / a_max), T_min / T)
 
-with ``v_max`` = 3.14 rad/s and ``a_max`` from :mod:`besdrake.robot` (times a safety factor) and
+with ``v_max`` and ``a_max`` the robot file's joint limits (times a safety factor) and
 the paper's minimum execution time ``T_min`` = 0.95 s. A uniform stretch keeps the path and the
 relative timing of the demonstration, which a DMP's execution time expresses exactly.
 
@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from besdrake import robot
+from besdrake.robot import JointLimits
 from besdrake.imitation.policy import MIN_THROW_EXECUTION_TIME
 
 
@@ -56,13 +56,14 @@ def derivatives(t: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def temporal_scaling(
     t: np.ndarray,
     q: np.ndarray,
-    velocity_limits: np.ndarray = robot.VELOCITY_LIMITS,
-    acceleration_limits: np.ndarray = robot.ACCELERATION_LIMITS,
+    limits: JointLimits,
     safety: float = 0.9,
     min_duration: float = MIN_THROW_EXECUTION_TIME,
-    toppra: bool = True,
+    plant=None,
 ) -> TemporalScaling:
-    """Smallest uniform time stretch that keeps ``safety`` x the limits (see module docstring)."""
+    """Smallest uniform time stretch that keeps ``safety`` x the robot's ``limits`` (see module docstring);
+    with ``plant`` (the robot welded at its base) also Toppra's time-optimal bound."""
+    velocity_limits, acceleration_limits = limits.velocity, limits.acceleration
     qd, qdd = derivatives(t, q)
     v = np.abs(qd).max(axis=0)
     a = np.abs(qdd).max(axis=0)
@@ -75,7 +76,7 @@ def temporal_scaling(
     }
     limiting = max(candidates, key=candidates.get)
     k = max(candidates.values())
-    bound = toppra_duration(t, q, velocity_limits, acceleration_limits) if toppra else None
+    bound = toppra_duration(t, q, velocity_limits, acceleration_limits, plant=plant) if plant is not None else None
     return TemporalScaling(
         factor=float(k), duration=float(k * T), demo_duration=T, peak_velocity_demo=v,
         peak_acceleration_demo=a, limiting=limiting, toppra_duration=bound,
@@ -87,20 +88,17 @@ def toppra_duration(
     q: np.ndarray,
     velocity_limits: np.ndarray,
     acceleration_limits: np.ndarray,
+    plant,
     gridpoints: int = 200,
-    plant=None,
 ) -> float | None:
-    """Time-optimal duration of the joint path ``q(t)`` under per-joint limits (Drake's Toppra).
-
-    ``plant``: COMPI welded at its base (built here when not given); None when Toppra fails."""
+    """Time-optimal duration of the joint path ``q(t)`` under per-joint limits (Drake's Toppra) for ``plant``,
+    the robot welded at its base; None when Toppra fails."""
     from pydrake.multibody.optimization import Toppra
     from pydrake.trajectories import PiecewisePolynomial
 
-    from besdrake.embodiment.kinematics import compi_plant
-
     s = (t - t[0]) / (t[-1] - t[0])
-    path = PiecewisePolynomial.CubicWithContinuousSecondDerivatives(s, q.T, np.zeros(6), np.zeros(6))
-    plant = plant or compi_plant().plant
+    n = q.shape[1]
+    path = PiecewisePolynomial.CubicWithContinuousSecondDerivatives(s, q.T, np.zeros(n), np.zeros(n))
     grid = Toppra.CalcGridPoints(path, _GridOptions(gridpoints))
     top = Toppra(path, plant, grid)
     top.AddJointVelocityLimit(-velocity_limits, velocity_limits)
@@ -138,6 +136,6 @@ def ease_in(t: np.ndarray, q: np.ndarray, duration: float) -> tuple[np.ndarray, 
     return np.concatenate([tau, t - t[0] + duration]), np.vstack([run_up, q])
 
 
-def clip_to_limits(q: np.ndarray, margin: float = 0.05) -> np.ndarray:
+def clip_to_limits(q: np.ndarray, limits: JointLimits, margin: float = 0.05) -> np.ndarray:
     """Joint positions clipped into the position limits shrunk by ``margin`` rad."""
-    return np.clip(q, robot.POSITION_LIMITS[:, 0] + margin, robot.POSITION_LIMITS[:, 1] - margin)
+    return limits.clip(q, margin)

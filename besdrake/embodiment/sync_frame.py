@@ -1,25 +1,25 @@
-"""Synchronization frame: where to put the demonstration relative to COMPI's base.
+"""Synchronization frame: where to put the demonstration relative to the robot's base.
 
 Paper section 2.3.2: the frame in which the demonstration is replayed is free; choose it so that
 every demonstrated hand pose has an inverse-kinematics solution and the joint trajectory is
 smooth (small velocity, acceleration and jerk, no jumps).
 
 We solve this as **one** nonlinear program (SNOPT through Drake's MathematicalProgram) on the
-:func:`~besdrake.embodiment.kinematics.mounted_compi_plant`, whose six mount coordinates are the
-pose of COMPI's base in the demonstrator's back frame. Decision variables: the mount ``m`` (6)
-and one joint configuration ``q_i`` (6) per sampled pose. Costs:
+:func:`~besdrake.embodiment.kinematics.mounted_plant`, whose six mount coordinates are the
+pose of the robot's base in the demonstrator's back frame. Decision variables: the mount ``m`` (6)
+and one joint configuration ``q_i`` (n joints) per sampled pose. Costs:
 
-* pose: Drake ``PositionCost`` (scoop origin to hand centre, weight ``position_weight`` per m^2)
-  and ``AngleBetweenVectorsCost`` (scoop opening to palm normal, weight ``angle_weight`` on
+* pose: Drake ``PositionCost`` (tool origin to hand centre, weight ``position_weight`` per m^2)
+  and ``AngleBetweenVectorsCost`` (the robot file's tool axis to the palm normal, weight ``angle_weight`` on
   ``1 - cos``), both evaluated on ``[m, q_i]``;
 * smoothness: squared first, second and third finite differences of every joint (rad), a convex
   quadratic in ``Q``;
-* holding (``hold_cone_deg``, off by default here, set by the embodiment mapping): the scoop's
-  opening within a cone around COMPI's vertical at every sampled pose (Drake
+* holding (``hold_cone_deg``, off by default here, set by the embodiment mapping): the tool
+  axis within a cone around the base's vertical at every sampled pose (Drake
   ``AngleBetweenVectorsConstraint``), a task constraint the demonstration does not carry: a human
   palm faces forward while it holds the ball, a scoop turned that way drops it;
 * bounds: joint limits shrunk by a margin; the mount within a box around the nominal placement
-  (COMPI's z up, its x towards the demonstrator's front, so the demonstrated throw points to
+  (the base's z up, its x towards the demonstrator's front, so the demonstrated throw points to
   the targets in front of the robot).
 
 Pose terms are costs, not constraints, so an unreachable demonstration still gives the best frame
@@ -41,12 +41,8 @@ from pydrake.multibody.inverse_kinematics import (
     PositionCost,
 )
 
-from besdrake import robot
-from besdrake.embodiment.kinematics import KinematicModel, mount_to_transform, mounted_compi_plant
+from besdrake.embodiment.kinematics import KinematicModel, mount_to_transform
 from besdrake.embodiment.record_mapping import HandTrajectory
-
-#: The scoop's opening axis in the tcp frame.
-SCOOP_AXIS = np.array([0.0, 0.0, 1.0])
 
 
 @dataclass
@@ -64,15 +60,15 @@ class SyncFrameOptions:
     mount_upper: tuple[float, ...] = (1.5, 1.5, 1.5, 0.6, 0.35, 0.35)
     position_tolerance: float = 0.0005  # m, half-width of the position box when reachable
     major_iterations: int = 400
-    hold_cone_deg: float | None = None  # scoop opening within this angle of COMPI's vertical at every pose (None: free)
+    hold_cone_deg: float | None = None  # tool axis within this angle of the base's vertical at every pose (None: free)
 
 
 @dataclass
 class SyncFrameResult:
     """The synchronization frame and the joint configurations at the sampled poses."""
 
-    mount: np.ndarray  # (6,) x, y, z, yaw, pitch, roll of COMPI's base in the back frame
-    q: np.ndarray  # (n, 6) joint positions at the sampled poses
+    mount: np.ndarray  # (6,) x, y, z, yaw, pitch, roll of the robot's base in the back frame
+    q: np.ndarray  # (n, joints) joint positions at the sampled poses
     t: np.ndarray  # (n,) times of the sampled poses
     position_residual: np.ndarray  # (n,) m
     angle_residual: np.ndarray  # (n,) rad
@@ -83,12 +79,12 @@ class SyncFrameResult:
 
     @property
     def base_in_back(self) -> np.ndarray:
-        """4x4 pose of COMPI's base in the demonstrator's back frame."""
+        """4x4 pose of the robot's base in the demonstrator's back frame."""
         return mount_to_transform(self.mount).GetAsMatrix4()
 
     @property
     def back_in_base(self) -> np.ndarray:
-        """4x4 pose of the demonstrator's back frame in COMPI's base frame: the synchronization frame."""
+        """4x4 pose of the demonstrator's back frame in the robot's base frame: the synchronization frame."""
         return mount_to_transform(self.mount).inverse().GetAsMatrix4()
 
 
@@ -101,10 +97,9 @@ def _difference_hessian(n: int, opts: SyncFrameOptions) -> np.ndarray:
     return h
 
 
-def _initial_guesses(hand: HandTrajectory) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Mount and joint guesses: the base about 0.6-0.9 m below the hand path's centre."""
+def _initial_guesses(hand: HandTrajectory, q_up: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Mount and joint guesses: the base about 0.6-0.9 m below the hand path's centre, the arm at ``q_up``."""
     centre = hand.position.mean(axis=0)
-    q_up = np.array([0.0, 0.6, 0.9, 0.0, 0.6, 0.0])
     guesses = []
     for dx, dz in ((-0.3, -0.7), (0.0, -0.9), (-0.5, -0.5)):
         mount = np.array([centre[0] + dx, centre[1], centre[2] + dz, 0.0, 0.0, 0.0])
@@ -118,17 +113,19 @@ def solve_sync_frame(
     model: KinematicModel | None = None,
     hard: bool = True,
 ) -> SyncFrameResult:
-    """Optimise the synchronization frame for one demonstrated segment (see module docstring)."""
+    """Optimise the synchronization frame for one demonstrated segment (see module docstring) on ``model``,
+    a :func:`~besdrake.embodiment.kinematics.mounted_plant` of the robot."""
+    if model is None or model.n_mount != 6:
+        raise ValueError("solve_sync_frame needs model=mounted_plant(robot)")
     opts = options or SyncFrameOptions()
-    model = model or mounted_compi_plant()
-    plant = model.plant
+    plant, robot, tool_axis = model.plant, model.robot, model.tool_axis
     poses = hand.resample(opts.n_poses) if len(hand.t) != opts.n_poses else hand
     n = len(poses.t)
     tcp = model.tcp
-    base = plant.GetFrameByName(robot.BASE_LINK)
+    base = plant.GetFrameByName(robot.base_link)
     prog = MathematicalProgram()
     m = prog.NewContinuousVariables(6, "mount")
-    Q = prog.NewContinuousVariables(n, 6, "q")
+    Q = prog.NewContinuousVariables(n, robot.n_joints, "q")
     contexts = [plant.CreateDefaultContext() for _ in range(n)]
     for i in range(n):
         xi = np.concatenate([m, Q[i]])
@@ -145,19 +142,19 @@ def solve_sync_frame(
             )
         if opts.angle_weight > 0:
             prog.AddCost(
-                AngleBetweenVectorsCost(plant, plant.world_frame(), poses.palm_axis[i], tcp, SCOOP_AXIS, opts.angle_weight, contexts[i]),
+                AngleBetweenVectorsCost(plant, plant.world_frame(), poses.palm_axis[i], tcp, tool_axis, opts.angle_weight, contexts[i]),
                 xi,
             )
         if opts.hold_cone_deg is not None:
             prog.AddConstraint(
                 AngleBetweenVectorsConstraint(
-                    plant, base, np.array([0.0, 0.0, 1.0]), tcp, SCOOP_AXIS, 0.0, np.radians(opts.hold_cone_deg), contexts[i]
+                    plant, base, np.array([0.0, 0.0, 1.0]), tcp, tool_axis, 0.0, np.radians(opts.hold_cone_deg), contexts[i]
                 ),
                 xi,
             )
-        prog.AddBoundingBoxConstraint(robot.POSITION_LIMITS[:, 0] + opts.joint_margin, robot.POSITION_LIMITS[:, 1] - opts.joint_margin, Q[i])
+        prog.AddBoundingBoxConstraint(robot.position_limits[:, 0] + opts.joint_margin, robot.position_limits[:, 1] - opts.joint_margin, Q[i])
     hess = _difference_hessian(n, opts)
-    for j in range(6):
+    for j in range(robot.n_joints):
         prog.AddQuadraticCost(2.0 * hess, np.zeros(n), Q[:, j], is_convex=True)
     prog.AddBoundingBoxConstraint(np.array(opts.mount_lower), np.array(opts.mount_upper), m)
 
@@ -168,7 +165,7 @@ def solve_sync_frame(
     solver_options.SetOption(solver.solver_id(), "Major iterations limit", opts.major_iterations)
     best = None
     t0 = time.perf_counter()
-    guesses = _initial_guesses(poses)
+    guesses = _initial_guesses(poses, model.ik_seed)
     for mount0, q0 in guesses:
         mount0 = np.clip(mount0, opts.mount_lower, opts.mount_upper)
         prog.SetInitialGuess(m, mount0)
@@ -196,11 +193,11 @@ def solve_sync_frame(
 
 
 def pose_residuals(model: KinematicModel, mount: np.ndarray, q: np.ndarray, hand: HandTrajectory) -> tuple[np.ndarray, np.ndarray]:
-    """Position (m) and opening-axis angle (rad) errors of the scoop against the demonstrated poses."""
+    """Position (m) and tool-axis angle (rad) errors of the tool against the demonstrated poses."""
     pos, ang = np.empty(len(q)), np.empty(len(q))
     for i, qi in enumerate(q):
         X = model.tcp_pose(qi, mount)
         pos[i] = np.linalg.norm(X.translation() - hand.position[i])
-        axis = X.rotation().matrix() @ SCOOP_AXIS
+        axis = X.rotation().matrix() @ model.tool_axis
         ang[i] = np.arccos(np.clip(axis @ hand.palm_axis[i], -1.0, 1.0))
     return pos, ang

@@ -1,34 +1,38 @@
 """Flat parameter vector <-> joint-space DMP, for policy search.
 
-For COMPI the vector has 49 entries, in this order: start (6 joint positions, rad), goal (6, rad),
-forcing-term weights (6 per joint, joint-major, 36) and the execution time (1, s). The goal
-velocity, gains and basis are fixed by the template DMP (from imitation).
+For an arm of n joints and k weights per joint the vector has 2n + nk + 1 entries, in this order:
+start (n joint positions, rad), goal (n, rad), forcing-term weights (k per joint, joint-major) and
+the execution time (1, s); for COMPI's throw (n = 6, k = 6) that is 49. The goal velocity, gains and
+basis are fixed by the template DMP (from imitation).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from besdrake import robot
 from besdrake.imitation._validation import DMPParameterError, positive_float
 from besdrake.imitation.dmp import DMP
 
 #: Minimum execution time (s) the paper imposes on imitated throws (applied by the embodiment stage;
 #: a DMP itself accepts any positive time).
 MIN_THROW_EXECUTION_TIME = 0.95
-#: Forcing-term weights per joint of COMPI's throwing DMP (6 joints x 6 = 36 weights).
+#: Forcing-term weights per joint of the throwing DMP (COMPI: 6 joints x 6 = 36 weights).
 THROW_WEIGHTS_PER_JOINT = 6
 
 
 class DMPParameterization:
-    """Maps ``theta`` (start, goal, weights, execution time) to copies of a template :class:`DMP`."""
+    """Maps ``theta`` (start, goal, weights, execution time) to copies of a template :class:`DMP`;
+    ``joint_names`` (the robot's arm joints) name the entries and the motion plans (default ``joint1``...)."""
 
-    def __init__(self, template: DMP) -> None:
+    def __init__(self, template: DMP, joint_names: tuple[str, ...] | None = None) -> None:
         if not isinstance(template, DMP):
             raise TypeError(f"template must be a besdrake.imitation.DMP, got {type(template).__name__}")
         self.template = template.copy()
         n, k = template.n_dims, template.n_weights_per_dim
-        joints = list(robot.JOINT_NAMES) if n == len(robot.JOINT_NAMES) else [f"dim{i}" for i in range(n)]
+        if joint_names is not None and len(joint_names) != n:
+            raise DMPParameterError(f"joint_names {list(joint_names)} do not match the DMP's {n} dimensions")
+        self.joint_names = tuple(joint_names) if joint_names is not None else None
+        joints = list(joint_names) if joint_names is not None else [f"joint{i + 1}" for i in range(n)]
         self.names: tuple[str, ...] = tuple(
             [f"start.{j}" for j in joints]
             + [f"goal.{j}" for j in joints]
@@ -84,5 +88,6 @@ class DMPParameterization:
             run_time = positive_float("run_time", run_time)
         traj = dmp.open_loop(positive_float("dt", dt), run_time)
         return MotionPlan(
-            t=traj.t, q=traj.y, qd=traj.yd, meta={"source": "dmp", "execution_time": dmp.execution_time}
+            t=traj.t, q=traj.y, qd=traj.yd, meta={"source": "dmp", "execution_time": dmp.execution_time},
+            joint_names=self.joint_names,
         )

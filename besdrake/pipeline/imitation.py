@@ -135,8 +135,9 @@ def imitate_recording(
 ) -> list[ThrowReport]:
     """Imitate every throw of one recording; write plans, summaries and figures to ``out_dir``."""
     from besdrake.embodiment import EmbodimentMapping, hand_trajectory
+    from besdrake.sim.scenario import load_scenario
 
-    mapping = mapping or EmbodimentMapping()
+    mapping = mapping or EmbodimentMapping(load_scenario(scenario).robot)
     reports = []
     for i, (f0, f1) in enumerate(throws):
         throw_name = f"{name}_throw{i}"

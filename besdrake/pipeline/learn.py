@@ -51,11 +51,17 @@ class Context:
     progress: Callable[[str], None] = print
     cache: dict[str, Any] = field(default_factory=dict)
 
+    def robot(self, scenario: str | None = None):
+        """The robot of ``scenario`` (default: the configured one), from its robot file."""
+        from besdrake.sim.scenario import load_scenario
+
+        return load_scenario(scenario or self.config["scenario"]).robot
+
     def mapping(self):
         if "mapping" not in self.cache:
             from besdrake.embodiment import EmbodimentMapping
 
-            self.cache["mapping"] = EmbodimentMapping()
+            self.cache["mapping"] = EmbodimentMapping(self.robot())
         return self.cache["mapping"]
 
 
@@ -300,7 +306,8 @@ def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int
 
     cfg = ctx.config["refinement"]
     reward = ThrowReward(target=tuple(cfg["target"]))
-    problems = [RefinementProblem(d, reward) for d in dmps]
+    robot = ctx.robot(scenario)
+    problems = [RefinementProblem(robot, d, reward) for d in dmps]
     runs, results = [], []
     with _executor(ctx, scenario) as executor:
         ranking = rank_starts(problems, executor)
@@ -313,9 +320,9 @@ def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int
             result = refine(problem, executor, n_episodes=int(budget), seed=int(cfg["seed"]) + k,
                             out_dir=out / f"run{k}", popsize=int(cfg["population"]),
                             stop_on_success=bool(cfg.get("stop_on_success", True)), starts=starts, scouts=scouts)
-            dmp = DMPParameterization(problem.parameterization.template).from_vector(result.best_theta)
+            dmp = problem.parameterization.from_vector(result.best_theta)
             dmp.save(out / f"refined{k}.dmp.json")
-            DMPParameterization(dmp).motion_plan(DMPParameterization(dmp).to_vector(), dt=0.01).save(out / f"refined{k}.plan.json")
+            DMPParameterization(dmp, robot.joint_names).motion_plan(DMPParameterization(dmp).to_vector(), dt=0.01).save(out / f"refined{k}.plan.json")
             runs.append(result.summary() | {"dmp": f"refined{k}.dmp.json"})
             results.append(result)
     plot_learning_curves(results, out / "learning_curve.png")
@@ -400,8 +407,9 @@ def _transfer(ctx: Context, seed_files: list[Path], scenario: str, out: Path) ->
 
     cfg = ctx.config["transfer"]
     dmps = [load_dmp(f) for f in seed_files]
-    param = DMPParameterization(dmps[0])
-    scaling = ParameterScaling.for_dmp(dmps[0])
+    robot = ctx.robot(scenario)
+    param = DMPParameterization(dmps[0], robot.joint_names)
+    scaling = ParameterScaling.for_dmp(dmps[0], robot.position_limits)
     lab = _lab(ctx)
     log = _open_log(out / "lab_log", lab)
     config = transfer_config(ctx.config)

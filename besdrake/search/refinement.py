@@ -213,10 +213,10 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from besdrake import robot
 from besdrake._io import write_json
 from besdrake.imitation import DMP, DMPParameterError, DMPParameterization
 from besdrake.plan import MotionPlan, PlanError
+from besdrake.robot import JointLimits, Robot
 
 #: The goal of refinement: touchdown within this distance (m) of the target, no limit violated.
 SUCCESS_DISTANCE = 0.1
@@ -349,9 +349,10 @@ class ThrowReward:
             if not (np.isfinite(v) and v >= 0):
                 raise RefinementError(f"{name} must be a finite number >= 0, got {v!r}")
 
-    def penalty(self, plan: MotionPlan) -> float:
-        """Limit penalty (m) of ``plan``: weighted sum of the violations, plus the offset if any."""
-        rep = plan.check_limits()
+    def penalty(self, plan: MotionPlan, limits: JointLimits) -> float:
+        """Limit penalty (m) of ``plan`` against the robot's ``limits``: weighted sum of the violations, plus the
+        offset if any."""
+        rep = plan.check_limits(limits)
         total = (
             self.position_weight * float(rep.position.sum())
             + self.velocity_weight * float(rep.velocity.sum())
@@ -359,12 +360,12 @@ class ThrowReward:
         )
         return total + self.violation_offset if not rep.ok else 0.0
 
-    def __call__(self, plan: MotionPlan, outcome) -> RewardBreakdown:
-        """Reward of ``outcome`` (a :class:`besdrake.sim.Outcome`) of ``plan``."""
+    def __call__(self, plan: MotionPlan, outcome, limits: JointLimits) -> RewardBreakdown:
+        """Reward of ``outcome`` (a :class:`besdrake.sim.Outcome`) of ``plan`` on a robot with ``limits``."""
         flags = [k for k, v in outcome.flags.items() if v]
         if outcome.flags.get("sim_failed"):
             return RewardBreakdown(np.nan, np.nan, np.nan, None, flags, outcome.message or "simulation failed")
-        penalty = self.penalty(plan)
+        penalty = self.penalty(plan, limits)
         target = np.asarray(self.target)
         if outcome.touchdown is not None and np.isfinite(outcome.touchdown).all():
             td = np.asarray(outcome.touchdown, dtype=float)[:2]
@@ -426,13 +427,14 @@ class ParameterScaling:
     def for_dmp(
         cls,
         dmp: DMP,
-        position_limits: np.ndarray | None = None,
+        position_limits: np.ndarray,
         position_unit: float = POSITION_UNIT,
         acceleration_unit: float = ACCELERATION_UNIT,
         time_unit: float = TIME_UNIT,
         max_execution_time: float | None = None,
     ) -> "ParameterScaling":
-        """Scaling around the imitated ``dmp`` (see module docstring for the units and bounds);
+        """Scaling around the imitated ``dmp`` (see module docstring for the units and bounds) within the robot's
+        ``position_limits`` (n, 2) rad;
         ``max_execution_time`` (s) replaces :data:`MAX_EXECUTION_TIME` as the upper bound of the
         execution time (e.g. the imitated one: never slower than the imitated throw)."""
         for name, v in (("position_unit", position_unit), ("acceleration_unit", acceleration_unit), ("time_unit", time_unit)):
@@ -449,9 +451,9 @@ class ParameterScaling:
         centers = dmp.basis.centers  # phase at each basis centre
         w_scale = np.tile(acceleration_unit * tau**2 / centers, n)
         scale = np.concatenate([np.full(2 * n, position_unit), w_scale, [time_unit]])
-        if position_limits is None:
-            position_limits = robot.POSITION_LIMITS if n == len(robot.JOINT_NAMES) else np.tile([-np.pi, np.pi], (n, 1))
         limits = np.asarray(position_limits, dtype=float)
+        if limits.shape != (n, 2):
+            raise RefinementError(f"position_limits must have shape ({n}, 2) for the DMP's {n} joints, got {limits.shape}")
         w = theta0[2 * n : 2 * n + n * k]
         bounds = np.vstack(
             [
@@ -506,17 +508,23 @@ class RefinementProblem:
 
     def __init__(
         self,
+        robot: Robot,
         template: DMP,
         reward: ThrowReward | None = None,
         scaling: ParameterScaling | None = None,
         dt: float = PLAN_DT,
         retime: bool | None = None,
     ) -> None:
+        if not isinstance(robot, Robot):
+            raise RefinementError(f"robot must be a besdrake.robot.Robot, got {type(robot).__name__}")
         if not isinstance(template, DMP):
             raise RefinementError(f"template must be a besdrake.imitation.DMP, got {type(template).__name__}")
-        self.parameterization = DMPParameterization(template)
+        if template.n_dims != robot.n_joints:
+            raise RefinementError(f"the DMP has {template.n_dims} dimensions, the robot {robot.name!r} {robot.n_joints} joints")
+        self.robot = robot
+        self.parameterization = DMPParameterization(template, robot.joint_names)
         self.reward = reward if reward is not None else ThrowReward()
-        self.scaling = scaling if scaling is not None else ParameterScaling.for_dmp(template)
+        self.scaling = scaling if scaling is not None else ParameterScaling.for_dmp(template, robot.position_limits)
         if self.scaling.theta0.size != self.parameterization.n_params:
             raise RefinementError(f"scaling has {self.scaling.theta0.size} parameters, the DMP {self.parameterization.n_params}")
         if not (np.isfinite(dt) and dt > 0):
@@ -551,7 +559,7 @@ class RefinementProblem:
         stretched = theta.copy()
         for round_ in range(RETIME_ROUNDS + 1):
             try:
-                vel, acc = self.parameterization.motion_plan(stretched, dt=self.dt).peak_limit_ratios()
+                vel, acc = self.parameterization.motion_plan(stretched, dt=self.dt).peak_limit_ratios(self.robot.limits)
             except (DMPParameterError, PlanError, ValueError):
                 return theta
             k = max(float(vel.max()), float(np.sqrt(acc.max())))
@@ -586,7 +594,7 @@ class RefinementProblem:
             if len(outcomes) != len(todo):
                 raise RuntimeError(f"executor returned {len(outcomes)} outcomes for {len(todo)} plans")
             for i, o in zip(todo, outcomes):
-                out[i] = self.reward(plans[i], o)
+                out[i] = self.reward(plans[i], o, self.robot.limits)
         return [r for r in out if r is not None]
 
     def batch_evaluator(self, executor, details_path: Path | None = None) -> Callable[[np.ndarray], list[float]]:
@@ -609,6 +617,7 @@ class RefinementProblem:
     def describe(self) -> dict[str, Any]:
         """JSON record of the problem (template, reward, scaling, dt): enough to rebuild it."""
         return {
+            "robot": self.robot.reference,
             "template": self.parameterization.template.to_dict(),
             "reward": self.reward.to_dict(),
             "scaling": self.scaling.to_dict(),
@@ -618,11 +627,14 @@ class RefinementProblem:
 
     @classmethod
     def from_description(cls, d: dict[str, Any]) -> "RefinementProblem":
+        from besdrake.robot import RobotError, load_robot
+
         try:
             template = DMP.from_dict(d["template"])
-        except (KeyError, TypeError, ValueError) as err:
+            robot = load_robot(d["robot"])
+        except (KeyError, TypeError, ValueError, RobotError) as err:
             raise RefinementError(f"bad problem record: {err}") from err
-        return cls(template, ThrowReward.from_dict(d["reward"]), ParameterScaling.from_dict(d["scaling"]), float(d["dt"]),
+        return cls(robot, template, ThrowReward.from_dict(d["reward"]), ParameterScaling.from_dict(d["scaling"]), float(d["dt"]),
                    retime=bool(d.get("retime", False)))
 
 

@@ -47,10 +47,10 @@ from typing import Any, Callable
 
 import numpy as np
 
-from besdrake import robot
 from besdrake._io import write_json
 from besdrake.imitation import DMP, DMPParameterError
 from besdrake.plan import MotionPlan
+from besdrake.robot import Robot, load_robot
 from besdrake.search.base import load_state, save_state
 from besdrake.search.refinement import MIN_EXECUTION_TIME, PLAN_DT
 
@@ -69,7 +69,7 @@ class TemplateError(ValueError):
     """Bad template input: context out of shape, NaN, corrupt template file, unknown method or name."""
 
 
-def default_meta_bounds(base: DMP, respect_limits: bool = True, joint1_mode: str = "rotate") -> np.ndarray:
+def default_meta_bounds(base: DMP, robot: Robot, respect_limits: bool = True, joint1_mode: str = "rotate") -> np.ndarray:
     """Execution time in [0.7, 1.6] x the base's (at least 0.95 s), joint-1 goal within +-0.9 rad of the base's.
 
     With ``respect_limits`` the box shrinks to plans within the robot's joint limits: in ``"rotate"`` mode
@@ -83,10 +83,10 @@ def default_meta_bounds(base: DMP, respect_limits: bool = True, joint1_mode: str
     g1 = float(base.goal[0])
     lo = max(MIN_EXECUTION_TIME, 0.7 * tau)
     hi = max(lo + 0.1, 1.6 * tau)
-    jl = robot.POSITION_LIMITS[0]
+    jl = robot.position_limits[0]
     bounds = np.array([[lo, hi], [max(jl[0], g1 - 0.9), min(jl[1], g1 + 0.9)]])
     if respect_limits:
-        meta = MetaDMP(base, joint1_mode)
+        meta = MetaDMP(base, robot, joint1_mode)
         if joint1_mode == "rotate":  # the whole joint-1 path shifts with the goal
             q1 = meta.plan(np.array([tau, g1])).q[:, 0]
             bounds[1, 0] = max(bounds[1, 0], g1 + jl[0] - q1.min())
@@ -109,7 +109,7 @@ def limit_safe_execution_times(meta: "MetaDMP", bounds: np.ndarray, n_grid: int 
     goals = np.linspace(bounds[1, 0], bounds[1, 1], 3)
 
     def ok(tau: float) -> bool:
-        return all(meta.plan(np.array([tau, g])).check_limits().ok for g in goals)
+        return all(meta.plan(np.array([tau, g])).check_limits(meta.robot.limits).ok for g in goals)
 
     grid = np.linspace(bounds[0, 0], bounds[0, 1], n_grid)
     good = np.array([ok(t) for t in grid])
@@ -150,15 +150,18 @@ def _check_context(context: Any) -> np.ndarray:
 
 @dataclass
 class MetaDMP:
-    """The base DMP with its two meta-parameters exposed: ``dmp(theta)``, ``plan(theta)``."""
+    """The base DMP of ``robot`` with its two meta-parameters exposed: ``dmp(theta)``, ``plan(theta)``."""
 
     base: DMP
+    robot: Robot
     joint1_mode: str = "rotate"
     dt: float = PLAN_DT
 
     def __post_init__(self) -> None:
-        if not isinstance(self.base, DMP) or self.base.n_dims != len(robot.JOINT_NAMES):
-            raise TemplateError("the base of a template must be a 6-joint besdrake.imitation.DMP")
+        if not isinstance(self.robot, Robot):
+            raise TemplateError(f"a template needs the robot (besdrake.robot.Robot), got {type(self.robot).__name__}")
+        if not isinstance(self.base, DMP) or self.base.n_dims != self.robot.n_joints:
+            raise TemplateError(f"the base of a template must be a {self.robot.n_joints}-joint besdrake.imitation.DMP of {self.robot.name}")
         if self.joint1_mode not in JOINT1_MODES:
             raise TemplateError(f"joint1_mode must be one of {JOINT1_MODES}, got {self.joint1_mode!r}")
 
@@ -184,7 +187,7 @@ class MetaDMP:
     def plan(self, theta: np.ndarray) -> MotionPlan:
         traj = self.dmp(theta).open_loop(self.dt)
         meta = {"source": "behavior_template", "execution_time": float(theta[0]), "goal_joint1": float(theta[1])}
-        return MotionPlan(t=traj.t, q=traj.y, qd=traj.yd, meta=meta)
+        return MotionPlan(t=traj.t, q=traj.y, qd=traj.yd, meta=meta, joint_names=self.robot.joint_names)
 
 
 def _make_optimizer(method: str, meta_bounds: np.ndarray, seed: int, **kwargs: Any):
@@ -245,7 +248,7 @@ class BehaviorTemplate:
         lo, hi = CONTEXT_BOUNDS[:, 0], CONTEXT_BOUNDS[:, 1]
         outside = (s < lo - 1e-9) | (s > hi + 1e-9)
         plan = self.meta.plan(self.meta_parameters(s))
-        within = bool(plan.check_limits().ok)
+        within = bool(plan.check_limits(self.meta.robot.limits).ok)
         plan.meta.update({
             "template": self.name, "context_m": s.tolist(), "extrapolated": bool(outside.any()), "within_limits": within,
         })
@@ -260,6 +263,7 @@ class BehaviorTemplate:
             "context_names": ["x_forward_m", "y_lateral_m"],
             "context_bounds": CONTEXT_BOUNDS.tolist(),
             "meta_bounds": self.meta_bounds.tolist(),
+            "robot": self.meta.robot.reference,
             "joint1_mode": self.meta.joint1_mode,
             "dt": self.meta.dt,
             "base_dmp": self.meta.base.to_dict(),
@@ -288,7 +292,9 @@ class BehaviorTemplate:
                 raise TemplateError(f"{path} is not a behaviour template (format {rec.get('format')!r})")
             name = rec["name"]
             base = DMP.from_dict(rec["base_dmp"])
-            meta = MetaDMP(base, rec["joint1_mode"], float(rec["dt"]))
+            if "robot" not in rec:
+                raise TemplateError(f"{path}: the template names no robot (written before robots were files): train it again")
+            meta = MetaDMP(base, load_robot(rec["robot"]), rec["joint1_mode"], float(rec["dt"]))
             state_path = path.parent / f"{name}-policy"
             if not state_path.with_suffix(".json").is_file() or not state_path.with_suffix(".npz").is_file():
                 raise TemplateError(f"{path}: the policy files {state_path}.json/.npz are missing")
@@ -400,7 +406,7 @@ def evaluate_template(template: BehaviorTemplate, executor, contexts: np.ndarray
     contexts = np.atleast_2d(np.asarray(contexts, dtype=float))
     plans = [template.instantiate(s) for s in contexts]
     td = touchdowns(plans, executor)
-    violations = sum(0 if p.check_limits().ok else 1 for p in plans)
+    violations = sum(0 if p.check_limits(template.meta.robot.limits).ok else 1 for p in plans)
     return TemplateEvaluation(contexts, td, np.linalg.norm(td - contexts, axis=1), violations)
 
 
@@ -429,12 +435,14 @@ def train_template(
     provenance: dict[str, Any] | None = None,
     progress: Callable[[int, float], None] | None = None,
     optimizer_kwargs: dict[str, Any] | None = None,
+    robot: Robot | None = None,
 ) -> TemplateTraining:
     """Learn a behaviour template from ``base`` with ``method`` in ``n_episodes`` rollouts.
 
     With ``out_dir`` the search is resumable (episodes and optimizer state on disk). At each episode
     in ``checkpoints`` the current policy is evaluated on ``eval_contexts`` (extra rollouts that are
-    not training episodes). ``progress(episode, reward)`` is called after every episode.
+    not training episodes). ``progress(episode, reward)`` is called after every episode. ``robot``: the
+    robot of the plans (default: that of the executor's scenario).
     """
     from besdrake.search.loop import run_contextual_search
 
@@ -442,8 +450,11 @@ def train_template(
         raise TemplateError(f"n_episodes must be >= 1, got {n_episodes}")
     if method not in METHODS:
         raise TemplateError(f"unknown method {method!r}; choose one of {METHODS}")
-    meta = MetaDMP(base, joint1_mode)
-    bounds = default_meta_bounds(base, joint1_mode=joint1_mode) if meta_bounds is None else np.asarray(meta_bounds, dtype=float)
+    robot = robot or getattr(getattr(executor, "scenario", None), "robot", None)
+    if robot is None:
+        raise TemplateError("train_template needs robot= (the executor has no scenario to take it from)")
+    meta = MetaDMP(base, robot, joint1_mode)
+    bounds = default_meta_bounds(base, robot, joint1_mode=joint1_mode) if meta_bounds is None else np.asarray(meta_bounds, dtype=float)
     if bounds.shape != (2, 2) or not np.isfinite(bounds).all() or (bounds[:, 0] >= bounds[:, 1]).any():
         raise TemplateError(f"meta_bounds must be a finite 2x2 array with lower < upper, got {bounds.tolist()}")
     if bounds[0, 0] <= 0:
@@ -490,7 +501,7 @@ def fitted_default_throw(amplitude: float = 0.6, n_weights_per_dim: int = 6) -> 
     from besdrake.sim.throws import default_throw
 
     plan = default_throw(amplitude)
-    return DMP(len(robot.JOINT_NAMES), n_weights_per_dim).fit(plan.t, plan.q)
+    return DMP(plan.q.shape[1], n_weights_per_dim).fit(plan.t, plan.q)
 
 
 #: Weights per joint of :func:`default_template_base`.

@@ -40,8 +40,17 @@ def add_common_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--plan", help="motion plan JSON (MotionPlan.save); default: the default throw")
     parser.add_argument("--amplitude", type=float, default=None, help="amplitude of the default throw (no --plan); default 0.35")
     parser.add_argument("--yaw", type=float, default=0.0, help="joint-1 angle of the default throw (rad)")
-    parser.add_argument("--scenario", default="nominal", help="scenario name in diagrams/ or a YAML path")
+    parser.add_argument("--scenario", default="nominal", help="scenario name in besdrake/diagrams/ or a YAML path")
+    parser.add_argument("--robot", default=None, help="robot: a built-in name or a robot YAML path (default: the scenario's)")
     parser.add_argument("--effect", action="append", metavar="NAME:key=val,...", help="physical effect, repeatable (see --list-effects)")
+
+
+def scenario_from_args(args: argparse.Namespace):
+    """The ``--scenario``, on the ``--robot`` when one is given (:class:`ScenarioError` otherwise)."""
+    from besdrake.sim.scenario import load_scenario
+
+    scenario = load_scenario(args.scenario)
+    return scenario.with_robot(args.robot) if getattr(args, "robot", None) else scenario
 
 
 def plan_from_args(args: argparse.Namespace) -> MotionPlan:

@@ -15,7 +15,7 @@ Design choices:
   5 ms step and cost no extra system per step (an InverseDynamicsController would need a second plant and
   a per-step inverse dynamics evaluation, and with explicit coupling would limit the step). Effort limits
   from the URDF saturate the servos. Gains live in the Context (the ``gain_scale`` effect).
-* **Base pose in the Context**: the arm's ``linkmount`` is welded to a ``FixedOffsetFrame`` ("compi_base")
+* **Base pose in the Context**: the robot's base link is welded to a ``FixedOffsetFrame`` ("robot_base")
   on the world, whose pose is a Context parameter (the ``base_offset`` effect).
 * **Motion plan swap without rebuild**: ``TrajectorySource.UpdateTrajectory`` (see :class:`~besdrake.sim.rollout.Rollout`).
 * **Contact**: point contact, discrete solver from the scenario (``lagged`` by default: like SAP it handles
@@ -30,7 +30,6 @@ from typing import Any
 
 import numpy as np
 
-from besdrake import robot
 from besdrake.sim.scenario import Scenario, ScenarioError, load_scenario, resolve_model_uri
 
 
@@ -76,6 +75,19 @@ def _parse(parser, scenario: Scenario, key: str):
         raise ScenarioError(f"model file for {key!r} ({path}) could not be parsed: {err}") from err
 
 
+def _require_models(scenario: Scenario, keys: tuple[str, ...]) -> None:
+    missing = [k for k in keys if k not in scenario.models]
+    if missing:
+        raise ScenarioError(f"scenario {scenario.name!r}: models section is missing {missing[0]!r}")
+
+
+def _add_robot(plant, parser, scenario: Scenario):
+    try:
+        return scenario.robot.add_model(plant, parser)
+    except RuntimeError as err:
+        raise ScenarioError(f"robot model {scenario.robot.model} could not be parsed: {err}") from err
+
+
 def base_transform(scenario: Scenario):
     """World pose of the base frame from the scenario's base pose."""
     from pydrake.math import RigidTransform, RollPitchYaw
@@ -106,11 +118,11 @@ def build_diagram(scenario: Scenario | str = "nominal", meshcat=None) -> SimHand
     plant, scene_graph = AddMultibodyPlant(config, builder)
     plant.set_name("plant")
     parser = Parser(plant)
-    robot.add_package(parser.package_map())
-
-    arm = _parse(parser, scenario, "arm")[0]
-    base_frame = plant.AddFrame(FixedOffsetFrame("compi_base", plant.world_frame(), base_transform(scenario)))
-    plant.WeldFrames(base_frame, plant.GetFrameByName(robot.BASE_LINK, arm))
+    robot = scenario.robot
+    _require_models(scenario, ("ball", "ground"))
+    arm = _add_robot(plant, parser, scenario)
+    base_frame = plant.AddFrame(FixedOffsetFrame("robot_base", plant.world_frame(), base_transform(scenario)))
+    plant.WeldFrames(base_frame, plant.GetFrameByName(robot.base_link, arm))
     ball_instance = _parse(parser, scenario, "ball")[0]
     ground = _parse(parser, scenario, "ground")[0]  # a <static> model: welded to the world by the parser
     z = scenario.base.z
@@ -124,16 +136,14 @@ def build_diagram(scenario: Scenario | str = "nominal", meshcat=None) -> SimHand
         )
 
     actuators = []
-    for i, name in enumerate(robot.JOINT_NAMES):
-        joint = plant.GetJointByName(name, arm)
-
-        act = plant.GetJointActuatorByName(f"{name}_motor", arm)
+    for i, name in enumerate(robot.joint_names):
+        act = plant.GetJointActuatorByName(robot.actuator_name(name), arm)
         act.set_controller_gains(PdControllerGains(p=scenario.controller.kp[i], d=scenario.controller.kd[i]))
         actuators.append(act)
     plant.Finalize()
 
     # Plan source; the actual plan is swapped in per rollout.
-    hold = PiecewisePolynomial.FirstOrderHold([0.0, 1.0], np.zeros((6, 2)))
+    hold = PiecewisePolynomial.FirstOrderHold([0.0, 1.0], np.zeros((robot.n_joints, 2)))
     source = builder.AddSystem(TrajectorySource(hold, output_derivative_order=1))
     source.set_name("motion_plan")
     builder.Connect(source.get_output_port(), plant.get_desired_state_input_port(arm))
@@ -153,12 +163,12 @@ def build_diagram(scenario: Scenario | str = "nominal", meshcat=None) -> SimHand
     scene_graph.collision_filter_manager().Apply(CollisionFilterDeclaration().ExcludeBetween(ground_geoms, all_geoms))
 
     inspector = scene_graph.model_inspector()
-    ball_body = plant.GetBodyByName(robot.BALL_BODY, ball_instance)
+    ball_body = plant.GetBodyByName("ball", ball_instance)
     ball_coll = list(plant.GetCollisionGeometriesForBody(ball_body))
     if len(ball_coll) != 1 or not isinstance(inspector.GetShape(ball_coll[0]), Sphere):
         raise ScenarioError("the ball model must have exactly one sphere collision geometry")
     ball_ids = [g for g in inspector.GetGeometries(plant.GetBodyFrameIdOrThrow(ball_body.index())) if isinstance(inspector.GetShape(g), Sphere)]
-    scoop_body = plant.GetBodyByName(robot.SCOOP_BODY, arm)
+    scoop_body = plant.GetBodyByName(robot.end_effector.body, arm)
     return SimHandles(
         scenario=scenario,
         diagram=diagram,

@@ -30,7 +30,6 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
-from besdrake import robot
 from besdrake.plan import MotionPlan
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -72,7 +71,7 @@ class RolloutSetup:
     drag_coefficient: float = 0.0
     air_density: float = 1.2
     wind: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    measurement_offset: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    measurement_offset: np.ndarray | float = 0.0
     ball_offset: np.ndarray = field(default_factory=lambda: np.zeros(2))
 
 
@@ -226,9 +225,17 @@ class BaseOffset(Effect):
         h.base_frame.SetPoseInParentFrame(setup.plant_context, X)
 
 
+#: Number of arm joints (from the base) whose encoder offsets the ``joint_offset`` effect declares.
+OFFSET_JOINTS = 6
+
+
 @register_effect
 class JointOffset(Effect):
-    """Joint calibration offsets: each encoder's zero is off by ``jointK`` rad.
+    """Joint calibration offsets: the encoder zero of the K-th arm joint is off by ``jointK`` rad.
+
+    The parameters number the arm's joints from the base (``joint1`` is the first joint in the robot file);
+    the registry declares the first :data:`OFFSET_JOINTS` of them (a longer arm's further joints are taken
+    as calibrated).
 
     The servo drives the *encoder* reading to the command, so the true angle is command + offset:
     the commanded plan is shifted by the offsets, and the reported measured joint trajectory is the
@@ -237,14 +244,15 @@ class JointOffset(Effect):
 
     name = "joint_offset"
     applied_via = "plan"
-    params = {n: Param(0.0, -0.1, 0.1, "rad", f"encoder zero offset of {n}") for n in robot.JOINT_NAMES}
+    params = {f"joint{k}": Param(0.0, -0.1, 0.1, "rad", f"encoder zero offset of arm joint {k}") for k in range(1, OFFSET_JOINTS + 1)}
 
     def apply(self, setup, values):
-        off = np.array([values[n] for n in robot.JOINT_NAMES])
+        n = setup.plan.q.shape[1]
+        off = np.array([values.get(f"joint{k}", 0.0) for k in range(1, n + 1)])
         if not np.any(off):
             return
         p = setup.plan
-        setup.plan = MotionPlan(t=p.t.copy(), q=p.q + off, qd=None if p.qd is None else p.qd.copy(), meta=dict(p.meta))
+        setup.plan = MotionPlan(t=p.t.copy(), q=p.q + off, qd=None if p.qd is None else p.qd.copy(), meta=dict(p.meta), joint_names=p.joint_names)
         setup.measurement_offset = setup.measurement_offset + off
 
 
@@ -283,7 +291,7 @@ class ActuatorLag(Effect):
             a = np.exp(-dt / tau)
             q = q[0] + lfilter([0.0, 1.0 - a], [1.0, -a], q - q[0], axis=0)
         qd = np.gradient(q, t, axis=0)
-        setup.plan = MotionPlan(t=t, q=q, qd=qd, meta=dict(p.meta))
+        setup.plan = MotionPlan(t=t, q=q, qd=qd, meta=dict(p.meta), joint_names=p.joint_names)
 
 
 @register_effect

@@ -75,9 +75,9 @@ class Executor:
             try:
                 p.validate()
                 if self.limits == "raise":
-                    rep = p.check_limits()
+                    rep = p.check_limits(self.scenario.robot.limits)
                     if (rep.position > 0).any():
-                        raise PlanError("exceeds COMPI's position limits: " + ", ".join(rep.violations()))
+                        raise PlanError(f"exceeds {self.scenario.robot.name}'s position limits: " + ", ".join(rep.violations()))
             except PlanError as err:
                 raise PlanError(f"plan {i}: {err}") from err
         if effects is None or isinstance(effects, dict):

@@ -19,7 +19,7 @@ class Outcome:
       instant it was pushed by the scoop (None when never released or failed).
     * ``touchdown`` (2,): (x, y) where the ball first touches the floor; ``touchdown_time`` (s from start).
     * ``ball_t``/``ball_path`` (M,)/(M, 3): the ball's centre from start to touchdown (simulated, then flight).
-    * ``joint_t``/``q_commanded``/``q_measured``: the plan and the encoder readings (K,)/(K, 6) while simulated.
+    * ``joint_t``/``q_commanded``/``q_measured``: the plan and the encoder readings (K,)/(K, n) while simulated.
     * ``flags``: ``dropped_early`` (left with less than the scenario's min speed), ``never_released``,
       ``joint_limit_exceeded`` (plan or measured angle beyond a position limit, or plan beyond a velocity
       limit), ``sim_failed`` (solver error or divergence; ``message`` says why).
@@ -33,8 +33,8 @@ class Outcome:
     ball_t: np.ndarray = field(default_factory=lambda: np.zeros(0))
     ball_path: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     joint_t: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    q_commanded: np.ndarray = field(default_factory=lambda: np.zeros((0, 6)))
-    q_measured: np.ndarray = field(default_factory=lambda: np.zeros((0, 6)))
+    q_commanded: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    q_measured: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     flags: dict[str, bool] = field(default_factory=lambda: {k: False for k in FLAG_NAMES})
     message: str = ""
     effects: dict[str, dict[str, float]] = field(default_factory=dict)
@@ -102,8 +102,8 @@ class Outcome:
             ball_t=np.asarray(d.get("ball_t", []), dtype=float),
             ball_path=np.asarray(d.get("ball_path", []), dtype=float).reshape(-1, 3),
             joint_t=np.asarray(d.get("joint_t", []), dtype=float),
-            q_commanded=np.asarray(d.get("q_commanded", []), dtype=float).reshape(-1, 6),
-            q_measured=np.asarray(d.get("q_measured", []), dtype=float).reshape(-1, 6),
+            q_commanded=_rows(d.get("q_commanded", [])),
+            q_measured=_rows(d.get("q_measured", [])),
             flags={k: bool(d.get("flag_values", {}).get(k, False)) for k in FLAG_NAMES},
             message=d.get("message", ""),
             effects=d.get("effects", {}),
@@ -113,3 +113,9 @@ class Outcome:
 
     def to_json(self) -> str:
         return json.dumps(self.to_dict())
+
+
+def _rows(values) -> np.ndarray:
+    """A JSON list of joint rows as an (K, n) array ((0, 0) when empty)."""
+    arr = np.asarray(values, dtype=float)
+    return arr.reshape(0, 0) if arr.size == 0 else arr.reshape(len(arr), -1)

@@ -40,7 +40,7 @@ def record_html(plan: MotionPlan, out: str | Path, scenario: Scenario | str = "n
     t_meas = outcome.joint_t
     for t in np.arange(0.0, t_end + 1e-9, 1.0 / fps):
         if t_meas.size and t <= t_meas[-1]:
-            q = np.array([np.interp(t, t_meas, outcome.q_measured[:, j]) for j in range(6)])
+            q = np.array([np.interp(t, t_meas, outcome.q_measured[:, j]) for j in range(outcome.q_measured.shape[1])])
         else:
             q = plan.sample(np.array([t]))[0]
         plant.SetPositions(pctx, h.arm, q)

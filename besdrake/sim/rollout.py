@@ -28,13 +28,13 @@ import numpy as np
 
 from pydrake.math import RigidTransform
 
-from besdrake import robot
 from besdrake.plan import MotionPlan, PlanError
 from besdrake.sim.diagram import SimHandles, build_diagram
 from besdrake.sim.effects import RolloutSetup, apply_effects, merge_effects, set_gains
 from besdrake.sim.flight import fly
 from besdrake.sim.outcome import FLAG_NAMES, Outcome
 from besdrake.sim.scenario import Scenario, load_scenario
+from besdrake.tasks.throwing.scoop import Scoop
 
 #: Measured joint angles may overshoot a position limit by this much (rad) before the flag is raised.
 LIMIT_TOLERANCE = 0.01
@@ -43,7 +43,7 @@ DIVERGENCE_SPEED = 50.0
 
 
 class PlanLimitError(PlanError):
-    """A motion plan commands joint positions beyond COMPI's limits (velocity excess is flagged, not raised)."""
+    """A motion plan commands joint positions beyond the robot's limits (velocity excess is flagged, not raised)."""
 
 
 class Rollout:
@@ -55,6 +55,8 @@ class Rollout:
         self.scenario = load_scenario(scenario) if not isinstance(scenario, Scenario) else scenario
         self.handles: SimHandles = build_diagram(self.scenario, meshcat=meshcat)
         h = self.handles
+        self.robot = self.scenario.robot
+        self.scoop = Scoop.of(self.robot)
         self.simulator = Simulator(h.diagram)
         self.context = self.simulator.get_mutable_context()
         self.default_context = h.diagram.CreateDefaultContext()
@@ -64,8 +66,8 @@ class Rollout:
         self._nq = h.plant.num_positions()
         # Indices of the arm and ball in the plant's state vector.
         plant = h.plant
-        self._arm_q_idx = np.array([plant.GetJointByName(n, h.arm).position_start() for n in robot.JOINT_NAMES])
-        self._arm_v_idx = np.array([plant.GetJointByName(n, h.arm).velocity_start() for n in robot.JOINT_NAMES])
+        self._arm_q_idx = np.array([plant.GetJointByName(n, h.arm).position_start() for n in self.robot.joint_names])
+        self._arm_v_idx = np.array([plant.GetJointByName(n, h.arm).velocity_start() for n in self.robot.joint_names])
         ball = h.ball_body
         self._ball_q0 = ball.floating_positions_start()  # quaternion (4) then position (3)
         self._ball_v0 = self._nq + ball.floating_velocities_start_in_v()  # angular (3) then linear (3)
@@ -83,12 +85,12 @@ class Rollout:
     def _check_plan(self, plan: MotionPlan, limits: str):
         if not isinstance(plan, MotionPlan):
             raise PlanError(f"rollout needs a MotionPlan, got {type(plan).__name__}")
-        report = plan.check_limits()  # validates the plan first
+        report = plan.check_limits(self.robot.limits)  # validates the plan first
         if limits not in ("raise", "flag"):
             raise ValueError(f"limits must be 'raise' or 'flag', got {limits!r}")
         exceeded = bool(np.any(report.position > 0) or np.any(report.velocity > 0))
         if limits == "raise" and np.any(report.position > 0):
-            raise PlanLimitError("motion plan exceeds COMPI's position limits: " + ", ".join(v for v in report.violations() if "position" in v))
+            raise PlanLimitError(f"motion plan exceeds {self.robot.name}'s position limits: " + ", ".join(v for v in report.violations() if "position" in v))
         return exceeded
 
     def _scoop_pose(self):
@@ -114,8 +116,8 @@ class Rollout:
         X_WS = self._scoop_pose()
         dx, dy = (0.0, 0.0) if offset is None else (float(v) for v in offset)
         # 45-degree walls: a centre moved sideways by d towards a wall must rise by d to keep touching it.
-        lift = (abs(dx) + abs(dy)) * np.tan(robot.SCOOP_WALL_ANGLE)
-        p_S = np.array([dx, dy, robot.ball_rest_height(radius) + (1e-4 + lift if lift else 0.0)])
+        lift = (abs(dx) + abs(dy)) * np.tan(self.scoop.wall_angle)
+        p_S = np.array([dx, dy, self.scoop.rest_height(radius) + (1e-4 + lift if lift else 0.0)])
         p = X_WS.multiply(p_S)
         plant.SetFreeBodyPose(self.plant_context, h.ball_body, RigidTransform(X_WS.rotation(), p))
         plant.SetVelocities(self.plant_context, h.ball_instance, np.zeros(6))
@@ -163,7 +165,7 @@ class Rollout:
         h = self.handles
         plant = h.plant
         X_WS = self._scoop_pose()
-        if robot.distance_to_scoop(X_WS.inverse().multiply(p)) < radius + 1e-3:
+        if self.scoop.distance(X_WS.inverse().multiply(p)) < radius + 1e-3:
             return False  # still touching (contact results lag the state by one step)
         t0 = self.context.get_time() + self._skip
         taus = np.arange(0.01, self.recatch_horizon + 1e-9, 0.01)
@@ -174,7 +176,7 @@ class Rollout:
         for i, q in enumerate(qs):
             plant.SetPositions(self._scratch, h.arm, q)
             local[i] = plant.CalcRelativeTransform(self._scratch, h.scoop_frame, plant.world_frame()).multiply(balls[i])
-        return bool(np.all(robot.distance_to_scoop(local) >= radius + self.scenario.release.margin))
+        return bool(np.all(self.scoop.distance(local) >= radius + self.scenario.release.margin))
 
     # ------------------------------------------------------------------ main
     def rollout(self, plan: MotionPlan, effects: dict | None = None, limits: str = "raise") -> Outcome:
@@ -208,7 +210,7 @@ class Rollout:
         # Drake's PiecewisePolynomial would otherwise keep commanding the final velocity).
         if np.any(qd_all[-1] != 0.0):
             t_ext = np.append(cmd.t, cmd.duration + 1e-3)
-            cmd_src = MotionPlan(t=t_ext, q=np.vstack([cmd.q, cmd.q[-1]]), qd=np.vstack([qd_all, np.zeros(6)]))
+            cmd_src = MotionPlan(t=t_ext, q=np.vstack([cmd.q, cmd.q[-1]]), qd=np.vstack([qd_all, np.zeros(cmd.q.shape[1])]))
         else:
             cmd_src = cmd
         # A plan that starts by holding still: the arm and the ball start at their static equilibrium, so
@@ -261,7 +263,7 @@ class Rollout:
         out.q_commanded = plan.sample(ts)
         ball_p = xs[:, self._ball_q0 + 4 : self._ball_q0 + 7]
         ball_v = xs[:, self._ball_v0 + 3 : self._ball_v0 + 6]
-        measured_over = np.any(robot.POSITION_LIMITS[:, 0] - LIMIT_TOLERANCE > q_arm) or np.any(q_arm > robot.POSITION_LIMITS[:, 1] + LIMIT_TOLERANCE)
+        measured_over = np.any(self.robot.position_limits[:, 0] - LIMIT_TOLERANCE > q_arm) or np.any(q_arm > self.robot.position_limits[:, 1] + LIMIT_TOLERANCE)
         flags["joint_limit_exceeded"] = bool(plan_limit_exceeded or measured_over)
 
         if flags["sim_failed"] or not (separated or on_floor):

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from besdrake import robot
+from besdrake.robot import MODELS_DIR, PACKAGE_NAME, Robot, RobotError, load_robot
 
 DIAGRAMS_DIR: Path = Path(__file__).resolve().parents[1] / "diagrams"
 
@@ -28,7 +28,7 @@ class ScenarioError(ValueError):
 
 @dataclass
 class BasePose:
-    """Pose of COMPI's base frame (linkmount) in the world: position in m, yaw in rad."""
+    """Pose of the robot's base link in the world: position in m, yaw in rad."""
 
     x: float = 0.0
     y: float = 0.0
@@ -38,11 +38,12 @@ class BasePose:
 
 @dataclass
 class ControllerConfig:
-    """Joint PD servo: proportional gains ``kp`` (N m/rad) and damping ``kd`` (N m s/rad), one per joint."""
+    """Joint PD servo: proportional gains ``kp`` (N m/rad) and damping ``kd`` (N m s/rad), one per arm joint
+    (the robot file's gains where the scenario gives none)."""
 
     type: str = "joint_pd"
-    kp: list[float] = field(default_factory=lambda: [800.0] * 6)
-    kd: list[float] = field(default_factory=lambda: [40.0] * 6)
+    kp: list[float] = field(default_factory=list)
+    kd: list[float] = field(default_factory=list)
 
 
 @dataclass
@@ -69,6 +70,7 @@ class Scenario:
     name: str
     time_step: float
     contact_approximation: str
+    robot: Robot
     models: dict[str, str]
     base: BasePose
     controller: ControllerConfig
@@ -86,12 +88,23 @@ class Scenario:
             setattr(new, key, value)
         return new
 
+    def with_robot(self, robot: Robot | str | Path) -> "Scenario":
+        """A copy on another robot (a :class:`Robot`, built-in name or robot file), with that robot's servo gains."""
+        try:
+            robot = load_robot(robot)
+        except RobotError as err:
+            raise ScenarioError(str(err)) from err
+        new = self.with_overrides(robot=robot)
+        new.controller = ControllerConfig(self.controller.type, [float(x) for x in robot.kp], [float(x) for x in robot.kd])
+        return new
+
     def to_dict(self) -> dict[str, Any]:
         return {
             "name": self.name,
             "description": self.description,
             "time_step": self.time_step,
             "contact": {"approximation": self.contact_approximation},
+            "robot": self.robot.reference,
             "models": dict(self.models),
             "base": vars(self.base).copy(),
             "controller": {"type": self.controller.type, "kp": list(self.controller.kp), "kd": list(self.controller.kd)},
@@ -138,14 +151,26 @@ def _check_keys(section: str, sec: dict, allowed: set[str]) -> None:
 
 
 def resolve_model_uri(uri: str) -> Path:
-    """Path of a model given as ``package://besdrake_models/...`` or a path relative to ``models/``."""
-    prefix = f"package://{robot.PACKAGE_NAME}/"
+    """Path of a model given as ``package://besdrake_models/...`` or a path relative to ``besdrake/models/``."""
+    prefix = f"package://{PACKAGE_NAME}/"
     if uri.startswith(prefix):
-        return robot.MODELS_DIR / uri[len(prefix):]
+        return MODELS_DIR / uri[len(prefix):]
     if uri.startswith("package://"):
-        raise ScenarioError(f"model {uri!r} is in an unknown package (only {robot.PACKAGE_NAME} is known)")
+        raise ScenarioError(f"model {uri!r} is in an unknown package (only {PACKAGE_NAME} is known)")
     p = Path(uri)
-    return p if p.is_absolute() else robot.MODELS_DIR / p
+    return p if p.is_absolute() else MODELS_DIR / p
+
+
+def _robot(data: dict, path: Path | None) -> Robot:
+    """The scenario's robot: a built-in name or a robot file (a relative path is read from the scenario's folder)."""
+    if "robot" not in data:
+        raise ScenarioError(f"scenario{f' ({path})' if path else ''} is missing 'robot' (a robot name or robot YAML path)")
+    value = str(data["robot"])
+    candidate = (path.parent / value) if path is not None and not Path(value).is_absolute() else Path(value)
+    try:
+        return load_robot(candidate if candidate.is_file() else value)
+    except RobotError as err:
+        raise ScenarioError(f"scenario robot: {err}") from err
 
 
 def scenario_from_dict(data: Any, path: Path | None = None) -> Scenario:
@@ -153,7 +178,7 @@ def scenario_from_dict(data: Any, path: Path | None = None) -> Scenario:
     where = f" ({path})" if path else ""
     if not isinstance(data, dict):
         raise ScenarioError(f"scenario{where} must be a YAML mapping, got {type(data).__name__}")
-    _check_keys("<top>", data, {"name", "description", "time_step", "contact", "models", "base", "controller", "release", "effects"})
+    _check_keys("<top>", data, {"name", "description", "time_step", "contact", "robot", "models", "base", "controller", "release", "effects"})
     name = str(data.get("name") or (path.stem if path else "unnamed"))
     if "time_step" not in data:
         raise ScenarioError(f"scenario{where} is missing time_step")
@@ -166,11 +191,9 @@ def scenario_from_dict(data: Any, path: Path | None = None) -> Scenario:
         extra = " (TAMSI ignores the joint PD gains: the arm falls)" if approx == "tamsi" else ""
         raise ScenarioError(f"contact.approximation {approx!r} is not one of {CONTACT_APPROXIMATIONS}{extra}")
 
-    models = _section(data, "models")
-    _check_keys("models", models, {"arm", "ball", "ground"})
-    for key in ("arm", "ball", "ground"):
-        if key not in models:
-            raise ScenarioError(f"scenario models section is missing {key!r}")
+    robot = _robot(data, path)
+    models = _section(data, "models", required=False)
+    for key in models:
         file = resolve_model_uri(str(models[key]))
         if not file.is_file():
             raise ScenarioError(f"model file for {key!r} not found: {models[key]} -> {file}")
@@ -184,20 +207,7 @@ def scenario_from_dict(data: Any, path: Path | None = None) -> Scenario:
         yaw=_number("base", "yaw", base_sec.get("yaw", 0.0), -np.pi, np.pi),
     )
 
-    ctrl_sec = _section(data, "controller", required=False)
-    _check_keys("controller", ctrl_sec, {"type", "kp", "kd"})
-    ctype = str(ctrl_sec.get("type", "joint_pd"))
-    if ctype not in CONTROLLERS:
-        raise ScenarioError(f"controller.type {ctype!r} is not one of {CONTROLLERS}")
-    gains = {}
-    for key, default in (("kp", 800.0), ("kd", 40.0)):
-        v = ctrl_sec.get(key, default)
-        if isinstance(v, (int, float)) and not isinstance(v, bool):
-            v = [v] * 6
-        if not isinstance(v, list) or len(v) != 6:
-            raise ScenarioError(f"controller.{key} must be a number or a list of 6 numbers, got {v!r}")
-        gains[key] = [_number("controller", f"{key}[{i}]", x, 0.0, 1e6) for i, x in enumerate(v)]
-    controller = ControllerConfig(type=ctype, kp=gains["kp"], kd=gains["kd"])
+    controller = _controller(_section(data, "controller", required=False), robot)
 
     rel_sec = _section(data, "release", required=False)
     _check_keys("release", rel_sec, {"check_interval", "margin", "min_speed", "tail"})
@@ -221,13 +231,32 @@ def scenario_from_dict(data: Any, path: Path | None = None) -> Scenario:
         description=str(data.get("description", "")),
         time_step=time_step,
         contact_approximation=approx,
-        models={k: str(models[k]) for k in ("arm", "ball", "ground")},
+        robot=robot,
+        models={k: str(v) for k, v in models.items()},
         base=base,
         controller=controller,
         release=release,
         effects=effects,
         path=path,
     )
+
+
+def _controller(sec: dict, robot: Robot) -> ControllerConfig:
+    """Joint PD gains: the scenario's where given (a number or one per arm joint), else the robot file's."""
+    _check_keys("controller", sec, {"type", "kp", "kd"})
+    ctype = str(sec.get("type", "joint_pd"))
+    if ctype not in CONTROLLERS:
+        raise ScenarioError(f"controller.type {ctype!r} is not one of {CONTROLLERS}")
+    n = robot.n_joints
+    gains = {}
+    for key, default in (("kp", robot.kp), ("kd", robot.kd)):
+        v = sec.get(key, [float(x) for x in default])
+        if isinstance(v, (int, float)) and not isinstance(v, bool):
+            v = [v] * n
+        if not isinstance(v, list) or len(v) != n:
+            raise ScenarioError(f"controller.{key} must be a number or a list of {n} numbers, got {v!r}")
+        gains[key] = [_number("controller", f"{key}[{i}]", x, 0.0, 1e6) for i, x in enumerate(v)]
+    return ControllerConfig(type=ctype, kp=gains["kp"], kd=gains["kd"])
 
 
 def load_scenario(path_or_name: str | Path = "nominal") -> Scenario:

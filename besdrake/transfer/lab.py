@@ -16,8 +16,8 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from besdrake import robot
 from besdrake.plan import MotionPlan, PlanError
+from besdrake.robot import JointLimits
 from besdrake.transfer.measurement import Measurement
 
 
@@ -29,6 +29,8 @@ class Lab(Protocol):
     index the measurement gets (0, 1, 2, ... in execution order); when None the lab counts itself.
     A lab whose measurements are random must make trial ``k`` reproducible (resuming a run re-executes
     the trial that was interrupted). ``description()`` returns the public facts written into a log.
+    A lab's ``robot`` (a :class:`~besdrake.robot.Robot` read from its robot file) gives the safety gate its
+    limits; a lab without one needs the gate's ``limits=``.
     """
 
     name: str
@@ -52,28 +54,6 @@ class TrialCounter:
         return int(trial)
 
 
-@dataclass(frozen=True)
-class JointLimits:
-    """Joint limits the gate enforces: ``position`` (6, 2) rad, ``velocity`` (6,) rad/s, ``acceleration`` (6,) rad/s^2.
-
-    Defaults are COMPI's (:mod:`besdrake.robot`)."""
-
-    position: np.ndarray = field(default_factory=lambda: robot.POSITION_LIMITS.copy())
-    velocity: np.ndarray = field(default_factory=lambda: robot.VELOCITY_LIMITS.copy())
-    acceleration: np.ndarray = field(default_factory=lambda: robot.ACCELERATION_LIMITS.copy())
-
-    def __post_init__(self) -> None:
-        for name, shape in (("position", (6, 2)), ("velocity", (6,)), ("acceleration", (6,))):
-            a = np.asarray(getattr(self, name), dtype=float)
-            if a.shape != shape or not np.all(np.isfinite(a)):
-                raise ValueError(f"JointLimits.{name} must be finite with shape {shape}, got {a.shape}")
-            object.__setattr__(self, name, a)
-        if np.any(self.position[:, 0] >= self.position[:, 1]):
-            raise ValueError("JointLimits.position: every lower limit must be below its upper limit")
-        if np.any(self.velocity <= 0) or np.any(self.acceleration <= 0):
-            raise ValueError("JointLimits: velocity and acceleration limits must be positive")
-
-
 class SafetyGate(TrialCounter):
     """Wraps any :class:`Lab`: refuses a plan that would exceed a joint position, velocity or acceleration
     limit *before* it reaches the lab.
@@ -81,14 +61,16 @@ class SafetyGate(TrialCounter):
     A refused plan gives a Measurement with ``flags["refused_by_safety_gate"]`` and the violations (joint,
     kind, amount beyond the limit) in ``message``; a malformed plan (NaN, wrong shape, time not increasing)
     is refused the same way. The check is :meth:`MotionPlan.check_limits` on the interpolated plan, i.e.
-    on what the controller would be sent. ``resolution`` (s) is its sampling step.
+    on what the controller would be sent. ``resolution`` (s) is its sampling step. The limits are the
+    robot's (``lab.robot``, read from its robot file) unless ``limits`` are given.
     """
 
     def __init__(self, lab: Lab, limits: JointLimits | None = None, resolution: float = 0.002) -> None:
         if not hasattr(lab, "execute"):
             raise TypeError(f"SafetyGate needs a lab with an execute(plan) method, got {type(lab).__name__}")
         self.lab = lab
-        self.limits = limits or JointLimits()
+        self.robot = getattr(lab, "robot", None)
+        self.limits = limits or _robot_limits(lab)
         self.resolution = float(resolution)
         self.name = f"{getattr(lab, 'name', type(lab).__name__)}"
         self.refused = 0
@@ -98,7 +80,7 @@ class SafetyGate(TrialCounter):
         if not isinstance(plan, MotionPlan):
             return [f"not a MotionPlan: {type(plan).__name__}"]
         try:
-            report = plan.check_limits(self.limits.position, self.limits.velocity, self.limits.acceleration, resolution=self.resolution)
+            report = plan.check_limits(self.limits, resolution=self.resolution)
         except PlanError as err:
             return [f"malformed plan: {err}"]
         return report.violations()
@@ -128,6 +110,13 @@ class SafetyGate(TrialCounter):
                 meta={"lab": self.name, "plan_name": plan.meta.get("name", "")},
             )
         return self.lab.execute(plan, trial=trial)
+
+
+def _robot_limits(lab) -> JointLimits:
+    robot = getattr(lab, "robot", None)
+    if robot is None:
+        raise TypeError(f"SafetyGate needs limits= (a robot's JointLimits) or a lab with a robot; {type(lab).__name__} has none")
+    return robot.limits
 
 
 __all__ = ["JointLimits", "Lab", "SafetyGate", "TrialCounter"]

@@ -30,14 +30,18 @@ from typing import Any, Callable
 
 import numpy as np
 
-from besdrake import robot
 from besdrake.plan import MotionPlan, PlanError
 from besdrake.transfer.measurement import Measurement, MeasurementError
 
 LOG_FORMAT = "besdrake-lab-log"
 LOG_VERSION = 1
 CSV_COLUMNS = ("trial", "plan_hash", "touchdown_x", "touchdown_y", "flags", "message")
-JOINT_COLUMNS = ("t", *(f"q_cmd_{n}" for n in robot.JOINT_NAMES), *(f"q_meas_{n}" for n in robot.JOINT_NAMES))
+
+
+def joint_columns(plan: MotionPlan) -> tuple[str, ...]:
+    """Header of joints.csv for ``plan``'s joints (named ``joint1``... when the plan carries no names)."""
+    names = plan.joint_names or tuple(f"joint{k + 1}" for k in range(plan.q.shape[1]))
+    return ("t", *(f"q_cmd_{n}" for n in names), *(f"q_meas_{n}" for n in names))
 BALL_MARKER = "ball"
 #: Frequency written into ball.tsv when a lab records the ball at irregular times (see LOG_FORMAT.md).
 DEFAULT_BALL_RATE_HZ = 100.0
@@ -293,7 +297,7 @@ def write_trial_files(folder: Path, m: Measurement) -> None:
     info["ball_recorded"] = m.ball_t is not None
     if m.joint_t is not None:
         data = np.column_stack([m.joint_t, m.q_commanded, m.q_measured])
-        lines = [",".join(JOINT_COLUMNS)] + [",".join(_fmt(x) for x in row) for row in data]
+        lines = [",".join(joint_columns(m.plan))] + [",".join(_fmt(x) for x in row) for row in data]
         _fsync_write(folder / "joints.csv", "\n".join(lines) + "\n")
     if m.ball_t is not None and len(m.ball_t):
         rate = float(m.meta.get("mocap_rate_hz") or DEFAULT_BALL_RATE_HZ)
@@ -344,13 +348,15 @@ def read_trial(root: str | Path, trial: int, expected_hash: str | None = None) -
         if not path.is_file():
             raise LogError(f"log file missing: {path} (measurement.json says joints were recorded)")
         lines = path.read_text(encoding="utf-8").splitlines()
-        if not lines or tuple(lines[0].split(",")) != JOINT_COLUMNS:
-            raise LogError(f"{path}: header must be {','.join(JOINT_COLUMNS)}")
+        columns = joint_columns(plan)
+        if not lines or tuple(lines[0].split(",")) != columns:
+            raise LogError(f"{path}: header must be {','.join(columns)}")
+        n = plan.q.shape[1]
         try:
-            data = np.array([[float(x) for x in ln.split(",")] for ln in lines[1:] if ln.strip()], dtype=float).reshape(-1, len(JOINT_COLUMNS))
+            data = np.array([[float(x) for x in ln.split(",")] for ln in lines[1:] if ln.strip()], dtype=float).reshape(-1, len(columns))
         except ValueError as err:
             raise LogError(f"{path}: not numeric or wrong number of columns: {err}") from err
-        joint_t, q_cmd, q_meas = data[:, 0], data[:, 1:7], data[:, 7:13]
+        joint_t, q_cmd, q_meas = data[:, 0], data[:, 1 : 1 + n], data[:, 1 + n : 1 + 2 * n]
     ball_t = ball_path = None
     if info.get("ball_recorded"):
         n = int(info.get("ball_samples", 0))
@@ -441,4 +447,4 @@ def run_plans(lab: Any, plans: list[MotionPlan], log: LabLog, progress: Callable
     return RunSummary(skipped=len(done), executed=len(plans) - len(done), total=len(log), flag_counts=flag_counts)
 
 
-__all__ = ["LabLog", "LogError", "RunSummary", "run_plans", "read_log", "read_trial", "write_trial_files", "LOG_FORMAT", "LOG_VERSION", "CSV_COLUMNS", "JOINT_COLUMNS"]
+__all__ = ["LabLog", "LogError", "RunSummary", "run_plans", "read_log", "read_trial", "write_trial_files", "LOG_FORMAT", "LOG_VERSION", "CSV_COLUMNS", "joint_columns"]

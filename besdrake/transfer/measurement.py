@@ -83,7 +83,7 @@ class Measurement:
     * ``touchdown`` (2,): measured (x, y) on the floor in m, or None when not seen;
     * ``ball_t`` (M,) s since plan start and ``ball_path`` (M, 3) m: the ball marker while inside the capture
       volume (NaN rows = marker not seen in that frame); None when the lab does not record it;
-    * ``joint_t`` (K,) s, ``q_commanded``/``q_measured`` (K, 6) rad: what the controller was sent and the
+    * ``joint_t`` (K,) s, ``q_commanded``/``q_measured`` (K, n) rad (n: the plan's joints): what the controller was sent and the
       encoder readings; None when not recorded;
     * ``flags``, ``message`` (why a flag was raised), ``meta`` (plan name, wall time, lab name; never hidden truth).
     """
@@ -121,8 +121,9 @@ class Measurement:
         if self.ball_t is not None and len(self.ball_t) != len(self.ball_path):
             raise MeasurementError(f"measurement ball_t has {len(self.ball_t)} samples but ball_path {len(self.ball_path)}")
         self.joint_t = _arr(self.joint_t, "joint_t", None)
-        self.q_commanded = _arr(self.q_commanded, "q_commanded", 6)
-        self.q_measured = _arr(self.q_measured, "q_measured", 6)
+        n_joints = self.plan.q.shape[1] if self.plan.q.ndim == 2 else 0
+        self.q_commanded = _arr(self.q_commanded, "q_commanded", n_joints)
+        self.q_measured = _arr(self.q_measured, "q_measured", n_joints)
         present = [x is not None for x in (self.joint_t, self.q_commanded, self.q_measured)]
         if any(present) and not all(present):
             raise MeasurementError("measurement joint_t, q_commanded and q_measured must all be given or all be None")

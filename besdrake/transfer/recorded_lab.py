@@ -35,6 +35,15 @@ class RecordedLab(TrialCounter):
             self._trials.setdefault(h, []).append(k)
         self._uses: dict[str, int] = {}
 
+    @property
+    def robot(self):
+        """The logged lab's robot: named in the log's lab description (older logs: their scenario's robot)."""
+        from besdrake.robot import load_robot
+        from besdrake.sim.scenario import load_scenario
+
+        lab = self.log.lab
+        return load_robot(lab["robot"]) if "robot" in lab else load_scenario(lab.get("scenario", "nominal")).robot
+
     def __len__(self) -> int:
         return len(self.log)
 

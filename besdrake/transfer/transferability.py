@@ -73,6 +73,7 @@ from typing import Any, Callable
 import numpy as np
 
 from besdrake.plan import MotionPlan
+from besdrake.robot import JointLimits
 from besdrake.search.base import load_state, rng_from_state, rng_state, save_state
 from besdrake.sim.effects import ball_placed, placement_quadrature
 from besdrake.transfer.descriptor import N_FEATURES, behaviour_descriptor
@@ -335,6 +336,7 @@ class TransferabilityApproach:
         rng: the search's only source of randomness.
         log: optional :class:`~besdrake.transfer.log.LabLog`; every lab trial is appended before use.
         out_dir: optional folder for the resumable search state.
+        limits: the robot's joint limits (default: those of the lab's robot, else of the executor's scenario).
     """
 
     def __init__(
@@ -350,8 +352,10 @@ class TransferabilityApproach:
         log=None,
         out_dir: str | Path | None = None,
         progress: Callable[[str], None] | None = None,
+        limits: JointLimits | None = None,
     ) -> None:
         self.to_plan = to_plan
+        self._limits = limits
         self.seeds = np.atleast_2d(np.asarray(seeds, dtype=float))
         self.scales = np.asarray(scales, dtype=float)
         self.bounds = np.asarray(bounds, dtype=float)
@@ -380,6 +384,16 @@ class TransferabilityApproach:
         scenario = getattr(executor, "scenario", None)
         self._habit = dict(scenario.effects.get("ball_placement", {})) if scenario is not None else {}
 
+    @property
+    def limits(self) -> JointLimits:
+        """The robot's joint limits (given, or the lab's robot's, or the executor's scenario's robot's)."""
+        if self._limits is None:
+            robot = getattr(self.lab, "robot", None) or getattr(getattr(self.executor, "scenario", None), "robot", None)
+            if robot is None:
+                raise ValueError("TransferabilityApproach needs limits= (neither the lab nor the executor names a robot)")
+            self._limits = robot.limits
+        return self._limits
+
     # -- simulation ---------------------------------------------------------------------------
     def _evaluate(self, thetas: np.ndarray) -> tuple[np.ndarray, np.ndarray, list, np.ndarray]:
         """Sim objective, descriptors, outcomes (ball at the habit) and placement shifts of parameter vectors.
@@ -390,7 +404,7 @@ class TransferabilityApproach:
         plans, penalties = [], np.zeros(len(thetas))
         for i, theta in enumerate(thetas):
             plan = self.to_plan(theta)
-            lim = plan.check_limits()
+            lim = plan.check_limits(self.limits)
             penalties[i] = self.config.limit_penalty * float(lim.position.sum() + lim.velocity.sum() + lim.acceleration.sum())
             plans.append(plan)
         k = len(self.placements)
@@ -488,7 +502,7 @@ class TransferabilityApproach:
 
     def _choose_transfer(self, P: np.ndarray, f1: np.ndarray, F: np.ndarray, D: np.ndarray, sim_td: np.ndarray,
                          shifts: np.ndarray | None = None) -> int:
-        limits_ok = np.array([self.to_plan(p).check_limits().ok for p in P])
+        limits_ok = np.array([self.to_plan(p).check_limits(self.limits).ok for p in P])
         if self.config.transfer_choice in ("predicted", "likely"):
             return self._closest_predicted(limits_ok, f1, D, sim_td, P, shifts)
         ranks = nondominated_ranks(F)
@@ -723,7 +737,7 @@ class TransferabilityApproach:
             candidates.append(("best_in_lab", np.asarray(ts[0].theta), td))
         F = self._objectives(f1, D)
         front = np.flatnonzero(nondominated_ranks(F) == 0)
-        front = front[[self.to_plan(P[i]).check_limits().ok for i in front]]  # a plan beyond the limits never reaches the lab
+        front = front[[self.to_plan(P[i]).check_limits(self.limits).ok for i in front]]  # a plan beyond the limits never reaches the lab
         front = front[np.argsort(F[front, 0] + F[front, 1])][: cfg.final_pareto]
         for i in front:
             candidates.append(("pareto", P[i], None if np.isnan(sim_td[i]).any() else sim_td[i]))

@@ -300,6 +300,16 @@ class VirtualLab(TrialCounter):
         self.config = config if isinstance(config, LabConfig) else load_lab_config(config)
         self.name = self.config.name
         self._rollout = None
+        self._robot = None
+
+    @property
+    def robot(self):
+        """The lab's robot (its scenario's robot file)."""
+        if self._robot is None:
+            from besdrake.sim.scenario import load_scenario
+
+            self._robot = self._rollout.robot if self._rollout is not None else load_scenario(self.config.scenario).robot
+        return self._robot
 
     def description(self) -> dict[str, Any]:
         """Public facts for a log: name, description, scenario, sensors, what is recorded (no hidden truth)."""
@@ -309,6 +319,7 @@ class VirtualLab(TrialCounter):
             "kind": "virtual",
             "description": c.description,
             "scenario": Path(c.scenario).stem if str(c.scenario).endswith((".yaml", ".yml")) else c.scenario,
+            "robot": self.robot.name,
             "sensors": c.noise.sensors(),
             "record_ball_path": c.record_ball_path,
             "record_joints": c.record_joints,
@@ -343,7 +354,7 @@ class VirtualLab(TrialCounter):
             "joint_rate_hz": n.joint_rate_hz,
         }
         try:
-            over = plan.check_limits().violations()
+            over = plan.check_limits(self.robot.limits).violations()
         except PlanError as err:
             return Measurement(trial=trial, plan=plan, flags={"aborted": True}, message=f"aborted: malformed plan: {err}", meta=meta)
         if over:  # no safety gate in front: the robot's drives stop it, as in the paper
@@ -436,7 +447,7 @@ class VirtualLab(TrialCounter):
         n = self.config.noise
         jt = np.arange(0, int(np.floor(t[-1] * n.joint_rate_hz + 1e-9)) + 1) / n.joint_rate_hz
         q_cmd = plan.sample(jt)
-        q = np.column_stack([np.interp(jt, t, q_meas[:, i]) for i in range(6)])
+        q = np.column_stack([np.interp(jt, t, q_meas[:, i]) for i in range(q_meas.shape[1])])
         q = q + rng.normal(0.0, n.encoder_noise_sd, q.shape)
         return jt, q_cmd, q
 

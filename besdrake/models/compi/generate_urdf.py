@@ -1,7 +1,8 @@
 """Generate ``compi.urdf`` (arm + scoop) from the published kinematics and our documented assumptions.
 
-Run ``python3 besdrake/models/compi/generate_urdf.py`` after changing a scoop constant in ``besdrake/robot.py``
-(the scoop geometry lives there so that the simulation and the model agree). The URDF is committed.
+Run ``python3 besdrake/models/compi/generate_urdf.py`` after changing the scoop geometry or a joint limit in
+``robot.yaml`` beside it (the robot file is the one source, so that the simulation and the model agree). The
+URDF is committed.
 """
 
 from __future__ import annotations
@@ -10,9 +11,16 @@ from pathlib import Path
 
 import numpy as np
 
-from besdrake import robot
+import yaml
+
+from besdrake.tasks.throwing.scoop import Scoop
 
 OUT = Path(__file__).with_name("compi.urdf")
+#: The robot file (read as plain YAML: checking it needs the URDF this script writes).
+SPEC = yaml.safe_load(Path(__file__).with_name("robot.yaml").read_text())
+SCOOP = Scoop(**SPEC["end_effector"]["params"])
+POSITION_LIMITS = [tuple(j["position"]) for j in SPEC["joints"]]
+VELOCITY_LIMIT = SPEC["joints"][0]["velocity"]
 
 
 def f(v) -> str:
@@ -37,7 +45,7 @@ LINKS = [
     ("link5", 1.2, 0.346, "y", 0.04),
     ("link6", 0.3, 0.05, "z", 0.035),
 ]
-# name, parent, child, xyz, rpy, axis, effort (N m); position limits come from robot.POSITION_LIMITS
+# name, parent, child, xyz, rpy, axis, effort (N m); position limits come from robot.yaml
 JOINTS = [
     ("joint1", "linkmount", "link1", (0, 0, 0), (0, 0, 0), (0, 0, 1), 60),
     ("joint2", "link1", "link2", (0, 0, 0.158), (np.pi / 2, 0, 0), (0, 0, -1), 150),
@@ -54,10 +62,10 @@ def cylinder_inertia(m: float, length: float, r: float, axis: str) -> tuple[floa
 
 
 def scoop_xml() -> tuple[str, dict]:
-    a, h, t = robot.SCOOP_BOTTOM_HALF_WIDTH, robot.SCOOP_LIP_HEIGHT, 0.004
-    al = robot.SCOOP_WALL_ANGLE
+    a, h, t = SCOOP.bottom_half_width, SCOOP.lip_height, 0.004
+    al = SCOOP.wall_angle
     s_top = h / np.sin(al)
-    half_top = robot.SCOOP_TOP_HALF_WIDTH
+    half_top = SCOOP.top_half_width
     d = np.array([np.cos(al), 0, np.sin(al)])
     n = np.array([-np.sin(al), 0, np.cos(al)])
     c = a * np.array([1, 0, 0]) + s_top / 2 * d - t / 2 * n
@@ -67,7 +75,7 @@ def scoop_xml() -> tuple[str, dict]:
         ("wall_nx", (-c[0], 0, c[2]), (0, al, 0), (s_top, width, t)),
         ("wall_py", (0, c[0], c[2]), (al, 0, 0), (width, s_top, t)),
         ("wall_ny", (0, -c[0], c[2]), (-al, 0, 0), (width, s_top, t)),
-        ("floor", (0, 0, robot.SCOOP_FLOOR_Z - 0.002), (0, 0, 0), (2 * a + 0.01, 2 * a + 0.01, 0.004)),
+        ("floor", (0, 0, SCOOP.floor_z - 0.002), (0, 0, 0), (2 * a + 0.01, 2 * a + 0.01, 0.004)),
     ]
     xml = ""
     for name, xyz, rpy, size in walls:
@@ -82,9 +90,9 @@ def scoop_xml() -> tuple[str, dict]:
     </visual>
 """
     r = 0.035
-    crest = robot.ball_rest_height(r)
+    crest = SCOOP.rest_height(r)
     info = dict(t=t * 1000, a=a * 1000, h=h * 1000, top=half_top * 1000, c=crest * 1000, lip=(h - (crest - r)) * 1000,
-                floor=(crest - r - robot.SCOOP_FLOOR_Z) * 1000, ang=np.degrees(al))
+                floor=(crest - r - SCOOP.floor_z) * 1000, ang=np.degrees(al))
     return xml, info
 
 
@@ -110,13 +118,13 @@ def main() -> Path:
   </link>
 """
     joints = transmissions = ""
-    for (name, parent, child, xyz, rpy, axis, effort), (lo, hi) in zip(JOINTS, robot.POSITION_LIMITS):
+    for (name, parent, child, xyz, rpy, axis, effort), (lo, hi) in zip(JOINTS, POSITION_LIMITS):
         joints += f"""  <joint name="{name}" type="revolute">
     <parent link="{parent}"/>
     <child link="{child}"/>
     <origin xyz="{f(xyz)}" rpy="{f(rpy)}"/>
     <axis xyz="{f(axis)}"/>
-    <limit lower="{lo:.15g}" upper="{hi:.15g}" effort="{effort}" velocity="{robot.VELOCITY_LIMITS[0]:g}"/>
+    <limit lower="{lo:.15g}" upper="{hi:.15g}" effort="{effort}" velocity="{VELOCITY_LIMIT:g}"/>
   </joint>
 """
         transmissions += f"""  <transmission name="{name}_transmission">
