@@ -37,8 +37,9 @@ def nearest(classifier, pre, start: int, end: int) -> tuple[str | None, float, s
         X = classifier.features.transform([extract_segment(pre, start, end)])
     except ClassificationError as err:
         return None, float("inf"), str(err)
-    dist, idx = classifier.knn_.kneighbors(X, 1)
-    return str(classifier.y_train_[idx[0, 0]]), float(dist[0, 0]), None
+    dist = np.linalg.norm(classifier.X_train_ - X[0], axis=1)  # the 1-NN's Euclidean metric
+    k = int(np.argmin(dist))
+    return str(classifier.y_train_[k]), float(dist[k]), None
 
 
 def label_segments(pre, segments: list[tuple[int, int]], classifier, join: bool = True) -> LabelledSegments:
@@ -48,13 +49,16 @@ def label_segments(pre, segments: list[tuple[int, int]], classifier, join: bool 
     problems = [f"segment {int(pre.frames[a])}..{int(pre.frames[b])} not classified: {why}"
                 for (a, b), (_, _, why) in zip(segs, found) if why]
     labels, dists = [f[0] for f in found], [f[1] for f in found]
-    joined = 0
+    joined, cache = 0, {}
     while join and len(segs) > 1:
         best = None
         for k in range(len(segs) - 1):
             if not (np.isfinite(dists[k]) and np.isfinite(dists[k + 1])):
                 continue
-            label, d, _ = nearest(classifier, pre, segs[k][0], segs[k + 1][1])
+            key = (segs[k][0], segs[k + 1][1])
+            if key not in cache:
+                cache[key] = nearest(classifier, pre, *key)
+            label, d, _ = cache[key]
             gain = min(dists[k], dists[k + 1]) - d
             if gain > 0 and (best is None or gain > best[0]):
                 best = (gain, k, label, d)
