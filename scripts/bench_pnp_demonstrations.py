@@ -79,8 +79,8 @@ def spread(demos) -> dict:
     return {
         "table_distance_m": stat([d.table_box_position[0] for d in demos]),
         "table_height_m": stat([d.table_box_position[2] for d in demos]),
-        "shelf_yaw_rad": stat([d.shelf_box_yaw for d in demos]),
-        "table_yaw_rad": stat([d.table_box_yaw for d in demos]),
+        "shelf_yaw_rad_mod_pi": stat(np.unwrap([d.shelf_box_yaw for d in demos], period=np.pi)),
+        "table_yaw_rad_mod_pi": stat(np.unwrap([d.table_box_yaw for d in demos], period=np.pi)),
         "shelf_place_world_m": {a: stat([d.frame_origin[i] for d in demos]) for i, a in enumerate("xyz")},
         "hand_start_task_m": {a: stat([d.hand_position[0, i] for d in demos]) for i, a in enumerate("xyz")},
         "hand_at_close_task_m": {a: stat([np.interp(d.close_time, d.t, d.hand_position[:, i]) for d in demos])

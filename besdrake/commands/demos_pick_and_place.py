@@ -17,6 +17,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--classifier", type=Path, default=None,
                         help="classifier .npz (default: the shipped one; retrain with "
                              "python -m besdrake.tasks.pick_and_place.train_classifier)")
+    parser.add_argument("--reference", type=Path, default=None, metavar="LABELLED",
+                        help="a recording with named markers of the same marker set: name the inputs' "
+                             "unnamed trajectories by 'besdrake mocap label''s labeller fitted on it first")
     parser.add_argument("--no-join", action="store_true", help="do not join over-split movements before pairing")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
@@ -48,6 +51,15 @@ def run(args: argparse.Namespace) -> int:
         clf = load_classifier(args.classifier)
     except ValueError as err:
         raise UserError(f"--classifier: {err}") from None
+    labeler = None
+    if args.reference is not None:
+        from besdrake.mocap.labeling import MarkerLabeler
+        from besdrake.mocap.qualisys import read_recording
+
+        try:
+            labeler = MarkerLabeler().fit(read_recording(args.reference))
+        except (OSError, ValueError) as err:
+            raise UserError(f"--reference {args.reference}: {err}") from None
     if args.out is not None:
         if args.out.exists() and not args.out.is_dir():
             raise UserError(f"--out {args.out}: exists and is not a folder")
@@ -56,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
         args.out.mkdir(parents=True, exist_ok=True)
     report = []
     for f in files:
-        res = extract_demonstrations(f, classifier=clf, join=not args.no_join)
+        res = extract_demonstrations(f, classifier=clf, join=not args.no_join, labeler=labeler)
         entry = res.to_dict()
         if args.out is not None:
             entry["written"] = [str(d.to_npz(args.out / f"{f.stem}_demo{k}.npz")) for k, d in enumerate(res.demonstrations)]

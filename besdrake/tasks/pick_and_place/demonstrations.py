@@ -37,7 +37,7 @@ from besdrake.mocap.preprocess import (
     BACK_MARKERS, HAND_MARKERS, PreprocessError, back_frame, preprocess, rotation_to_quaternion,
 )
 from besdrake.mocap.qualisys import read_recording
-from besdrake.mocap.recording import MocapFormatError, MocapRecording
+from besdrake.mocap.recording import MocapRecording
 from besdrake.segmentation import VMCI, SegmentationError
 from besdrake.tasks.pick_and_place.grasp_events import OPEN_SEARCH_S, GraspEventError, grasp_events
 from besdrake.tasks.pick_and_place.movements import label_segments
@@ -63,7 +63,9 @@ class GraspDemonstration:
     right``, ``Hand left`` as :func:`besdrake.mocap.preprocess.back_frame` builds the back frame:
     y from right to left, z towards top, x = y x z). Event times in seconds of
     ``t``. Box places: midpoint of the box markers in the task frame, yaw (rad, about task z) of
-    the direction ``Box back`` -> ``Box left``. ``box_marker_span``: distance between the two box
+    the line through ``Box back`` and ``Box left`` modulo a half turn, in [-pi/2, pi/2) (a box is
+    the same after a half turn, and the automatic labeller cannot always tell the two box markers
+    apart: both figures are the same when they are swapped). ``box_marker_span``: distance between the two box
     markers (m, a lower bound of the box's extent); ``hold_aperture``: median grip aperture while
     carried (m; the box's width across the grip plus the fingertip markers' offsets).
     """
@@ -215,12 +217,15 @@ def find_pairs(labels: list[str | None], segments: list[tuple[int, int]]) -> lis
     return pairs
 
 
-def extract_demonstrations(path: str | Path, classifier=None, segmenter=None, join: bool = True) -> DemonstrationResult:
+def extract_demonstrations(path: str | Path, classifier=None, segmenter=None, join: bool = True,
+                           labeler=None) -> DemonstrationResult:
     """Grasp demonstrations of one recording (see the module docstring).
 
     ``classifier``: a fitted :class:`~besdrake.segmentation.SegmentClassifier` (default: the
     shipped one); ``segmenter``: a vMCI-like segmenter (default ``VMCI()``); ``join``: join
-    over-split movements (:func:`~besdrake.tasks.pick_and_place.movements.label_segments`)."""
+    over-split movements (:func:`~besdrake.tasks.pick_and_place.movements.label_segments`);
+    ``labeler``: a fitted :class:`~besdrake.mocap.labeling.MarkerLabeler` that names the
+    recording's trajectories first (for recordings of unnamed trajectories)."""
     from besdrake.tasks.pick_and_place.classifier import load_classifier
 
     t_start = time.process_time()
@@ -228,8 +233,10 @@ def extract_demonstrations(path: str | Path, classifier=None, segmenter=None, jo
     classifier = classifier if classifier is not None else load_classifier()
     try:
         rec = read_recording(path)
-    except (OSError, MocapFormatError) as err:
-        result.problems.append(f"cannot read the recording: {err}")
+        if labeler is not None:
+            rec = labeler.predict(rec).recording
+    except (OSError, ValueError) as err:  # MocapFormatError and LabelingError are ValueErrors
+        result.problems.append(f"cannot read or label the recording: {err}")
         return result
     absent = missing_markers(rec)
     if absent:
@@ -304,7 +311,9 @@ def _demonstration(source: str, pre, approach: tuple[int, int], transport: tuple
 
 
 def _yaw(frame: TaskFrame, world_axis: np.ndarray) -> float:
-    return float(horizontal_yaw(frame.directions(np.median(world_axis, axis=0))))
+    """Yaw of the box-marker axis in the task frame, modulo a half turn, in [-pi/2, pi/2)."""
+    yaw = float(horizontal_yaw(frame.directions(np.median(world_axis, axis=0))))
+    return float((yaw + np.pi / 2) % np.pi - np.pi / 2)
 
 
 def _require_finite(pre, rows: np.ndarray, signals: dict[str, np.ndarray]) -> None:
