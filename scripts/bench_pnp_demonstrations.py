@@ -2,7 +2,7 @@
 """Benchmark: grasp demonstrations from the real pick-and-place recordings (prints JSON).
 
 Per subject: recordings, approach/transport pairs found, pairs with a usable grasp, the
-reasons for the others, CPU seconds per file, the pairs that match the annotators' pair (the
+per-file problems and rejected pairs with their reasons (counted), CPU seconds per file, the pairs that match the annotators' pair (the
 found transport starts within ``--tolerance`` s of the manual one), and the spread of the
 task-frame figures over the demonstrations (table place, box yaw, grasp timing).
 
@@ -13,7 +13,8 @@ joining over-split pieces. ``classifier_accuracy`` is the 1-NN's accuracy on the
 manual segments (``evaluate_classifier``).
 
 Usage: python3 scripts/bench_pnp_demonstrations.py [--data DIR] [--tolerance 0.3] [--quick]
-(``--quick``: the shipped classifier with joining only).
+(``--quick``: the shipped classifier with joining only). ``unnamed_shipped_join``: the same from
+unnamed trajectories (each subject's later runs, labelled by a labeller fitted on its first run).
 """
 
 from __future__ import annotations
@@ -42,18 +43,19 @@ def manual_transport_start(path: Path) -> int | None:
     return starts[0] if starts else None
 
 
-def run_subject(files: list[Path], classifier, join: bool, tolerance_s: float) -> dict:
+def run_subject(files: list[Path], classifier, join: bool, tolerance_s: float, labeler=None,
+                manual_of=lambda f: f) -> dict:
     found = usable = matched = 0
     reasons: Counter = Counter()
     seconds, demos, per_file = [], [], []
     for f in files:
-        res = extract_demonstrations(f, classifier=classifier, join=join)
+        res = extract_demonstrations(f, classifier=classifier, join=join, labeler=labeler)
         seconds.append(res.seconds)
         found += res.pairs_found
         usable += len(res.demonstrations)
         reasons.update(r.reason for r in res.rejected)
         reasons.update(res.problems)
-        manual = manual_transport_start(f)
+        manual = manual_transport_start(manual_of(f))
         for d in res.demonstrations:
             if manual is not None and abs(d.transport_frames[0] - manual) <= tolerance_s * 60:
                 matched += 1
@@ -61,10 +63,31 @@ def run_subject(files: list[Path], classifier, join: bool, tolerance_s: float) -
         per_file.append({"file": f.name, "pairs": res.pairs_found, "usable": len(res.demonstrations),
                          "problems": res.problems, "rejected": [r.reason for r in res.rejected]})
     return {"recordings": len(files), "pairs_found": found, "usable": usable,
-            "usable_matching_manual_pair": matched, "reasons": dict(reasons),
+            "usable_matching_manual_pair": matched, "problems_and_rejections": dict(reasons),
             "cpu_s_per_file_median": round(float(np.median(seconds)), 3),
             "cpu_s_per_file_max": round(float(np.max(seconds)), 3),
             "task_frame": spread(demos), "per_file": per_file}
+
+
+def unnamed(files: list[Path], classifier, tolerance_s: float) -> dict:
+    """The subject's runs after the first as unnamed trajectories (identities shuffled per gap, ghost
+    markers added), named by a labeller fitted on the first run, then the shipped pipeline."""
+    import tempfile
+
+    from besdrake.mocap.labeling import MarkerLabeler
+    from besdrake.mocap.qualisys import read_tsv, write_tsv
+    from besdrake.mocap.synthetic import make_unlabeled
+
+    labeler = MarkerLabeler().fit(read_tsv(files[0]))
+    with tempfile.TemporaryDirectory() as tmp:
+        copies = {}
+        for k, f in enumerate(files[1:]):
+            rec, _ = make_unlabeled(read_tsv(f), np.random.default_rng(k), 0.3)
+            copies[Path(tmp) / f.name] = f
+            write_tsv(rec, Path(tmp) / f.name)
+        res = run_subject(list(copies), classifier, True, tolerance_s, labeler, manual_of=lambda c: copies[c])
+    res["reference"] = files[0].name
+    return res
 
 
 def spread(demos) -> dict:
@@ -118,6 +141,8 @@ def main() -> None:
             res = evaluate_classifier(SegmentClassifier(), train, test)
             entry["classifier_accuracy_trained_on_" + "+".join(other)] = {
                 k: res[k] for k in ("accuracy", "per_class_accuracy", "n_train", "n_test", "confusions")}
+        if not args.quick:
+            entry["unnamed_shipped_join"] = unnamed(by[s], shipped, args.tolerance)
         out[s] = entry
     print(json.dumps(out, indent=1))
 

@@ -185,3 +185,10 @@ def test_task_frame_needs_distinct_places():
     f = task_frame(np.array([1.0, 2.0, 0.5]), np.array([1.0, 3.0, 0.0]))
     assert np.allclose(f.points(np.array([1.0, 3.0, 0.0])), [1.0, 0.0, -0.5])
     assert np.allclose(f.rotation.T @ f.rotation, np.eye(3))
+
+
+def test_benchmark_counts_a_matching_pair(script, pnp_dir):
+    bench = script("bench_pnp_demonstrations")
+    out = bench.run_subject([pnp_dir / "subject2_run4.tsv"], load_classifier(), True, 0.3)
+    assert (out["pairs_found"], out["usable"], out["usable_matching_manual_pair"]) == (1, 1, 1)
+    assert out["task_frame"]["table_height_m"]["median"] < 0
