@@ -76,6 +76,26 @@ def test_aperture_closes_between_approach_and_transport(results):
         assert np.allclose(np.linalg.norm(d.hand_orientation, axis=1), 1.0)
 
 
+def test_grip_events_agree_with_the_hand_at_the_box(results, pnp_dir):
+    """Independent cues: at the close the hand is already where it holds the box; the grip opens
+    before the hand leaves the placed box (hand-box distance up by 1 cm, read past the demonstration)."""
+    from besdrake.mocap.preprocess import preprocess
+
+    for name, res in results.items():
+        for d in res.demonstrations:
+            hb = np.linalg.norm(d.hand_position - d.box_position, axis=1)
+            carried = (d.t >= d.lift_time) & (d.t <= d.place_time)
+            held = np.median(hb[carried])
+            assert abs(np.interp(d.close_time, d.t, hb) - held) < 0.02, name
+            pre = preprocess(read_tsv(pnp_dir / f"{name}.tsv"))
+            box = np.mean([pre.positions[:, pre.marker_names.index(m)] for m in ("Box back", "Box left")], axis=0)
+            dist = np.linalg.norm(pre.hand_position - box, axis=1)
+            a = int(np.searchsorted(pre.frames, d.frames[0]))  # the demonstration's first row
+            place = a + int(round(d.place_time * pre.frequency))
+            leaves = place + int(np.flatnonzero(dist[place:] > held + 0.01)[0])
+            assert d.open_time < pre.time[leaves] - pre.time[a], name
+
+
 def test_missing_box_or_finger_markers_are_named_and_others_go_on(pnp_dir, tmp_path):
     src = pnp_dir / "subject2_run2.tsv"
     rec = read_tsv(src)

@@ -10,7 +10,8 @@ displacement in the searched window and must move the box at least :data:`MIN_CA
   where the aperture has come down half way to the hold aperture. Where the fingers close by
   less than :data:`MIN_APERTURE_CHANGE_M`, the lift is the close time (noted);
 * *open*: after the place, the first sample where the aperture has risen half way from the
-  hold aperture to its widest opening within :data:`OPEN_SEARCH_S`. Where it does not rise by
+  hold aperture (or its value at the place, if wider: fingers loosen while the box is
+  lowered) to its widest opening within :data:`OPEN_SEARCH_S`. Where it does not rise by
   :data:`MIN_APERTURE_CHANGE_M`, the first sample where the hand has moved
   :data:`HAND_DEPARTURE_M` away from the box (noted).
 
@@ -107,8 +108,9 @@ def _open_row(aperture, box, hand, frequency, place, hold, lift, notes) -> int:
     end = min(len(aperture) - 1, place + int(round(OPEN_SEARCH_S * frequency)))
     after = aperture[place : end + 1]
     widest = place + int(np.argmax(after))
-    if aperture[widest] - hold >= MIN_APERTURE_CHANGE_M:
-        level = hold + 0.5 * (aperture[widest] - hold)
+    base = max(hold, float(aperture[place]))  # fingers may loosen while the box is lowered
+    if aperture[widest] - base >= MIN_APERTURE_CHANGE_M:
+        level = base + 0.5 * (aperture[widest] - base)
         return place + int(np.flatnonzero(after >= level)[0])
     dist = np.linalg.norm(hand - box, axis=1)
     held = float(np.median(dist[lift : place + 1]))
