@@ -212,3 +212,15 @@ def test_benchmark_counts_a_matching_pair(script, pnp_dir):
     out = bench.run_subject([pnp_dir / "subject2_run4.tsv"], load_classifier(), True, 0.3)
     assert (out["pairs_found"], out["usable"], out["usable_matching_manual_pair"]) == (1, 1, 1)
     assert out["task_frame"]["table_height_m"]["median"] < 0
+
+
+def test_box_marker_lost_during_the_transport_is_named(pnp_dir, tmp_path):
+    rec = read_tsv(pnp_dir / "subject2_run5.tsv")
+    lost = rec.copy()
+    rows = (rec.frames >= 1490) & (rec.frames <= 1550)  # 1 s inside the transport (1471..1566)
+    lost.positions[rows, rec.marker_index("Box back")] = np.nan
+    write_tsv(lost, tmp_path / "lost.tsv")
+    res = extract_demonstrations(tmp_path / "lost.tsv")
+    assert not res.demonstrations
+    reasons = res.problems + [r.reason for r in res.rejected]
+    assert any("Box back" in r or "box is missing" in r for r in reasons), reasons

@@ -1,7 +1,8 @@
 """Grasp demonstrations from real pick-and-place recordings, without a person.
 
 :func:`extract_demonstrations` takes one Qualisys TSV (or C3D) recording with named markers
-(unnamed trajectories are named first by ``besdrake mocap label``) through the project's stages:
+(or unnamed trajectories and a fitted :class:`~besdrake.mocap.labeling.MarkerLabeler`, which
+names them first) through the project's stages:
 
 1. preprocessing (:func:`besdrake.mocap.preprocess.preprocess`: gap filling, hand pose);
 2. vMCI segmentation (:class:`besdrake.segmentation.VMCI`, default priors and rules);
@@ -39,7 +40,7 @@ from besdrake.mocap.preprocess import (
 from besdrake.mocap.qualisys import read_recording
 from besdrake.mocap.recording import MocapRecording
 from besdrake.segmentation import VMCI, SegmentationError
-from besdrake.tasks.pick_and_place.grasp_events import OPEN_SEARCH_S, GraspEventError, grasp_events
+from besdrake.tasks.pick_and_place.grasp_events import GraspEventError, grasp_events
 from besdrake.tasks.pick_and_place.movements import label_segments
 from besdrake.tasks.pick_and_place.task_frame import TaskFrame, TaskFrameError, horizontal_yaw, task_frame
 
@@ -61,12 +62,16 @@ class GraspDemonstration:
     transport's end and the grip's opening. ``t`` starts at 0. Orientation: unit quaternions
     ``(w, x, y, z)`` of the hand plate frame in the task frame (built from ``Hand top``, ``Hand
     right``, ``Hand left`` as :func:`besdrake.mocap.preprocess.back_frame` builds the back frame:
-    y from right to left, z towards top, x = y x z). Event times in seconds of
-    ``t``. Box places: midpoint of the box markers in the task frame, yaw (rad, about task z) of
+    y from right to left, z towards top, x = y x z). ``box_position``: the box's path (midpoint
+    of its markers). ``border_index``: the row where the transport segment starts (a pause
+    between approach and transport belongs to the approach). Events (s of ``t``): ``close``
+    (the fingers close on the box), ``lift`` (the box starts moving), ``place`` (it stops on the
+    table), ``open`` (the fingers open; see :mod:`~besdrake.tasks.pick_and_place.grasp_events`).
+    Box places: midpoint of the box markers in the task frame, yaw (rad, about task z) of
     the line through ``Box back`` and ``Box left`` modulo a half turn, in [-pi/2, pi/2) (a box is
     the same after a half turn, and the automatic labeller cannot always tell the two box markers
-    apart: both figures are the same when they are swapped). ``box_marker_span``: distance between the two box
-    markers (m, a lower bound of the box's extent); ``hold_aperture``: median grip aperture while
+    apart: both figures are the same when they are swapped). ``box_marker_span``: distance
+    between the two box markers (m, a lower bound of the box's extent); ``hold_aperture``: median grip aperture while
     carried (m; the box's width across the grip plus the fingertip markers' offsets).
     """
 
@@ -275,18 +280,19 @@ def _demonstration(source: str, pre, approach: tuple[int, int], transport: tuple
     box_markers = np.stack([pre.positions[:, names.index(n)] for n in BOX_MARKERS], axis=1)
     box = box_markers.mean(axis=1)
     aperture = grip_aperture(pre.positions, names)
+    signals = {"box": box, "grip aperture": aperture, "hand": pre.hand_position}
+    _require_finite(pre, np.arange(approach[0], transport[1] + 1), signals)
     carry_stop = min(pre.n_frames - 1, transport[1] + int(round(CARRY_MARGIN_S * f)))
     ev = grasp_events(aperture, box, pre.hand_position, f, approach[0], carry_stop)
     if ev.place < transport[0] or ev.lift > transport[1]:
         raise _Unusable(f"the box is carried in frames {int(pre.frames[ev.lift])}..{int(pre.frames[ev.place])}, "
                         "not during the transport segment")
-    a, e = approach[0], max(transport[1], ev.open)
-    rows = np.arange(a, e + 1)
-    _require_finite(pre, rows, {"box": box, "grip aperture": aperture, "hand": pre.hand_position})
-    shelf = np.median(box[a : ev.lift + 1], axis=0)
+    a = approach[0]
+    rows = np.arange(a, max(transport[1], ev.open) + 1)
+    _require_finite(pre, rows, signals)
     rest = slice(ev.place, min(pre.n_frames, ev.place + int(round(PLACE_WINDOW_S * f)) + 1))
-    table = np.median(box[rest], axis=0)
-    frame = task_frame(shelf, table)
+    before = slice(a, ev.lift + 1)
+    frame = task_frame(np.median(box[before], axis=0), np.median(box[rest], axis=0))
     axis = box_markers[:, 1] - box_markers[:, 0]
     hand_rot = back_frame(*(pre.positions[rows, names.index(n)] for n in HAND_MARKERS))[1]
     t0 = pre.time[a]
@@ -303,8 +309,8 @@ def _demonstration(source: str, pre, approach: tuple[int, int], transport: tuple
         border_index=int(transport[0] - a),
         close_time=float(pre.time[ev.close] - t0), lift_time=float(pre.time[ev.lift] - t0),
         place_time=float(pre.time[ev.place] - t0), open_time=float(pre.time[ev.open] - t0),
-        shelf_box_position=frame.points(shelf), shelf_box_yaw=_yaw(frame, axis[a : ev.lift + 1]),
-        table_box_position=frame.points(table), table_box_yaw=_yaw(frame, axis[rest]),
+        shelf_box_position=frame.points(np.median(box[before], axis=0)), shelf_box_yaw=_yaw(frame, axis[before]),
+        table_box_position=frame.points(np.median(box[rest], axis=0)), table_box_yaw=_yaw(frame, axis[rest]),
         box_marker_span=float(np.median(np.linalg.norm(axis[ev.lift : ev.place + 1], axis=1))),
         hold_aperture=ev.hold_aperture, frame_origin=frame.origin, frame_rotation=frame.rotation, notes=notes,
     )
@@ -326,4 +332,4 @@ def _require_finite(pre, rows: np.ndarray, signals: dict[str, np.ndarray]) -> No
 
 
 __all__ = ["BOX_MARKERS", "FINGER_MARKERS", "DemonstrationResult", "GraspDemonstration", "RejectedPair",
-           "extract_demonstrations", "find_pairs", "grip_aperture", "missing_markers", "OPEN_SEARCH_S"]
+           "extract_demonstrations", "find_pairs", "grip_aperture", "missing_markers"]
