@@ -138,7 +138,7 @@ def test_a_worker_that_dies_fails_its_batch_and_the_pool_recovers():
 def test_spawned_workers_load_the_callers_effect_plugins(drag_plugin):
     """An effect registered by a --plugin file simulates in a process pool too (spawned workers do not
     inherit the registry: the executor hands them the plugin files)."""
-    from besdrake.transfer.plugins import load_plugin
+    from besdrake.plugins import load_plugin
 
     path, name = drag_plugin
     load_plugin(path)

@@ -43,6 +43,8 @@ def test_with_overrides_copies():
         (lambda d: d["models"].update(ball="package://other/x.sdf"), "unknown package"),
         (lambda d: d.pop("robot"), "missing 'robot'"),
         (lambda d: d.update(robot="r2d2"), "unknown robot 'r2d2'"),
+        (lambda d: d.pop("task"), "missing 'task'"),
+        (lambda d: d.update(task="juggling"), "unknown task 'juggling'"),
         (lambda d: d.update(controller={"kp": [1, 2, 3]}), "list of 6"),
         (lambda d: d.update(controller={"kd": [1, 2, 3, 4, 5, float("nan")]}), "finite"),
         (lambda d: d["base"].update(z=-1), "base.z"),
@@ -95,3 +97,28 @@ def test_a_scenario_moves_to_another_robot_with_its_gains():
     assert moved.robot is s.robot and moved.controller.kp == s.controller.kp
     with pytest.raises(ScenarioError, match="unknown robot"):
         s.with_robot("r2d2")
+
+
+def test_tasks_are_plug_ins_found_by_name(tmp_path):
+    from besdrake.task import Task, TaskError, get_task, known_tasks, register_task
+
+    assert "throwing" in known_tasks() and get_task("throwing").name == "throwing"
+    with pytest.raises(TaskError, match="unknown task 'juggling'"):
+        get_task("juggling")
+
+    @register_task
+    class Juggling(Task):
+        name = "juggling_test"
+        default_scenario = "nominal"
+
+        def make_rollout(self, scenario, meshcat=None):
+            return None
+
+        def failed_outcome(self, message):
+            return {"failed": message}
+
+    assert get_task("juggling_test").failed_outcome("x") == {"failed": "x"}
+    d = _nominal_dict() | {"task": "juggling_test"}
+    assert scenario_from_dict(d).task == "juggling_test"
+    with pytest.raises(TaskError):
+        register_task(int)

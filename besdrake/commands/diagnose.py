@@ -62,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
     if args.folds < 2:
         raise UserError(f"--folds must be >= 2, got {args.folds}")
     try:
-        from besdrake.transfer.plugins import PluginError, load_plugins
+        from besdrake.plugins import PluginError, load_plugins
 
         load_plugins(args.plugin)
     except PluginError as err:

@@ -68,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
     from besdrake.plan import PlanError
     from besdrake.transfer.lab import SafetyGate
     from besdrake.transfer.log import LabLog, LogError, run_plans
-    from besdrake.transfer.plugins import PluginError, load_plugins
+    from besdrake.plugins import PluginError, load_plugins
     from besdrake.transfer.virtual_lab import LabConfigError, VirtualLab, load_lab_config
 
     try:

@@ -22,6 +22,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="override one setting, e.g. --set refinement.evaluations=500 (repeatable)")
     parser.add_argument("--quick", action="store_true", help="smoke profile: every stage on a small budget (about a minute or two)")
     parser.add_argument("--demonstrations", default=None, help="folder of your own TSV/C3D recordings (default: the synthetic demonstrator)")
+    parser.add_argument("--task", default=None, help="the skill to learn (default: throwing; see besdrake/tasks)")
+    parser.add_argument("--robot", default=None, help="robot: a built-in name or a robot YAML path (default: the scenario's)")
     parser.add_argument("--lab", default=None, help="lab YAML path or built-in lab name (default: default_lab)")
     parser.add_argument("--workers", type=int, default=None, help="simulation processes (default 2)")
     parser.add_argument("--ray", default=None, metavar="ADDRESS", help="run rollouts on a Ray cluster (e.g. 'auto'; needs besdrake[cluster])")
@@ -32,7 +34,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from besdrake.cli import UserError
     from besdrake.pipeline.config import ConfigError, load_config
-    from besdrake.pipeline.learn import STAGES, diagnosis_design, learn, transfer_config
+    from besdrake.pipeline.learn import STAGES, diagnosis_design, learn, learn_scenario, transfer_config
     from besdrake.pipeline.run import RunError, RunFolder
 
     overrides = list(args.set)
@@ -42,6 +44,10 @@ def run(args: argparse.Namespace) -> int:
         overrides.append(f"demonstrations.source={args.demonstrations}")
     if args.lab:
         overrides.append(f"lab={args.lab}")
+    if args.task:
+        overrides.append(f"task={args.task}")
+    if args.robot:
+        overrides.append(f"robot={args.robot}")
     if args.workers is not None:
         overrides.append(f"workers={args.workers}")
     try:
@@ -49,6 +55,7 @@ def run(args: argparse.Namespace) -> int:
         transfer_config(config)  # a bad value is refused now, not after the refinement
         if config["diagnosis"].get("enabled", True):
             diagnosis_design(config)
+        learn_scenario(config)  # an unknown task, or a robot without what the task needs: refused now
         run_folder = RunFolder(args.out, config)
     except (ConfigError, RunError) as err:
         raise UserError(str(err)) from None

@@ -50,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
     from besdrake.sim import make_executor
     from besdrake.transfer.lab import SafetyGate
     from besdrake.transfer.log import LabLog
-    from besdrake.transfer.plugins import PluginError, load_plugins
+    from besdrake.plugins import PluginError, load_plugins
     from besdrake.transfer.transferability import TransferabilityApproach, TransferabilityConfig
     from besdrake.sim.scenario import load_scenario
     from besdrake.transfer.virtual_lab import LabConfigError, VirtualLab, load_lab_config

@@ -3,7 +3,7 @@
 Data flow for one demonstrated throw (paper sections 2.3.2 and 3.1.4):
 
 * :func:`record_mapping.hand_trajectory` -- hand poses of a segment in the demonstrator's back frame;
-* :func:`sync_frame.solve_sync_frame` -- where COMPI's base sits relative to that frame (one
+* :func:`sync_frame.solve_sync_frame` -- where the robot's base sits relative to that frame (one
   SNOPT program over the frame and all joint configurations);
 * :func:`ik.ik_trajectory` -- joint positions at the recording's rate (Drake InverseKinematics);
 * :mod:`scaling` -- uniform temporal scaling to the joint limits, Toppra's time-optimal bound;

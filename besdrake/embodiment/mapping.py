@@ -4,7 +4,7 @@ Steps (paper sections 2.3.2 and 3.1.4), each in its own module:
 
 1. synchronization frame (:mod:`~besdrake.embodiment.sync_frame`), one joint program;
 2. inverse kinematics at the recording's rate in the robot's base frame (:mod:`~besdrake.embodiment.ik`);
-   in both, the tool axis (for COMPI the scoop's opening) is kept within ``hold_cone_deg`` of vertical (the palm's axis is
+   in both, the robot file's tool axis is kept within ``hold_cone_deg`` of vertical (the palm's axis is
    turned into that cone): the paper notes that imitation "does not consider suitability for
    holding and throwing the ball", and with the palm's axis alone every imitated throw of the
    default subjects starts with the scoop tilted 75-119 degrees and drops the ball within 0.15 s;
@@ -13,7 +13,7 @@ Steps (paper sections 2.3.2 and 3.1.4), each in its own module:
    trajectory; its rollout is checked against the limits and, if it still exceeds them, refitted
    with a longer execution time.
 
-The result holds the parameters policy search refines (49 for COMPI) (start, goal, weights, execution time)
+The result holds the parameters policy search refines (49 for a 6-joint arm with 6 weights per joint) (start, goal, weights, execution time)
 and everything a report needs: residuals per pose, unreachable poses, peak joint velocities and
 accelerations against the limits, timings.
 """
@@ -96,7 +96,7 @@ class ImitatedThrow:
 
     @property
     def theta(self) -> np.ndarray:
-        """The parameters: start (n), goal (n), weights (n x k), execution time (1); 49 for COMPI."""
+        """The parameters: start (n), goal (n), weights (n x k), execution time (1)."""
         return self.parameterization.to_vector()
 
     def problems(self) -> list[str]:

@@ -8,7 +8,8 @@ the scoop's opening.
 Hand axis convention: preprocessing builds the hand frame from the three hand markers like the
 back frame (``y`` from ``Hand right`` to ``Hand left``, ``z`` towards ``Hand top``), so with the
 marker plate on the back of the hand its ``x`` axis is the plate normal pointing out of the palm.
-COMPI has a scoop instead of a hand: the scoop's opening (+z of its frame) plays the palm.
+A robot's tool need not be a hand: the robot file's ``mapping.tool_axis`` (the scoop's opening,
++z of its frame) plays the palm.
 """
 
 from __future__ import annotations

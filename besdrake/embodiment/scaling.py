@@ -1,7 +1,7 @@
 """Spatial and temporal scaling of a joint trajectory to a robot's capabilities.
 
 Temporal scaling (paper sections 2.3.2 and 3.1.4): a human throw is faster than a robot's motors
-(COMPI's, for instance) allow, so the movement is slowed down uniformly. Stretching time by ``k`` divides joint velocities
+allow, so the movement is slowed down uniformly. Stretching time by ``k`` divides joint velocities
 by ``k`` and accelerations by ``k**2``; the smallest admissible ``k`` is
 
     k = max(1, max|qd| / v_max, sqrt(max|qdd| / a_max), T_min / T)

@@ -2,7 +2,7 @@
 
 For an arm of n joints and k weights per joint the vector has 2n + nk + 1 entries, in this order:
 start (n joint positions, rad), goal (n, rad), forcing-term weights (k per joint, joint-major) and
-the execution time (1, s); for COMPI's throw (n = 6, k = 6) that is 49. The goal velocity, gains and
+the execution time (1, s); for n = 6, k = 6 that is 49. The goal velocity, gains and
 basis are fixed by the template DMP (from imitation).
 """
 
@@ -16,7 +16,7 @@ from besdrake.imitation.dmp import DMP
 #: Minimum execution time (s) the paper imposes on imitated throws (applied by the embodiment stage;
 #: a DMP itself accepts any positive time).
 MIN_THROW_EXECUTION_TIME = 0.95
-#: Forcing-term weights per joint of the throwing DMP (COMPI: 6 joints x 6 = 36 weights).
+#: Forcing-term weights per joint of the throwing DMP (6 per joint).
 THROW_WEIGHTS_PER_JOINT = 6
 
 
@@ -48,7 +48,7 @@ class DMPParameterization:
 
     @property
     def n_params(self) -> int:
-        """Length of ``theta`` (49 for COMPI's throw)."""
+        """Length of ``theta`` (49 for 6 joints and 6 weights per joint)."""
         return len(self.names)
 
     def to_vector(self, dmp: DMP | None = None) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""From a demonstration to COMPI motion plans: the stages up to imitation, chained.
+"""From a demonstration to the robot's motion plans: the stages up to imitation, chained.
 
 ``recording -> gap filling -> preprocessing -> throw segments (vMCI + 1-NN, or a given
 segmentation) -> embodiment mapping (sync frame, IK, scaling, DMP) -> nominal simulation``.

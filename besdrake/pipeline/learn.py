@@ -4,7 +4,7 @@ Stages (paper Table 1 and Figure 1), each writing into ``RUN/NN_name/``:
 
  1. ``label``      automatic marker labeling (unnamed trajectories -> named markers), gap filling
  2. ``segment``    vMCI segmentation and 1-NN classification: the throw segments
- 3. ``imitate``    embodiment mapping and DMP imitation: one COMPI plan per throw
+ 3. ``imitate``    embodiment mapping and DMP imitation: one plan of the robot per throw
  4. ``refine``     policy search in simulation (CMA-ES on the 49 DMP parameters)
  5. ``transfer``   Transferability Approach with the designed simulation and the lab
  6. ``diagnose``   what the simulation gets wrong, its cause, a refined scenario
@@ -634,6 +634,53 @@ def _short(value: Any) -> str:
     return str(value)
 
 
+#: Tasks whose stages this pipeline runs.
+LEARN_TASKS = ("throwing",)
+
+
+def learn_scenario(config: dict[str, Any]):
+    """The scenario the run simulates: ``config["scenario"]``, on ``config["robot"]`` when one is given.
+    :class:`~besdrake.pipeline.config.ConfigError` when the task is unknown or not the scenario's, or the robot
+    cannot do the task."""
+    from besdrake.pipeline.config import ConfigError
+    from besdrake.robot import RobotError
+    from besdrake.sim.scenario import ScenarioError, load_scenario
+    from besdrake.task import TaskError, get_task
+
+    name = str(config.get("task", ""))
+    try:
+        task = get_task(name)
+        scenario = load_scenario(config["scenario"])
+        if config.get("robot"):
+            scenario = scenario.with_robot(config["robot"])
+        task.check_robot(scenario.robot)
+    except (TaskError, ScenarioError, RobotError) as err:
+        raise ConfigError(str(err)) from None
+    if name not in LEARN_TASKS:
+        raise ConfigError(f"besdrake learn runs the {', '.join(LEARN_TASKS)} task so far, not {name!r}")
+    if scenario.task != name:
+        raise ConfigError(f"scenario {scenario.name!r} simulates the task {scenario.task!r}, not {name!r}")
+    return scenario
+
+
+def run_scenario(config: dict[str, Any], root: Path) -> str:
+    """The scenario of :func:`learn_scenario` as the stages name it: the configured one, or, on another robot,
+    ``root/scenario.yaml`` (written once; a resumed run finds the same file)."""
+    import yaml
+
+    scenario = learn_scenario(config)
+    if not config.get("robot"):
+        return str(config["scenario"])
+    path = Path(root) / "scenario.yaml"
+    text = yaml.safe_dump(scenario.to_dict(), sort_keys=False)
+    if not path.is_file() or path.read_text() != text:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(".tmp")
+        tmp.write_text(text)
+        tmp.replace(path)
+    return str(path)
+
+
 STAGES: list[tuple[str, Callable[[Context, Path], dict[str, Any]]]] = [
     ("label", stage_label),
     ("segment", stage_segment),
@@ -657,7 +704,7 @@ def learn(
     """Run every stage not yet done (or only ``stages``); returns each stage's record.
 
     ``progress`` receives messages; ``on_stage(name, record)`` is called after each stage, run or skipped."""
-    ctx = Context(run, run.config, progress)
+    ctx = Context(run, dict(run.config, scenario=run_scenario(run.config, run.root)), progress)
     records = {}
     for i, (name, fn) in enumerate(STAGES, 1):
         if name == "diagnose" and not run.config["diagnosis"]["enabled"]:

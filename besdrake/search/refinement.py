@@ -1,7 +1,7 @@
 """Refinement in simulation: the 49-parameter throwing problem for policy search (paper section 3.1.5, step 1).
 
 A throw imitated from a human (:class:`besdrake.imitation.DMP`, 49 parameters: start 6, goal 6,
-forcing-term weights 36, execution time 1) usually just drops the ball near COMPI. Refinement
+forcing-term weights 36, execution time 1) usually just drops the ball near the robot. Refinement
 changes all 49 parameters so the ball lands within :data:`SUCCESS_DISTANCE` of a target.
 
 * :class:`ThrowReward` turns a rollout into a reward (m, to maximise)::
@@ -220,7 +220,7 @@ from besdrake.robot import JointLimits, Robot
 
 #: The goal of refinement: touchdown within this distance (m) of the target, no limit violated.
 SUCCESS_DISTANCE = 0.1
-#: Default target (x forward, y lateral; m) on the floor: 2 m in front of COMPI.
+#: Default target (x forward, y lateral; m) on the floor: 2 m in front of the robot.
 DEFAULT_TARGET = (2.0, 0.0)
 #: Minimum execution time (s) of a throw (the paper's), maximum: our sane choice.
 MIN_EXECUTION_TIME = 0.95

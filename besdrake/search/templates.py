@@ -6,7 +6,7 @@ A :class:`BehaviorTemplate` is a base DMP (a refined throw) plus an upper-level 
 * ``theta[0]``: execution time (s) of the DMP -- how far the ball flies;
 * ``theta[1]``: goal of joint 1 (rad) -- the direction of the throw.
 
-The context ``s = (x, y)`` is the target on the floor in m, COMPI at the origin facing +x:
+The context ``s = (x, y)`` is the target on the floor in m, the robot at the origin facing +x:
 **x is forward, y is lateral (left positive)**. The paper's test grid lists the lateral coordinate
 first ({-0.7, -0.2, 0.2, 0.7} lateral x {1.3, 1.6, 1.9, 2.2} forward); :data:`TEST_CONTEXTS` holds
 those 16 targets as (x, y) rows.

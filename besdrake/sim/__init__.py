@@ -1,4 +1,4 @@
-"""Simulation: COMPI with scoop as a Drake Diagram, physical effects, rollouts and executors.
+"""Simulation: a robot and its task's scene as a Drake Diagram, physical effects, rollouts and executors.
 
 Quick start::
 

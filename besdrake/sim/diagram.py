@@ -2,7 +2,7 @@
 
 Wiring (render it with ``scripts/render_diagrams.py``)::
 
-    TrajectorySource (motion plan q, qd) --> plant.compi_desired_state
+    TrajectorySource (motion plan q, qd) --> plant.<robot>_desired_state
     MultibodyPlant <--> SceneGraph
     plant.state --> VectorLogSink (joint + ball states, every time step)
     SceneGraph --> MeshcatVisualizer (optional)
@@ -10,7 +10,7 @@ Wiring (render it with ``scripts/render_diagrams.py``)::
 Design choices:
 
 * **Controller: the plant's built-in joint PD servos** (``JointActuator`` PD gains, driven by the plant's
-  desired-state port). COMPI's drives are position-controlled servos, which this models directly; the
+  desired-state port). A robot's drives are position-controlled servos, which this models directly; the
   SAP/lagged/similar solvers integrate the PD terms implicitly, so the stiff gains are stable at the
   5 ms step and cost no extra system per step (an InverseDynamicsController would need a second plant and
   a per-step inverse dynamics evaluation, and with explicit coupling would limit the step). Effort limits

@@ -4,7 +4,7 @@
 (``effects``: one ``{name: {param: value}}`` for all plans or a list with one per plan) that returns one
 :class:`~besdrake.sim.outcome.Outcome` per plan, in order. Backends:
 
-* ``"serial"``: one :class:`~besdrake.sim.rollout.Rollout` in this process.
+* ``"serial"``: one rollout black box of the scenario's task (:mod:`besdrake.task`) in this process.
 * ``"process"``: a local ``multiprocessing`` pool, one Diagram per worker built once by the pool initializer
   and reused (Diagrams cannot be pickled; plans, effects and Outcomes travel between processes). The start
   method is "fork" where available (fast, and no ``if __name__ == "__main__"`` guard needed in scripts); the
@@ -27,7 +27,7 @@ from typing import Any, Sequence
 
 from besdrake.plan import MotionPlan, PlanError
 from besdrake.sim.effects import merge_effects
-from besdrake.sim.outcome import FLAG_NAMES, Outcome
+from besdrake.sim.outcome import Outcome
 from besdrake.sim.scenario import Scenario, load_scenario
 
 BACKENDS = ("serial", "process", "ray")
@@ -37,19 +37,27 @@ class ExecutorError(RuntimeError):
     """An executor cannot be created or used (unknown backend, ray missing, closed executor)."""
 
 
-def _failed(message: str) -> Outcome:
-    flags = {k: False for k in FLAG_NAMES}
-    flags["sim_failed"] = True
-    return Outcome(flags=flags, message=message)
+def _failed(message: str, scenario: Scenario) -> Any:
+    """A failed outcome of the scenario's task."""
+    from besdrake.task import get_task
+
+    return get_task(scenario.task).failed_outcome(message)
 
 
-def _run_batch(rollout, items: list[tuple[MotionPlan, dict | None]], limits: str) -> list[Outcome]:
+def _make_rollout(scenario: Scenario):
+    """The rollout black box of the scenario's task (one Diagram)."""
+    from besdrake.task import get_task
+
+    return get_task(scenario.task).make_rollout(scenario)
+
+
+def _run_batch(rollout, items: list[tuple[MotionPlan, dict | None]], limits: str) -> list[Any]:
     out = []
     for plan, eff in items:
         try:
             out.append(rollout.rollout(plan, effects=eff, limits=limits))
         except Exception as err:  # noqa: BLE001 - a worker must not die on one bad rollout
-            out.append(_failed(f"rollout raised {type(err).__name__}: {err}"))
+            out.append(_failed(f"rollout raised {type(err).__name__}: {err}", rollout.scenario))
     return out
 
 
@@ -119,20 +127,19 @@ class SerialExecutor(Executor):
 
     def _evaluate(self, items):
         if self._rollout is None:
-            from besdrake.sim.rollout import Rollout
-
-            self._rollout = Rollout(self.scenario)
+            self._rollout = _make_rollout(self.scenario)
         return _run_batch(self._rollout, items, self.limits)
 
 
 # ------------------------------------------------------------------------------------------ process pool
 _WORKER_ROLLOUT = None
+_WORKER_SCENARIO: Scenario | None = None
 _WORKER_ERROR = ""
 
 
 def _plugin_paths() -> list[str]:
     """The effect plugins loaded in this process (their effects must exist in every worker too)."""
-    from besdrake.transfer.plugins import loaded_plugin_paths
+    from besdrake.plugins import loaded_plugin_paths
 
     return [str(p) for p in loaded_plugin_paths()]
 
@@ -140,15 +147,15 @@ def _plugin_paths() -> list[str]:
 def _init_worker(scenario: Scenario, plugins: tuple[str, ...] = ()) -> None:
     """Pool initializer: load the caller's effect plugins and build this worker's Diagram once. A failure
     is kept and reported, not raised (a raising initializer would make the pool respawn workers forever)."""
-    global _WORKER_ROLLOUT, _WORKER_ERROR
+    global _WORKER_ROLLOUT, _WORKER_SCENARIO, _WORKER_ERROR
     os.environ.setdefault("OMP_NUM_THREADS", "1")
+    _WORKER_SCENARIO = scenario
     try:
-        from besdrake.sim.rollout import Rollout
-        from besdrake.transfer.plugins import load_plugins
+        from besdrake.plugins import load_plugins
 
         load_plugins(list(plugins))  # once per process: a forked worker has them already
 
-        _WORKER_ROLLOUT = Rollout(scenario)
+        _WORKER_ROLLOUT = _make_rollout(scenario)
     except Exception as err:  # noqa: BLE001
         _WORKER_ERROR = f"{type(err).__name__}: {err}"
 
@@ -156,7 +163,7 @@ def _init_worker(scenario: Scenario, plugins: tuple[str, ...] = ()) -> None:
 def _worker_batch(args) -> list[Outcome]:
     items, limits = args
     if _WORKER_ROLLOUT is None:
-        return [_failed(f"worker has no simulation: {_WORKER_ERROR}") for _ in items]
+        return [_failed(f"worker has no simulation: {_WORKER_ERROR}", _WORKER_SCENARIO) for _ in items]
     return _run_batch(_WORKER_ROLLOUT, items, limits)
 
 
@@ -216,7 +223,7 @@ class ProcessExecutor(Executor):
             if not pending.ready() and self._pids() != pids:  # a worker died and was replaced
                 self._pool.terminate()
                 self._start()
-                return [_failed("a simulation worker died (killed or crashed) during this batch") for _ in items]
+                return [_failed("a simulation worker died (killed or crashed) during this batch", self.scenario) for _ in items]
         return [o for chunk in pending.get() for o in chunk]
 
     def close(self) -> None:

@@ -71,6 +71,7 @@ class Scenario:
     time_step: float
     contact_approximation: str
     robot: Robot
+    task: str
     models: dict[str, str]
     base: BasePose
     controller: ControllerConfig
@@ -105,6 +106,7 @@ class Scenario:
             "time_step": self.time_step,
             "contact": {"approximation": self.contact_approximation},
             "robot": self.robot.reference,
+            "task": self.task,
             "models": dict(self.models),
             "base": vars(self.base).copy(),
             "controller": {"type": self.controller.type, "kp": list(self.controller.kp), "kd": list(self.controller.kd)},
@@ -178,7 +180,7 @@ def scenario_from_dict(data: Any, path: Path | None = None) -> Scenario:
     where = f" ({path})" if path else ""
     if not isinstance(data, dict):
         raise ScenarioError(f"scenario{where} must be a YAML mapping, got {type(data).__name__}")
-    _check_keys("<top>", data, {"name", "description", "time_step", "contact", "robot", "models", "base", "controller", "release", "effects"})
+    _check_keys("<top>", data, {"name", "description", "time_step", "contact", "robot", "task", "models", "base", "controller", "release", "effects"})
     name = str(data.get("name") or (path.stem if path else "unnamed"))
     if "time_step" not in data:
         raise ScenarioError(f"scenario{where} is missing time_step")
@@ -232,6 +234,7 @@ def scenario_from_dict(data: Any, path: Path | None = None) -> Scenario:
         time_step=time_step,
         contact_approximation=approx,
         robot=robot,
+        task=_task(data, where),
         models={k: str(v) for k, v in models.items()},
         base=base,
         controller=controller,
@@ -239,6 +242,18 @@ def scenario_from_dict(data: Any, path: Path | None = None) -> Scenario:
         effects=effects,
         path=path,
     )
+
+
+def _task(data: dict, where: str) -> str:
+    """The scenario's task: a known task's name (its scene and rollout, see :mod:`besdrake.task`)."""
+    from besdrake.task import TaskError, get_task
+
+    if "task" not in data:
+        raise ScenarioError(f"scenario{where} is missing 'task' (the skill it simulates, e.g. throwing)")
+    try:
+        return get_task(str(data["task"])).name
+    except TaskError as err:
+        raise ScenarioError(f"scenario{where} task: {err}") from err
 
 
 def _controller(sec: dict, robot: Robot) -> ControllerConfig:

@@ -1,6 +1,6 @@
 """What a lab measured for one executed (or refused) motion plan: :class:`Measurement`.
 
-A Measurement is the same whether it comes from the real COMPI, the virtual lab or a replayed log. It
+A Measurement is the same whether it comes from the real robot, the virtual lab or a replayed log. It
 holds only what a real lab can observe (motion capture, encoders, flags); a virtual lab's hidden effects
 never enter it. Units are SI: m, s, rad; positions in the world frame (floor z = 0, throws go +x).
 

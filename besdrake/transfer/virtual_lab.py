@@ -1,5 +1,5 @@
 """The virtual lab: the Drake simulation plus hidden physical effects plus the measurement process of a
-real lab, behind the same :class:`~besdrake.transfer.lab.Lab` interface as the real COMPI.
+real lab, behind the same :class:`~besdrake.transfer.lab.Lab` interface as the real robot.
 
 Configured by a YAML file (see ``diagrams/labs/default_lab.yaml``)::
 
@@ -63,7 +63,7 @@ from besdrake.plan import MotionPlan, PlanError
 from besdrake.sim.effects import ball_placed
 from besdrake.transfer.lab import TrialCounter
 from besdrake.transfer.measurement import Measurement
-from besdrake.transfer.plugins import load_plugins
+from besdrake.plugins import load_plugins
 
 #: Largest |dx| + |dy| (m) of the ball placement: keeps the ball well below the scoop's lip.
 MAX_PLACEMENT_OFFSET = 0.008

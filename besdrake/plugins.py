@@ -1,7 +1,7 @@
-"""Load a user's Python file that registers further physical effects (``--plugin FILE.py``).
+"""Load a user's Python file that registers further physical effects or tasks (``--plugin FILE.py``).
 
 A plugin is an ordinary module; importing it runs its ``@register_effect`` decorators
-(see :mod:`besdrake.sim.effects`). Each file is loaded once per process, so a lab config and the
+(see :mod:`besdrake.sim.effects`) and ``@register_task`` decorators (see :mod:`besdrake.task`). Each file is loaded once per process, so a lab config and the
 command line may both name it. The process and Ray executors load the plugins of the process that
 creates them in each worker, so plugin effects simulate in parallel too.
 """

@@ -1,0 +1,75 @@
+"""Tasks as plug-ins: what a skill adds to the platform, behind one small interface.
+
+A task knows its scene (the models a scenario adds beside the robot), how one rollout of a motion plan
+runs and what it measures (its outcome), what a failed rollout looks like, and which effects of the
+registry apply to it. The stages know no task: the simulation's executors ask the scenario's task for a
+rollout (``get_task(scenario.task).make_rollout(scenario)``) and treat it as a black box.
+
+Built-in tasks live in ``besdrake/tasks/<name>/task.py`` and are imported on first use; a task of your own
+is a module with a :class:`Task` subclass decorated with :func:`register_task`, loaded with ``--plugin``
+(like effects).
+"""
+
+from __future__ import annotations
+
+import importlib
+from abc import ABC, abstractmethod
+from pathlib import Path
+from typing import Any, ClassVar
+
+TASKS_DIR = Path(__file__).resolve().parent / "tasks"
+_REGISTRY: dict[str, type["Task"]] = {}
+
+
+class TaskError(ValueError):
+    """An unknown task, or a task module that does not define what it must."""
+
+
+class Task(ABC):
+    """One skill. Subclasses set ``name``, ``description``, ``default_scenario`` and ``effects`` and implement
+    :meth:`make_rollout` and :meth:`failed_outcome`."""
+
+    name: ClassVar[str] = ""
+    description: ClassVar[str] = ""
+    #: The scenario (built-in name or YAML path) the task runs in when none is given; it names the robot.
+    default_scenario: ClassVar[str] = ""
+    #: Names of the registry's effects that act on this task's rollouts.
+    effects: ClassVar[tuple[str, ...]] = ()
+
+    @abstractmethod
+    def make_rollout(self, scenario, meshcat=None) -> Any:
+        """A rollout black box for ``scenario``: ``rollout(plan, effects=None, limits="flag") -> outcome``."""
+
+    @abstractmethod
+    def failed_outcome(self, message: str) -> Any:
+        """The outcome of a rollout that could not run (flagged as failed, ``message`` says why)."""
+
+    def check_robot(self, robot) -> None:
+        """Raise :class:`~besdrake.robot.RobotError` when ``robot`` lacks what the task needs (e.g. a scoop)."""
+
+    def describe(self) -> dict[str, Any]:
+        return {"name": self.name, "description": self.description, "default_scenario": self.default_scenario,
+                "effects": list(self.effects)}
+
+
+def register_task(cls: type[Task]) -> type[Task]:
+    """Class decorator: make ``cls`` available by ``cls.name``."""
+    if not (isinstance(cls, type) and issubclass(cls, Task)) or not cls.name:
+        raise TaskError(f"{cls!r} is not a Task subclass with a name")
+    _REGISTRY[cls.name] = cls
+    return cls
+
+
+def known_tasks() -> list[str]:
+    """Built-in task folders and registered tasks."""
+    builtin = {p.parent.name for p in TASKS_DIR.glob("*/task.py")}
+    return sorted(builtin | set(_REGISTRY))
+
+
+def get_task(name: str) -> Task:
+    """The task called ``name`` (a built-in one is imported on first use); :class:`TaskError` if unknown."""
+    if name not in _REGISTRY and (TASKS_DIR / str(name) / "task.py").is_file():
+        importlib.import_module(f"besdrake.tasks.{name}.task")
+    if name not in _REGISTRY:
+        raise TaskError(f"unknown task {name!r} (known: {known_tasks()})")
+    return _REGISTRY[name]()

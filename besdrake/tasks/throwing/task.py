@@ -1,0 +1,37 @@
+"""The throwing task as a plug-in: a ball thrown from the robot's scoop onto a target on the floor.
+
+Scene: the ball (in the scoop) and the floor (``models: ball, ground`` of the scenario). A rollout runs until
+the ball has left the scoop for good and computes its flight (:class:`besdrake.sim.rollout.Rollout`); the
+outcome is the touchdown and the release state (:class:`besdrake.sim.outcome.Outcome`).
+"""
+
+from __future__ import annotations
+
+from besdrake.task import Task, register_task
+
+
+@register_task
+class ThrowingTask(Task):
+    name = "throwing"
+    description = "throw a ball from a scoop onto a target on the floor (BesMan's COMPI experiments)"
+    default_scenario = "nominal"
+    effects = ("base_offset", "joint_offset", "actuator_lag", "gain_scale", "air_drag", "ball_placement", "ball",
+               "scoop_friction")
+
+    def make_rollout(self, scenario, meshcat=None):
+        from besdrake.sim.rollout import Rollout
+
+        return Rollout(scenario, meshcat=meshcat)
+
+    def check_robot(self, robot) -> None:
+        """Throwing needs a scoop: a fixed end effector with the scoop's geometry in its params."""
+        from besdrake.tasks.throwing.scoop import Scoop
+
+        Scoop.of(robot)
+
+    def failed_outcome(self, message: str):
+        from besdrake.sim.outcome import FLAG_NAMES, Outcome
+
+        flags = {k: False for k in FLAG_NAMES}
+        flags["sim_failed"] = True
+        return Outcome(flags=flags, message=message)
