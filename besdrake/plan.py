@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from besdrake._io import write_text as _atomic_write_text
 from besdrake import robot
 
 
@@ -222,7 +223,7 @@ class MotionPlan:
         """Write the plan as JSON."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps(self.to_dict()))
+        _atomic_write_text(path, json.dumps(self.to_dict()))
         return path
 
     @classmethod

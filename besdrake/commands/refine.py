@@ -16,6 +16,7 @@ import json
 import sys
 import time
 from pathlib import Path
+from besdrake._io import write_text as _atomic_write_text
 
 COMMAND = ("refine",)
 HELP = "refine imitated throws (49 DMP parameters) with CMA-ES in simulation so the ball lands within 0.1 m of a target"
@@ -117,7 +118,7 @@ def _imitate_synthetic(source: str, folder: Path) -> list[Path]:
         for r in imitate_recording(name, pre, throws, out_dir=folder, simulate=False, figures=False):
             if r.error is None:
                 names.append(f"{name}_throw{r.index}.dmp.json")
-    done.write_text(json.dumps(names))
+    _atomic_write_text(done, json.dumps(names))
     return [folder / n for n in names]
 
 
@@ -218,7 +219,7 @@ def run(args: argparse.Namespace) -> int:
             start = {"files": [str(f) for f in files], "target": list(args.target), "index": index,
                      "start_distance_m": rec.distance, "start_touchdown_m": rec.touchdown, "start_flags": rec.flags,
                      "ranking": [int(i) for i, r in ranking if np.isfinite(r.reward)]}
-            start_file.write_text(json.dumps(start, indent=1))
+            _atomic_write_text(start_file, json.dumps(start, indent=1))
         problem = problems[index]
         starts = scout_points(problems, start.get("ranking", []), scout_starts)  # None with one start point
         for k in range(args.runs):

@@ -18,6 +18,7 @@ import json
 import sys
 import time
 from pathlib import Path
+from besdrake._io import save_figure as _save_figure
 
 COMMAND = ("template",)
 HELP = "behaviour templates: train (BO-CPS/ACES), evaluate, instantiate and list a template pool"
@@ -184,6 +185,6 @@ def _plot(training, ev, path: Path) -> Path:
     ax.legend()
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
+    _save_figure(fig, path, dpi=100)
     plt.close(fig)
     return path

@@ -6,6 +6,7 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from besdrake._io import write_text as _atomic_write_text
 
 COMMAND = ("transfer",)
 HELP = "refine throws with the Transferability Approach: search in simulation, transfer the plans most likely to hit to the lab"
@@ -95,7 +96,7 @@ def run(args: argparse.Namespace) -> int:
         best = param.from_vector(result.best_theta)
         best.save(args.out / "best.dmp.json")
         param.motion_plan(result.best_theta).save(args.out / "best.plan.json")
-    (args.out / "summary.json").write_text(json.dumps(summary, indent=1, default=float))
+    _atomic_write_text((args.out / "summary.json"), json.dumps(summary, indent=1, default=float))
     if args.json:
         print(json.dumps(summary, default=float))
     else:

@@ -70,6 +70,8 @@ def write_c3d(rec: MocapRecording, path: str | Path) -> None:
         pts[:, 3] = np.where(missing, -1.0, 0.0)
         frames.append((pts, empty_analog))
     writer.add_frames(frames)
-    with open(path, "wb") as handle, warnings.catch_warnings():
+    from besdrake._io import atomic_path
+
+    with atomic_path(path) as tmp, open(tmp, "wb") as handle, warnings.catch_warnings():
         warnings.filterwarnings("ignore", message="No analog data found")
         writer.write(handle)

@@ -111,8 +111,8 @@ def fill_gaps(rec: MocapRecording, max_gap_s: float = 0.25, plates: list[list[st
     ``plates`` lists rigid marker triples (names); a missing plate marker whose two partners are
     visible across the gap is filled by a rigid fit, everything else by a cubic spline.
     """
-    if max_gap_s < 0:
-        raise ValueError(f"max_gap_s must be >= 0, got {max_gap_s}")
+    if not np.isfinite(max_gap_s) or max_gap_s < 0:
+        raise ValueError(f"max_gap_s must be a number of seconds >= 0, got {max_gap_s}")
     out = rec.copy()
     pos = out.positions
     vis = rec.visible()

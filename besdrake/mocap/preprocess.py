@@ -166,6 +166,8 @@ def preprocess(
             inside the recording (the message names the marker and the frames).
     """
     hand_markers, back_markers = tuple(hand_markers), tuple(back_markers)
+    if not np.isfinite(max_gap_s) or max_gap_s < 0:
+        raise PreprocessError(f"the longest gap to fill must be a number of seconds >= 0, got {max_gap_s}")
     if len(back_markers) != 3:
         raise PreprocessError(f"the back frame needs three markers (top, right, left), got {back_markers}")
     if len(hand_markers) < 1:

@@ -25,6 +25,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from besdrake._io import save_figure as _save_figure, write_text as _atomic_write_text
 from besdrake._io import write_json
 from besdrake.pipeline.run import RunFolder
 
@@ -116,7 +117,7 @@ def stage_label(ctx: Context, out: Path) -> dict[str, Any]:
             write_tsv(rec, out / f"{f.stem}.tsv")
             seg = f.with_name(f.stem + "_manually_segmented.json")
             if seg.is_file():
-                (out / seg.name).write_text(seg.read_text())
+                _atomic_write_text(out / seg.name, seg.read_text())
             records.append({"name": f.stem, "cpu_s": 0.0, "correct_share": None})
     shares = [r["correct_share"] for r in records if r["correct_share"] is not None]
     return {
@@ -231,7 +232,7 @@ def _plot_segmentation(pre, found, manual, path: Path) -> None:
     ax.set_ylabel("m/s")
     ax.set_title("vMCI borders (red lines), 1-NN labels (shading: throw red, strike_out orange, swing_out blue, idle grey), manual borders (dotted)")
     fig.tight_layout()
-    fig.savefig(path, dpi=80)
+    _save_figure(fig, path, dpi=80)
     plt.close(fig)
 
 
@@ -533,7 +534,7 @@ def _plot_template(contexts: np.ndarray, sim_td: np.ndarray, lab_td: np.ndarray,
     ax.legend(fontsize=8)
     ax.set_title("behaviour template on the 16 test contexts")
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    _save_figure(fig, path, dpi=90)
     plt.close(fig)
 
 
@@ -614,7 +615,7 @@ def stage_report(ctx: Context, out: Path) -> dict[str, Any]:
         lines.append("")
     if replays:
         lines += ["## Replays", ""] + [f"- [{r}](10_report/{r}) (meshcat, self-contained HTML)" for r in replays] + [""]
-    (root / "report.md").write_text("\n".join(lines))
+    _atomic_write_text(root / "report.md", "\n".join(lines))
     return {"report": str(root / "report.md"), "replays": replays}
 
 

@@ -24,6 +24,7 @@ from typing import Any
 
 import yaml
 
+from besdrake._io import write_text as _atomic_write_text
 from besdrake._io import write_json
 
 
@@ -55,7 +56,7 @@ class RunFolder:
                     "or choose a new --out folder"
                 )
         else:
-            path.write_text(text)
+            _atomic_write_text(path, text)
 
     def record_inputs(self, files: dict[str, Path]) -> None:
         """Hash the input files; a resume with changed inputs is refused."""

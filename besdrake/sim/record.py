@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from besdrake._io import write_text as _atomic_write_text
 from besdrake.plan import MotionPlan
 from besdrake.sim.outcome import Outcome
 from besdrake.sim.scenario import Scenario
@@ -53,5 +54,5 @@ def record_html(plan: MotionPlan, out: str | Path, scenario: Scenario | str = "n
     vis.PublishRecording()
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(meshcat.StaticHtml())
+    _atomic_write_text(out, meshcat.StaticHtml())
     return out, outcome

@@ -42,7 +42,7 @@ def load_plugin(path: str | Path) -> ModuleType:
     sys.modules[name] = module
     try:
         spec.loader.exec_module(module)
-    except Exception as err:  # a user's file: report any failure by name
+    except (Exception, SystemExit) as err:  # a user's file: report any failure (even sys.exit) by name
         sys.modules.pop(name, None)
         raise PluginError(f"plugin {p} failed to load: {type(err).__name__}: {err}") from err
     _LOADED[key] = module
