@@ -25,6 +25,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--lab", default=None, help="lab YAML path or built-in lab name (default: default_lab)")
     parser.add_argument("--workers", type=int, default=None, help="simulation processes (default 2)")
     parser.add_argument("--ray", default=None, metavar="ADDRESS", help="run rollouts on a Ray cluster (e.g. 'auto'; needs besdrake[cluster])")
+    parser.add_argument("--meshcat-host", default="localhost", metavar="HOST",
+                        help="interface the meshcat server of the report's replays listens on (default localhost; '*' opens it)")
     parser.add_argument("--stage", action="append", default=None, help="run only these stages (repeatable)")
     parser.add_argument("--json", action="store_true", help="print every stage's summary as one JSON object")
 
@@ -74,7 +76,7 @@ def run(args: argparse.Namespace) -> int:
             bar.update(_WEIGHTS.get(name, 1))
 
     try:
-        records = learn(run_folder, progress=progress, stages=args.stage, on_stage=on_stage)
+        records = learn(run_folder, progress=progress, stages=args.stage, on_stage=on_stage, meshcat_host=args.meshcat_host)
     finally:
         if bar is not None:
             bar.close()

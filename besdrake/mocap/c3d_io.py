@@ -26,10 +26,12 @@ def read_c3d(path: str | Path, check_units: bool = True) -> MocapRecording:
     try:
         with open(path, "rb") as handle, warnings.catch_warnings():
             warnings.filterwarnings("ignore", message="No analog data found")
+            warnings.filterwarnings("ignore", message="reached end of file")  # checked below: frames read < declared
             reader = c3d.Reader(handle)
             labels = [str(s).strip() for s in reader.point_labels]
             rate = float(reader.point_rate)
             first = int(reader.first_frame)
+            declared = int(reader.last_frame) - first + 1
             units_param = reader.get("POINT:UNITS")
             units = units_param.string_value.strip().lower() if units_param is not None else "mm"
             pts = []
@@ -41,6 +43,8 @@ def read_c3d(path: str | Path, check_units: bool = True) -> MocapRecording:
         raise MocapFormatError(f"{path}: not a readable C3D file ({type(err).__name__}: {err})") from None
     if not pts:
         raise MocapFormatError(f"{path}: C3D file holds no frames")
+    if len(pts) < declared:
+        raise MocapFormatError(f"{path}: truncated C3D file: its header declares {declared} frames, the file holds {len(pts)}")
     if units not in _UNIT_TO_M:
         raise MocapUnitsError(f"{path}: unknown POINT:UNITS {units!r} (expected mm, cm or m)")
     data = np.stack(pts).astype(float)  # (n_frames, n_points, 4)

@@ -51,6 +51,8 @@ class Context:
     config: dict[str, Any]
     progress: Callable[[str], None] = print
     cache: dict[str, Any] = field(default_factory=dict)
+    #: Interface the meshcat server of the report's replays listens on (a run option, not configuration).
+    meshcat_host: str = "localhost"
 
     def mapping(self):
         if "mapping" not in self.cache:
@@ -569,7 +571,7 @@ def stage_report(ctx: Context, out: Path) -> dict[str, Any]:
         plan_file = root / folder / "best.plan.json"
         if plan_file.is_file():
             scenario = _refined_scenario(ctx) if stage == "transfer_refined" else ctx.config["scenario"]
-            html, _ = record_html(MotionPlan.load(plan_file), out / f"best_throw_{stage}.html", scenario=scenario, limits="flag")
+            html, _ = record_html(MotionPlan.load(plan_file), out / f"best_throw_{stage}.html", scenario=scenario, limits="flag", host=ctx.meshcat_host)
             replays.append(html.name)
     lines = [
         "# besdrake learn: report",
@@ -646,11 +648,12 @@ def learn(
     progress: Callable[[str], None] = print,
     stages: list[str] | None = None,
     on_stage: Callable[[str, dict[str, Any]], None] | None = None,
+    meshcat_host: str = "localhost",
 ) -> dict[str, Any]:
     """Run every stage not yet done (or only ``stages``); returns each stage's record.
 
     ``progress`` receives messages; ``on_stage(name, record)`` is called after each stage, run or skipped."""
-    ctx = Context(run, run.config, progress)
+    ctx = Context(run, run.config, progress, meshcat_host=meshcat_host)
     records = {}
     for i, (name, fn) in enumerate(STAGES, 1):
         if name == "diagnose" and not run.config["diagnosis"]["enabled"]:

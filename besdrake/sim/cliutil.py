@@ -42,6 +42,8 @@ def add_common_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--yaw", type=float, default=0.0, help="joint-1 angle of the default throw (rad)")
     parser.add_argument("--scenario", default="nominal", help="scenario name in diagrams/ or a YAML path")
     parser.add_argument("--effect", action="append", metavar="NAME:key=val,...", help="physical effect, repeatable (see --list-effects)")
+    parser.add_argument("--meshcat-host", default="localhost", metavar="HOST",
+                        help="interface the meshcat server of a replay listens on (default localhost; '*' or 0.0.0.0 opens it to the network)")
 
 
 def plan_from_args(args: argparse.Namespace) -> MotionPlan:

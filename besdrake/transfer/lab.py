@@ -74,6 +74,53 @@ class JointLimits:
             raise ValueError("JointLimits: velocity and acceleration limits must be positive")
 
 
+@dataclass(frozen=True)
+class SafetyLimits:
+    """Checks of a plan's timing and start that the gate makes besides the joint limits (the one place of
+    their defaults):
+
+    * ``max_duration_s``: the longest plan the robot may run (a throw takes ~2.5 s; an hour-long plan would
+      hang the lab and the simulation);
+    * ``min_knot_spacing_s``: knots closer than this are no motion a controller can follow (set it to your
+      controller's period; the default 0.1 ms stays below the 0.54 ms last knot step of imitated plans);
+    * ``start_tolerance_rad``: the plan's first pose may differ from the pose the robot stands at (the lab's
+      ``current_pose()``: its home/rest pose or the last commanded end pose) by at most this much per joint.
+    """
+
+    max_duration_s: float = 30.0
+    min_knot_spacing_s: float = 1e-4
+    start_tolerance_rad: float = 0.05
+
+    def __post_init__(self) -> None:
+        for name in ("max_duration_s", "min_knot_spacing_s", "start_tolerance_rad"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
+                raise ValueError(f"SafetyLimits.{name} must be a positive number, got {v!r}")
+
+    def problems(self, plan: MotionPlan, current_pose: np.ndarray | None = None) -> list[str]:
+        """The reasons to refuse ``plan`` on timing or start (empty when none); ``current_pose`` None skips
+        the start check. Used by the gate and by ``besdrake simulate``."""
+        t = np.asarray(plan.t, dtype=float)
+        out = []
+        if t.size and np.isfinite(t[-1]) and t[-1] > self.max_duration_s:
+            out.append(f"plan lasts {t[-1]:g} s, longer than the maximum {self.max_duration_s:g} s")
+        if t.size > 1:
+            step = float(np.min(np.diff(t)))
+            if np.isfinite(step) and step < self.min_knot_spacing_s:
+                k = int(np.argmin(np.diff(t)))
+                out.append(f"knots {k} and {k + 1} are {step:.3g} s apart, closer than the control period {self.min_knot_spacing_s:g} s")
+        if current_pose is not None and np.shape(plan.q) and len(plan.q):
+            q0 = np.asarray(plan.q, dtype=float)[0]
+            cur = np.asarray(current_pose, dtype=float)
+            if q0.shape == cur.shape:
+                off = np.abs(q0 - cur)
+                j = int(np.argmax(off))
+                if off[j] > self.start_tolerance_rad:
+                    out.append(f"plan starts {off[j]:.3g} rad from the robot's current pose at joint {j + 1} "
+                               f"(tolerance {self.start_tolerance_rad:g} rad): move the robot to the start first")
+        return out
+
+
 class SafetyGate(TrialCounter):
     """Wraps any :class:`Lab`: refuses a plan that would exceed a joint position, velocity or acceleration
     limit *before* it reaches the lab.
@@ -81,14 +128,17 @@ class SafetyGate(TrialCounter):
     A refused plan gives a Measurement with ``flags["refused_by_safety_gate"]`` and the violations (joint,
     kind, amount beyond the limit) in ``message``; a malformed plan (NaN, wrong shape, time not increasing)
     is refused the same way. The check is :meth:`MotionPlan.check_limits` on the interpolated plan, i.e.
-    on what the controller would be sent. ``resolution`` (s) is its sampling step.
+    on what the controller would be sent. ``resolution`` (s) is its sampling step. ``safety``
+    (:class:`SafetyLimits`) refuses too long plans, too close knots and a start away from the lab's
+    ``current_pose()`` (when the lab has that method and it returns a pose).
     """
 
-    def __init__(self, lab: Lab, limits: JointLimits | None = None, resolution: float = 0.002) -> None:
+    def __init__(self, lab: Lab, limits: JointLimits | None = None, resolution: float = 0.002, safety: SafetyLimits | None = None) -> None:
         if not hasattr(lab, "execute"):
             raise TypeError(f"SafetyGate needs a lab with an execute(plan) method, got {type(lab).__name__}")
         self.lab = lab
         self.limits = limits or JointLimits()
+        self.safety = safety or SafetyLimits()
         self.resolution = float(resolution)
         self.name = f"{getattr(lab, 'name', type(lab).__name__)}"
         self.refused = 0
@@ -97,6 +147,10 @@ class SafetyGate(TrialCounter):
         """The reasons to refuse ``plan`` (empty when it may run)."""
         if not isinstance(plan, MotionPlan):
             return [f"not a MotionPlan: {type(plan).__name__}"]
+        pose = getattr(self.lab, "current_pose", None)
+        timing = self.safety.problems(plan, pose() if callable(pose) else None)
+        if timing:
+            return timing  # before sampling the limits: a too long plan would take that long to check
         try:
             report = plan.check_limits(self.limits.position, self.limits.velocity, self.limits.acceleration, resolution=self.resolution)
         except PlanError as err:
@@ -109,6 +163,9 @@ class SafetyGate(TrialCounter):
             "position_limits_rad": self.limits.position.tolist(),
             "velocity_limits_rad_s": self.limits.velocity.tolist(),
             "acceleration_limits_rad_s2": self.limits.acceleration.tolist(),
+            "max_duration_s": self.safety.max_duration_s,
+            "min_knot_spacing_s": self.safety.min_knot_spacing_s,
+            "start_tolerance_rad": self.safety.start_tolerance_rad,
         }
         return d
 
@@ -130,4 +187,4 @@ class SafetyGate(TrialCounter):
         return self.lab.execute(plan, trial=trial)
 
 
-__all__ = ["JointLimits", "Lab", "SafetyGate", "TrialCounter"]
+__all__ = ["JointLimits", "Lab", "SafetyGate", "SafetyLimits", "TrialCounter"]
