@@ -206,7 +206,7 @@ class MotionPlan:
         if missing:
             raise PlanError(f"motion plan is missing key(s) {missing}")
         names = d.get("joint_names")
-        if names is not None and list(names) != list(robot.JOINT_NAMES):
+        if names is not None and (not isinstance(names, list) or names != list(robot.JOINT_NAMES)):
             raise PlanError(f"motion plan joint_names {names} differ from COMPI's {list(robot.JOINT_NAMES)}")
         try:
             plan = cls(

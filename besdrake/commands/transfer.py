@@ -49,8 +49,10 @@ def run(args: argparse.Namespace) -> int:
     from besdrake.imitation.io import load_dmp
     from besdrake.search.refinement import ParameterScaling
     from besdrake.sim import make_executor
+    from besdrake.sim.effects import EffectError
+    from besdrake.sim.scenario import ScenarioError
     from besdrake.transfer.lab import SafetyGate
-    from besdrake.transfer.log import LabLog
+    from besdrake.transfer.log import LabLog, LogError
     from besdrake.transfer.plugins import PluginError, load_plugins
     from besdrake.transfer.transferability import TransferabilityApproach, TransferabilityConfig
     from besdrake.transfer.virtual_lab import LabConfigError, VirtualLab, load_lab_config
@@ -82,15 +84,18 @@ def run(args: argparse.Namespace) -> int:
     lab = SafetyGate(VirtualLab(cfg))
     args.out.mkdir(parents=True, exist_ok=True)
     log_dir = args.out / "lab_log"
-    log = LabLog.open(log_dir) if (log_dir / "log.json").is_file() else LabLog.create(log_dir, lab.description(), run={"seed": args.seed})
-    executor = make_executor("process" if args.workers > 1 else "serial", workers=args.workers, scenario=args.scenario)
-    with executor:
-        search = TransferabilityApproach(
-            lambda theta: param.motion_plan(theta), seeds, scaling.scale, scaling.bounds, executor, lab,
-            np.random.default_rng(args.seed), config, log=log, out_dir=args.out,
-            progress=(lambda msg: print(msg, file=sys.stderr)) if not args.json else None,
-        )
-        result = search.run()
+    try:
+        log = LabLog.open(log_dir) if (log_dir / "log.json").is_file() else LabLog.create(log_dir, lab.description(), run={"seed": args.seed})
+        executor = make_executor("process" if args.workers > 1 else "serial", workers=args.workers, scenario=args.scenario)
+        with executor:
+            search = TransferabilityApproach(
+                lambda theta: param.motion_plan(theta), seeds, scaling.scale, scaling.bounds, executor, lab,
+                np.random.default_rng(args.seed), config, log=log, out_dir=args.out,
+                progress=(lambda msg: print(msg, file=sys.stderr)) if not args.json else None,
+            )
+            result = search.run()
+    except (LogError, EffectError, ScenarioError) as err:
+        raise UserError(str(err)) from None
     summary = result.summary() | {"scenario": args.scenario, "lab": cfg.name, "seeds": [str(f) for f in files], "out": str(args.out)}
     if result.best_theta is not None:
         best = param.from_vector(result.best_theta)
