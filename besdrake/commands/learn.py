@@ -31,6 +31,26 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print every stage's summary as one JSON object")
 
 
+def _input_errors() -> tuple[type[Exception], ...]:
+    """The errors a stage raises for bad input (a recording, a lab, a scenario, a damaged run folder):
+    each names the file and the problem, so it is printed as one line."""
+    from besdrake.mocap.labeling import LabelingError
+    from besdrake.mocap.preprocess import PreprocessError
+    from besdrake.mocap.recording import MocapFormatError
+    from besdrake.pipeline.run import RunError
+    from besdrake.plan import PlanError
+    from besdrake.search.loop import ResumeError
+    from besdrake.segmentation import SegmentationError
+    from besdrake.sim.effects import EffectError
+    from besdrake.sim.scenario import ScenarioError
+    from besdrake.transfer.log import LogError
+    from besdrake.transfer.plugins import PluginError
+    from besdrake.transfer.virtual_lab import LabConfigError
+
+    return (MocapFormatError, PreprocessError, LabelingError, SegmentationError, PlanError, ScenarioError, EffectError,
+            LogError, PluginError, LabConfigError, ResumeError, RunError)
+
+
 def run(args: argparse.Namespace) -> int:
     from besdrake.cli import UserError
     from besdrake.pipeline.config import ConfigError, load_config
@@ -77,6 +97,8 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         records = learn(run_folder, progress=progress, stages=args.stage, on_stage=on_stage, meshcat_host=args.meshcat_host)
+    except _input_errors() as err:
+        raise UserError(str(err)) from None
     finally:
         if bar is not None:
             bar.close()

@@ -76,6 +76,19 @@ def _parse(parser, scenario: Scenario, key: str):
         raise ScenarioError(f"model file for {key!r} ({path}) could not be parsed: {err}") from err
 
 
+def _require_names(plant, scenario: Scenario, arm, ball) -> None:
+    """:class:`ScenarioError` naming the model file when a body, frame, joint or actuator the simulation
+    looks up by name is missing (e.g. an SDF whose ball body is not called ``ball``)."""
+    needed = [("arm", arm, "frame", robot.BASE_LINK, plant.HasFrameNamed), ("arm", arm, "body", robot.SCOOP_BODY, plant.HasBodyNamed),
+              ("ball", ball, "body", robot.BALL_BODY, plant.HasBodyNamed)]
+    needed += [("arm", arm, "joint", n, plant.HasJointNamed) for n in robot.JOINT_NAMES]
+    needed += [("arm", arm, "actuator", f"{n}_motor", plant.HasJointActuatorNamed) for n in robot.JOINT_NAMES]
+    for key, instance, kind, name, has in needed:
+        if not has(name, instance):
+            raise ScenarioError(f"the {key} model {scenario.models.get(key) if isinstance(scenario.models, dict) else key} "
+                                f"has no {kind} named {name!r} (the simulation looks it up by name)")
+
+
 def base_transform(scenario: Scenario):
     """World pose of the base frame from the scenario's base pose."""
     from pydrake.math import RigidTransform, RollPitchYaw
@@ -109,9 +122,10 @@ def build_diagram(scenario: Scenario | str = "nominal", meshcat=None) -> SimHand
     robot.add_package(parser.package_map())
 
     arm = _parse(parser, scenario, "arm")[0]
+    ball_instance = _parse(parser, scenario, "ball")[0]
+    _require_names(plant, scenario, arm, ball_instance)
     base_frame = plant.AddFrame(FixedOffsetFrame("compi_base", plant.world_frame(), base_transform(scenario)))
     plant.WeldFrames(base_frame, plant.GetFrameByName(robot.BASE_LINK, arm))
-    ball_instance = _parse(parser, scenario, "ball")[0]
     ground = _parse(parser, scenario, "ground")[0]  # a <static> model: welded to the world by the parser
     z = scenario.base.z
     if z > 0.02:
