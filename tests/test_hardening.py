@@ -344,3 +344,31 @@ def test_fuzzer_fast_subset(script):
     assert res["total"]["modified_inputs"] == 0, res["failures"][:3]
     assert res["total"]["bad_error_lines"] == 0, res["failures"][:3]
     assert res["total"]["error"] > 0 and res["total"]["ok"] > 0  # the mutations reach both ends
+
+
+def test_corrupt_optimizer_state_on_resume_says_how_to_recover(tmp_path):
+    from besdrake.search.cmaes import CMAES
+    from besdrake.search.loop import STATE_FILE, ResumeError, _restore
+
+    (tmp_path / f"{STATE_FILE}.json").write_text('{"optimizer": {"mean": [1, 2')
+    (tmp_path / f"{STATE_FILE}.npz").write_bytes(b"PK\x03\x04 not a zip")
+    with pytest.raises(ResumeError, match="damaged.*to recover, delete the folder"):
+        _restore(CMAES(np.zeros(2), 1.0, np.random.default_rng(0)), tmp_path)
+
+
+def test_copied_run_folder_uses_its_own_refined_scenario(tmp_path):
+    from besdrake.pipeline.config import load_config
+    from besdrake.pipeline.learn import Context, _refined_scenario
+    from besdrake.pipeline.run import RunFolder
+
+    config = load_config(None, quick=True)
+    run = RunFolder(tmp_path / "a", config)
+    d = run.stage_dir(6, "diagnose")
+    (d / "report").mkdir()
+    (d / "report" / "refined_scenario.yaml").write_text("name: x\n")
+    run.mark_done(6, "diagnose", {"refined_scenario": "06_diagnose/report/refined_scenario.yaml"}, 1.0)
+    shutil.copytree(tmp_path / "a", tmp_path / "b")
+    shutil.rmtree(tmp_path / "a")
+    copy = RunFolder(tmp_path / "b", config)
+    got = Path(_refined_scenario(Context(copy, config)))
+    assert got == tmp_path / "b" / "06_diagnose" / "report" / "refined_scenario.yaml" and got.is_file()

@@ -449,14 +449,18 @@ def stage_diagnose(ctx: Context, out: Path) -> dict[str, Any]:
     seconds = time.perf_counter() - t0
     paths = write_report(diag, out / "report")
     summary = diag.summary()
-    return summary | {"diagnosis_s": seconds, "lab_trials": len(log), "refined_scenario": paths["scenario"], "report": paths["report"]}
+    rel = {k: (None if paths[k] is None else str(Path(paths[k]).relative_to(ctx.run.root))) for k in ("scenario", "report")}
+    return summary | {"diagnosis_s": seconds, "lab_trials": len(log), "refined_scenario": rel["scenario"], "report": rel["report"]}
 
 
 def _refined_scenario(ctx: Context) -> str:
+    """The diagnosis's refined scenario (stored relative to the run folder, so a copied or moved run folder
+    resumes with its own file), or the configured scenario."""
     done = ctx.run.done(6, "diagnose")
-    if not ctx.config["diagnosis"]["enabled"] or done is None:
+    if not ctx.config["diagnosis"]["enabled"] or done is None or not done["summary"].get("refined_scenario"):
         return ctx.config["scenario"]
-    return done["summary"]["refined_scenario"] or ctx.config["scenario"]
+    path = Path(done["summary"]["refined_scenario"])
+    return str(path if path.is_absolute() else ctx.run.root / path)
 
 
 def stage_transfer_refined(ctx: Context, out: Path) -> dict[str, Any]:
