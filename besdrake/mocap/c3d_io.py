@@ -26,6 +26,7 @@ def read_c3d(path: str | Path, check_units: bool = True) -> MocapRecording:
         with open(path, "rb") as handle, warnings.catch_warnings():
             warnings.filterwarnings("ignore", message="No analog data found")
             warnings.filterwarnings("ignore", message="reached end of file")  # checked below: frames read < declared
+            warnings.filterwarnings("ignore", category=UserWarning, module="c3d")  # damaged files: an error below or a read
             reader = c3d.Reader(handle)
             labels = [str(s).strip() for s in reader.point_labels]
             rate = float(reader.point_rate)
