@@ -69,8 +69,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--dropped-penalty", type=float, default=None, help="reward penalty (m) of a ball that falls out of the scoop (default 0)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--continue-after-success", action="store_true", help="use the whole budget instead of stopping at the first success")
-    parser.add_argument("--backend", choices=("serial", "process"), default="process", help="rollout executor")
-    parser.add_argument("--workers", type=int, default=2, help="worker processes of the process backend")
+    from besdrake.sim.cliutil import add_backend_arguments
+
+    add_backend_arguments(parser)
     parser.add_argument("--scenario", default="nominal", help="simulation scenario (name or YAML path)")
     parser.add_argument("--no-figures", action="store_true", help="do not write learning_curve.png")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -162,7 +163,8 @@ def run(args: argparse.Namespace) -> int:
     from besdrake.search.loop import ResumeError
     from besdrake.search.refinement import (RefinementError, RefinementProblem, ThrowReward, rank_starts, refine, scout_points,
                                             scout_starts_checked)
-    from besdrake.sim import make_executor
+    from besdrake.sim.cliutil import executor_from_args
+    from besdrake.sim.executors import ExecutorError
     from besdrake.sim.scenario import ScenarioError
 
     logging.getLogger("drake").setLevel(logging.ERROR)
@@ -199,8 +201,8 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(str(err)) from None
     show = not args.quiet and sys.stderr.isatty()
     try:
-        executor = make_executor(args.backend, workers=args.workers, scenario=args.scenario) if args.backend == "process" else make_executor("serial", scenario=args.scenario)
-    except ScenarioError as err:
+        executor = executor_from_args(args, args.scenario)
+    except (ScenarioError, ExecutorError) as err:
         raise UserError(str(err)) from None
     search = search_options(args)
     start_file = args.out / "start.json"

@@ -22,7 +22,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="seed of the search")
     parser.add_argument("--max-transfers", type=int, default=25)
     parser.add_argument("--population", type=int, default=50)
-    parser.add_argument("--workers", type=int, default=1, help="simulation processes")
+    from besdrake.sim.cliutil import add_backend_arguments
+
+    add_backend_arguments(parser, workers=1)
     parser.add_argument("--plugin", action="append", default=[], help="module registering further effects (for the lab)")
     parser.add_argument("--keep-going", action="store_true", help="do not stop at the first 3/3 success")
     parser.add_argument("--transfer-choice", choices=["likely", "predicted", "diverse"], default=None,
@@ -48,8 +50,9 @@ def run(args: argparse.Namespace) -> int:
     from besdrake.imitation import DMPParameterization
     from besdrake.imitation.io import load_dmp
     from besdrake.search.refinement import ParameterScaling
-    from besdrake.sim import make_executor
+    from besdrake.sim.cliutil import executor_from_args
     from besdrake.sim.effects import EffectError
+    from besdrake.sim.executors import ExecutorError
     from besdrake.sim.scenario import ScenarioError
     from besdrake.transfer.lab import SafetyGate
     from besdrake.transfer.log import LabLog, LogError
@@ -86,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
     log_dir = args.out / "lab_log"
     try:
         log = LabLog.open(log_dir) if (log_dir / "log.json").is_file() else LabLog.create(log_dir, lab.description(), run={"seed": args.seed})
-        executor = make_executor("process" if args.workers > 1 else "serial", workers=args.workers, scenario=args.scenario)
+        executor = executor_from_args(args, args.scenario)
         with executor:
             search = TransferabilityApproach(
                 lambda theta: param.motion_plan(theta), seeds, scaling.scale, scaling.bounds, executor, lab,
@@ -94,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
                 progress=(lambda msg: print(msg, file=sys.stderr)) if not args.json else None,
             )
             result = search.run()
-    except (LogError, EffectError, ScenarioError) as err:
+    except (LogError, EffectError, ScenarioError, ExecutorError) as err:
         raise UserError(str(err)) from None
     summary = result.summary() | {"scenario": args.scenario, "lab": cfg.name, "seeds": [str(f) for f in files], "out": str(args.out)}
     if result.best_theta is not None:

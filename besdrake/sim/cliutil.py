@@ -54,3 +54,29 @@ def plan_from_args(args: argparse.Namespace) -> MotionPlan:
             raise ValueError("give either --plan or --amplitude, not both")
         return MotionPlan.load(args.plan)
     return default_throw(amplitude=0.35 if args.amplitude is None else args.amplitude, yaw=args.yaw)
+
+
+def add_backend_arguments(parser: argparse.ArgumentParser, default: str = "process", workers: int = 2) -> None:
+    """``--backend serial|process|ray``, ``--workers N`` and ``--ray ADDRESS`` (implies the ray backend)."""
+    parser.add_argument("--backend", choices=("serial", "process", "ray"), default=default,
+                        help=f"rollout executor (default {default}); ray: Ray actors, see --ray")
+    parser.add_argument("--workers", type=int, default=workers, help=f"worker processes / Ray actors (default {workers})")
+    parser.add_argument("--ray", default=None, metavar="ADDRESS",
+                        help="run rollouts on this Ray cluster ('auto': the one started with 'ray start' on this machine; "
+                             "needs besdrake[cluster]); without it --backend ray starts a local Ray bound to 127.0.0.1")
+
+
+def executor_from_args(args: argparse.Namespace, scenario, limits: str = "flag"):
+    """The executor ``add_backend_arguments`` asked for (:class:`~besdrake.sim.executors.ExecutorError` or
+    :class:`~besdrake.sim.scenario.ScenarioError` for a bad choice or scenario)."""
+    from besdrake.sim.executors import ExecutorError, make_executor
+
+    backend = "ray" if getattr(args, "ray", None) else args.backend
+    workers = int(args.workers)
+    if workers < 1:
+        raise ExecutorError(f"--workers must be >= 1, got {workers}")
+    if backend == "ray":
+        return make_executor("ray", workers=workers, scenario=scenario, limits=limits, address=getattr(args, "ray", None))
+    if backend == "process" and workers > 1:
+        return make_executor("process", workers=workers, scenario=scenario, limits=limits)
+    return make_executor("serial", scenario=scenario, limits=limits)

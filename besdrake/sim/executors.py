@@ -235,6 +235,27 @@ def _import_ray():
     return ray
 
 
+def _ray_init_kwargs(kwargs: dict[str, Any], workers: int | None) -> dict[str, Any]:
+    """``ray.init`` arguments: connect to ``address`` (e.g. "auto" or "HOST:PORT") when given; else start a
+    private local Ray with ``workers`` CPUs, no dashboard (its web UI stays closed unless asked for) and the
+    node address 127.0.0.1. Ray's own gRPC ports cannot be bound to one interface (Ray 2.60): they rely on
+    Ray's token authentication, on by default."""
+    kw = dict(kwargs)
+    if kw.get("address") or os.environ.get("RAY_ADDRESS"):
+        for key in ("num_cpus", "include_dashboard", "_node_ip_address"):
+            kw.pop(key, None)
+        kw.setdefault("log_to_driver", False)
+        return kw
+    kw.pop("address", None)
+    kw.setdefault("include_dashboard", False)
+    kw.setdefault("dashboard_host", "127.0.0.1")
+    kw.setdefault("_node_ip_address", "127.0.0.1")
+    kw.setdefault("log_to_driver", False)
+    if workers:
+        kw.setdefault("num_cpus", int(workers))
+    return kw
+
+
 class RayExecutor(Executor):
     """Ray actors (one Diagram each) on the current Ray cluster (``ray.init`` if none is running)."""
 
@@ -244,7 +265,7 @@ class RayExecutor(Executor):
         ray = _import_ray()
         super().__init__(scenario, limits)
         if not ray.is_initialized():
-            ray.init(**init_kwargs)
+            ray.init(**_ray_init_kwargs(init_kwargs, workers))
         self._ray = ray
         self.workers = int(workers or max(1, int(ray.available_resources().get("CPU", 1))))
 
