@@ -25,7 +25,7 @@ def _refuse_unsafe(plan) -> None:
     an hour-long plan would hang the simulation, knots closer than the control period are no motion.
     (The start check needs a robot's pose: in simulation the arm is put at the plan's start.)"""
     from besdrake.plan import PlanError
-    from besdrake.transfer.lab import SafetyLimits
+    from besdrake.transfer.safety import SafetyLimits
 
     problems = SafetyLimits().problems(plan)
     if problems:

@@ -287,10 +287,26 @@ def _executor(ctx: Context, scenario: str):
 
     workers = int(ctx.config["workers"])
     if ctx.config.get("ray_address"):
-        return make_executor("ray", workers=workers, scenario=scenario, address=ctx.config["ray_address"])
-    if workers > 1:
-        return make_executor("process", workers=workers, scenario=scenario)
-    return make_executor("serial", scenario=scenario)
+        ex = make_executor("ray", workers=workers, scenario=scenario, address=ctx.config["ray_address"])
+    elif workers > 1:
+        ex = make_executor("process", workers=workers, scenario=scenario)
+    else:
+        ex = make_executor("serial", scenario=scenario)
+    ctx.cache.setdefault("stage_executors", []).append(ex)  # their stats: the workers' busy share per stage
+    return ex
+
+
+def _executor_stats(ctx: Context) -> dict[str, Any] | None:
+    """The stage's rollouts, wall and busy seconds summed over its executors (None if it simulated nothing)."""
+    from besdrake.sim.executors import ExecutorStats
+
+    executors = ctx.cache.pop("stage_executors", [])
+    total = ExecutorStats(workers=max([1] + [e.stats.workers for e in executors]))
+    for e in executors:
+        total.rollouts += e.stats.rollouts
+        total.wall_s += e.stats.wall_s
+        total.busy_s += e.stats.busy_s
+    return total.to_dict() if total.rollouts else None
 
 
 def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int, tag: str, scouting: bool = True) -> dict[str, Any]:
@@ -669,8 +685,12 @@ def learn(
             progress(f"[{i}/{len(STAGES)}] {name} ...")
             t0 = time.perf_counter()
             summary = fn(ctx, run.stage_dir(i, name))
+            stats = _executor_stats(ctx)
+            if stats is not None:
+                summary = summary | {"executor": stats}
             rec = run.mark_done(i, name, summary, time.perf_counter() - t0)
-            progress(f"[{i}/{len(STAGES)}] {name} done in {_fmt_time(rec['seconds'])}")
+            busy = "" if stats is None else f" ({stats['rollouts']} rollouts, {stats['rollouts_per_s']}/s, workers busy {stats['busy_share']:.0%})"
+            progress(f"[{i}/{len(STAGES)}] {name} done in {_fmt_time(rec['seconds'])}{busy}")
         else:
             progress(f"[{i}/{len(STAGES)}] {name}: done earlier, skipped")
         records[name] = rec
