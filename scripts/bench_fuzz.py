@@ -1,14 +1,14 @@
 """Fuzz every input format the CLI reads: seeded mutations, run in-process through ``besdrake.cli.main``.
 
 Each case writes one mutated input file (TSV, C3D, plan JSON, scenario YAML, lab YAML, learn config YAML,
-effect plugin) into a fresh folder, runs the command that reads it and checks:
+effect plugin, a recording in a ``learn --demonstrations`` folder) into a fresh folder, runs the command that reads it and checks:
 
 * the run ends with exit 0 (or 1: ``simulate``'s flagged failed simulation) or exit 2 with exactly one
   ``besdrake: error:`` line -- never an exception escaping ``main`` and never the last-resort
   ``internal error`` (both count as ``tracebacks``);
 * every input file is byte-identical afterwards (``modified_inputs``).
 
-    python scripts/bench_fuzz.py                 # 2,100 cases (300 per format), JSON counts
+    python scripts/bench_fuzz.py                 # 2,400 cases (300 per format), JSON counts
     python scripts/bench_fuzz.py --per-format 20 --json
 
 The robot YAML is not fuzzed yet: it is being written elsewhere (see ``FORMATS`` and ``robot_seed``).
@@ -237,6 +237,19 @@ def case_tsv(s: Seeds, d: Path, rng: random.Random) -> tuple[list[str], list[Pat
     return ["mocap", "label", str(f), "--reference", str(ref), "--out", str(d / "out.tsv")], [f, ref]
 
 
+def case_demonstrations(s: Seeds, d: Path, rng: random.Random) -> tuple[list[str], list[Path]]:
+    """``learn --demonstrations`` on a folder with one mutated recording (TSV or C3D): its label stage."""
+    folder = d / "demos"
+    folder.mkdir()
+    if rng.random() < 0.5:
+        f = folder / "rec.tsv"
+        f.write_text(_mutate_text(s.files["rec"].read_text(), rng))
+    else:
+        f = folder / "rec.c3d"
+        f.write_bytes(_mutate_bytes(s.files["c3d"].read_bytes(), rng))
+    return ["learn", "--quick", "--demonstrations", str(folder), "--out", str(d / "run"), "--stage", "label", "--json"], [f]
+
+
 def case_c3d(s: Seeds, d: Path, rng: random.Random) -> tuple[list[str], list[Path]]:
     f = d / "rec.c3d"
     f.write_bytes(_mutate_bytes(s.files["c3d"].read_bytes(), rng))
@@ -298,6 +311,7 @@ FORMATS: dict[str, Callable[[Seeds, Path, random.Random], tuple[list[str], list[
     "lab_yaml": case_lab,
     "config_yaml": case_config,
     "plugin": case_plugin,
+    "demonstrations": case_demonstrations,
     # "robot_yaml": HOOK, see robot_seed()
 }
 
@@ -396,7 +410,7 @@ def fuzz(per_format: int, formats: list[str] | None = None, seed0: int = 0, keep
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--per-format", type=int, default=300, help="cases per format (default 300: 2,100 in all)")
+    parser.add_argument("--per-format", type=int, default=300, help="cases per format (default 300: 2,400 in all)")
     parser.add_argument("--formats", nargs="+", choices=list(FORMATS), default=None)
     parser.add_argument("--seed", type=int, default=0, help="first case seed")
     parser.add_argument("--keep", type=Path, default=None, help="copy the folders of failing cases here")

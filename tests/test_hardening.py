@@ -336,7 +336,7 @@ def test_internal_error_is_one_line_and_a_report_file(monkeypatch, capsys):
 
 
 def test_fuzzer_fast_subset():
-    """40 seeded mutations per format (280 cases, in-process): no traceback, no modified input."""
+    """40 seeded mutations per format (320 cases, in-process): no traceback, no modified input."""
     import importlib.util
     import sys
 
