@@ -14,8 +14,12 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import pkgutil
 import sys
+import tempfile
+import time
+import traceback
 from types import ModuleType
 
 from besdrake import __version__
@@ -63,14 +67,35 @@ def main(argv: list[str] | None = None) -> int:
     if run is None:
         parser.print_help()
         return 2
+    from besdrake._io import OutputError
+
     try:
         return int(run(args) or 0)
-    except UserError as err:
+    except (UserError, OutputError) as err:
         print(f"besdrake: error: {err}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("besdrake: interrupted; the run folder can be resumed", file=sys.stderr)
         return 130
+    except SystemExit as err:  # raised by user code (a plugin), never by a command: it must not end a run silently
+        print(f"besdrake: error: the run was stopped by sys.exit({err.code!r}) in user code (a plugin?); "
+              "a plugin must raise an exception instead", file=sys.stderr)
+        return 2
+    except Exception as err:  # noqa: BLE001 - last resort: a bug, reported with its traceback in a file
+        if os.environ.get("BESDRAKE_DEBUG"):
+            raise
+        return _internal_error(err)
+
+
+def _internal_error(err: Exception) -> int:
+    """Print one ``besdrake: error: internal error`` line and write the traceback to a file (exit 2)."""
+    text = "".join(traceback.format_exception(type(err), err, err.__traceback__))
+    fd, path = tempfile.mkstemp(prefix=f"besdrake-crash-{time.strftime('%Y%m%d-%H%M%S')}-", suffix=".txt")
+    with os.fdopen(fd, "w") as f:
+        f.write(f"besdrake {__version__}\nargv: {sys.argv!r}\n\n{text}")
+    print(f"besdrake: error: internal error ({type(err).__name__}: {err}); traceback in {path} "
+          "(please report; BESDRAKE_DEBUG=1 shows it here)", file=sys.stderr)
+    return 2
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from besdrake._io import write_text as _atomic_write_text
 from besdrake.robot import JointLimits
 
 
@@ -240,7 +241,7 @@ class MotionPlan:
         """Write the plan as JSON."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps(self.to_dict()))
+        _atomic_write_text(path, json.dumps(self.to_dict()))
         return path
 
     @classmethod

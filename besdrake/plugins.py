@@ -27,13 +27,13 @@ def load_plugin(path: str | Path) -> ModuleType:
     Raises :class:`PluginError` naming the file for a missing file, a syntax error or an exception raised
     while importing it (e.g. an effect registered under a name that is taken)."""
     p = Path(path).expanduser()
+    key = p.resolve()
+    if key in _LOADED:  # loaded already (a forked worker has its parent's plugins, even of a file deleted since)
+        return _LOADED[key]
     if not p.is_file():
         raise PluginError(f"plugin file not found: {p}")
     if p.suffix != ".py":
         raise PluginError(f"plugin must be a Python file (.py): {p}")
-    key = p.resolve()
-    if key in _LOADED:
-        return _LOADED[key]
     name = "besdrake_plugin_" + p.stem + "_" + hashlib.sha1(str(key).encode()).hexdigest()[:8]
     spec = importlib.util.spec_from_file_location(name, key)
     if spec is None or spec.loader is None:  # pragma: no cover - only for odd file systems
@@ -42,7 +42,7 @@ def load_plugin(path: str | Path) -> ModuleType:
     sys.modules[name] = module
     try:
         spec.loader.exec_module(module)
-    except Exception as err:  # a user's file: report any failure by name
+    except (Exception, SystemExit) as err:  # a user's file: report any failure (even sys.exit) by name
         sys.modules.pop(name, None)
         raise PluginError(f"plugin {p} failed to load: {type(err).__name__}: {err}") from err
     _LOADED[key] = module

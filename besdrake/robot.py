@@ -99,11 +99,11 @@ class EndEffector:
 
 @dataclass(frozen=True)
 class SafetyDefaults:
-    """What the safety gate needs beyond the joint limits: the longest plan (s), the control period
-    (s; knots closer than this are refused) and how far (rad) a plan may start from the current pose."""
+    """What the safety gate needs beyond the joint limits: the longest plan (s), the closest knots (s; closer
+    ones are no motion a controller can follow) and how far (rad) a plan may start from the current pose."""
 
     max_plan_duration: float = 30.0
-    control_period: float = 0.002
+    min_knot_spacing: float = 1e-4
     start_tolerance: float = 0.05
 
 
@@ -238,6 +238,8 @@ def known_robots() -> list[str]:
 
 def robot_file(name_or_path: str | Path) -> Path:
     """The robot file a name (``"compi"``) or a path stands for; :class:`RobotError` if there is none."""
+    if not isinstance(name_or_path, (str, Path)) or not str(name_or_path).strip():
+        raise RobotError(f"a robot is a built-in name or a robot YAML path, got {name_or_path!r}")
     p = Path(name_or_path)
     if p.suffix in (".yaml", ".yml") or "/" in str(name_or_path) or p.is_file():
         if not p.is_file():

@@ -23,8 +23,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--candidates", default=None, help="comma-separated effect names to consider (default: every registered effect)")
     parser.add_argument("--no-pairs", action="store_true", help="fit single effects only (no pairs)")
     parser.add_argument("--plugin", action="append", default=[], metavar="FILE.py", help="load a Python file that registers further effects (repeatable)")
-    parser.add_argument("--backend", choices=("serial", "process"), default="process", help="rollout executor (default: process pool)")
-    parser.add_argument("--workers", type=int, default=2, help="worker processes for the process backend (default 2)")
+    from besdrake.sim.cliutil import add_backend_arguments
+
+    add_backend_arguments(parser)
     parser.add_argument("--folds", type=int, default=3, help="K of the held-out (K-fold by plan) gain (default 3)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the folds and the bootstrap")
     parser.add_argument("--placement-sd", type=float, default=None, metavar="M",
@@ -38,7 +39,9 @@ def run(args: argparse.Namespace) -> int:
     from besdrake.cli import UserError
     from besdrake.diagnosis import DiagnosisError, diagnose
     from besdrake.diagnosis.report import write_report
+    from besdrake.sim.cliutil import executor_from_args
     from besdrake.sim.effects import EffectError, get_effect
+    from besdrake.sim.executors import ExecutorError
     from besdrake.sim.scenario import ScenarioError, load_scenario
 
     if args.design is not None:
@@ -81,10 +84,11 @@ def run(args: argparse.Namespace) -> int:
             for n in names:
                 get_effect(n)
         # Plugin effects reach the simulation workers too: the executors load this process's plugins in each.
-        diag = diagnose(measurements, scenario=scenario, candidates=candidates, pairs=not args.no_pairs, backend=args.backend,
-                        workers=args.workers, folds=args.folds, seed=args.seed,
-                        **({} if args.placement_sd is None else {"placement_sd": args.placement_sd}))
-    except (DiagnosisError, EffectError, ScenarioError) as err:
+        with executor_from_args(args, scenario) as executor:
+            diag = diagnose(measurements, scenario=scenario, candidates=candidates, pairs=not args.no_pairs, executor=executor,
+                            folds=args.folds, seed=args.seed,
+                            **({} if args.placement_sd is None else {"placement_sd": args.placement_sd}))
+    except (DiagnosisError, EffectError, ScenarioError, ExecutorError) as err:
         raise UserError(str(err)) from None
     out = args.out or Path("runs") / "diagnosis" / Path(args.logdir).resolve().name
     paths = write_report(diag, out, figures=not args.no_figures)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+from besdrake._io import write_text as _atomic_write_text
 
 COMMAND = ("eval", "classification")
 HELP = "train the 1-NN segment classifier on one folder of labelled recordings and score it on another"
@@ -32,7 +33,7 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(str(err)) from None
     report = {"train": str(args.train), "test": str(args.test), **report}
     if args.save_classifier:
-        args.save_classifier.write_text(json.dumps(clf.to_json()))
+        _atomic_write_text(args.save_classifier, json.dumps(clf.to_json()))
     if args.json:
         print(json.dumps(report))
     else:

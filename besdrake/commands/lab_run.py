@@ -66,6 +66,7 @@ def run(args: argparse.Namespace) -> int:
 
     from besdrake.cli import UserError
     from besdrake.plan import PlanError
+    from besdrake.sim.effects import EffectError
     from besdrake.transfer.lab import SafetyGate
     from besdrake.transfer.log import LabLog, LogError, run_plans
     from besdrake.plugins import PluginError, load_plugins
@@ -101,7 +102,7 @@ def run(args: argparse.Namespace) -> int:
                 print(f"trial {m.trial}: touchdown {td}, flags {flags}", file=sys.stderr)
 
         summary = run_plans(lab, plans, log, progress=progress)
-    except LogError as err:
+    except (LogError, EffectError) as err:
         raise UserError(str(err)) from None
     counts: dict[str, int] = {}
     for row in log.rows():

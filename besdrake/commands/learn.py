@@ -27,8 +27,30 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--lab", default=None, help="lab YAML path or built-in lab name (default: default_lab)")
     parser.add_argument("--workers", type=int, default=None, help="simulation processes (default 2)")
     parser.add_argument("--ray", default=None, metavar="ADDRESS", help="run rollouts on a Ray cluster (e.g. 'auto'; needs besdrake[cluster])")
+    parser.add_argument("--meshcat-host", default="localhost", metavar="HOST",
+                        help="interface the meshcat server of the report's replays listens on (default localhost; '*' opens it)")
     parser.add_argument("--stage", action="append", default=None, help="run only these stages (repeatable)")
     parser.add_argument("--json", action="store_true", help="print every stage's summary as one JSON object")
+
+
+def _input_errors() -> tuple[type[Exception], ...]:
+    """The errors a stage raises for bad input (a recording, a lab, a scenario, a damaged run folder):
+    each names the file and the problem, so it is printed as one line."""
+    from besdrake.mocap.labeling import LabelingError
+    from besdrake.mocap.preprocess import PreprocessError
+    from besdrake.mocap.recording import MocapFormatError
+    from besdrake.pipeline.run import RunError
+    from besdrake.plan import PlanError
+    from besdrake.search.loop import ResumeError
+    from besdrake.segmentation import SegmentationError
+    from besdrake.sim.effects import EffectError
+    from besdrake.sim.scenario import ScenarioError
+    from besdrake.transfer.log import LogError
+    from besdrake.plugins import PluginError
+    from besdrake.transfer.virtual_lab import LabConfigError
+
+    return (MocapFormatError, PreprocessError, LabelingError, SegmentationError, PlanError, ScenarioError, EffectError,
+            LogError, PluginError, LabConfigError, ResumeError, RunError)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -81,7 +103,9 @@ def run(args: argparse.Namespace) -> int:
             bar.update(_WEIGHTS.get(name, 1))
 
     try:
-        records = learn(run_folder, progress=progress, stages=args.stage, on_stage=on_stage)
+        records = learn(run_folder, progress=progress, stages=args.stage, on_stage=on_stage, meshcat_host=args.meshcat_host)
+    except _input_errors() as err:
+        raise UserError(str(err)) from None
     finally:
         if bar is not None:
             bar.close()

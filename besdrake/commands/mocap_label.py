@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 from pathlib import Path
 
+from besdrake._io import OutputError, check_output
 from besdrake.cli import UserError
 
 COMMAND = ("mocap", "label")
@@ -29,16 +31,17 @@ def run(args: argparse.Namespace) -> int:
     for p in (args.file, args.reference):
         if not Path(p).is_file():
             raise UserError(f"no such file: {p}")
-    if args.max_gap < 0:
-        raise UserError(f"--max-gap must be >= 0, got {args.max_gap}")
+    if not math.isfinite(args.max_gap) or args.max_gap < 0:
+        raise UserError(f"--max-gap must be a number of seconds >= 0, got {args.max_gap}")
     if Path(args.out).suffix.lower() not in (".tsv", ".c3d"):
         raise UserError(f"--out must end in .tsv or .c3d, got {args.out}")
+    check_output(args.out, inputs=[args.file, args.reference])
     try:
         reference = read_recording(args.reference)
         recording = read_recording(args.file)
         labeler = MarkerLabeler(max_gap_s=args.max_gap).fit(reference)
         result = labeler.predict(recording, fill=not args.no_fill)
-    except (MocapFormatError, LabelingError) as err:
+    except (MocapFormatError, LabelingError, OutputError) as err:
         raise UserError(str(err)) from None
     write_recording(result.recording, args.out)
     summary = {"file": str(args.file), "reference": str(args.reference), "out": str(args.out), **result.summary()}

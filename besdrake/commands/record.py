@@ -30,7 +30,12 @@ def run(args: argparse.Namespace) -> int:
     try:
         from besdrake.sim.record import record_html
 
-        path, outcome = record_html(plan_from_args(args), args.out, scenario=scenario_from_args(args), effects=effects_from_args(args.effect), fps=args.fps)
+        from besdrake.commands.simulate import _refuse_unsafe
+
+        plan = plan_from_args(args)
+        scenario = scenario_from_args(args)
+        _refuse_unsafe(plan, scenario.robot)
+        path, outcome = record_html(plan, args.out, scenario=scenario, effects=effects_from_args(args.effect), fps=args.fps, host=args.meshcat_host)
     except (PlanError, EffectError, ScenarioError, ValueError) as err:
         raise UserError(str(err)) from err
     td = "none" if outcome.touchdown is None else f"x={outcome.touchdown[0]:.3f} m y={outcome.touchdown[1]:.3f} m"

@@ -16,6 +16,7 @@ import json
 import sys
 import time
 from pathlib import Path
+from besdrake._io import write_text as _atomic_write_text
 
 COMMAND = ("refine",)
 HELP = "refine imitated throws (49 DMP parameters) with CMA-ES in simulation so the ball lands within 0.1 m of a target"
@@ -68,8 +69,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--dropped-penalty", type=float, default=None, help="reward penalty (m) of a ball that falls out of the scoop (default 0)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--continue-after-success", action="store_true", help="use the whole budget instead of stopping at the first success")
-    parser.add_argument("--backend", choices=("serial", "process"), default="process", help="rollout executor")
-    parser.add_argument("--workers", type=int, default=2, help="worker processes of the process backend")
+    from besdrake.sim.cliutil import add_backend_arguments
+
+    add_backend_arguments(parser)
     parser.add_argument("--scenario", default="nominal", help="simulation scenario (name or YAML path)")
     parser.add_argument("--no-figures", action="store_true", help="do not write learning_curve.png")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -117,7 +119,7 @@ def _imitate_synthetic(source: str, folder: Path) -> list[Path]:
         for r in imitate_recording(name, pre, throws, out_dir=folder, simulate=False, figures=False):
             if r.error is None:
                 names.append(f"{name}_throw{r.index}.dmp.json")
-    done.write_text(json.dumps(names))
+    _atomic_write_text(done, json.dumps(names))
     return [folder / n for n in names]
 
 
@@ -161,7 +163,8 @@ def run(args: argparse.Namespace) -> int:
     from besdrake.search.loop import ResumeError
     from besdrake.search.refinement import (RefinementError, RefinementProblem, ThrowReward, rank_starts, refine, scout_points,
                                             scout_starts_checked)
-    from besdrake.sim import make_executor
+    from besdrake.sim.cliutil import executor_from_args
+    from besdrake.sim.executors import ExecutorError
     from besdrake.sim.scenario import ScenarioError, load_scenario
 
     logging.getLogger("drake").setLevel(logging.ERROR)
@@ -199,8 +202,8 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(str(err)) from None
     show = not args.quiet and sys.stderr.isatty()
     try:
-        executor = make_executor(args.backend, workers=args.workers, scenario=args.scenario) if args.backend == "process" else make_executor("serial", scenario=args.scenario)
-    except ScenarioError as err:
+        executor = executor_from_args(args, args.scenario)
+    except (ScenarioError, ExecutorError) as err:
         raise UserError(str(err)) from None
     search = search_options(args)
     start_file = args.out / "start.json"
@@ -219,7 +222,7 @@ def run(args: argparse.Namespace) -> int:
             start = {"files": [str(f) for f in files], "target": list(args.target), "index": index,
                      "start_distance_m": rec.distance, "start_touchdown_m": rec.touchdown, "start_flags": rec.flags,
                      "ranking": [int(i) for i, r in ranking if np.isfinite(r.reward)]}
-            start_file.write_text(json.dumps(start, indent=1))
+            _atomic_write_text(start_file, json.dumps(start, indent=1))
         problem = problems[index]
         starts = scout_points(problems, start.get("ranking", []), scout_starts)  # None with one start point
         for k in range(args.runs):

@@ -20,6 +20,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--record", metavar="FILE.html", help="also write a self-contained meshcat HTML replay of the throw")
 
 
+def _refuse_unsafe(plan, robot) -> None:
+    """The safety gate's timing checks (:class:`besdrake.transfer.lab.SafetyLimits`) for a simulated plan:
+    an hour-long plan would hang the simulation, knots closer than the control period are no motion.
+    (The start check needs a robot's pose: in simulation the arm is put at the plan's start.)"""
+    from besdrake.plan import PlanError
+    from besdrake.transfer.safety import SafetyLimits
+
+    problems = SafetyLimits.of(robot).problems(plan)
+    if problems:
+        raise PlanError("refused by the safety gate's checks: " + "; ".join(problems))
+
+
 def run(args: argparse.Namespace) -> int:
     from besdrake.cli import UserError
     from besdrake.plan import PlanError
@@ -40,12 +52,13 @@ def run(args: argparse.Namespace) -> int:
         effects = effects_from_args(args.effect)
         scenario = scenario_from_args(args)
         plan = plan_from_args(args)
+        _refuse_unsafe(plan, scenario.robot)
         if args.record:
             if not str(args.record).endswith((".html", ".htm")):
                 raise ValueError(f"--record must be an .html file, got {args.record}")
             from besdrake.sim.record import record_html
 
-            _, outcome = record_html(plan, args.record, scenario=scenario, effects=effects, limits=args.limits)
+            _, outcome = record_html(plan, args.record, scenario=scenario, effects=effects, limits=args.limits, host=args.meshcat_host)
         else:
             from besdrake.sim.rollout import Rollout
 

@@ -18,6 +18,7 @@ import json
 import sys
 import time
 from pathlib import Path
+from besdrake._io import save_figure as _save_figure
 
 COMMAND = ("template",)
 HELP = "behaviour templates: train (BO-CPS/ACES), evaluate, instantiate and list a template pool"
@@ -35,8 +36,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--overwrite", action="store_true", help="train: replace a template of the same name")
     parser.add_argument("--target", "--context", dest="target", nargs=2, type=float, metavar=("X", "Y"), help="instantiate: target (x forward, y lateral), m")
     parser.add_argument("--plan-out", type=Path, default=None, help="instantiate: write the motion plan JSON here")
-    parser.add_argument("--backend", choices=("serial", "process"), default="process")
-    parser.add_argument("--workers", type=int, default=2)
+    from besdrake.sim.cliutil import add_backend_arguments
+
+    add_backend_arguments(parser)
     parser.add_argument("--scenario", default="nominal")
     parser.add_argument("--no-figures", action="store_true")
     parser.add_argument("--quiet", action="store_true")
@@ -45,14 +47,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _executor(args):
     from besdrake.cli import UserError
-    from besdrake.sim import make_executor
+    from besdrake.sim.cliutil import executor_from_args
+    from besdrake.sim.executors import ExecutorError
     from besdrake.sim.scenario import ScenarioError
 
     try:
-        if args.backend == "process":
-            return make_executor("process", workers=args.workers, scenario=args.scenario)
-        return make_executor("serial", scenario=args.scenario)
-    except ScenarioError as err:
+        return executor_from_args(args, args.scenario)
+    except (ScenarioError, ExecutorError) as err:
         raise UserError(str(err)) from None
 
 
@@ -184,6 +185,6 @@ def _plot(training, ev, path: Path) -> Path:
     ax.legend()
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
+    _save_figure(fig, path, dpi=100)
     plt.close(fig)
     return path

@@ -6,6 +6,7 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from besdrake._io import write_text as _atomic_write_text
 
 COMMAND = ("transfer",)
 HELP = "refine throws with the Transferability Approach: search in simulation, transfer the plans most likely to hit to the lab"
@@ -21,7 +22,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="seed of the search")
     parser.add_argument("--max-transfers", type=int, default=25)
     parser.add_argument("--population", type=int, default=50)
-    parser.add_argument("--workers", type=int, default=1, help="simulation processes")
+    from besdrake.sim.cliutil import add_backend_arguments
+
+    add_backend_arguments(parser, workers=1)
     parser.add_argument("--plugin", action="append", default=[], help="module registering further effects (for the lab)")
     parser.add_argument("--keep-going", action="store_true", help="do not stop at the first 3/3 success")
     parser.add_argument("--transfer-choice", choices=["likely", "predicted", "diverse"], default=None,
@@ -47,9 +50,12 @@ def run(args: argparse.Namespace) -> int:
     from besdrake.imitation import DMPParameterization
     from besdrake.imitation.io import load_dmp
     from besdrake.search.refinement import ParameterScaling
-    from besdrake.sim import make_executor
+    from besdrake.sim.cliutil import executor_from_args
+    from besdrake.sim.effects import EffectError
+    from besdrake.sim.executors import ExecutorError
+    from besdrake.sim.scenario import ScenarioError
     from besdrake.transfer.lab import SafetyGate
-    from besdrake.transfer.log import LabLog
+    from besdrake.transfer.log import LabLog, LogError
     from besdrake.plugins import PluginError, load_plugins
     from besdrake.transfer.transferability import TransferabilityApproach, TransferabilityConfig
     from besdrake.sim.scenario import load_scenario
@@ -85,21 +91,24 @@ def run(args: argparse.Namespace) -> int:
     lab = SafetyGate(VirtualLab(cfg))
     args.out.mkdir(parents=True, exist_ok=True)
     log_dir = args.out / "lab_log"
-    log = LabLog.open(log_dir) if (log_dir / "log.json").is_file() else LabLog.create(log_dir, lab.description(), run={"seed": args.seed})
-    executor = make_executor("process" if args.workers > 1 else "serial", workers=args.workers, scenario=args.scenario)
-    with executor:
-        search = TransferabilityApproach(
-            lambda theta: param.motion_plan(theta), seeds, scaling.scale, scaling.bounds, executor, lab,
-            np.random.default_rng(args.seed), config, log=log, out_dir=args.out,
-            progress=(lambda msg: print(msg, file=sys.stderr)) if not args.json else None,
-        )
-        result = search.run()
+    try:
+        log = LabLog.open(log_dir) if (log_dir / "log.json").is_file() else LabLog.create(log_dir, lab.description(), run={"seed": args.seed})
+        executor = executor_from_args(args, args.scenario)
+        with executor:
+            search = TransferabilityApproach(
+                lambda theta: param.motion_plan(theta), seeds, scaling.scale, scaling.bounds, executor, lab,
+                np.random.default_rng(args.seed), config, log=log, out_dir=args.out,
+                progress=(lambda msg: print(msg, file=sys.stderr)) if not args.json else None,
+            )
+            result = search.run()
+    except (LogError, EffectError, ScenarioError, ExecutorError) as err:
+        raise UserError(str(err)) from None
     summary = result.summary() | {"scenario": args.scenario, "lab": cfg.name, "seeds": [str(f) for f in files], "out": str(args.out)}
     if result.best_theta is not None:
         best = param.from_vector(result.best_theta)
         best.save(args.out / "best.dmp.json")
         param.motion_plan(result.best_theta).save(args.out / "best.plan.json")
-    (args.out / "summary.json").write_text(json.dumps(summary, indent=1, default=float))
+    _atomic_write_text((args.out / "summary.json"), json.dumps(summary, indent=1, default=float))
     if args.json:
         print(json.dumps(summary, default=float))
     else:

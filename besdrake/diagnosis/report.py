@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from besdrake._io import save_figure as _save_figure, write_text as _atomic_write_text
 from besdrake.diagnosis.core import EXCLUDE_FRACTION, Diagnosis
 
 
@@ -31,7 +32,7 @@ def write_refined_scenario(diag: Diagnosis, path: str | Path) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     d = diag.refined_scenario()
-    path.write_text("# Written by besdrake diagnose: the scenario with the fitted effect(s). Units: SI (m, s, rad, kg).\n" + yaml.safe_dump(d, sort_keys=False))
+    _atomic_write_text(path, "# Written by besdrake diagnose: the scenario with the fitted effect(s). Units: SI (m, s, rad, kg).\n" + yaml.safe_dump(d, sort_keys=False))
     load_scenario(path)  # raises ScenarioError naming the field if anything is off
     return path
 
@@ -61,7 +62,7 @@ def _figures(diag: Diagnosis, out: Path) -> list[str]:
         ax.set_title("Touchdown: lab vs simulation")
         ax.legend(loc="best", fontsize=8)
         fig.tight_layout()
-        fig.savefig(out / "touchdowns.png", dpi=110)
+        _save_figure(fig, out / "touchdowns.png", dpi=110)
         plt.close(fig)
         files.append("touchdowns.png")
 
@@ -81,7 +82,7 @@ def _figures(diag: Diagnosis, out: Path) -> list[str]:
         ax.set_ylabel("touchdown disparity (m)")
         ax.legend(fontsize=7)
         fig.tight_layout()
-        fig.savefig(out / "residuals.png", dpi=110)
+        _save_figure(fig, out / "residuals.png", dpi=110)
         plt.close(fig)
         files.append("residuals.png")
     if diag.comparison:
@@ -94,7 +95,7 @@ def _figures(diag: Diagnosis, out: Path) -> list[str]:
         ax.set_title("Systematic error of the nominal simulation per signal")
         ax.legend(fontsize=8)
         fig.tight_layout()
-        fig.savefig(out / "groups.png", dpi=110)
+        _save_figure(fig, out / "groups.png", dpi=110)
         plt.close(fig)
         files.append("groups.png")
     return files
@@ -210,10 +211,10 @@ def write_report(diag: Diagnosis, out: str | Path, figures: bool = True) -> dict
     scen = write_refined_scenario(diag, out / "refined_scenario.yaml")
     diag.refined_scenario_path = str(scen)
     figs = _figures(diag, out) if figures else []
-    (out / "diagnosis.json").write_text(diag.to_json())
+    _atomic_write_text(out / "diagnosis.json", diag.to_json())
     per_throw = out / "per_throw.json"
-    per_throw.write_text(json.dumps(diag.per_throw, indent=1))
-    (out / "report.md").write_text(_markdown(diag, figs, scen))
+    _atomic_write_text(per_throw, json.dumps(diag.per_throw, indent=1))
+    _atomic_write_text(out / "report.md", _markdown(diag, figs, scen))
     return {"report": str(out / "report.md"), "json": str(out / "diagnosis.json"), "scenario": str(scen), "per_throw": str(per_throw), **{f: str(out / f) for f in figs}}
 
 

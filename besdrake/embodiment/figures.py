@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
+from besdrake._io import save_figure as _save_figure
 from besdrake.embodiment.kinematics import KinematicModel, mount_to_transform
 from besdrake.embodiment.record_mapping import HandTrajectory
 
@@ -60,6 +61,6 @@ def plot_imitation(result, hand: HandTrajectory, welded: KinematicModel, path: s
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=80)
+    _save_figure(fig, path, dpi=80)
     plt.close(fig)
     return path

@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from besdrake._io import write_text as _atomic_write_text
 from besdrake.embodiment.ik import IKTrajectory, ik_trajectory
 from besdrake.embodiment.kinematics import KinematicModel, mount_to_transform, mounted_plant, welded_plant
 from besdrake.embodiment.record_mapping import HandTrajectory
@@ -143,7 +144,7 @@ class ImitatedThrow:
         self.dmp.save(folder / f"{self.name}.dmp.json")
         data = self.summary() | {"theta": self.theta.tolist(), "theta_names": list(self.parameterization.names)}
         path = folder / f"{self.name}.json"
-        path.write_text(json.dumps(data, indent=1))
+        _atomic_write_text(path, json.dumps(data, indent=1))
         return path
 
 

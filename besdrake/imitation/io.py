@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 from typing import Any
 
+from besdrake._io import write_text as _atomic_write_text
 from besdrake.imitation._validation import DMPParameterError
 from besdrake.imitation.cartesian import CartesianDMP
 from besdrake.imitation.dmp import DMP
@@ -18,7 +19,7 @@ def save_dmp(dmp: DMP | QuaternionDMP | CartesianDMP, path: str | Path) -> Path:
     """Write ``dmp`` as JSON (SI units) and return the path."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(dmp.to_dict(), indent=1))
+    _atomic_write_text(path, json.dumps(dmp.to_dict(), indent=1))
     return path
 
 

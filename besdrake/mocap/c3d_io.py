@@ -7,7 +7,6 @@ millimetres, float storage and the recording's first frame number.
 
 from __future__ import annotations
 
-import struct
 import warnings
 from pathlib import Path
 
@@ -26,21 +25,26 @@ def read_c3d(path: str | Path, check_units: bool = True) -> MocapRecording:
     try:
         with open(path, "rb") as handle, warnings.catch_warnings():
             warnings.filterwarnings("ignore", message="No analog data found")
+            warnings.filterwarnings("ignore", message="reached end of file")  # checked below: frames read < declared
+            warnings.filterwarnings("ignore", category=UserWarning, module="c3d")  # damaged files: an error below or a read
             reader = c3d.Reader(handle)
             labels = [str(s).strip() for s in reader.point_labels]
             rate = float(reader.point_rate)
             first = int(reader.first_frame)
+            declared = int(reader.last_frame) - first + 1
             units_param = reader.get("POINT:UNITS")
             units = units_param.string_value.strip().lower() if units_param is not None else "mm"
             pts = []
             for _, points, _analog in reader.read_frames(copy=True, check_nan=False):
                 pts.append(points[:, :4])
-    except (struct.error, ValueError, AssertionError, IndexError, EOFError, OSError) as err:
-        if isinstance(err, FileNotFoundError):
+    except Exception as err:  # noqa: BLE001 - the c3d package raises anything on damaged bytes
+        if isinstance(err, (FileNotFoundError, PermissionError, IsADirectoryError)):
             raise
         raise MocapFormatError(f"{path}: not a readable C3D file ({type(err).__name__}: {err})") from None
     if not pts:
         raise MocapFormatError(f"{path}: C3D file holds no frames")
+    if len(pts) < declared:
+        raise MocapFormatError(f"{path}: truncated C3D file: its header declares {declared} frames, the file holds {len(pts)}")
     if units not in _UNIT_TO_M:
         raise MocapUnitsError(f"{path}: unknown POINT:UNITS {units!r} (expected mm, cm or m)")
     data = np.stack(pts).astype(float)  # (n_frames, n_points, 4)
@@ -70,6 +74,8 @@ def write_c3d(rec: MocapRecording, path: str | Path) -> None:
         pts[:, 3] = np.where(missing, -1.0, 0.0)
         frames.append((pts, empty_analog))
     writer.add_frames(frames)
-    with open(path, "wb") as handle, warnings.catch_warnings():
+    from besdrake._io import atomic_path
+
+    with atomic_path(path) as tmp, open(tmp, "wb") as handle, warnings.catch_warnings():
         warnings.filterwarnings("ignore", message="No analog data found")
         writer.write(handle)

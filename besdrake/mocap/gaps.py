@@ -9,6 +9,8 @@ start or end of the recording and markers that are never visible are left as NaN
 
 from __future__ import annotations
 
+import warnings
+
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -105,14 +107,44 @@ def _spline_fill(t: np.ndarray, x: np.ndarray, g0: int, g1: int, context: int = 
     return x[g0 - 1] + s[:, None] * (x[g1] - x[g0 - 1]), "linear"
 
 
+#: A sample farther than this (metres) from the median of its +-3 neighbours is a glitch. The median of a
+#: smoothly moving marker's window is the sample itself whatever the speed, so only jumps count.
+OUTLIER_OFFSET_M = 0.5
+
+
+def reject_outliers(rec: MocapRecording, max_offset_m: float = OUTLIER_OFFSET_M, half_window: int = 3) -> tuple[MocapRecording, list[str]]:
+    """A copy of ``rec`` with single glitch samples (at most ``half_window`` in a row, farther than
+    ``max_offset_m`` from the median of their neighbours) set missing, and one warning per marker."""
+    out = rec.copy()
+    pos = out.positions
+    n = rec.n_frames
+    if n < 2 * half_window + 1:
+        return out, []
+    pad = np.full((half_window, rec.n_markers, 3), np.nan)
+    windows = np.lib.stride_tricks.sliding_window_view(np.concatenate([pad, pos, pad]), 2 * half_window + 1, axis=0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN windows
+        med = np.nanmedian(windows, axis=-1)
+    offset = np.linalg.norm(pos - med, axis=2)
+    bad = np.isfinite(offset) & (offset > max_offset_m)
+    messages = []
+    for j in np.nonzero(bad.any(axis=0))[0]:
+        frames = rec.frames[bad[:, j]]
+        pos[bad[:, j], j] = np.nan
+        shown = ", ".join(str(int(f)) for f in frames[:5]) + (", ..." if len(frames) > 5 else "")
+        messages.append(f"{rec.marker_names[j]}: {len(frames)} sample(s) more than {max_offset_m:g} m off their neighbours "
+                        f"rejected as glitches (frame {shown})")
+    return out, messages
+
+
 def fill_gaps(rec: MocapRecording, max_gap_s: float = 0.25, plates: list[list[str]] | None = None) -> GapFillResult:
     """Fill short gaps (at most ``max_gap_s`` long) of ``rec``; return a new recording and a report.
 
     ``plates`` lists rigid marker triples (names); a missing plate marker whose two partners are
     visible across the gap is filled by a rigid fit, everything else by a cubic spline.
     """
-    if max_gap_s < 0:
-        raise ValueError(f"max_gap_s must be >= 0, got {max_gap_s}")
+    if not np.isfinite(max_gap_s) or max_gap_s < 0:
+        raise ValueError(f"max_gap_s must be a number of seconds >= 0, got {max_gap_s}")
     out = rec.copy()
     pos = out.positions
     vis = rec.visible()

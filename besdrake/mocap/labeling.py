@@ -126,6 +126,21 @@ def labeling_accuracy(slot_labels: np.ndarray, truth: np.ndarray, marker_names: 
     }
 
 
+def _median_nearest_distance(pos: np.ndarray, max_frames: int = 500) -> float | None:
+    """Median over frames and visible markers of the distance to the nearest other marker (metres);
+    on plate-carrying recordings it is set by the plates' known spacing. None if it cannot be measured."""
+    if pos.shape[0] == 0 or pos.shape[1] < 2:
+        return None
+    rows = pos[np.linspace(0, pos.shape[0] - 1, min(max_frames, pos.shape[0])).astype(int)]
+    d = np.linalg.norm(rows[:, :, None, :] - rows[:, None, :, :], axis=3)
+    idx = np.arange(pos.shape[1])
+    d[:, idx, idx] = np.inf
+    d[np.isnan(d)] = np.inf
+    nearest = d.min(axis=2)
+    nearest = nearest[np.isfinite(nearest) & (nearest > 0)]
+    return float(np.median(nearest)) if nearest.size else None
+
+
 class MarkerLabeler:
     """Label unnamed marker trajectories (scikit-learn style: ``fit(reference)``, ``predict(recording)``).
 
@@ -185,6 +200,8 @@ class MarkerLabeler:
         for name in ("track_gate", "min_gate", "max_speed", "rigid_tol", "bin_m", "max_distance", "min_sigma", "window"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
+        if not np.isfinite(self.max_gap_s) or self.max_gap_s < 0:
+            raise ValueError(f"max_gap_s must be a number of seconds >= 0, got {self.max_gap_s}")
 
     # ------------------------------------------------------------------ fit
     def fit(self, reference: MocapRecording) -> "MarkerLabeler":
@@ -255,6 +272,7 @@ class MarkerLabeler:
         self.strict_thresholds_ = strict
         self.typical_ = typical
         self.frequency_ = reference.frequency
+        self.nearest_distance_ = _median_nearest_distance(pos)
         # Initial pose: the first reference frame with the most markers visible.
         vis = reference.visible()
         self.initial_pose_ = pos[int(np.argmax(vis.sum(axis=1)))].copy()
@@ -412,6 +430,25 @@ class MarkerLabeler:
             best = min(best, float((np.linalg.norm(x0 - pred) / tol) ** 2))
         return best
 
+    def _check_scale(self, rec: MocapRecording, max_ratio: float = 3.0) -> None:
+        """Refuse a recording whose markers lie much closer together (or farther apart) than the
+        reference's: the plates' distances are known, so a 10x smaller spacing means centimetres."""
+        ref = getattr(self, "nearest_distance_", None)
+        got = _median_nearest_distance(rec.positions)
+        if ref is None or got is None or not ref > 0 or not got > 0:
+            return
+        ratio = got / ref
+        if 1.0 / max_ratio <= ratio <= max_ratio:
+            return
+        unit = {10.0: "centimetres", 1000.0: "metres", 0.001: "micrometres"}.get(float(10 ** round(np.log10(1.0 / ratio))), "another unit")
+        raise LabelingError(
+            f"the recording's markers lie {1.0 / ratio:.3g}x closer together than the reference's (median distance to the "
+            f"nearest marker {got * 1000:.3g} mm vs {ref * 1000:.3g} mm, set by the rigid plates): the file is probably in "
+            f"{unit}, not millimetres" if ratio < 1 else
+            f"the recording's markers lie {ratio:.3g}x farther apart than the reference's (median distance to the nearest "
+            f"marker {got * 1000:.3g} mm vs {ref * 1000:.3g} mm, set by the rigid plates): the file is probably in {unit}"
+        )
+
     def predict(self, rec: MocapRecording, fill: bool = True) -> LabelingResult:
         """Label the unnamed trajectories of ``rec`` (any marker names; slots may be shuffled)."""
         if not hasattr(self, "pair_cost_"):
@@ -422,6 +459,9 @@ class MarkerLabeler:
         m = len(self.marker_names_)
         if n < 2:
             raise LabelingError(f"the recording is too short to label ({n} frame(s))")
+        if not rec.visible().any():
+            raise LabelingError("no marker is visible in any frame of the recording: nothing to label")
+        self._check_scale(rec)
         warnings: list[str] = []
         if abs(rec.frequency - self.frequency_) > 1e-6:
             warnings.append(f"frequency {rec.frequency:g} Hz differs from the reference's {self.frequency_:g} Hz")

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.signal import savgol_filter
 
-from besdrake.mocap.gaps import fill_gaps
+from besdrake.mocap.gaps import fill_gaps, reject_outliers
 from besdrake.mocap.recording import MocapRecording
 
 BACK_MARKERS = ("Back top", "Back right", "Back left")
@@ -166,6 +166,8 @@ def preprocess(
             inside the recording (the message names the marker and the frames).
     """
     hand_markers, back_markers = tuple(hand_markers), tuple(back_markers)
+    if not np.isfinite(max_gap_s) or max_gap_s < 0:
+        raise PreprocessError(f"the longest gap to fill must be a number of seconds >= 0, got {max_gap_s}")
     if len(back_markers) != 3:
         raise PreprocessError(f"the back frame needs three markers (top, right, left), got {back_markers}")
     if len(hand_markers) < 1:
@@ -173,10 +175,10 @@ def preprocess(
     if rec.n_frames < 3:
         raise PreprocessError(f"the recording has {rec.n_frames} frames; at least 3 are needed")
     _require(rec, hand_markers + back_markers)
+    rec, warnings = reject_outliers(rec)  # a single 10 m glitch would otherwise become a segment
     filled = fill_gaps(rec, max_gap_s)  # short gaps by a local cubic spline; long and edge gaps stay NaN
     pos, interp = filled.recording.positions, filled.filled_mask
     missing = np.isnan(pos).any(axis=2)
-    warnings = []
     for j, name in enumerate(rec.marker_names):
         if interp[:, j].any():
             warnings.append(f"{name}: {int(interp[:, j].sum())} samples interpolated")

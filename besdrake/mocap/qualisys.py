@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from besdrake._io import write_text as _atomic_write_text
 from besdrake.mocap.recording import MocapFormatError, MocapRecording, MocapUnitsError
 from besdrake.mocap.segments_io import Segment, read_segmentation, segmentation_path, write_segmentation
 
@@ -77,6 +78,27 @@ def _parse_floats(rows: list[list[str]], first_line: int, path: Path) -> np.ndar
                     f"{path}, line {first_line + k}: column {col + 1} is not a number: {value!r}"
                 ) from None
     raise MocapFormatError(f"{path}: data rows could not be read as numbers")  # pragma: no cover
+
+
+def _decimals(value: str) -> int | None:
+    """Digits after the decimal point of a number field (None for a missing sample)."""
+    if value in ("null", "", "NaN"):
+        return None
+    return len(value.partition(".")[2])
+
+
+def _check_last_row(rows: list[list[str]], line: int, path: Path) -> None:
+    """A file that ends without a newline may have been cut off inside its last number: refuse a last row
+    whose fields carry fewer decimals than the same fields of the row before it."""
+    if len(rows) < 2:
+        return
+    for col, (a, b) in enumerate(zip(rows[-2], rows[-1])):
+        da, db = _decimals(a), _decimals(b)
+        if da is not None and db is not None and db < da:
+            raise MocapFormatError(
+                f"{path}, line {line}: the file ends without a newline and column {col + 1} ({b!r}) has fewer "
+                f"digits than the line before ({a!r}): the file seems truncated; remove or complete the last line"
+            )
 
 
 def read_tsv(path: str | Path, check_units: bool = True) -> MocapRecording:
@@ -187,6 +209,8 @@ def read_tsv(path: str | Path, check_units: bool = True) -> MocapRecording:
                 f"{path}, line {ln}: {len(row)} columns, expected {n_cols} for {n_markers} markers"
                 + (" (truncated file?)" if ln == line_numbers[-1] else "")
             )
+    if not text.endswith(("\n", "\r")):
+        _check_last_row(rows, line_numbers[-1], path)
     data = _parse_floats(rows, first_data_line, path)
     if has_frame_time:
         if np.isnan(data[:, :2]).any():
@@ -202,6 +226,9 @@ def read_tsv(path: str | Path, check_units: bool = True) -> MocapRecording:
         if len(frames) > 1 and np.any(np.diff(frames) <= 0):
             bad = line_numbers[int(np.nonzero(np.diff(frames) <= 0)[0][0]) + 1]
             raise MocapFormatError(f"{path}, line {bad}: Frame numbers must increase")
+        if len(time) > 1 and np.any(np.diff(time) <= 0):
+            bad = line_numbers[int(np.nonzero(np.diff(time) <= 0)[0][0]) + 1]
+            raise MocapFormatError(f"{path}, line {bad}: Time must increase")
     else:
         frames = np.arange(1, len(rows) + 1)
         time = (frames - 1) / frequency
@@ -279,7 +306,7 @@ def write_tsv(rec: MocapRecording, path: str | Path, missing: str = "null", fram
         if frame_time:
             row = f"{int(rec.frames[k])}\t{rec.time[k]:.5f}\t" + row
         out.append(row)
-    Path(path).write_text("\n".join(out) + "\n")
+    _atomic_write_text(Path(path), "\n".join(out) + "\n")
 
 
 def _fmt_number(x: float) -> str:

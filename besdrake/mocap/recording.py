@@ -26,6 +26,11 @@ class MocapUnitsError(MocapFormatError):
 #: Plausible spatial extent (metres) of the visible markers of one human recording.
 MIN_PLAUSIBLE_EXTENT_M = 0.02
 MAX_PLAUSIBLE_EXTENT_M = 50.0
+#: The rigid marker plates (back and hand) by marker name, and the range their edges may have (metres):
+#: 28-65 mm on the real recordings and the synthetic demonstrator; a file whose plate edges are 10x
+#: shorter is in centimetres, not millimetres.
+PLATES = (("Back top", "Back right", "Back left"), ("Hand top", "Hand right", "Hand left"))
+PLATE_EDGE_RANGE_M = (0.01, 0.2)
 
 
 @dataclass
@@ -79,6 +84,14 @@ class MocapRecording:
             )
         if n_frames > 1 and np.any(np.diff(self.frames) <= 0):
             raise MocapFormatError("frame numbers must be strictly increasing")
+        if not np.all(np.isfinite(self.time)):
+            raise MocapFormatError("time values must be finite numbers")
+        if n_frames > 1 and np.any(np.diff(self.time) <= 0):
+            k = int(np.nonzero(np.diff(self.time) <= 0)[0][0])
+            raise MocapFormatError(
+                f"time must increase: frame {int(self.frames[k + 1])} has time {self.time[k + 1]:g} s "
+                f"after {self.time[k]:g} s at frame {int(self.frames[k])}"
+            )
 
     # ------------------------------------------------------------------ access
     @property
@@ -173,10 +186,33 @@ class MocapRecording:
             )
         return None
 
+    def plate_edge(self) -> float | None:
+        """Median edge length (metres) of the named rigid plates (:data:`PLATES`) present, None if none is."""
+        edges = []
+        for plate in PLATES:
+            if all(n in self.marker_names for n in plate):
+                for a, b in ((0, 1), (0, 2), (1, 2)):
+                    d = np.linalg.norm(self.marker(plate[a]) - self.marker(plate[b]), axis=1)
+                    edges.extend(d[np.isfinite(d)])
+        return float(np.median(edges)) if edges else None
+
+    def plate_units_problem(self) -> str | None:
+        """A message naming the file's likely unit when the plates' edges are far outside
+        :data:`PLATE_EDGE_RANGE_M` (their known size), else None."""
+        edge = self.plate_edge()
+        lo, hi = PLATE_EDGE_RANGE_M
+        if edge is None or edge <= 0 or lo <= edge <= hi:
+            return None
+        for unit, factor in (("centimetres", 10.0), ("metres", 1000.0), ("micrometres", 1e-3)):
+            if lo <= edge * factor <= hi:
+                return (f"the rigid plates' markers are {edge * 1000:.3g} mm apart where the plates measure "
+                        f"{lo * 1000:g}-{hi * 1000:g} mm: the file is probably in {unit}, not millimetres")
+        return f"the rigid plates' markers are {edge * 1000:.3g} mm apart where the plates measure {lo * 1000:g}-{hi * 1000:g} mm"
+
     def check_units(self, source: str | Path, strict: bool = True) -> "MocapRecording":
         """Apply :meth:`units_problem` after reading ``source``: raise :class:`MocapUnitsError`
         naming the file (``strict``) or record the problem as ``metadata["units_warning"]``."""
-        problem = self.units_problem()
+        problem = self.units_problem() or self.plate_units_problem()
         if problem is not None:
             if strict:
                 raise MocapUnitsError(f"{source}: {problem}")

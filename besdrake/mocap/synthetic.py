@@ -31,6 +31,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from besdrake._io import save_npz as _save_npz, write_text as _atomic_write_text
 from besdrake.mocap import arm_model as am
 from besdrake.mocap.qualisys import write_tsv
 from besdrake.mocap.recording import MocapRecording
@@ -146,7 +147,7 @@ class ExperimentTruth:
         data = {k: np.asarray(v) for k, v in asdict(self).items()}
         # Trajectories as float32 (sub-micrometre precision) keep the files small.
         data = {k: (v.astype(np.float32) if v.dtype == np.float64 and v.size > 64 else v) for k, v in data.items()}
-        np.savez_compressed(path, **data)
+        _save_npz(path, **data)
 
     @classmethod
     def load(cls, path: str | Path) -> "ExperimentTruth":
@@ -584,5 +585,5 @@ def generate_dataset(
                 write_tsv(urec, out / "unlabeled" / f"{stem}.tsv")
                 np.savez_compressed(out / "unlabeled" / f"{stem}_labels.npz", truth_label=labels,
                                     marker_names=np.array(MARKER_NAMES))
-    (out / "dataset.json").write_text(json.dumps({**asdict(summary), "styles": styles}, indent=1))
+    _atomic_write_text(out / "dataset.json", json.dumps({**asdict(summary), "styles": styles}, indent=1))
     return summary

@@ -25,6 +25,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from besdrake._io import save_figure as _save_figure, write_text as _atomic_write_text
 from besdrake._io import write_json
 from besdrake.pipeline.run import RunFolder
 
@@ -50,6 +51,8 @@ class Context:
     config: dict[str, Any]
     progress: Callable[[str], None] = print
     cache: dict[str, Any] = field(default_factory=dict)
+    #: Interface the meshcat server of the report's replays listens on (a run option, not configuration).
+    meshcat_host: str = "localhost"
 
     def robot(self, scenario: str | None = None):
         """The robot of ``scenario`` (default: the configured one), from its robot file."""
@@ -122,7 +125,7 @@ def stage_label(ctx: Context, out: Path) -> dict[str, Any]:
             write_tsv(rec, out / f"{f.stem}.tsv")
             seg = f.with_name(f.stem + "_manually_segmented.json")
             if seg.is_file():
-                (out / seg.name).write_text(seg.read_text())
+                _atomic_write_text(out / seg.name, seg.read_text())
             records.append({"name": f.stem, "cpu_s": 0.0, "correct_share": None})
     shares = [r["correct_share"] for r in records if r["correct_share"] is not None]
     return {
@@ -237,7 +240,7 @@ def _plot_segmentation(pre, found, manual, path: Path) -> None:
     ax.set_ylabel("m/s")
     ax.set_title("vMCI borders (red lines), 1-NN labels (shading: throw red, strike_out orange, swing_out blue, idle grey), manual borders (dotted)")
     fig.tight_layout()
-    fig.savefig(path, dpi=80)
+    _save_figure(fig, path, dpi=80)
     plt.close(fig)
 
 
@@ -290,10 +293,26 @@ def _executor(ctx: Context, scenario: str):
 
     workers = int(ctx.config["workers"])
     if ctx.config.get("ray_address"):
-        return make_executor("ray", workers=workers, scenario=scenario, address=ctx.config["ray_address"])
-    if workers > 1:
-        return make_executor("process", workers=workers, scenario=scenario)
-    return make_executor("serial", scenario=scenario)
+        ex = make_executor("ray", workers=workers, scenario=scenario, address=ctx.config["ray_address"])
+    elif workers > 1:
+        ex = make_executor("process", workers=workers, scenario=scenario)
+    else:
+        ex = make_executor("serial", scenario=scenario)
+    ctx.cache.setdefault("stage_executors", []).append(ex)  # their stats: the workers' busy share per stage
+    return ex
+
+
+def _executor_stats(ctx: Context) -> dict[str, Any] | None:
+    """The stage's rollouts, wall and busy seconds summed over its executors (None if it simulated nothing)."""
+    from besdrake.sim.executors import ExecutorStats
+
+    executors = ctx.cache.pop("stage_executors", [])
+    total = ExecutorStats(workers=max([1] + [e.stats.workers for e in executors]))
+    for e in executors:
+        total.rollouts += e.stats.rollouts
+        total.wall_s += e.stats.wall_s
+        total.busy_s += e.stats.busy_s
+    return total.to_dict() if total.rollouts else None
 
 
 def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int, tag: str, scouting: bool = True) -> dict[str, Any]:
@@ -454,14 +473,18 @@ def stage_diagnose(ctx: Context, out: Path) -> dict[str, Any]:
     seconds = time.perf_counter() - t0
     paths = write_report(diag, out / "report")
     summary = diag.summary()
-    return summary | {"diagnosis_s": seconds, "lab_trials": len(log), "refined_scenario": paths["scenario"], "report": paths["report"]}
+    rel = {k: (None if paths[k] is None else str(Path(paths[k]).relative_to(ctx.run.root))) for k in ("scenario", "report")}
+    return summary | {"diagnosis_s": seconds, "lab_trials": len(log), "refined_scenario": rel["scenario"], "report": rel["report"]}
 
 
 def _refined_scenario(ctx: Context) -> str:
+    """The diagnosis's refined scenario (stored relative to the run folder, so a copied or moved run folder
+    resumes with its own file), or the configured scenario."""
     done = ctx.run.done(6, "diagnose")
-    if not ctx.config["diagnosis"]["enabled"] or done is None:
+    if not ctx.config["diagnosis"]["enabled"] or done is None or not done["summary"].get("refined_scenario"):
         return ctx.config["scenario"]
-    return done["summary"]["refined_scenario"] or ctx.config["scenario"]
+    path = Path(done["summary"]["refined_scenario"])
+    return str(path if path.is_absolute() else ctx.run.root / path)
 
 
 def stage_transfer_refined(ctx: Context, out: Path) -> dict[str, Any]:
@@ -541,7 +564,7 @@ def _plot_template(contexts: np.ndarray, sim_td: np.ndarray, lab_td: np.ndarray,
     ax.legend(fontsize=8)
     ax.set_title("behaviour template on the 16 test contexts")
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    _save_figure(fig, path, dpi=90)
     plt.close(fig)
 
 
@@ -576,7 +599,7 @@ def stage_report(ctx: Context, out: Path) -> dict[str, Any]:
         plan_file = root / folder / "best.plan.json"
         if plan_file.is_file():
             scenario = _refined_scenario(ctx) if stage == "transfer_refined" else ctx.config["scenario"]
-            html, _ = record_html(MotionPlan.load(plan_file), out / f"best_throw_{stage}.html", scenario=scenario, limits="flag")
+            html, _ = record_html(MotionPlan.load(plan_file), out / f"best_throw_{stage}.html", scenario=scenario, limits="flag", host=ctx.meshcat_host)
             replays.append(html.name)
     lines = [
         "# besdrake learn: report",
@@ -622,7 +645,7 @@ def stage_report(ctx: Context, out: Path) -> dict[str, Any]:
         lines.append("")
     if replays:
         lines += ["## Replays", ""] + [f"- [{r}](10_report/{r}) (meshcat, self-contained HTML)" for r in replays] + [""]
-    (root / "report.md").write_text("\n".join(lines))
+    _atomic_write_text(root / "report.md", "\n".join(lines))
     return {"report": str(root / "report.md"), "replays": replays}
 
 
@@ -648,6 +671,8 @@ def learn_scenario(config: dict[str, Any]):
     from besdrake.task import TaskError, get_task
 
     name = str(config.get("task", ""))
+    if not isinstance(config.get("scenario"), str) or not isinstance(config.get("robot") or "", str):
+        raise ConfigError(f"scenario and robot must be names or YAML paths, got {config.get('scenario')!r}, {config.get('robot')!r}")
     try:
         task = get_task(name)
         scenario = load_scenario(config["scenario"])
@@ -700,11 +725,12 @@ def learn(
     progress: Callable[[str], None] = print,
     stages: list[str] | None = None,
     on_stage: Callable[[str, dict[str, Any]], None] | None = None,
+    meshcat_host: str = "localhost",
 ) -> dict[str, Any]:
     """Run every stage not yet done (or only ``stages``); returns each stage's record.
 
     ``progress`` receives messages; ``on_stage(name, record)`` is called after each stage, run or skipped."""
-    ctx = Context(run, dict(run.config, scenario=run_scenario(run.config, run.root)), progress)
+    ctx = Context(run, dict(run.config, scenario=run_scenario(run.config, run.root)), progress, meshcat_host=meshcat_host)
     records = {}
     for i, (name, fn) in enumerate(STAGES, 1):
         if name == "diagnose" and not run.config["diagnosis"]["enabled"]:
@@ -716,8 +742,12 @@ def learn(
             progress(f"[{i}/{len(STAGES)}] {name} ...")
             t0 = time.perf_counter()
             summary = fn(ctx, run.stage_dir(i, name))
+            stats = _executor_stats(ctx)
+            if stats is not None:
+                summary = summary | {"executor": stats}
             rec = run.mark_done(i, name, summary, time.perf_counter() - t0)
-            progress(f"[{i}/{len(STAGES)}] {name} done in {_fmt_time(rec['seconds'])}")
+            busy = "" if stats is None else f" ({stats['rollouts']} rollouts, {stats['rollouts_per_s']}/s, workers busy {stats['busy_share']:.0%})"
+            progress(f"[{i}/{len(STAGES)}] {name} done in {_fmt_time(rec['seconds'])}{busy}")
         else:
             progress(f"[{i}/{len(STAGES)}] {name}: done earlier, skipped")
         records[name] = rec

@@ -24,6 +24,7 @@ from typing import Any
 
 import yaml
 
+from besdrake._io import write_text as _atomic_write_text
 from besdrake._io import write_json
 
 
@@ -55,7 +56,7 @@ class RunFolder:
                     "or choose a new --out folder"
                 )
         else:
-            path.write_text(text)
+            _atomic_write_text(path, text)
 
     def record_inputs(self, files: dict[str, Path]) -> None:
         """Hash the input files; a resume with changed inputs is refused."""
@@ -75,10 +76,29 @@ class RunFolder:
         return d
 
     def done(self, index: int, name: str) -> dict[str, Any] | None:
-        path = self.root / f"{index:02d}_{name}" / "stage.json"
-        return json.loads(path.read_text()) if path.is_file() else None
+        """The finished stage's record, None if it has not finished. :class:`RunError` when its files were
+        changed or deleted since it finished (checksums in ``stage.json``)."""
+        folder = self.root / f"{index:02d}_{name}"
+        path = folder / "stage.json"
+        if not path.is_file():
+            return None
+        try:
+            record = json.loads(path.read_text())
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+            raise RunError(f"{path} is not valid JSON ({err}); delete the folder {folder} to redo the stage") from None
+        for rel, digest in (record.get("files") or {}).items():
+            f = folder / rel
+            if not f.is_file() or file_hash(f) != digest:
+                what = "was deleted" if not f.is_file() else "was changed"
+                raise RunError(f"{f} {what} after the stage finished (SHA-256 in stage.json): delete the folder {folder} "
+                               "to redo the stage (and the later ones), or choose a new --out folder")
+        return record
 
     def mark_done(self, index: int, name: str, summary: dict[str, Any], seconds: float) -> dict[str, Any]:
-        record = {"stage": name, "seconds": seconds, "finished": time.strftime("%Y-%m-%dT%H:%M:%S"), "summary": summary}
+        folder = self.stage_dir(index, name)
+        files = {str(p.relative_to(folder)): file_hash(p) for p in sorted(folder.rglob("*"))
+                 if p.is_file() and p.name != "stage.json" and not p.name.endswith((".lock", ".tmp"))}
+        record = {"stage": name, "seconds": seconds, "finished": time.strftime("%Y-%m-%dT%H:%M:%S"), "summary": summary,
+                  "files": files}
         write_json(self.stage_dir(index, name) / "stage.json", record)
         return record

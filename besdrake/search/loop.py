@@ -241,14 +241,23 @@ def _error_text(err: BaseException) -> str:
 def _restore(optimizer: Any, out_dir: Path | None) -> tuple[Any, dict[str, Any] | None]:
     if out_dir is None or not (out_dir / f"{STATE_FILE}.json").exists():
         return optimizer, None
-    saved = load_state(out_dir / STATE_FILE)
-    loop = saved.get("loop", {})
+    recover = f"to recover, delete the folder {out_dir} (that search starts again) or use a new output folder"
+    try:
+        saved = load_state(out_dir / STATE_FILE)
+        loop = saved.get("loop", {}) if isinstance(saved, dict) else None
+        if not isinstance(loop, dict):
+            raise ValueError("no 'loop' record")
+    except (OSError, ValueError, KeyError, TypeError, EOFError) as err:  # json/np.load/zip errors on damaged files
+        raise ResumeError(f"the saved search state {out_dir / STATE_FILE}.json/.npz is damaged ({type(err).__name__}: {err}); {recover}") from None
     if loop.get("optimizer_type") != type(optimizer).__name__:
         raise ResumeError(
             f"{out_dir} holds the state of a {loop.get('optimizer_type')!r} search, not of {type(optimizer).__name__!r}; "
             "use another out_dir or the same optimizer"
         )
-    return type(optimizer).from_state(saved["optimizer"]), loop
+    try:
+        return type(optimizer).from_state(saved["optimizer"]), loop
+    except (ValueError, KeyError, TypeError, IndexError) as err:
+        raise ResumeError(f"the saved search state {out_dir / STATE_FILE}.json is damaged ({type(err).__name__}: {err}); {recover}") from None
 
 
 def _save(optimizer: Any, out_dir: Path | None, loop: dict[str, Any]) -> None:

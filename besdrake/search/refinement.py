@@ -213,6 +213,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from besdrake._io import save_figure as _save_figure
 from besdrake._io import write_json
 from besdrake.imitation import DMP, DMPParameterError, DMPParameterization
 from besdrake.plan import MotionPlan, PlanError
@@ -1082,6 +1083,6 @@ def plot_learning_curves(results: Sequence[RefinementResult], path: str | Path) 
     ax.legend()
     fig.tight_layout()
     path = Path(path)
-    fig.savefig(path, dpi=100)
+    _save_figure(fig, path, dpi=100)
     plt.close(fig)
     return path

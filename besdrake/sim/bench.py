@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from besdrake._io import save_figure as _save_figure, write_text as _atomic_write_text
 
 TARGETS = {"max_landing_error_m": 0.03, "ms_per_rollout": 16.0, "speedup_2_workers": 1.8}
 #: Amplitudes of the default throw that land between about 1 and 2.5 m on the nominal scenario.
@@ -171,7 +172,7 @@ def run_bench(quick: bool = False, out_dir: str | Path = "runs/bench", scenario:
         "speedup_2_workers": res.speedup_2_workers >= TARGETS["speedup_2_workers"],
         "smooth": monotonic,
     }
-    (out_dir / "bench_rollout.json").write_text(json.dumps(res.to_dict(), indent=2))
+    _atomic_write_text(out_dir / "bench_rollout.json", json.dumps(res.to_dict(), indent=2))
     return res
 
 
@@ -195,6 +196,6 @@ def _plot(path: Path, amps, land, land_ref, dense_a, dense, dt) -> Path:
     ax2.set_ylabel("default - 1 ms (cm)")
     ax2.set_xlabel("amplitude of default_throw")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    _save_figure(fig, path, dpi=110)
     plt.close(fig)
     return path

@@ -43,6 +43,8 @@ def add_common_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scenario", default="nominal", help="scenario name in besdrake/diagrams/ or a YAML path")
     parser.add_argument("--robot", default=None, help="robot: a built-in name or a robot YAML path (default: the scenario's)")
     parser.add_argument("--effect", action="append", metavar="NAME:key=val,...", help="physical effect, repeatable (see --list-effects)")
+    parser.add_argument("--meshcat-host", default="localhost", metavar="HOST",
+                        help="interface the meshcat server of a replay listens on (default localhost; '*' or 0.0.0.0 opens it to the network)")
 
 
 def scenario_from_args(args: argparse.Namespace):
@@ -61,3 +63,29 @@ def plan_from_args(args: argparse.Namespace) -> MotionPlan:
             raise ValueError("give either --plan or --amplitude, not both")
         return MotionPlan.load(args.plan)
     return default_throw(amplitude=0.35 if args.amplitude is None else args.amplitude, yaw=args.yaw)
+
+
+def add_backend_arguments(parser: argparse.ArgumentParser, default: str = "process", workers: int = 2) -> None:
+    """``--backend serial|process|ray``, ``--workers N`` and ``--ray ADDRESS`` (implies the ray backend)."""
+    parser.add_argument("--backend", choices=("serial", "process", "ray"), default=default,
+                        help=f"rollout executor (default {default}); ray: Ray actors, see --ray")
+    parser.add_argument("--workers", type=int, default=workers, help=f"worker processes / Ray actors (default {workers})")
+    parser.add_argument("--ray", default=None, metavar="ADDRESS",
+                        help="run rollouts on this Ray cluster ('auto': the one started with 'ray start' on this machine; "
+                             "needs besdrake[cluster]); without it --backend ray starts a local Ray bound to 127.0.0.1")
+
+
+def executor_from_args(args: argparse.Namespace, scenario, limits: str = "flag"):
+    """The executor ``add_backend_arguments`` asked for (:class:`~besdrake.sim.executors.ExecutorError` or
+    :class:`~besdrake.sim.scenario.ScenarioError` for a bad choice or scenario)."""
+    from besdrake.sim.executors import ExecutorError, make_executor
+
+    backend = "ray" if getattr(args, "ray", None) else args.backend
+    workers = int(args.workers)
+    if workers < 1:
+        raise ExecutorError(f"--workers must be >= 1, got {workers}")
+    if backend == "ray":
+        return make_executor("ray", workers=workers, scenario=scenario, limits=limits, address=getattr(args, "ray", None))
+    if backend == "process" and workers > 1:
+        return make_executor("process", workers=workers, scenario=scenario, limits=limits)
+    return make_executor("serial", scenario=scenario, limits=limits)

@@ -88,6 +88,13 @@ def _add_robot(plant, parser, scenario: Scenario):
         raise ScenarioError(f"robot model {scenario.robot.model} could not be parsed: {err}") from err
 
 
+def _require_names(plant, scenario: Scenario, ball) -> None:
+    """:class:`ScenarioError` naming the model file when a body the throwing simulation looks up by name is
+    missing (e.g. an SDF whose ball body is not called ``ball``; the robot file's names are checked when it is read)."""
+    if not plant.HasBodyNamed("ball", ball):
+        raise ScenarioError(f"the ball model {scenario.models.get('ball')} has no body named 'ball' (the simulation looks it up by name)")
+
+
 def base_transform(scenario: Scenario):
     """World pose of the base frame from the scenario's base pose."""
     from pydrake.math import RigidTransform, RollPitchYaw
@@ -121,9 +128,10 @@ def build_diagram(scenario: Scenario | str = "nominal", meshcat=None) -> SimHand
     robot = scenario.robot
     _require_models(scenario, ("ball", "ground"))
     arm = _add_robot(plant, parser, scenario)
+    ball_instance = _parse(parser, scenario, "ball")[0]
+    _require_names(plant, scenario, ball_instance)
     base_frame = plant.AddFrame(FixedOffsetFrame("robot_base", plant.world_frame(), base_transform(scenario)))
     plant.WeldFrames(base_frame, plant.GetFrameByName(robot.base_link, arm))
-    ball_instance = _parse(parser, scenario, "ball")[0]
     ground = _parse(parser, scenario, "ground")[0]  # a <static> model: welded to the world by the parser
     z = scenario.base.z
     if z > 0.02:

@@ -190,7 +190,14 @@ def apply_effects(setup: RolloutSetup, effects: dict[str, dict[str, float]]) -> 
     """Apply completed effects to ``setup`` in registration order."""
     for name in list_effects():
         if name in effects:
-            _REGISTRY[name].apply(setup, effects[name])
+            try:
+                _REGISTRY[name].apply(setup, effects[name])
+            except (KeyboardInterrupt, EffectError):
+                raise
+            except SystemExit as err:  # a plugin must not end the process (or a pool worker)
+                raise EffectError(f"effect {name!r} called sys.exit({err.code!r}) in apply()") from None
+            except Exception as err:  # a user's effect: name it rather than show its traceback
+                raise EffectError(f"effect {name!r} failed in apply(): {type(err).__name__}: {err}") from err
 
 
 # ---------------------------------------------------------------------------------------- built-ins

@@ -23,6 +23,8 @@ from __future__ import annotations
 
 import math
 import os
+import time
+from dataclasses import dataclass
 from typing import Any, Sequence
 
 from besdrake.plan import MotionPlan, PlanError
@@ -31,6 +33,27 @@ from besdrake.sim.outcome import Outcome
 from besdrake.sim.scenario import Scenario, load_scenario
 
 BACKENDS = ("serial", "process", "ray")
+
+
+@dataclass
+class ExecutorStats:
+    """What an executor did: rollouts, wall time inside ``evaluate`` and the workers' busy time (s)."""
+
+    rollouts: int = 0
+    wall_s: float = 0.0
+    busy_s: float = 0.0
+    workers: int = 1
+
+    @property
+    def busy_share(self) -> float | None:
+        """Share of the workers' capacity spent simulating while ``evaluate`` ran (None before any call)."""
+        return None if self.wall_s <= 0 else min(1.0, self.busy_s / (self.wall_s * max(1, self.workers)))
+
+    def to_dict(self) -> dict[str, Any]:
+        share = self.busy_share
+        return {"rollouts": self.rollouts, "wall_s": round(self.wall_s, 3), "busy_s": round(self.busy_s, 3), "workers": self.workers,
+                "busy_share": None if share is None else round(share, 3),
+                "rollouts_per_s": None if self.wall_s <= 0 else round(self.rollouts / self.wall_s, 2)}
 
 
 class ExecutorError(RuntimeError):
@@ -72,6 +95,7 @@ class Executor:
             raise ValueError(f"limits must be 'raise' or 'flag', got {limits!r}")
         self.limits = limits
         self._closed = False
+        self.stats = ExecutorStats()
 
     def _prepare(self, plans: Sequence[MotionPlan], effects) -> list[tuple[MotionPlan, dict | None]]:
         if self._closed:
@@ -101,9 +125,18 @@ class Executor:
     def evaluate(self, plans: Sequence[MotionPlan], effects: dict | list | None = None) -> list[Outcome]:
         """Simulate every plan (with its effects); Outcomes in the order of ``plans``."""
         items = self._prepare(plans, effects)
-        return self._evaluate(items) if items else []
+        if not items:
+            return []
+        t0 = time.perf_counter()
+        out, busy = self._evaluate(items)
+        self.stats.rollouts += len(items)
+        self.stats.wall_s += time.perf_counter() - t0
+        self.stats.busy_s += busy
+        self.stats.workers = int(getattr(self, "workers", 1))
+        return out
 
-    def _evaluate(self, items):  # pragma: no cover - abstract
+    def _evaluate(self, items) -> tuple[list[Outcome], float]:  # pragma: no cover - abstract
+        """Outcomes in order, and the workers' busy seconds."""
         raise NotImplementedError
 
     def close(self) -> None:
@@ -128,7 +161,9 @@ class SerialExecutor(Executor):
     def _evaluate(self, items):
         if self._rollout is None:
             self._rollout = _make_rollout(self.scenario)
-        return _run_batch(self._rollout, items, self.limits)
+        t0 = time.perf_counter()
+        out = _run_batch(self._rollout, items, self.limits)
+        return out, time.perf_counter() - t0
 
 
 # ------------------------------------------------------------------------------------------ process pool
@@ -138,10 +173,11 @@ _WORKER_ERROR = ""
 
 
 def _plugin_paths() -> list[str]:
-    """The effect plugins loaded in this process (their effects must exist in every worker too)."""
+    """The plugins loaded in this process whose files still exist (their effects and tasks must exist in every
+    worker too; a forked worker has them all already, a spawned one loads these)."""
     from besdrake.plugins import loaded_plugin_paths
 
-    return [str(p) for p in loaded_plugin_paths()]
+    return [str(p) for p in loaded_plugin_paths() if p.is_file()]
 
 
 def _init_worker(scenario: Scenario, plugins: tuple[str, ...] = ()) -> None:
@@ -160,11 +196,14 @@ def _init_worker(scenario: Scenario, plugins: tuple[str, ...] = ()) -> None:
         _WORKER_ERROR = f"{type(err).__name__}: {err}"
 
 
-def _worker_batch(args) -> list[Outcome]:
+def _worker_batch(args) -> tuple[list[Outcome], float]:
+    """A worker's batch: its Outcomes and the seconds it spent on them."""
     items, limits = args
     if _WORKER_ROLLOUT is None:
-        return [_failed(f"worker has no simulation: {_WORKER_ERROR}", _WORKER_SCENARIO) for _ in items]
-    return _run_batch(_WORKER_ROLLOUT, items, limits)
+        return [_failed(f"worker has no simulation: {_WORKER_ERROR}", _WORKER_SCENARIO) for _ in items], 0.0
+    t0 = time.perf_counter()
+    out = _run_batch(_WORKER_ROLLOUT, items, limits)
+    return out, time.perf_counter() - t0
 
 
 def _chunks(items: list, workers: int) -> list[list]:
@@ -223,8 +262,9 @@ class ProcessExecutor(Executor):
             if not pending.ready() and self._pids() != pids:  # a worker died and was replaced
                 self._pool.terminate()
                 self._start()
-                return [_failed("a simulation worker died (killed or crashed) during this batch", self.scenario) for _ in items]
-        return [o for chunk in pending.get() for o in chunk]
+                return [_failed("a simulation worker died (killed or crashed) during this batch", self.scenario) for _ in items], 0.0
+        done = pending.get()
+        return [o for chunk, _ in done for o in chunk], sum(s for _, s in done)
 
     def close(self) -> None:
         if not self._closed:
@@ -242,6 +282,27 @@ def _import_ray():
     return ray
 
 
+def _ray_init_kwargs(kwargs: dict[str, Any], workers: int | None) -> dict[str, Any]:
+    """``ray.init`` arguments: connect to ``address`` (e.g. "auto" or "HOST:PORT") when given; else start a
+    private local Ray with ``workers`` CPUs, no dashboard (its web UI stays closed unless asked for) and the
+    node address 127.0.0.1. Ray's own gRPC ports cannot be bound to one interface (Ray 2.60): they rely on
+    Ray's token authentication, on by default."""
+    kw = dict(kwargs)
+    if kw.get("address") or os.environ.get("RAY_ADDRESS"):
+        for key in ("num_cpus", "include_dashboard", "_node_ip_address"):
+            kw.pop(key, None)
+        kw.setdefault("log_to_driver", False)
+        return kw
+    kw.pop("address", None)
+    kw.setdefault("include_dashboard", False)
+    kw.setdefault("dashboard_host", "127.0.0.1")
+    kw.setdefault("_node_ip_address", "127.0.0.1")
+    kw.setdefault("log_to_driver", False)
+    if workers:
+        kw.setdefault("num_cpus", int(workers))
+    return kw
+
+
 class RayExecutor(Executor):
     """Ray actors (one Diagram each) on the current Ray cluster (``ray.init`` if none is running)."""
 
@@ -251,7 +312,7 @@ class RayExecutor(Executor):
         ray = _import_ray()
         super().__init__(scenario, limits)
         if not ray.is_initialized():
-            ray.init(**init_kwargs)
+            ray.init(**_ray_init_kwargs(init_kwargs, workers))
         self._ray = ray
         self.workers = int(workers or max(1, int(ray.available_resources().get("CPU", 1))))
 
@@ -275,7 +336,8 @@ class RayExecutor(Executor):
 
     def _evaluate(self, items):
         refs = [self._actors[i % self.workers].run.remote(c, self.limits) for i, c in enumerate(_chunks(items, self.workers))]
-        return [o for chunk in self._ray.get(refs) for o in chunk]
+        done = self._ray.get(refs)
+        return [o for chunk, _ in done for o in chunk], sum(s for _, s in done)
 
     def close(self) -> None:
         if not self._closed:

@@ -12,19 +12,21 @@ from pathlib import Path
 
 import numpy as np
 
+from besdrake._io import write_text as _atomic_write_text
 from besdrake.plan import MotionPlan
 from besdrake.sim.outcome import Outcome
 from besdrake.sim.scenario import Scenario
 
 
-def record_html(plan: MotionPlan, out: str | Path, scenario: Scenario | str = "nominal", effects: dict | None = None, fps: float = 60.0, limits: str = "raise") -> tuple[Path, Outcome]:
-    """Simulate ``plan`` and write the replay to ``out`` (.html); returns (path, Outcome)."""
-    from pydrake.geometry import Meshcat, Rgba, Sphere
+def record_html(plan: MotionPlan, out: str | Path, scenario: Scenario | str = "nominal", effects: dict | None = None, fps: float = 60.0, limits: str = "raise", host: str = "localhost") -> tuple[Path, Outcome]:
+    """Simulate ``plan`` and write the replay to ``out`` (.html); returns (path, Outcome). The meshcat server
+    that records it listens on ``host`` only (localhost by default; "*" would open it to the network)."""
+    from pydrake.geometry import Meshcat, MeshcatParams, Rgba, Sphere
     from pydrake.math import RigidTransform
 
     from besdrake.sim.rollout import Rollout
 
-    meshcat = Meshcat()
+    meshcat = Meshcat(MeshcatParams(host=host))
     sim = Rollout(scenario, meshcat=meshcat)
     outcome = sim.rollout(plan, effects=effects, limits=limits)
     h = sim.handles
@@ -53,5 +55,5 @@ def record_html(plan: MotionPlan, out: str | Path, scenario: Scenario | str = "n
     vis.PublishRecording()
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(meshcat.StaticHtml())
+    _atomic_write_text(out, meshcat.StaticHtml())
     return out, outcome

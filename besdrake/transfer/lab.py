@@ -19,6 +19,7 @@ import numpy as np
 from besdrake.plan import MotionPlan, PlanError
 from besdrake.robot import JointLimits
 from besdrake.transfer.measurement import Measurement
+from besdrake.transfer.safety import SafetyLimits
 
 
 @runtime_checkable
@@ -62,15 +63,18 @@ class SafetyGate(TrialCounter):
     kind, amount beyond the limit) in ``message``; a malformed plan (NaN, wrong shape, time not increasing)
     is refused the same way. The check is :meth:`MotionPlan.check_limits` on the interpolated plan, i.e.
     on what the controller would be sent. ``resolution`` (s) is its sampling step. The limits are the
-    robot's (``lab.robot``, read from its robot file) unless ``limits`` are given.
+    robot's (``lab.robot``, read from its robot file) unless ``limits`` are given. ``safety``
+    (:class:`SafetyLimits`, by default the robot file's ``safety`` section) refuses too long plans, too close
+    knots and a start away from the lab's ``current_pose()`` (when the lab has that method and it returns a pose).
     """
 
-    def __init__(self, lab: Lab, limits: JointLimits | None = None, resolution: float = 0.002) -> None:
+    def __init__(self, lab: Lab, limits: JointLimits | None = None, resolution: float = 0.002, safety: SafetyLimits | None = None) -> None:
         if not hasattr(lab, "execute"):
             raise TypeError(f"SafetyGate needs a lab with an execute(plan) method, got {type(lab).__name__}")
         self.lab = lab
         self.robot = getattr(lab, "robot", None)
         self.limits = limits or _robot_limits(lab)
+        self.safety = safety or (SafetyLimits.of(self.robot) if self.robot is not None else SafetyLimits())
         self.resolution = float(resolution)
         self.name = f"{getattr(lab, 'name', type(lab).__name__)}"
         self.refused = 0
@@ -79,6 +83,10 @@ class SafetyGate(TrialCounter):
         """The reasons to refuse ``plan`` (empty when it may run)."""
         if not isinstance(plan, MotionPlan):
             return [f"not a MotionPlan: {type(plan).__name__}"]
+        pose = getattr(self.lab, "current_pose", None)
+        timing = self.safety.problems(plan, pose() if callable(pose) else None)
+        if timing:
+            return timing  # before sampling the limits: a too long plan would take that long to check
         try:
             report = plan.check_limits(self.limits, resolution=self.resolution)
         except PlanError as err:
@@ -91,6 +99,9 @@ class SafetyGate(TrialCounter):
             "position_limits_rad": self.limits.position.tolist(),
             "velocity_limits_rad_s": self.limits.velocity.tolist(),
             "acceleration_limits_rad_s2": self.limits.acceleration.tolist(),
+            "max_duration_s": self.safety.max_duration_s,
+            "min_knot_spacing_s": self.safety.min_knot_spacing_s,
+            "start_tolerance_rad": self.safety.start_tolerance_rad,
         }
         return d
 
@@ -119,4 +130,4 @@ def _robot_limits(lab) -> JointLimits:
     return robot.limits
 
 
-__all__ = ["JointLimits", "Lab", "SafetyGate", "TrialCounter"]
+__all__ = ["JointLimits", "Lab", "SafetyGate", "SafetyLimits", "TrialCounter"]

@@ -43,6 +43,8 @@ def joint_columns(plan: MotionPlan) -> tuple[str, ...]:
     names = plan.joint_names or tuple(f"joint{k + 1}" for k in range(plan.q.shape[1]))
     return ("t", *(f"q_cmd_{n}" for n in names), *(f"q_meas_{n}" for n in names))
 BALL_MARKER = "ball"
+#: Per-trial file of SHA-256 checksums of the trial's other files (written last, checked when read).
+CHECKSUMS = "checksums.json"
 #: Frequency written into ball.tsv when a lab records the ball at irregular times (see LOG_FORMAT.md).
 DEFAULT_BALL_RATE_HZ = 100.0
 
@@ -316,6 +318,36 @@ def write_trial_files(folder: Path, m: Measurement) -> None:
         info["ball_samples"] = int(len(m.ball_t))
         info["ball_t"] = m.ball_t.tolist()  # exact times (the TSV's Time column has 10 us resolution)
     _fsync_write(folder / "measurement.json", json.dumps(info, indent=1) + "\n")
+    sums = {f.name: _sha256(f) for f in sorted(folder.iterdir()) if f.is_file() and f.name != CHECKSUMS}
+    _fsync_write(folder / CHECKSUMS, json.dumps(sums, indent=1) + "\n")
+
+
+def _sha256(path: Path) -> str:
+    import hashlib
+
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def verify_trial(root: str | Path, trial: int) -> None:
+    """:class:`LogError` when a committed trial's folder is missing or a file in it differs from the
+    checksum written with it (edited by hand, damaged); logs written before checksums pass when present."""
+    d = _trial_dir(Path(root), trial)
+    if not d.is_dir():
+        raise LogError(f"trial {trial} is in trials.csv but its folder {d} is missing: the log is damaged; "
+                       "restore the folder or start a new log")
+    path = d / CHECKSUMS
+    if not path.is_file():
+        return
+    sums = _load_json(path)
+    if not isinstance(sums, dict):
+        raise LogError(f"{path}: not a mapping of file names to SHA-256 checksums")
+    for name, digest in sums.items():
+        f = d / str(name)
+        if not f.is_file():
+            raise LogError(f"{f} is missing (the trial was written with it): the log is damaged")
+        if _sha256(f) != digest:
+            raise LogError(f"{f} was changed after the trial was logged (its SHA-256 differs from {CHECKSUMS}): "
+                           "a log records what was measured; restore the file or start a new log")
 
 
 def _load_json(path: Path) -> Any:
@@ -333,6 +365,7 @@ def read_trial(root: str | Path, trial: int, expected_hash: str | None = None) -
     from besdrake.mocap.recording import MocapFormatError
 
     d = _trial_dir(Path(root), trial)
+    verify_trial(root, trial)
     info = _load_json(d / "measurement.json")
     plan_d = _load_json(d / "plan.json")
     try:
@@ -429,6 +462,7 @@ def run_plans(lab: Any, plans: list[MotionPlan], log: LabLog, progress: Callable
     if len(done) > len(plans):
         raise LogError(f"the log {log.root} holds {len(done)} trials but only {len(plans)} plans were given: not the same run")
     for k, h in enumerate(done):
+        verify_trial(log.root, k)
         if plan_hash(plans[k]) != h:
             raise LogError(
                 f"trial {k} in the log {log.root} executed a different plan than plan {k} given now "
@@ -447,4 +481,4 @@ def run_plans(lab: Any, plans: list[MotionPlan], log: LabLog, progress: Callable
     return RunSummary(skipped=len(done), executed=len(plans) - len(done), total=len(log), flag_counts=flag_counts)
 
 
-__all__ = ["LabLog", "LogError", "RunSummary", "run_plans", "read_log", "read_trial", "write_trial_files", "LOG_FORMAT", "LOG_VERSION", "CSV_COLUMNS", "joint_columns"]
+__all__ = ["LabLog", "LogError", "RunSummary", "run_plans", "read_log", "read_trial", "write_trial_files", "verify_trial", "LOG_FORMAT", "LOG_VERSION", "CSV_COLUMNS", "joint_columns"]

@@ -149,6 +149,8 @@ class LabConfig:
     plugins: list[str] = field(default_factory=list)
     description: str = ""
     path: Path | None = None
+    #: Joint positions (rad) the robot stands at before its first trial; None: it is moved to each plan's start.
+    home_pose: tuple[float, ...] | None = None
 
     def with_seed(self, seed: int) -> "LabConfig":
         """A copy with another noise seed."""
@@ -184,7 +186,7 @@ def parse_lab_config(data: Any, base_dir: Path | None = None, name: str = "lab")
 
     if not isinstance(data, dict):
         raise LabConfigError(f"a lab config must be a mapping, got {type(data).__name__}")
-    known = {"name", "description", "scenario", "effects", "noise", "seed", "record_ball_path", "record_joints", "plugins"}
+    known = {"name", "description", "scenario", "effects", "noise", "seed", "record_ball_path", "record_joints", "plugins", "home_pose"}
     unknown = set(data) - known
     if unknown:
         raise LabConfigError(f"lab config has unknown field(s) {sorted(unknown)}; known: {sorted(known)}")
@@ -227,6 +229,17 @@ def parse_lab_config(data: Any, base_dir: Path | None = None, name: str = "lab")
         candidate = base_dir / scenario
         if candidate.exists():
             scenario = str(candidate)
+    from besdrake.sim.scenario import ScenarioError, load_scenario
+
+    try:
+        load_scenario(scenario)  # a missing or broken scenario is named now, not at the first trial
+    except ScenarioError as err:
+        raise LabConfigError(f"lab config scenario: {err}") from err
+    home = data.get("home_pose")
+    if home is not None:
+        if not isinstance(home, list) or len(home) != 6:
+            raise LabConfigError(f"lab config field home_pose must be a list of 6 joint positions (rad), got {home!r}")
+        home = tuple(_number("home_pose", v, -np.pi * 2, np.pi * 2) for v in home)
     try:
         effects = normalize_effects(data.get("effects") or {})
     except EffectError as err:
@@ -247,6 +260,7 @@ def parse_lab_config(data: Any, base_dir: Path | None = None, name: str = "lab")
         record_joints=record["record_joints"],
         plugins=plugins,
         description=description.strip(),
+        home_pose=home,
     )
 
 
@@ -301,6 +315,7 @@ class VirtualLab(TrialCounter):
         self.name = self.config.name
         self._rollout = None
         self._robot = None
+        self._pose = None if self.config.home_pose is None else np.array(self.config.home_pose, dtype=float)
 
     @property
     def robot(self):
@@ -310,6 +325,11 @@ class VirtualLab(TrialCounter):
 
             self._robot = self._rollout.robot if self._rollout is not None else load_scenario(self.config.scenario).robot
         return self._robot
+
+    def current_pose(self) -> np.ndarray | None:
+        """Where the robot stands: the config's ``home_pose``, then the last executed plan's end pose; None
+        when the lab has no home pose (the virtual robot is put at each plan's start)."""
+        return None if self._pose is None else self._pose.copy()
 
     def description(self) -> dict[str, Any]:
         """Public facts for a log: name, description, scenario, sensors, what is recorded (no hidden truth)."""
@@ -373,6 +393,8 @@ class VirtualLab(TrialCounter):
             out = self.rollout.rollout(plan, effects=effects, limits="flag")
         except PlanError as err:
             return Measurement(trial=trial, plan=plan, flags={"aborted": True}, message=f"aborted: malformed plan: {err}", meta=meta)
+        if self._pose is not None:
+            self._pose = np.array(plan.q[-1], dtype=float)  # the robot stays where the plan left it
 
         flags = {
             "dropped_early": bool(out.flags.get("dropped_early")),
