@@ -75,7 +75,9 @@ class JointLimits:
 
 @dataclass(frozen=True, eq=False)
 class Gripper:
-    """A gripper's joints, their actuators, open and closed positions (m or rad) and servo gains."""
+    """A gripper's joints, their actuators, open and closed positions (m or rad) and servo gains; ``coupled``: joints
+    that the model couples 1:1 to the first gripper joint (a URDF ``<mimic>``, a coupler constraint under SAP), not
+    actuated themselves (e.g. the second finger of a belt-driven parallel gripper)."""
 
     joints: tuple[str, ...]
     actuators: tuple[str | None, ...]
@@ -84,6 +86,7 @@ class Gripper:
     kp: np.ndarray
     kd: np.ndarray
     effort: np.ndarray
+    coupled: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True, eq=False)
