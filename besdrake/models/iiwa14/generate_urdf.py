@@ -219,11 +219,12 @@ HEADER = """<?xml version="1.0"?>
 """
 
 
-def main() -> Path:
+def main(out: Path = OUT) -> Path:
+    """Write the URDF to ``out`` (default: ``iiwa14.urdf`` beside this script)."""
     urdf = HEADER.format(pad_r=PAD_R, mu=PAD_MU, stroke=FINGER_STROKE, tool_z=f"{TOOL_Z:.4g}")
     urdf += arm_links() + arm_joints() + gripper() + transmissions() + "</robot>\n"
-    OUT.write_text(urdf)
-    return OUT
+    out.write_text(urdf)
+    return out
 
 
 if __name__ == "__main__":

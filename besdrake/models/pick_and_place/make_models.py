@@ -129,8 +129,9 @@ def box_model() -> str:
 """
 
 
-def main() -> list[Path]:
-    out = [HERE / "fixtures.sdf", HERE / "box.sdf"]
+def main(folder: Path = HERE) -> list[Path]:
+    """Write ``fixtures.sdf`` and ``box.sdf`` into ``folder`` (default: beside this script)."""
+    out = [folder / "fixtures.sdf", folder / "box.sdf"]
     out[0].write_text(fixtures())
     out[1].write_text(box_model())
     return out

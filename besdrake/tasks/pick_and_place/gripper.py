@@ -70,6 +70,15 @@ class GripperCommand:
         """Commanded width (m) at ``times``."""
         return np.interp(times, self.t, self.width)
 
+    def closed_time(self) -> float | None:
+        """The first time (s) the command reaches its narrowest width after it started closing (None: it never closes)."""
+        w = self.width
+        closing = np.nonzero(np.diff(w) < 0)[0]
+        if closing.size == 0:
+            return None
+        after = np.arange(closing[0] + 1, len(w))
+        return float(self.t[after[np.argmin(w[after])]])
+
     def release_time(self) -> float | None:
         """The first time (s) the command opens after it has closed (None: never closed, or never reopened)."""
         w = self.width

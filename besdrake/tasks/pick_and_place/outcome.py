@@ -1,5 +1,10 @@
 """What a pick-and-place rollout measured, whether it succeeded, and its reward.
 
+Failure flags: ``not_lifted`` (the box never rose clear of the shelf), ``slipped`` (the fingers closed on the box
+but it was not lifted with them, or moved in the gripper before the release: a grasp too weak for its friction),
+``dropped`` (it ended below the table top), ``not_upright``, ``missed_place``, ``arm_fixture_collision``,
+``joint_limit_exceeded``, ``sim_failed``.
+
 Success (issue 24): the box was lifted clear of the shelf and held (no slip) until the gripper opened, stands
 upright on the table within ``place_tolerance`` of the target place, no part of the robot touched a fixture,
 and the joint limits were kept. The reward is continuous for CMA-ES: minus a cost in metres (the final distance
@@ -44,6 +49,7 @@ class PickPlaceOutcome:
 
     success: bool = False
     reward: float = float("-inf")
+    grasped: bool = False                      # the closed fingers stopped on something (the box) 0.1 s after closing
     lifted: bool = False
     held: bool = False
     upright: bool = False
@@ -66,7 +72,7 @@ class PickPlaceOutcome:
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready summary (no time series)."""
         return {
-            "success": self.success, "reward": self.reward, "lifted": self.lifted, "held": self.held,
+            "success": self.success, "reward": self.reward, "grasped": self.grasped, "lifted": self.lifted, "held": self.held,
             "upright": self.upright, "on_table": self.on_table, "limits_kept": self.limits_kept,
             "arm_fixture_collision": self.arm_fixture_collision, "collision": self.collision,
             "place_error_m": self.place_error, "tilt_rad": self.tilt, "box_position": self.box_position.tolist(),
@@ -79,7 +85,7 @@ def score(out: PickPlaceOutcome, target: np.ndarray, criteria: PickPlaceCriteria
     """Set ``out``'s success, failure flags and reward from its measurements (``target``: the place, m)."""
     f = out.flags
     f["not_lifted"] = not out.lifted
-    f["slipped"] = out.lifted and not out.held
+    f["slipped"] = out.grasped and not (out.lifted and out.held)
     f["not_upright"] = not out.upright
     f["missed_place"] = not (out.on_table and out.place_error <= criteria.place_tolerance)
     f["arm_fixture_collision"] = out.arm_fixture_collision

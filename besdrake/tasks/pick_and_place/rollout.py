@@ -24,6 +24,9 @@ from besdrake.tasks.pick_and_place.outcome import PickPlaceCriteria, PickPlaceOu
 LIMIT_TOLERANCE = 0.01
 #: A box faster than this (m/s), or a non-finite state, is a diverged simulation.
 DIVERGENCE_SPEED = 20.0
+#: After the gripper command has closed, the fingers settle for this long (s) before they are checked; fingers held
+#: open by more than GRASP_GAP (m, per joint) beyond the command have closed on something.
+GRASP_SETTLE, GRASP_GAP = 0.1, 0.002
 #: Sampling period (s) of the gravity feed-forward along the plan.
 FEEDFORWARD_PERIOD = 0.02
 
@@ -218,8 +221,13 @@ class PickPlaceRollout:
         self._lift_and_hold(out, ts, xs, grip)
 
     def _lift_and_hold(self, out: PickPlaceOutcome, ts: np.ndarray, xs: np.ndarray, grip: GripperCommand) -> None:
-        """Lifted: the box's bottom rose ``lift_clearance`` above its start. Held: from that instant until the gripper
+        """Grasped: after closing, the fingers stopped short of their command. Lifted: the box's bottom rose ``lift_clearance`` above its start. Held: from that instant until the gripper
         command opens (or the end), the box's position in the tool frame moved less than ``slip_tolerance``."""
+        t_closed = grip.closed_time()
+        if t_closed is not None:
+            i = min(int(np.searchsorted(ts, t_closed + GRASP_SETTLE)), len(ts) - 1)
+            commanded = grip.joint_positions(self.robot, grip.sample([t_closed]))[0]
+            out.grasped = bool(np.all(np.abs(xs[i, self.h.gripper_joint_q] - commanded) > GRASP_GAP))
         z = xs[:, self._box_q + 6] - self._rest_height
         above = np.nonzero(z >= self.box_start[2] + self.criteria.lift_clearance)[0]
         out.lifted = bool(above.size)
