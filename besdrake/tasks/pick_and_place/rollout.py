@@ -144,9 +144,14 @@ class PickPlaceRollout:
             pair = contacts.point_pair_contact_info(i).point_pair()
             a, b = pair.id_A, pair.id_B
             if (a in self._robot_geoms and b in self._fixture_geoms) or (b in self._robot_geoms and a in self._fixture_geoms):
-                inspector = self.h.scene_graph.model_inspector()
-                return f"{inspector.GetName(a)} / {inspector.GetName(b)}"
+                return f"{self._geometry_name(a)} / {self._geometry_name(b)}"
         return ""
+
+    def _geometry_name(self, gid) -> str:
+        """"<body>:<geometry>" (URDF collision shapes are often unnamed: the body says where)."""
+        inspector = self.h.scene_graph.model_inspector()
+        body = self.h.plant.GetBodyFromFrameId(inspector.GetFrameId(gid))
+        return f"{body.name()}:{inspector.GetName(gid).split('::')[-1]}"
 
     def _simulate(self, t_end: float, out: PickPlaceOutcome) -> None:
         """Advance to ``t_end`` in chunks; record the first arm-fixture contact; stop early on the floor or a blow-up."""
