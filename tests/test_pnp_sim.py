@@ -146,3 +146,30 @@ def test_robot_file_refuses_an_unknown_coupled_joint(tmp_path):
     bad.write_text(yaml.safe_dump(data))
     with pytest.raises(RobotError, match=r"bad.yaml: end_effector.coupled_joints\[0\]"):
         load_robot(bad)
+
+
+@pytest.fixture(scope="module")
+def panda_rollout():
+    """The same scene with the Panda (only the robot file differs); skipped without ``besdrake[robots]``."""
+    from besdrake.robot import RobotError
+    from besdrake.sim.scenario import load_scenario
+    from besdrake.tasks.pick_and_place.rollout import PickPlaceRollout
+
+    try:
+        load_robot("panda")
+    except RobotError as err:
+        pytest.skip(f"the Panda needs example-robot-data (pip install 'besdrake[robots]'): {err}")
+    return PickPlaceRollout(load_scenario("pick_and_place").with_robot("panda"))
+
+
+def test_panda_runs_the_same_scripted_pick_and_place(panda_rollout):
+    from besdrake.tasks.pick_and_place.scripted import scripted_plan_for
+
+    robot = panda_rollout.robot
+    assert robot.name == "panda" and robot.end_effector.gripper.coupled == ("panda_finger_joint2",)
+    plan = scripted_plan_for(panda_rollout)
+    out = panda_rollout.rollout(plan)
+    assert out.success, out.message
+    assert out.place_error < 0.03 and out.held and out.upright
+    slippery = panda_rollout.rollout(plan, box_friction=0.02)
+    assert slippery.flags["slipped"] and not slippery.success

@@ -178,14 +178,24 @@ class PickPlaceRollout:
         out.sim_time = float(self.context.get_time())
 
     # ------------------------------------------------------------------ main
-    def rollout(self, plan: MotionPlan, box_friction: float | None = None, box_mass: float | None = None,
-                box_offset: np.ndarray | None = None) -> PickPlaceOutcome:
+    def rollout(self, plan: MotionPlan, effects: dict | None = None, limits: str = "flag", box_friction: float | None = None,
+                box_mass: float | None = None, box_offset: np.ndarray | None = None) -> PickPlaceOutcome:
         """Simulate ``plan`` (arm joints; gripper command in ``plan.meta["gripper"]``). ``box_friction`` replaces the
         box's friction coefficient, ``box_mass`` (kg) its mass, ``box_offset`` (dx m, dy m, yaw rad) moves its start
-        on the shelf. Never raises for simulation trouble."""
+        on the shelf. ``limits``: "flag" simulates a plan beyond the joint limits and flags it, "raise" refuses one
+        beyond the position limits (:class:`~besdrake.plan.PlanError`). ``effects``: the registry's effects act on
+        throwing rollouts only so far; a pick-and-place rollout takes none (ValueError). Never raises for
+        simulation trouble."""
         if not isinstance(plan, MotionPlan):
             raise PlanError(f"rollout needs a MotionPlan, got {type(plan).__name__}")
+        if effects:
+            raise ValueError(f"pick-and-place rollouts take no registry effects yet, got {sorted(effects)} "
+                             "(use box_friction, box_mass, box_offset)")
+        if limits not in ("raise", "flag"):
+            raise ValueError(f"limits must be 'raise' or 'flag', got {limits!r}")
         report = plan.check_limits(self.robot.limits)
+        if limits == "raise" and np.any(report.position > 0):
+            raise PlanError(f"motion plan exceeds {self.robot.name}'s position limits: " + ", ".join(report.violations()))
         grip = GripperCommand.of(plan, self.robot)
         self._reset(plan, grip, box_friction, box_mass, box_offset)
         out = PickPlaceOutcome()
