@@ -173,3 +173,25 @@ def test_panda_runs_the_same_scripted_pick_and_place(panda_rollout):
     assert out.place_error < 0.03 and out.held and out.upright
     slippery = panda_rollout.rollout(plan, box_friction=0.02)
     assert slippery.flags["slipped"] and not slippery.success
+
+
+def test_solver_failure_is_a_flagged_outcome(plan):
+    from besdrake.tasks.pick_and_place.rollout import PickPlaceRollout
+
+    class FailingSimulator:
+        """The real simulator, whose solver fails once it has to advance."""
+
+        def __init__(self, sim):
+            self.sim = sim
+
+        def Initialize(self):
+            return self.sim.Initialize()
+
+        def AdvanceTo(self, t):
+            raise RuntimeError("SAP solver failed to converge")
+
+    broken = PickPlaceRollout()
+    broken.simulator = FailingSimulator(broken.simulator)
+    out = broken.rollout(plan)
+    assert out.flags["sim_failed"] and not out.success
+    assert "SAP solver failed" in out.message and np.isfinite(out.reward)

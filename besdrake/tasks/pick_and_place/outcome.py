@@ -81,6 +81,14 @@ class PickPlaceOutcome:
         }
 
 
+def failed_outcome(message: str) -> PickPlaceOutcome:
+    """The outcome of a rollout that could not run: flagged ``sim_failed``, the worst reward."""
+    out = PickPlaceOutcome(message=message)
+    out.flags["sim_failed"] = True
+    out.reward = -(MAX_DISTANCE + PENALTIES["sim_failed"])
+    return out
+
+
 def score(out: PickPlaceOutcome, target: np.ndarray, criteria: PickPlaceCriteria) -> None:
     """Set ``out``'s success, failure flags and reward from its measurements (``target``: the place, m)."""
     f = out.flags

@@ -32,8 +32,6 @@ class PickAndPlaceTask(Task):
                              f"robot {robot.name!r} has a {robot.end_effector.type!r} end effector")
 
     def failed_outcome(self, message: str):
-        from besdrake.tasks.pick_and_place.outcome import PickPlaceOutcome
+        from besdrake.tasks.pick_and_place.outcome import failed_outcome
 
-        out = PickPlaceOutcome(message=message)
-        out.flags["sim_failed"] = True
-        return out
+        return failed_outcome(message)
