@@ -224,6 +224,9 @@ def _check_names(robot: Robot, plant, instance, r: _Reader) -> None:
     for i, act in enumerate(robot.actuators):
         if act is not None and not plant.HasJointActuatorNamed(act, instance):
             raise r.fail(f"joints[{i}].actuator", f"the model has no actuator {act!r} (null adds one)")
+    for i, act in enumerate(gripper.actuators if gripper else ()):
+        if act is not None and not plant.HasJointActuatorNamed(act, instance):
+            raise r.fail(f"end_effector.actuators[{i}]", f"the model has no actuator {act!r} (null adds one)")
     for key, frame in (("base_link", robot.base_link), ("tool_frame", robot.tool_frame)):
         if not plant.HasFrameNamed(frame, instance):
             raise r.fail(key, f"the model has no frame {frame!r}")

@@ -128,7 +128,8 @@ def test_malformed_gripper_command_is_refused(rollout, plan):
         rollout.rollout(MotionPlan(plan.t, plan.q, plan.qd, meta, plan.joint_names))
 
 
-def test_robot_file_refuses_an_unknown_coupled_joint(tmp_path):
+@pytest.mark.parametrize("field, value", [("coupled_joints", ["no_such_finger"]), ("actuators", ["no_such_motor"])])
+def test_robot_file_refuses_an_unknown_gripper_name(tmp_path, field, value):
     import yaml
 
     from besdrake.robot import RobotError
@@ -136,10 +137,10 @@ def test_robot_file_refuses_an_unknown_coupled_joint(tmp_path):
     src = MODELS_DIR / "iiwa14" / "robot.yaml"
     data = yaml.safe_load(src.read_text())
     data["model"]["file"] = str(MODELS_DIR / "iiwa14" / "iiwa14.urdf")
-    data["end_effector"]["coupled_joints"] = ["no_such_finger"]
+    data["end_effector"][field] = value
     bad = tmp_path / "bad.yaml"
     bad.write_text(yaml.safe_dump(data))
-    with pytest.raises(RobotError, match=r"bad.yaml: end_effector.coupled_joints\[0\]"):
+    with pytest.raises(RobotError, match=rf"bad.yaml: end_effector.{field}\[0\]"):
         load_robot(bad)
 
 
