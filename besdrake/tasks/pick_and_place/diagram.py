@@ -119,25 +119,23 @@ def _add_controllers(plant, instance, scenario: Scenario) -> None:
         act.set_controller_gains(PdControllerGains(p=float(g.kp[i]), d=float(g.kd[i])))
 
 
-def build_pick_place_diagram(scenario: Scenario | str = "pick_and_place", meshcat=None, log_period: float = 0.01) -> PickPlaceHandles:
-    """Build the Diagram for ``scenario`` (a Scenario or a name/path); optionally visualised in ``meshcat``."""
-    from pydrake.geometry import CollisionFilterDeclaration, GeometrySet, MeshcatVisualizer, MeshcatVisualizerParams, Role
-    from pydrake.multibody.parsing import Parser
-    from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
-    from pydrake.systems.framework import DiagramBuilder
-    from pydrake.systems.primitives import LogVectorOutput, MatrixGain, Multiplexer, TrajectorySource
-    from pydrake.trajectories import PiecewisePolynomial
-
-    from besdrake.sim.diagram import base_transform
-
-    scenario = load_scenario(scenario) if not isinstance(scenario, Scenario) else scenario
+def _check(scenario: Scenario) -> None:
     robot = scenario.robot
     if robot.end_effector.gripper is None:
         raise ScenarioError(f"pick-and-place needs a robot with a gripper; {robot.name!r} has a {robot.end_effector.type!r} end effector")
     missing = [k for k in REQUIRED_MODELS if k not in scenario.models]
     if missing:
         raise ScenarioError(f"scenario {scenario.name!r}: models section is missing {missing[0]!r}")
-    builder = DiagramBuilder()
+
+
+def _add_plant(builder, scenario: Scenario):
+    """Plant and SceneGraph with the robot (welded at the base pose, servo gains set), the fixtures and the box."""
+    from pydrake.multibody.parsing import Parser
+    from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
+
+    from besdrake.sim.diagram import base_transform
+
+    robot = scenario.robot
     config = MultibodyPlantConfig(time_step=scenario.time_step, discrete_contact_approximation=scenario.contact_approximation, contact_model="point")
     plant, scene_graph = AddMultibodyPlant(config, builder)
     plant.set_name("plant")
@@ -151,23 +149,54 @@ def build_pick_place_diagram(scenario: Scenario | str = "pick_and_place", meshca
     box = _parse(parser, scenario, "box")
     _add_controllers(plant, instance, scenario)
     plant.Finalize()
+    return plant, scene_graph, instance, fixtures, box
 
-    g = robot.end_effector.gripper
-    na, ng = robot.n_joints, len(g.joints)
-    arm_source = builder.AddSystem(TrajectorySource(PiecewisePolynomial(np.zeros((na, 1))), output_derivative_order=1))
-    arm_source.set_name("arm_plan")
-    grip_source = builder.AddSystem(TrajectorySource(PiecewisePolynomial(np.zeros((ng, 1))), output_derivative_order=1))
-    grip_source.set_name("gripper_command")
+
+def _add_sources(builder, plant, instance, robot):
+    """The arm plan's and the gripper command's TrajectorySources (reordered into the desired-state port) and the
+    gravity feed-forward's (into the actuation port); placeholders until a rollout swaps its trajectories in."""
+    from pydrake.systems.primitives import MatrixGain, Multiplexer, TrajectorySource
+    from pydrake.trajectories import PiecewisePolynomial
+
+    na, ng = robot.n_joints, len(robot.end_effector.gripper.joints)
+    sources = []
+    for name, n in (("arm_plan", na), ("gripper_command", ng)):
+        src = builder.AddSystem(TrajectorySource(PiecewisePolynomial(np.zeros((n, 1))), output_derivative_order=1))
+        src.set_name(name)
+        sources.append(src)
     mux = builder.AddSystem(Multiplexer([2 * na, 2 * ng]))
     rows = _actuator_rows(plant, instance, robot)
     order = builder.AddSystem(MatrixGain(_desired_state_gain(rows, na)))
-    builder.Connect(arm_source.get_output_port(), mux.get_input_port(0))
-    builder.Connect(grip_source.get_output_port(), mux.get_input_port(1))
+    for i, src in enumerate(sources):
+        builder.Connect(src.get_output_port(), mux.get_input_port(i))
     builder.Connect(mux.get_output_port(), order.get_input_port())
     builder.Connect(order.get_output_port(), plant.get_desired_state_input_port(instance))
     feedforward = builder.AddSystem(TrajectorySource(PiecewisePolynomial(np.zeros((len(rows), 1)))))
     feedforward.set_name("gravity_feedforward")
     builder.Connect(feedforward.get_output_port(), plant.get_actuation_input_port(instance))
+    return sources[0], sources[1], feedforward, rows
+
+
+def _frames(plant, fixtures):
+    ctx = plant.CreateDefaultContext()
+    try:
+        return tuple(plant.GetFrameByName(name, fixtures).CalcPoseInWorld(ctx) for name in ("box_start", "place_target"))
+    except RuntimeError as err:
+        raise ScenarioError(f"the fixtures model needs frames 'box_start' and 'place_target': {err}") from err
+
+
+def build_pick_place_diagram(scenario: Scenario | str = "pick_and_place", meshcat=None, log_period: float = 0.01) -> PickPlaceHandles:
+    """Build the Diagram for ``scenario`` (a Scenario or a name/path); optionally visualised in ``meshcat``."""
+    from pydrake.geometry import CollisionFilterDeclaration, GeometrySet, MeshcatVisualizer, MeshcatVisualizerParams, Role
+    from pydrake.systems.framework import DiagramBuilder
+    from pydrake.systems.primitives import LogVectorOutput
+
+    scenario = load_scenario(scenario) if not isinstance(scenario, Scenario) else scenario
+    _check(scenario)
+    robot = scenario.robot
+    builder = DiagramBuilder()
+    plant, scene_graph, instance, fixtures, box = _add_plant(builder, scenario)
+    arm_source, grip_source, feedforward, rows = _add_sources(builder, plant, instance, robot)
     logger = LogVectorOutput(plant.get_state_output_port(), builder, log_period)
     logger.set_name("state_logger")
     if meshcat is not None:
@@ -178,13 +207,9 @@ def build_pick_place_diagram(scenario: Scenario | str = "pick_and_place", meshca
     robot_geoms = _geometries(plant, instance)
     scene_graph.collision_filter_manager().Apply(CollisionFilterDeclaration().ExcludeWithin(GeometrySet(robot_geoms)))
     box_body = plant.GetBodyByName("box", box)
-    ctx = plant.CreateDefaultContext()
-    frame = lambda name: plant.GetFrameByName(name, fixtures).CalcPoseInWorld(ctx)  # noqa: E731
-    try:
-        box_start, place_target = frame("box_start"), frame("place_target")
-    except RuntimeError as err:
-        raise ScenarioError(f"the fixtures model needs frames 'box_start' and 'place_target': {err}") from err
+    box_start, place_target = _frames(plant, fixtures)
     q_index = lambda j: plant.GetJointByName(j, instance).position_start()  # noqa: E731
+    g = robot.end_effector.gripper
     return PickPlaceHandles(
         scenario=scenario, diagram=diagram, plant=plant, scene_graph=scene_graph,
         arm_source=arm_source, gripper_source=grip_source, feedforward_source=feedforward, state_logger=logger, robot_instance=instance,
@@ -196,5 +221,5 @@ def build_pick_place_diagram(scenario: Scenario | str = "pick_and_place", meshca
         coupled_q=np.array([q_index(j) for j in g.coupled], dtype=int),
         arm_q=np.array([q_index(j) for j in robot.joint_names]),
         arm_v=np.array([plant.GetJointByName(j, instance).velocity_start() for j in robot.joint_names]),
-        arm_rows=rows[:na],
+        arm_rows=rows[:robot.n_joints],
     )

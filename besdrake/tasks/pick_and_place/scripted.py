@@ -26,7 +26,8 @@ class IKError(RuntimeError):
 
 @dataclass(frozen=True)
 class ScriptTiming:
-    """Durations (s) of the plan's segments."""
+    """Shortest durations (s) of the plan's segments; a segment is stretched where the robot's velocity or
+    acceleration limits need it (:func:`segment_time`)."""
 
     to_pregrasp: float = 1.0
     approach: float = 0.6
