@@ -75,7 +75,9 @@ class JointLimits:
 
 @dataclass(frozen=True, eq=False)
 class Gripper:
-    """A gripper's joints, their actuators, open and closed positions (m or rad) and servo gains."""
+    """A gripper's joints, their actuators, open and closed positions (m or rad) and servo gains; ``coupled``: joints
+    that the model couples 1:1 to the first gripper joint (a URDF ``<mimic>``, a coupler constraint under SAP), not
+    actuated themselves (e.g. the second finger of a belt-driven parallel gripper)."""
 
     joints: tuple[str, ...]
     actuators: tuple[str | None, ...]
@@ -84,6 +86,7 @@ class Gripper:
     kp: np.ndarray
     kd: np.ndarray
     effort: np.ndarray
+    coupled: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True, eq=False)
@@ -159,12 +162,8 @@ class Robot:
         """Make the model's packages (and ``besdrake_models``) known to a Drake ``PackageMap``."""
         add_package(package_map)
         for name, folder in self.packages.items():
-            if not package_map.Contains(name):
-                xml = folder / "package.xml"
-                if xml.is_file():
-                    package_map.AddPackageXml(str(xml))
-                else:
-                    package_map.Add(name, str(folder))
+            if not package_map.Contains(name):  # the file's name, as the model's URIs spell it (a package.xml may
+                package_map.Add(name, str(folder))  # name it otherwise: example-robot-data's says example_robot_descriptions)
 
     def add_model(self, plant, parser=None):
         """Parse the robot into ``plant`` (before ``Finalize``); returns its model instance. Joints whose
@@ -272,6 +271,11 @@ def _load_cached(path: Path) -> Robot:
 
 
 def expand_path(value: str, folder: Path) -> Path:
-    """A path from a robot file: ``{sys_prefix}`` expanded, relative paths read from ``folder``."""
-    p = Path(str(value).replace("{sys_prefix}", sys.prefix))
+    """A path from a robot file: ``{sys_prefix}`` (the Python environment's prefix) and ``{site_packages}`` (its
+    site-packages folder, where pip puts e.g. example-robot-data's ``cmeel.prefix``) expanded, relative paths read
+    from ``folder``."""
+    import sysconfig
+
+    text = str(value).replace("{sys_prefix}", sys.prefix).replace("{site_packages}", sysconfig.get_paths()["purelib"])
+    p = Path(text)
     return p if p.is_absolute() else (folder / p).resolve()

@@ -169,7 +169,11 @@ def _gripper(r: _Reader, sec: dict) -> Gripper:
     acts = sec.get("actuators", [f"{j}_motor" for j in joints])
     if not isinstance(acts, list) or len(acts) != n:
         raise r.fail("end_effector.actuators", f"must list {n} actuator names (null: add one), got {acts!r}")
+    coupled = sec.get("coupled_joints", [])
+    if not isinstance(coupled, list) or not all(isinstance(j, str) for j in coupled):
+        raise r.fail("end_effector.coupled_joints", f"must be a list of joint names, got {coupled!r}")
     return Gripper(
+        coupled=tuple(coupled),
         joints=tuple(joints),
         actuators=tuple(acts),
         open=r.vector(sec.get("open"), n, "end_effector.open"),
@@ -214,9 +218,15 @@ def _check_names(robot: Robot, plant, instance, r: _Reader) -> None:
     for i, name in enumerate(gripper.joints if gripper else ()):
         if name not in joints:
             raise r.fail(f"end_effector.joints[{i}]", f"the model has no joint {name!r} (joints: {sorted(joints)})")
+    for i, name in enumerate(gripper.coupled if gripper else ()):
+        if name not in joints:
+            raise r.fail(f"end_effector.coupled_joints[{i}]", f"the model has no joint {name!r} (joints: {sorted(joints)})")
     for i, act in enumerate(robot.actuators):
         if act is not None and not plant.HasJointActuatorNamed(act, instance):
             raise r.fail(f"joints[{i}].actuator", f"the model has no actuator {act!r} (null adds one)")
+    for i, act in enumerate(gripper.actuators if gripper else ()):
+        if act is not None and not plant.HasJointActuatorNamed(act, instance):
+            raise r.fail(f"end_effector.actuators[{i}]", f"the model has no actuator {act!r} (null adds one)")
     for key, frame in (("base_link", robot.base_link), ("tool_frame", robot.tool_frame)):
         if not plant.HasFrameNamed(frame, instance):
             raise r.fail(key, f"the model has no frame {frame!r}")

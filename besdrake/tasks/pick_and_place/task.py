@@ -1,0 +1,37 @@
+"""The pick-and-place task as a plug-in (for ``besdrake.task``; needs the task interface of the main branch).
+
+Scene: the scenario's ``fixtures`` (shelf, table, floor; frames ``box_start``, ``place_target``) and ``box``; the
+robot needs a gripper. A rollout simulates the arm plan and the gripper command in ``plan.meta["gripper"]``
+(:class:`~besdrake.tasks.pick_and_place.rollout.PickPlaceRollout`); the outcome is a
+:class:`~besdrake.tasks.pick_and_place.outcome.PickPlaceOutcome` (lift, hold, place error, upright, collisions).
+"""
+
+from __future__ import annotations
+
+from besdrake.task import Task, register_task
+
+
+@register_task
+class PickAndPlaceTask(Task):
+    name = "pick_and_place"
+    description = "pick a box from a shelf and put it upright on a table with a gripper, held by friction only"
+    default_scenario = "pick_and_place"
+    effects = ()  # none of the registry's effects acts on this task yet (box friction, mass, offset: rollout arguments)
+
+    def make_rollout(self, scenario, meshcat=None):
+        from besdrake.tasks.pick_and_place.rollout import PickPlaceRollout
+
+        return PickPlaceRollout(scenario, meshcat=meshcat)
+
+    def check_robot(self, robot) -> None:
+        """Pick-and-place needs a gripper."""
+        from besdrake.robot import RobotError
+
+        if robot.end_effector.gripper is None:
+            raise RobotError(f"{robot.path or robot.name}: end_effector: pick-and-place needs a gripper, "
+                             f"robot {robot.name!r} has a {robot.end_effector.type!r} end effector")
+
+    def failed_outcome(self, message: str):
+        from besdrake.tasks.pick_and_place.outcome import failed_outcome
+
+        return failed_outcome(message)
