@@ -15,7 +15,7 @@ class SafetyLimits:
     """Checks of a plan's timing and start that the gate makes besides the joint limits (the one place of
     their defaults):
 
-    * ``max_duration_s``: the longest plan the robot may run (a throw takes ~2.5 s; an hour-long plan would
+    * ``max_duration_s``: the longest plan the robot may run (a skill takes seconds; an hour-long plan would
       hang the lab and the simulation);
     * ``min_knot_spacing_s``: knots closer than this are no motion a controller can follow (set it to your
       controller's period; the default 0.1 ms stays below the 0.54 ms last knot step of imitated plans);
