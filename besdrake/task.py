@@ -44,6 +44,15 @@ class Task(ABC):
     def failed_outcome(self, message: str) -> Any:
         """The outcome of a rollout that could not run (flagged as failed, ``message`` says why)."""
 
+    def default_plan(self, rollout) -> Any:
+        """A motion plan that performs the task in ``rollout``'s scene (what ``besdrake simulate`` runs when no
+        plan is given)."""
+        raise TaskError(f"the task {self.name!r} has no default plan: give --plan FILE")
+
+    def summary(self, outcome) -> dict[str, Any]:
+        """A JSON-ready summary of one ``outcome`` (its ``summary()`` or ``to_dict()`` by default)."""
+        return outcome.summary() if hasattr(outcome, "summary") else outcome.to_dict()
+
     def check_robot(self, robot) -> None:
         """Raise :class:`~besdrake.robot.RobotError` when ``robot`` lacks what the task needs (e.g. a scoop)."""
 

@@ -191,3 +191,24 @@ def test_solver_failure_is_a_flagged_outcome(plan):
     out = broken.rollout(plan)
     assert out.flags["sim_failed"] and not out.success
     assert "SAP solver failed" in out.message and np.isfinite(out.reward)
+
+
+@pytest.mark.parametrize("robot", ["iiwa14", "panda"])
+def test_simulate_runs_the_tasks_default_plan_on_either_arm(robot, capsys):
+    """``besdrake simulate --scenario pick_and_place --robot NAME``: the same task on two arms, only the robot
+    file differing (the scripted plan's inverse kinematics is solved for each arm)."""
+    import json
+
+    from besdrake.cli import main
+
+    from besdrake.robot import RobotError
+
+    try:
+        load_robot(robot)
+    except RobotError as err:
+        pytest.skip(f"the Panda needs example-robot-data (pip install 'besdrake[robots]'): {err}")
+    assert main(["simulate", "--scenario", "pick_and_place", "--robot", robot, "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert summary["success"] and summary["place_error_m"] < 0.03 and not summary["arm_fixture_collision"]
+    assert main(["simulate", "--scenario", "pick_and_place", "--amplitude", "0.3"]) == 2
+    assert "takes --plan FILE" in capsys.readouterr().err

@@ -37,7 +37,9 @@ def run(args: argparse.Namespace) -> int:
     from besdrake.plan import PlanError
     from besdrake.sim.cliutil import effects_from_args, plan_from_args, scenario_from_args
     from besdrake.sim.effects import EffectError, get_effect, list_effects
+    from besdrake._io import json_default
     from besdrake.sim.scenario import ScenarioError
+    from besdrake.task import TaskError, get_task
 
     if args.list_effects:
         info = [get_effect(n).describe() for n in list_effects()]
@@ -51,7 +53,9 @@ def run(args: argparse.Namespace) -> int:
     try:
         effects = effects_from_args(args.effect)
         scenario = scenario_from_args(args)
-        plan = plan_from_args(args)
+        task = get_task(scenario.task)
+        rollout = None if args.record else task.make_rollout(scenario)
+        plan = plan_from_args(args, task, rollout)
         _refuse_unsafe(plan, scenario.robot)
         if args.record:
             if not str(args.record).endswith((".html", ".htm")):
@@ -60,13 +64,15 @@ def run(args: argparse.Namespace) -> int:
 
             _, outcome = record_html(plan, args.record, scenario=scenario, effects=effects, limits=args.limits, host=args.meshcat_host)
         else:
-            from besdrake.sim.rollout import Rollout
-
-            outcome = Rollout(scenario).rollout(plan, effects=effects, limits=args.limits)
-    except (PlanError, EffectError, ScenarioError, ValueError) as err:
+            outcome = rollout.rollout(plan, effects=effects, limits=args.limits)
+    except (PlanError, EffectError, ScenarioError, TaskError, ValueError) as err:
         raise UserError(str(err)) from err
     if args.json:
-        print(json.dumps(outcome.to_dict() if args.full else outcome.summary()))
+        print(json.dumps(outcome.to_dict() if args.full else task.summary(outcome), default=json_default))
+        return 0 if not outcome.flags.get("sim_failed") else 1
+    if not hasattr(outcome, "touchdown"):
+        for key, value in task.summary(outcome).items():
+            print(f"{key:22s} {value}")
         return 0 if not outcome.flags.get("sim_failed") else 1
     s = outcome.summary()
     if outcome.touchdown is not None:

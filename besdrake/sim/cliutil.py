@@ -37,7 +37,7 @@ def effects_from_args(options: list[str] | None) -> dict[str, dict[str, float]]:
 
 
 def add_common_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--plan", help="motion plan JSON (MotionPlan.save); default: the default throw")
+    parser.add_argument("--plan", help="motion plan JSON (MotionPlan.save); default: the task's default plan (throwing: the default throw)")
     parser.add_argument("--amplitude", type=float, default=None, help="amplitude of the default throw (no --plan); default 0.35")
     parser.add_argument("--yaw", type=float, default=0.0, help="joint-1 angle of the default throw (rad)")
     parser.add_argument("--scenario", default="nominal", help="scenario name in besdrake/diagrams/ or a YAML path")
@@ -55,14 +55,19 @@ def scenario_from_args(args: argparse.Namespace):
     return scenario.with_robot(args.robot) if getattr(args, "robot", None) else scenario
 
 
-def plan_from_args(args: argparse.Namespace) -> MotionPlan:
+def plan_from_args(args: argparse.Namespace, task=None, rollout=None) -> MotionPlan:
+    """``--plan``; else the default throw of ``--amplitude``/``--yaw``; else ``task``'s default plan in ``rollout``."""
     from besdrake.sim.throws import default_throw
 
     if args.plan:
         if args.amplitude is not None:
             raise ValueError("give either --plan or --amplitude, not both")
         return MotionPlan.load(args.plan)
-    return default_throw(amplitude=0.35 if args.amplitude is None else args.amplitude, yaw=args.yaw)
+    if task is None or args.amplitude is not None or args.yaw:
+        if task is not None and task.name != "throwing":
+            raise ValueError(f"--amplitude and --yaw shape the default throw; the {task.name} task takes --plan FILE")
+        return default_throw(amplitude=0.35 if args.amplitude is None else args.amplitude, yaw=args.yaw)
+    return task.default_plan(rollout)
 
 
 def add_backend_arguments(parser: argparse.ArgumentParser, default: str = "process", workers: int = 2) -> None:

@@ -31,6 +31,12 @@ class PickAndPlaceTask(Task):
             raise RobotError(f"{robot.path or robot.name}: end_effector: pick-and-place needs a gripper, "
                              f"robot {robot.name!r} has a {robot.end_effector.type!r} end effector")
 
+    def default_plan(self, rollout):
+        """The scripted pick-and-place of the scene's box (inverse kinematics at the grasp and place poses)."""
+        from besdrake.tasks.pick_and_place.scripted import scripted_plan_for
+
+        return scripted_plan_for(rollout)
+
     def failed_outcome(self, message: str):
         from besdrake.tasks.pick_and_place.outcome import failed_outcome
 

@@ -23,6 +23,12 @@ class ThrowingTask(Task):
 
         return Rollout(scenario, meshcat=meshcat)
 
+    def default_plan(self, rollout):
+        """The default overhand throw (amplitude 0.35)."""
+        from besdrake.sim.throws import default_throw
+
+        return default_throw(0.35)
+
     def check_robot(self, robot) -> None:
         """Throwing needs a scoop: a fixed end effector with the scoop's geometry in its params."""
         from besdrake.tasks.throwing.scoop import Scoop
