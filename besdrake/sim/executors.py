@@ -21,6 +21,7 @@ Executors are context managers: ``with make_executor("process", workers=2) as ex
 
 from __future__ import annotations
 
+import gc
 import math
 import os
 import time
@@ -242,6 +243,9 @@ class ProcessExecutor(Executor):
         self._start()
 
     def _start(self) -> None:
+        # Collect garbage here, in the caller's thread: the pool's threads allocate while pickling, and a collection
+        # there would destroy leftover Drake objects (e.g. a Meshcat) off their thread, which aborts the process.
+        gc.collect()
         self._pool = self._context.Pool(self.workers, initializer=_init_worker, initargs=(self.scenario, tuple(_plugin_paths())))
         # Wait until every worker has built its Diagram, so timings exclude start-up.
         errors = [e for e in self._pool.map(_worker_ready, range(self.workers), chunksize=1) if e]

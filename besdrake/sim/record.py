@@ -8,6 +8,8 @@ frames and ``Meshcat.StaticHtml()`` writes one HTML file that plays the animatio
 
 from __future__ import annotations
 
+import gc
+
 from pathlib import Path
 
 import numpy as np
@@ -53,7 +55,12 @@ def record_html(plan: MotionPlan, out: str | Path, scenario: Scenario | str = "n
         h.diagram.ForcedPublish(ctx)
     vis.StopRecording()
     vis.PublishRecording()
+    html = meshcat.StaticHtml()
+    # Drake's Meshcat must be destroyed on the thread that made it: free the Diagram that holds it now, in this
+    # thread, rather than leave the cycle to a garbage collection that may run in a worker pool's thread (abort).
+    del vis, h, plant, ctx, pctx, sim
+    gc.collect()
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    _atomic_write_text(out, meshcat.StaticHtml())
+    _atomic_write_text(out, html)
     return out, outcome
