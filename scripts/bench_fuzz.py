@@ -339,12 +339,14 @@ def run_case(fmt: str, seeds: Seeds, folder: Path, seed: int) -> CaseResult:
 
     from besdrake.cli import main
     from besdrake.sim.effects import list_effects, unregister_effect
+    from besdrake.transfer import plugins
 
     rng = random.Random(f"{fmt}:{seed}")
     folder.mkdir(parents=True, exist_ok=True)
     argv, inputs = FORMATS[fmt](seeds, folder, rng)
     before = {p: _digest(p) for p in inputs}
     effects = set(list_effects())
+    loaded = set(plugins._LOADED)
     out, err = io.StringIO(), io.StringIO()
     rc, outcome, detail = None, "ok", ""
     try:
@@ -359,6 +361,8 @@ def run_case(fmt: str, seeds: Seeds, folder: Path, seed: int) -> CaseResult:
     finally:
         for name in set(list_effects()) - effects:
             unregister_effect(name)
+        for path in set(plugins._LOADED) - loaded:  # the case's plugin file is deleted with its folder:
+            plugins._LOADED.pop(path)  # executors made later must not load it into their workers
     lines = [ln for ln in err.getvalue().splitlines() if ln.startswith("besdrake: error:")]
     if outcome == "ok":
         if any("internal error" in ln for ln in lines):

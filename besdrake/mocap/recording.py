@@ -197,8 +197,8 @@ class MocapRecording:
         return float(np.median(edges)) if edges else None
 
     def plate_units_problem(self) -> str | None:
-        """A message naming the file's likely unit when the plates' edges are far outside
-        :data:`PLATE_EDGE_RANGE_M` (their known size), else None."""
+        """A message naming the file's likely unit when the plates' edges lie outside :data:`PLATE_EDGE_RANGE_M`
+        (their known size) by a unit's factor (10, 1000, 1/1000), else None."""
         edge = self.plate_edge()
         lo, hi = PLATE_EDGE_RANGE_M
         if edge is None or edge <= 0 or lo <= edge <= hi:
@@ -207,7 +207,7 @@ class MocapRecording:
             if lo <= edge * factor <= hi:
                 return (f"the rigid plates' markers are {edge * 1000:.3g} mm apart where the plates measure "
                         f"{lo * 1000:g}-{hi * 1000:g} mm: the file is probably in {unit}, not millimetres")
-        return f"the rigid plates' markers are {edge * 1000:.3g} mm apart where the plates measure {lo * 1000:g}-{hi * 1000:g} mm"
+        return None  # no unit explains it: other plates (or made-up markers), not a unit mistake
 
     def check_units(self, source: str | Path, strict: bool = True) -> "MocapRecording":
         """Apply :meth:`units_problem` after reading ``source``: raise :class:`MocapUnitsError`

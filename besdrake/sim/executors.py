@@ -302,8 +302,7 @@ def _ray_init_kwargs(kwargs: dict[str, Any], workers: int | None) -> dict[str, A
     kw.setdefault("dashboard_host", "127.0.0.1")
     kw.setdefault("_node_ip_address", "127.0.0.1")
     kw.setdefault("log_to_driver", False)
-    if workers:
-        kw.setdefault("num_cpus", int(workers))
+    kw.setdefault("num_cpus", max(int(workers or 1), os.cpu_count() or 1))  # later executors may ask for more actors
     return kw
 
 
@@ -318,7 +317,10 @@ class RayExecutor(Executor):
         if not ray.is_initialized():
             ray.init(**_ray_init_kwargs(init_kwargs, workers))
         self._ray = ray
-        self.workers = int(workers or max(1, int(ray.available_resources().get("CPU", 1))))
+        cpus = int(ray.cluster_resources().get("CPU", 1))
+        self.workers = int(workers or max(1, cpus))
+        if self.workers > cpus:  # an actor takes one CPU: the surplus would wait for one forever
+            raise ExecutorError(f"the Ray cluster has {cpus} CPU(s), fewer than the {self.workers} workers asked for")
 
         @ray.remote(num_cpus=1)
         class _Actor:
