@@ -339,7 +339,7 @@ def run_case(fmt: str, seeds: Seeds, folder: Path, seed: int) -> CaseResult:
 
     from besdrake.cli import main
     from besdrake.sim.effects import list_effects, unregister_effect
-    from besdrake.transfer import plugins
+    from besdrake import plugins
 
     rng = random.Random(f"{fmt}:{seed}")
     folder.mkdir(parents=True, exist_ok=True)
