@@ -23,7 +23,18 @@ cause of that many parameters must gain to be named (INDISTINGUISHABLE_DBIC + k 
 is the right-cause rate over the trials whose expected signature reaches that limit (an effect the logged signals do
 not show beyond the noise cannot be named by any diagnosis; "cannot tell" is the right answer there).
 
+Issue 25 (``--draws full``, the default): every trial draws one (or, every ``--pair-every``-th trial, two) of the
+registry's (effect, parameter, side) cases, cycled in a seeded order so that every parameter of every effect is drawn
+over its realistic range in both directions (15-90% of the way from nominal to either bound: the ball smaller and
+larger, every joint offset, base roll/pitch/yaw, gains up and down, the scoop mount); ``--draws classic`` gives the
+earlier magnitudes. The logs use the diagnosis design with sideways throws (``--sideways``). Printed per mode beside
+the figures above: ``reliability`` (per confidence level: trials, right, right or honest, wrong, share right, the wrong
+trials; unknown-effect trials count as wrong when named with "high"), ``confident_wrong`` (target 0),
+``right_cause_rate_structural`` (an answer naming a structurally identical parameter, e.g. a base yaw for a joint-1
+offset, counts as right) and ``structural_trials`` / ``structural_named_and_stated``.
+
     python3 scripts/bench_diagnosis.py --trials 40 --unknown 5 --workers 1 --progress --out /tmp/diag_bench/partial.json > bench_diagnosis.json
+    python3 scripts/bench_diagnosis.py --trials 80 --unknown 8 --workers 2 --progress --out /tmp/diag_bench/full.json > bench_full.json  # issue 25
 """
 
 from __future__ import annotations

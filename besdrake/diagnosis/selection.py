@@ -215,11 +215,12 @@ def refine_rivals(prob: fitting.Problem, fits: list[fitting.CandidateFit], best_
     rivals = [f for f in fits if not f.refined and f.effects and not set(best_fit.effects) <= set(f.effects)
               and f.chi2 < best_fit.chi2 + INDISTINGUISHABLE_DBIC]
     rivals = sorted(rivals, key=lambda f: f.chi2)[:3]
-    if set(groups) <= {"touchdown"} and best_fit.effects:
+    if (set(groups) <= {"touchdown"} or settings.VERIFY_SINGLES) and best_fit.effects:
         # Two numbers per throw: many effects move the touchdowns alike, and a linear fit at nominal is a poor guide
         # to which (drag, the ball's mass). Refine every single effect, so that "cannot tell it from" lists each
         # one that fits about as well (benchmark seed 0: a hidden drag, joint offset or ball mass was otherwise
-        # missing from the list in 3 of 40 touchdown-only logs).
+        # missing from the list in 3 of 40 touchdown-only logs). On full logs too (VERIFY_SINGLES): a confident
+        # answer needs every single effect fitted with rollouts.
         rivals += [f for f in fits if not f.refined and len(f.effects) == 1 and f.effects != best_fit.effects and f not in rivals]
     for f in rivals:
         fitting.refine(prob, f, lambda e: sim.one(e), iterations=iterations)

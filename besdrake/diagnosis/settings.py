@@ -76,3 +76,10 @@ SELECT_PARAMETERS = True
 #: step (base + lag and base + gain named joint_offset + X, one of them with high confidence).
 FORWARD_PAIRS = True
 FORWARD_TOP = 2
+#: "high" confidence (issue 25: a ball of radius 0.031 m was named a joint offset of joints 2, 5 and 6 with "high"):
+#: before a cause is named with high confidence every single effect is fitted with rollouts, not only the leaders of
+#: the linear fit at nominal (a strongly nonlinear effect, e.g. a smaller ball, is misjudged there and never refined),
+#: and the nearest rival that is not the best plus an unneeded effect (the nominal model included) must be at least
+#: HIGH_MARGIN_DBIC worse ("strong" evidence, against INDISTINGUISHABLE_DBIC for "cannot tell").
+VERIFY_SINGLES = True
+HIGH_MARGIN_DBIC = 10.0

@@ -13,7 +13,8 @@ from besdrake.diagnosis.advice import _separation_advice
 from besdrake.diagnosis.identifiability import Identifiability, StructuralClass
 from besdrake.diagnosis.allowed import _allowed_effects
 from besdrake.diagnosis.results import AllowedEffect, Cause
-from besdrake.diagnosis.settings import ALPHA, CONFIDENT_P, EXCLUDE_FRACTION, INDISTINGUISHABLE_DBIC
+from besdrake.diagnosis import settings
+from besdrake.diagnosis.settings import ALPHA, CONFIDENT_P, EXCLUDE_FRACTION, HIGH_MARGIN_DBIC, INDISTINGUISHABLE_DBIC
 from besdrake.diagnosis.stats import _lack_of_fit_p
 from besdrake.sim.effects import get_effect
 
@@ -93,6 +94,19 @@ def indistinguishable(fits: list[fitting.CandidateFit], causes: list[Cause], ev:
     return indist
 
 
+def _clear_margin(fits: list[fitting.CandidateFit], causes: list[Cause], indist: list[dict]) -> bool:
+    """The best cause leads every refined rival (the nominal model included) that is not merely the best plus an
+    unneeded effect, nor structurally the same cause, by at least HIGH_MARGIN_DBIC (always true when switched off)."""
+    if not settings.VERIFY_SINGLES:
+        return True
+    best = causes[0]
+    same = {a["b"] for a in indist if a.get("structural")}
+    for f, c in zip(fits[1:], causes[1:]):
+        if f.refined and not set(best.effects) <= set(c.effects) and f.name not in same and c.delta_bic < HIGH_MARGIN_DBIC:
+            return False
+    return True
+
+
 def judge(prob: fitting.Problem, sens: fitting.Sensitivity, fits: list[fitting.CandidateFit], causes: list[Cause], ev: Any,
           cands: list[str], ident: Identifiability | None = None) -> Verdict:
     """Explained or not, with what confidence, and why (see :class:`~besdrake.diagnosis.results.Diagnosis`). A rival
@@ -107,7 +121,8 @@ def judge(prob: fitting.Problem, sens: fitting.Sensitivity, fits: list[fitting.C
     # A touchdown-only log cannot vouch for the cause: the lack-of-fit test, the only guard against an effect the
     # registry does not know, has no power on two numbers per throw (benchmark seed 0: all 5 unknown effects passed
     # it; a cross wind was taken for a base offset, 8.6 BIC ahead of the next candidate).
-    confidence = "high" if explained and not separable and best.p_value >= CONFIDENT_P and not outcome_only else "low"
+    confidence = ("high" if explained and not separable and best.p_value >= CONFIDENT_P and not outcome_only and _clear_margin(fits, causes, indist)
+                  else "low")
     v = Verdict(explained, confidence, "", causes, fits, best, best_fit, indist)
     if not best.effects or (none_c.p_value >= ALPHA and none_c.delta_bic < INDISTINGUISHABLE_DBIC):
         _nothing_wrong(v, prob, sens, none_c, ev, cands)
