@@ -114,3 +114,22 @@ def test_sideways_design_moves_joints_1_4_and_6_within_the_gate_and_keeps_the_pl
         planar = [p.meta["amplitude"] for p in diagnosis_plans(25, 8, seed=seed, probes=2) if p.meta["generator"] == "default_throw"]
         mixed = [p.meta["amplitude"] for p in plans if p.meta["generator"] in ("default_throw", "side_throw")]
         assert sorted(set(mixed)) == sorted(set(planar))  # the same stratified amplitudes, some thrown sideways
+
+
+def _cause(effect: str, params: dict[str, tuple[float, float]], delta_bic: float = 0.0):
+    from besdrake.diagnosis.results import Cause
+
+    table = [{"effect": effect, "parameter": k, "value": v, "stderr": se, "unit": "rad", "at_bound": False, "constrained": True, "stderr_source": ""}
+             for k, (v, se) in params.items()]
+    return Cause((effect,), table, 0.0, delta_bic, 0.0, 100, len(table), True, 0.5)
+
+
+def test_a_rival_is_the_same_cause_only_through_the_parameters_it_moves():
+    from besdrake.diagnosis.verdict import cause_keys, structural_rival
+
+    ident = idf.Identifiability([idf.StructuralClass(["base_offset.yaw", "joint_offset.joint1"], "the same rotation", 0.01)], [], 10, [])
+    base = _cause("base_offset", {"yaw": (0.05, 0.004), "z": (0.001, 0.003)})
+    assert cause_keys(base) == ["base_offset.yaw"]  # z is within 2 standard errors of nominal
+    assert structural_rival(base, _cause("joint_offset", {"joint1": (0.05, 0.004)}), ident) is not None
+    assert structural_rival(base, _cause("joint_offset", {"joint2": (0.05, 0.004)}), ident) is None
+    assert structural_rival(base, _cause("joint_offset", {"joint1": (0.05, 0.004)}), None) is None
