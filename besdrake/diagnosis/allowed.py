@@ -100,10 +100,23 @@ def _allowed_effects(prob: fitting.Problem, sens: fitting.Sensitivity, effects: 
     whether every deviation of EXCLUDE_FRACTION of the range is ruled out, and what would show the effect."""
     q = float(stats.chi2.ppf(1.0 - ALPHA, 1))
     r0 = prob.weighted(sens.y0)
-    y_nom_full = sim.full_cache.get(sim.key({}))
-    # Linearised intervals first (each parameter on its own, the effect's others at nominal: the same sparse view as
-    # the fit; a realistic deviation moves one or two of an effect's parameters, and the joint profile of e.g. six
-    # encoder offsets would allow almost anything through their trade-offs and tell nothing) ...
+    lin = _linear_intervals(prob, sens, effects, r0, q)
+    # ... then every end that the data (not a realistic bound) set is checked with rollouts and widened where the
+    # linear model overstated how far the throws respond (e.g. the gains: benchmark seed 0, touchdown-only trials 21
+    # and 30 stated "kp_scale 0.73..1.19, larger deviations would have been seen" of a lab with kp_scale 0.68).
+    checked = _verify_interval_ends(prob, sim, lin, float(r0 @ r0), q)
+    out = []
+    for e in effects:
+        specs = [ln.spec for ln in lin.values() if ln.spec.effect == e]
+        if specs:
+            out.append(_allowed_effect(e, specs, lin, checked, sim, measured, n_throws, q))
+    return out
+
+
+def _linear_intervals(prob: fitting.Problem, sens: fitting.Sensitivity, effects: Sequence[str], r0: np.ndarray, q: float) -> dict[str, _Line]:
+    """Linearised intervals first (each parameter on its own, the effect's others at nominal: the same sparse view as
+    the fit; a realistic deviation moves one or two of an effect's parameters, and the joint profile of e.g. six
+    encoder offsets would allow almost anything through their trade-offs and tell nothing) ..."""
     lin: dict[str, _Line] = {}
     for e in effects:
         idx = [j for j, s_ in enumerate(sens.specs) if s_.effect == e]
@@ -119,56 +132,54 @@ def _allowed_effects(prob: fitting.Problem, sens: fitting.Sensitivity, effects: 
             est = s_.nominal + var * float(a @ r0)
             half = np.sqrt(q * var)
             lin[s_.key] = _Line(s_, est, max(s_.low, est - half), min(s_.high, est + half), half, info)
-    # ... then every end that the data (not a realistic bound) set is checked with rollouts and widened where the
-    # linear model overstated how far the throws respond (e.g. the gains: benchmark seed 0, touchdown-only trials 21
-    # and 30 stated "kp_scale 0.73..1.19, larger deviations would have been seen" of a lab with kp_scale 0.68).
-    checked = _verify_interval_ends(prob, sim, lin, float(r0 @ r0), q)
-    out = []
-    for e in effects:
-        specs = [ln.spec for ln in lin.values() if ln.spec.effect == e]
-        if not specs:
+    return lin
+
+
+def _allowed_effect(e: str, specs: list[fitting.ParamSpec], lin: dict[str, _Line], checked: dict[str, tuple[float, float]], sim: _Sim,
+                    measured: list[str], n_throws: int, q: float) -> AllowedEffect:
+    """One effect's allowed values (from the checked intervals), whether it is excluded, and what would show it."""
+    allowed, nominal, units, fracs, needed = {}, {}, {}, [], []
+    for s_ in specs:
+        est, info = lin[s_.key].est, lin[s_.key].info
+        lo, hi = checked[s_.key]
+        if lo > hi:  # the estimate lies beyond a bound: only the bound itself is allowed
+            lo = hi = s_.low if est < s_.low else s_.high
+        rng_ = s_.high - s_.low
+        fracs.append(max(abs(lo - s_.nominal), abs(hi - s_.nominal)) / rng_)
+        allowed[s_.name], nominal[s_.name], units[s_.name] = (float(lo), float(hi)), float(s_.nominal), s_.unit
+        if fracs[-1] >= EXCLUDE_FRACTION:  # throws to exclude this parameter: the half-width shrinks as 1/sqrt(throws)
+            needed.append(n_throws * q / info / (EXCLUDE_FRACTION * rng_) ** 2 if info > 0 else np.inf)
+    max_frac = float(max(fracs))
+    excluded = max_frac < EXCLUDE_FRACTION
+    n_need = float(max(needed)) if needed else np.inf
+    throws_needed = int(np.ceil(n_need)) if np.isfinite(n_need) and n_need <= MAX_THROWS_ADVICE else None
+    rec = "" if excluded else _recommendation(e, specs, sim, measured, throws_needed)
+    unconstrained = all(hi_ - lo_ >= UNCONSTRAINED_COVER * (s_.high - s_.low) for s_, (lo_, hi_) in zip(specs, allowed.values()))
+    return AllowedEffect(e, allowed, nominal, units, max_frac, excluded, throws_needed, rec, unconstrained)
+
+
+def _recommendation(e: str, specs: list[fitting.ParamSpec], sim: _Sim, measured: list[str], throws_needed: int | None) -> str:
+    """Which signal would show a deviation of EXCLUDE_FRACTION of the range (finite-difference rollouts of the
+    sensitivity, evaluated for every signal), else how many throws would, else that none would."""
+    y_nom_full = sim.full_cache.get(sim.key({}))
+    shows = []
+    for s_ in specs:
+        y_step = sim.full_cache.get(sim.key(fitting.effects_from([s_], [s_.nominal + s_.step])))
+        if y_step is None or y_nom_full is None:
             continue
-        allowed, nominal, units, fracs, needed = {}, {}, {}, [], []
-        for s_ in specs:
-            est, info = lin[s_.key].est, lin[s_.key].info
-            lo, hi = checked[s_.key]
-            if lo > hi:  # the estimate lies beyond a bound: only the bound itself is allowed
-                lo = hi = s_.low if est < s_.low else s_.high
-            rng_ = s_.high - s_.low
-            fracs.append(max(abs(lo - s_.nominal), abs(hi - s_.nominal)) / rng_)
-            allowed[s_.name], nominal[s_.name], units[s_.name] = (float(lo), float(hi)), float(s_.nominal), s_.unit
-            if fracs[-1] >= EXCLUDE_FRACTION:  # throws to exclude this parameter: the half-width shrinks as 1/sqrt(throws)
-                needed.append(n_throws * q / info / (EXCLUDE_FRACTION * rng_) ** 2 if info > 0 else np.inf)
-        max_frac = float(max(fracs))
-        excluded = max_frac < EXCLUDE_FRACTION
-        n_need = float(max(needed)) if needed else np.inf
-        throws_needed = int(np.ceil(n_need)) if np.isfinite(n_need) and n_need <= MAX_THROWS_ADVICE else None
-        # Which signal would show a deviation of EXCLUDE_FRACTION of the range (finite-difference rollouts of the
-        # sensitivity, evaluated for every signal).
-        shows = []
-        for s_ in specs:
-            y_step = sim.full_cache.get(sim.key(fitting.effects_from([s_], [s_.nominal + s_.step])))
-            if y_step is None or y_nom_full is None:
-                continue
-            d = (y_step - y_nom_full) * (EXCLUDE_FRACTION * (s_.high - s_.low) / abs(s_.step))
-            for g, sl_ in group_slices().items():
-                rms = np.sqrt(np.nanmean(d[:, sl_] ** 2, axis=1))
-                rms = rms[np.isfinite(rms)]
-                if rms.size:
-                    shows.append((float(np.median(rms) / noise.TYPICAL[g]), g, s_.key))
-        shows.sort(reverse=True)
-        unmeasured = [x for x in shows if x[1] not in measured and x[0] > 1.0]
-        if excluded:
-            rec = ""
-        elif unmeasured:
-            sc, g, key = unmeasured[0]
-            rec = f"{_RECORD[g]}: {key} at {EXCLUDE_FRACTION:.0%} of its range would show there as ~{sc:.1f} x typical noise per throw"
-        elif throws_needed is not None:
-            rec = (f"about {throws_needed} throws like the logged ones (with repeats) would exclude {e} beyond {EXCLUDE_FRACTION:.0%} of its range; "
-                   "plans that spread release speed and height more widely need fewer")
-        else:
-            rec = ("no practical number of throws like these would show it in the logged signals (they hardly respond to it); "
-                   "record other signals or throw differently")
-        unconstrained = all(hi_ - lo_ >= UNCONSTRAINED_COVER * (s_.high - s_.low) for s_, (lo_, hi_) in zip(specs, allowed.values()))
-        out.append(AllowedEffect(e, allowed, nominal, units, max_frac, excluded, throws_needed, rec, unconstrained))
-    return out
+        d = (y_step - y_nom_full) * (EXCLUDE_FRACTION * (s_.high - s_.low) / abs(s_.step))
+        for g, sl_ in group_slices().items():
+            rms = np.sqrt(np.nanmean(d[:, sl_] ** 2, axis=1))
+            rms = rms[np.isfinite(rms)]
+            if rms.size:
+                shows.append((float(np.median(rms) / noise.TYPICAL[g]), g, s_.key))
+    shows.sort(reverse=True)
+    unmeasured = [x for x in shows if x[1] not in measured and x[0] > 1.0]
+    if unmeasured:
+        sc, g, key = unmeasured[0]
+        return f"{_RECORD[g]}: {key} at {EXCLUDE_FRACTION:.0%} of its range would show there as ~{sc:.1f} x typical noise per throw"
+    if throws_needed is not None:
+        return (f"about {throws_needed} throws like the logged ones (with repeats) would exclude {e} beyond {EXCLUDE_FRACTION:.0%} of its range; "
+                "plans that spread release speed and height more widely need fewer")
+    return ("no practical number of throws like these would show it in the logged signals (they hardly respond to it); "
+            "record other signals or throw differently")

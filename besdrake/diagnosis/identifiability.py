@@ -149,11 +149,18 @@ def _layout(nominal) -> observables.ThrowLayout:
 def classes_from(keys: list[str], J: np.ndarray) -> tuple[list[StructuralClass], list[str]]:
     """Structural classes from scaled sensitivities ``J`` (P, M): collinear pairs of different effects, merged
     transitively, then single parameters in the span of another effect's parameters; and the unobservable keys."""
-    ok = np.all(np.isfinite(J), axis=0)
-    A = J[:, ok]
+    A = J[:, np.all(np.isfinite(J), axis=0)]
     norms = np.linalg.norm(A, axis=1)
     unobservable = [k for k, n in zip(keys, norms) if n < UNOBSERVABLE_NORM]
     live = [i for i, n in enumerate(norms) if n >= UNOBSERVABLE_NORM]
+    classes = _collinear_classes(keys, A, norms, live)
+    in_class = {m for c in classes for m in c.members}
+    classes += _span_classes(keys, A, norms, [i for i in live if keys[i] not in in_class], live)
+    return classes, unobservable
+
+
+def _collinear_classes(keys: list[str], A: np.ndarray, norms: np.ndarray, live: list[int]) -> list[StructuralClass]:
+    """Pairs of parameters of different effects whose columns are collinear (COLLINEAR_TOL), merged transitively."""
     effect = [k.split(".")[0] for k in keys]
     parent = {i: i for i in live}
 
@@ -162,47 +169,46 @@ def classes_from(keys: list[str], J: np.ndarray) -> tuple[list[StructuralClass],
             i = parent[i]
         return i
 
-    pair_res: dict[int, float] = {}
-    scales: dict[tuple[int, int], float] = {}
+    worst: dict[tuple[int, int], float] = {}
     for a_i, i in enumerate(live):
         for j in live[a_i + 1:]:
-            if effect[i] == effect[j]:
-                continue
             c = float(A[i] @ A[j]) / (norms[i] * norms[j])
             res = float(np.sqrt(max(0.0, 1.0 - c * c)))
-            if res < COLLINEAR_TOL:
+            if effect[i] != effect[j] and res < COLLINEAR_TOL:
                 parent[root(j)] = root(i)
-                pair_res[root(i)] = max(pair_res.get(root(i), 0.0), res)
-                scales[(i, j)] = float(A[i] @ A[j]) / float(A[j] @ A[j])
+                worst[(i, j)] = res
     groups: dict[int, list[int]] = {}
     for i in live:
         groups.setdefault(root(i), []).append(i)
     out = []
-    for r, members in groups.items():
+    for members in groups.values():
         if len(members) < 2:
             continue
         names = sorted(keys[m] for m in members)
         reason = next((KNOWN_REASONS[p] for p in KNOWN_REASONS if set(p) <= set(names)),
                       "every observable responds to them alike, in proportion, over every sampled plan")
-        sc = {f"{keys[i]}/{keys[j]}": v for (i, j), v in scales.items() if i in members}
-        out.append(StructuralClass(names, reason, pair_res.get(r, 0.0), sc))
-    in_class = {m for c in out for m in c.members}
-    for i in live:
-        if keys[i] in in_class:
-            continue
+        pairs = {(i, j): r for (i, j), r in worst.items() if i in members}
+        scale = {f"{keys[i]}/{keys[j]}": float(A[i] @ A[j]) / float(A[j] @ A[j]) for (i, j) in pairs}
+        out.append(StructuralClass(names, reason, max(pairs.values()), scale))
+    return out
+
+
+def _span_classes(keys: list[str], A: np.ndarray, norms: np.ndarray, todo: list[int], live: list[int]) -> list[StructuralClass]:
+    """Parameters whose column lies in the span of another effect's (several) parameters (SPAN_TOL)."""
+    effect = [k.split(".")[0] for k in keys]
+    out = []
+    for i in todo:
         for e in dict.fromkeys(effect):
-            if e == effect[i]:
-                continue
             cols = [j for j in live if effect[j] == e]
-            if len(cols) < 2:
-                continue  # a single column: the pair test above
+            if e == effect[i] or len(cols) < 2:
+                continue  # a single column: the pair test
             B = A[cols].T
             coef, *_ = np.linalg.lstsq(B, A[i], rcond=None)
             res = float(np.linalg.norm(A[i] - B @ coef) / norms[i])
             if res < SPAN_TOL:
-                used = [keys[j] for j, c in zip(cols, coef) if abs(c) * norms[cols[0]] > 1e-3 * norms[i]]
+                used = [keys[j] for j, c in zip(cols, coef) if abs(c) * norms[j] > 1e-3 * norms[i]]
                 out.append(StructuralClass([keys[i], *used], f"{keys[i]} acts on every observable as a combination of {', '.join(used)}", res))
-    return out, unobservable
+    return out
 
 
 def cache_key(effects: Sequence[str], scenario) -> str:
