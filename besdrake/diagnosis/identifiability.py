@@ -252,7 +252,7 @@ def structural_classes(effects: Sequence[str], scenario="nominal", executor=None
     if use_cache:
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
-            tmp = path.with_suffix(".tmp")
+            tmp = path.with_suffix(f".{os.getpid()}.tmp")  # concurrent diagnoses write their own, then replace
             tmp.write_text(json.dumps(result.to_dict(), indent=1))
             tmp.replace(path)
         except OSError:
