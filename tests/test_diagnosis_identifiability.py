@@ -133,3 +133,21 @@ def test_a_rival_is_the_same_cause_only_through_the_parameters_it_moves():
     assert structural_rival(base, _cause("joint_offset", {"joint1": (0.05, 0.004)}), ident) is not None
     assert structural_rival(base, _cause("joint_offset", {"joint2": (0.05, 0.004)}), ident) is None
     assert structural_rival(base, _cause("joint_offset", {"joint1": (0.05, 0.004)}), None) is None
+
+
+def test_a_named_cause_with_a_structural_twin_says_so_without_a_rival():
+    from types import SimpleNamespace
+
+    from besdrake.diagnosis import verdict
+
+    ident = idf.Identifiability([idf.StructuralClass(["base_offset.yaw", "joint_offset.joint1"], "the same rotation", 0.01)], [], 10, [])
+    best = _cause("joint_offset", {"joint1": (0.08, 0.004), "joint4": (0.05, 0.004)})
+    none = _cause("joint_offset", {}, delta_bic=200.0)
+    none.effects, none.p_value = (), 0.0
+    fit = SimpleNamespace(name="joint_offset", refined=True, effects=("joint_offset",))
+    nfit = SimpleNamespace(name="none", refined=True, effects=())
+    ev = SimpleNamespace(measured_groups=["touchdown", "joints"])
+    v = verdict.judge(None, None, [fit, nfit], [best, none], ev, ["base_offset", "joint_offset"], ident)
+    assert v.text.startswith("explained by joint_offset") and "structurally identical" in v.text and v.confidence == "high"
+    v = verdict.judge(None, None, [fit, nfit], [best, none], ev, ["joint_offset"], ident)  # the twin is no candidate
+    assert "structurally identical" not in v.text

@@ -133,9 +133,14 @@ def judge(prob: fitting.Problem, sens: fitting.Sensitivity, fits: list[fitting.C
         v.text = f"explained by {fits[0].name}, but cannot tell it from " + ", ".join(a["b"] for a in separable)
     else:
         v.text = f"explained by {fits[0].name} (next candidate {causes[1].delta_bic:.1f} BIC worse)"
-    structural = [a for a in v.indist if a.get("structural")]
-    if structural and v.best.effects:
-        v.text += "; " + "; ".join(dict.fromkeys(a["reason"] for a in structural))
+    if v.best.effects and ident is not None:
+        # The named cause moves a parameter that has a structural twin: say so whether or not the twin was a rival
+        # (e.g. joint_offset with joint 1 named while the pair with a base yaw was dropped as not needed).
+        keys = set(cause_keys(v.best))
+        twins = [c.statement() for c in ident.classes if set(c.members) & keys and {m.split(".")[0] for m in c.members} <= set(cands)]
+        twins += [a["reason"] for a in v.indist if a.get("structural")]
+        if twins:
+            v.text += "; " + "; ".join(dict.fromkeys(twins))
     if v.explained and v.best.effects and outcome_only:
         v.text += ("; the log records only touchdowns, so an effect outside the registry that moves them alike cannot be "
                    "excluded (record the ball path and the joints to confirm the cause)")
