@@ -35,6 +35,13 @@ offset, counts as right) and ``structural_trials`` / ``structural_named_and_stat
 
     python3 scripts/bench_diagnosis.py --trials 40 --unknown 5 --workers 1 --progress --out /tmp/diag_bench/partial.json > bench_diagnosis.json
     python3 scripts/bench_diagnosis.py --trials 80 --unknown 8 --workers 2 --progress --out /tmp/diag_bench/full.json > bench_full.json  # issue 25
+
+Measured so far (a subset only, commit c921238, heavily loaded shared 2 cores: ``--trials 15 --unknown 1 --only
+0,1,3,6,11,14,15 --modes full --workers 1``): 6 known trials (joint6 -0.063, scoop roll +0.065, joint1 -0.082,
+joint2 -0.046, joint4 +0.054 with base yaw -0.086, ball radius 0.031 with cd 0.79) all named right up to structural
+identity (5/6 exactly; trial 11 as joint_offset with joint 1 for the base yaw), all "high"; the cross-wind trial "not
+explained", "low"; confident-wrong 0; wall median 276 s, max 764 s (not the quiet-core figure). The full 80-trial run
+is still to be done.
 """
 
 from __future__ import annotations
