@@ -2,7 +2,7 @@
 
 Each trial hides one pair of registry effects (cycled through :data:`PAIRS`), each at a realistic magnitude drawn as
 in ``bench_diagnosis.py`` (seeded), runs the virtual lab on the 25-throw diagnosis design (8 repeats) and diagnoses the
-full log twice: as shipped, and with the forward selection of pairs turned off (``core.FORWARD_PAIRS = False``, the
+full log twice: as shipped, and with the forward selection of pairs turned off (``settings.FORWARD_PAIRS = False``, the
 behaviour before it), sharing the rollout cache (so the second wall time is not comparable). Prints one JSON line per
 diagnosis on stderr and a summary: the share of trials whose best cause is exactly the hidden pair, per setting.
 
@@ -34,7 +34,7 @@ def main(argv: list[str] | None = None) -> int:
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     import bench_diagnosis as single
 
-    from besdrake.diagnosis import core, diagnose, diagnosis_plans
+    from besdrake.diagnosis import diagnose, diagnosis_plans, settings
     from besdrake.diagnosis.design import DEFAULT_PROBES
     from besdrake.sim.effects import list_effects
     from besdrake.sim.executors import make_executor
@@ -43,7 +43,7 @@ def main(argv: list[str] | None = None) -> int:
     registry = list(list_effects())
     rows = []
     t_bench = time.perf_counter()
-    shipped = core.FORWARD_PAIRS
+    shipped = settings.FORWARD_PAIRS
     try:
         with make_executor("process", workers=args.workers, scenario="nominal", limits="flag") as ex:
             for i in range(args.trials):
@@ -55,7 +55,7 @@ def main(argv: list[str] | None = None) -> int:
                 ms = [lab.execute(p) for p in diagnosis_plans(25, 8, seed=lab_seed, probes=DEFAULT_PROBES if args.probes is None else args.probes)]
                 cache: dict = {}
                 for forward in (True, False):
-                    core.FORWARD_PAIRS = forward
+                    settings.FORWARD_PAIRS = forward
                     t0 = time.perf_counter()
                     d = diagnose(ms, candidates=registry, executor=ex, cache=cache, seed=i)
                     row = {"trial": i, "hidden": hidden, "forward_pairs": forward, "best": list(d.best.effects), "right": set(d.best.effects) == set(hidden),
@@ -64,7 +64,7 @@ def main(argv: list[str] | None = None) -> int:
                     rows.append(row)
                     print(json.dumps(row, default=float), file=sys.stderr, flush=True)
     finally:
-        core.FORWARD_PAIRS = shipped
+        settings.FORWARD_PAIRS = shipped
     out = {"config": vars(args), "bench_wall_s": time.perf_counter() - t_bench, "trials": rows}
     for forward in (True, False):
         sel = [r for r in rows if r["forward_pairs"] == forward]

@@ -51,3 +51,40 @@ def test_signature_size_is_in_units_of_the_detection_limit(script):
     # A trial the diagnosis did not use: the rows do not line up, the group SDs count.
     d.n_used = 9
     assert bench._signature_size(sig, d, k=1)["signature_chi2"] == pytest.approx(10.0)
+
+
+def test_full_range_draws_cover_every_parameter_in_both_directions(script):
+    from besdrake.sim.effects import get_effect, list_effects
+
+    bench = script("bench_diagnosis")
+    registry = list(list_effects())
+    cases = bench.full_range_cases(registry)
+    # the ball smaller and larger, gains down and up, every joint both ways, base roll/pitch/yaw, the scoop mount
+    for case in [("ball", "radius", -1), ("ball", "radius", 1), ("gain_scale", "kp_scale", -1), ("gain_scale", "kp_scale", 1),
+                 ("base_offset", "roll", -1), ("base_offset", "pitch", 1), ("base_offset", "yaw", -1), ("scoop_mount", "pitch", 1)]:
+        assert case in cases
+    assert all(("joint_offset", f"joint{k}", s) in cases for k in range(1, 7) for s in (-1, 1))
+    assert ("actuator_lag", "delay", -1) not in cases  # no room below a zero delay
+    seen, pairs = set(), 0
+    for i in range(len(cases)):
+        hidden = bench.draw_full(i, registry, np.random.default_rng([0, i]), pair_every=3)
+        pairs += len(hidden) == 2
+        for e, vals in hidden.items():
+            get_effect(e).complete(vals)  # valid values within the realistic bounds
+            for k, v in vals.items():
+                p = get_effect(e).params[k]
+                seen.add((e, k, int(np.sign(v - p.nominal))))
+    assert {c for c in cases} <= seen and pairs == len(cases) // 3
+
+
+def test_structurally_identical_answers_count_as_right_and_reliability_is_per_level(script):
+    bench = script("bench_diagnosis")
+    cls = [{"members": ["base_offset.yaw", "joint_offset.joint1"]}]
+    assert bench.equivalent_answer(("base_offset",), {"base_offset": {"yaw": 0.05}}, {"joint_offset": {"joint1": 0.05}}, cls)
+    assert not bench.equivalent_answer(("base_offset",), {"base_offset": {"z": 0.05}}, {"joint_offset": {"joint1": 0.05}}, cls)
+    rows = [{"trial": 0, "confidence": "high", "correct": True, "correct_structural": True, "honest_cannot_tell": False, "hidden": {}, "best": []},
+            {"trial": 1, "confidence": "high", "correct": False, "correct_structural": False, "honest_cannot_tell": False, "hidden": {}, "best": []},
+            {"trial": 2, "confidence": "low", "correct": False, "correct_structural": False, "honest_cannot_tell": True, "hidden": {}, "best": []}]
+    rel = bench.reliability(rows)
+    assert rel["high"]["n"] == 2 and rel["high"]["share_right"] == 0.5 and [w["trial"] for w in rel["high"]["wrong_trials"]] == [1]
+    assert rel["low"]["right_or_honest"] == 1 and rel["low"]["wrong"] == 0

@@ -9,7 +9,7 @@ from besdrake.sim.effects import Effect, EffectError, Param, get_effect, list_ef
 from besdrake.sim.rollout import shared_rollout
 from besdrake.sim.throws import default_throw
 
-BUILT_IN = ["base_offset", "joint_offset", "actuator_lag", "gain_scale", "air_drag", "ball_placement", "ball", "scoop_friction"]
+BUILT_IN = ["base_offset", "joint_offset", "actuator_lag", "gain_scale", "air_drag", "ball_placement", "ball", "scoop_friction", "scoop_mount"]
 
 
 @pytest.fixture(scope="module")
@@ -159,3 +159,37 @@ def test_an_off_centre_ball_lands_elsewhere_and_the_centred_one_is_unchanged(sim
     assert np.allclose(centred.touchdown, sim.rollout(plan).touchdown)
     off = sim.rollout(plan, effects={"ball_placement": {"x": 0.004, "y": 0.0}})
     assert off.ok and np.linalg.norm(off.touchdown - centred.touchdown) > 0.005
+
+
+def test_a_tilted_base_turns_the_throw(sim, base):
+    """Roll (about the base's forward axis) throws to the side, pitch forward lowers the release elevation."""
+    rolled = _x(sim, {"base_offset": {"roll": 0.04}})
+    assert abs(rolled.touchdown[1]) > 0.03
+    assert _x(sim, {"base_offset": {"roll": -0.04}}).touchdown[1] * rolled.touchdown[1] < 0
+    fwd, back = _x(sim, {"base_offset": {"pitch": 0.04}}), _x(sim, {"base_offset": {"pitch": -0.04}})
+    el = lambda o: np.arctan2(o.release_velocity[2], np.hypot(*o.release_velocity[:2]))  # noqa: E731
+    assert el(fwd) < el(base) < el(back)
+
+
+def test_a_tilted_scoop_mount_turns_the_release_and_is_reset(sim, base):
+    """The scoop welded tilted on the flange: a roll throws sideways (mirror-symmetric), a pitch changes the release
+    elevation; the ball still starts at rest in the (tilted) funnel, and the next rollout has the designed mount."""
+    left, right = _x(sim, {"scoop_mount": {"roll": -0.05}}), _x(sim, {"scoop_mount": {"roll": 0.05}})
+    assert left.touchdown[1] > 0.03 and right.touchdown[1] < -0.03
+    assert left.touchdown[1] == pytest.approx(-right.touchdown[1], rel=1e-3)
+    up, down = _x(sim, {"scoop_mount": {"pitch": -0.05}}), _x(sim, {"scoop_mount": {"pitch": 0.05}})
+    el = lambda o: np.arctan2(o.release_velocity[2], np.hypot(*o.release_velocity[:2]))  # noqa: E731
+    assert el(down) < el(base) - 0.02 < el(up) - 0.04
+    for o in (left, up):  # released by the throw, not dropped while the arm was still
+        assert o.release_time > 0.1 and not o.flags["dropped_early"]
+    again = sim.rollout(default_throw())
+    assert np.allclose(again.touchdown, base.touchdown, atol=1e-9)
+
+
+def test_scoop_mount_frame_is_the_welds_parent_frame(sim):
+    from besdrake.sim.effects import scoop_mount_frame
+
+    frame = scoop_mount_frame(sim.handles)
+    assert frame.body().name() != sim.handles.scoop_body.name()
+    X = frame.GetPoseInParentFrame(sim.handles.plant.CreateDefaultContext())
+    assert np.allclose(X.GetAsMatrix4(), np.eye(4))

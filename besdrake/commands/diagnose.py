@@ -18,6 +18,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--repeats", type=int, default=8, help="with --design: how many of them repeat an earlier plan (default 8)")
     parser.add_argument("--probes", type=int, default=None,
                         help="with --design: how many of them are slow tilt probes that show the ball-scoop friction (default 2)")
+    parser.add_argument("--sideways", type=int, default=None,
+                        help="with --design: how many of the distinct throws are sideways throws that also move joints 1, 4 and 6 (default 5)")
     parser.add_argument("--out", type=Path, default=None, help="folder for report.md, diagnosis.json, refined_scenario.yaml, figures (default: runs/diagnosis/<log name>)")
     parser.add_argument("--scenario", default="nominal", help="the simulation the lab is compared with (name or YAML path)")
     parser.add_argument("--candidates", default=None, help="comma-separated effect names to consider (default: every registered effect)")
@@ -46,17 +48,20 @@ def run(args: argparse.Namespace) -> int:
 
     if args.design is not None:
         from besdrake.diagnosis import diagnosis_plans
-        from besdrake.diagnosis.design import DEFAULT_PROBES
+        from besdrake.diagnosis.design import DEFAULT_PROBES, DEFAULT_SIDEWAYS
 
         probes = DEFAULT_PROBES if args.probes is None else args.probes
+        sideways = DEFAULT_SIDEWAYS if args.sideways is None else args.sideways
+        if args.sideways is None:  # the default fits the design's distinct throws
+            sideways = max(0, min(sideways, args.throws - args.repeats - probes))
         try:
-            plans = diagnosis_plans(args.throws, args.repeats, seed=args.seed, probes=probes)
+            plans = diagnosis_plans(args.throws, args.repeats, seed=args.seed, probes=probes, sideways=sideways)
         except ValueError as err:
             raise UserError(str(err)) from None
         args.design.mkdir(parents=True, exist_ok=True)
         for i, p in enumerate(plans):
             p.save(args.design / f"{i:03d}_{p.meta['name']}.plan.json")
-        print(f"wrote {len(plans)} plans ({args.repeats} repeats, {probes} tilt probes) to {args.design}")
+        print(f"wrote {len(plans)} plans ({args.repeats} repeats, {probes} tilt probes, {sideways} sideways throws) to {args.design}")
         return 0
     if args.logdir is None:
         raise UserError("give a log folder to diagnose (or --design DIR to write a plan set)")

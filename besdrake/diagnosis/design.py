@@ -15,6 +15,12 @@ mu >= 2/7 tan of the wall's slope), so a slippery scoop releases it earlier and 
 6-7 cm/s faster at mu 0.3 than at the nominal 0.6 in the nominal simulation, while the ball's start in the
 scoop is forgotten (it settles in the funnel before it rolls). ``diagnosis_plans(..., probes=k)`` mixes ``k``
 of them into a log, each thrown twice: a repeated probe measures the lab's scatter without the placement's.
+
+The default throw moves only joints 2, 3 and 5 in the arm's vertical plane, so an offset of joint 4 or 6, a
+tilted scoop or base show only through what planar throws happen to show. *Sideways throws*
+(:func:`besdrake.sim.throws.side_throw`, ``diagnosis_plans(..., sideways=k)``) sweep joint 1 and turn joints 4 and
+6 during the swing, from start poses with joints 4 and 6 turned (ranges :data:`SIDE_RANGES`): every joint a suspect
+needs moves, within the safety gate's limits (every plan is checked against them).
 """
 
 from __future__ import annotations
@@ -22,12 +28,20 @@ from __future__ import annotations
 import numpy as np
 
 from besdrake.plan import MotionPlan
-from besdrake.sim.throws import START_POSE, default_throw, min_jerk_plan
+from besdrake.sim.throws import START_POSE, default_throw, min_jerk_plan, side_throw
 
 #: Ranges of the default-throw parameters used for diagnosis plans.
 AMPLITUDE_RANGE = (0.25, 0.53)
 YAW_RANGE = (-0.35, 0.35)
 ACCEL_RANGE = (18.5, 19.0)
+#: Sideways throws (:func:`besdrake.sim.throws.side_throw`) in a diagnosis experiment by default (``besdrake diagnose
+#: --design``, the benchmarks): a third of a 25-throw log's distinct throws.
+DEFAULT_SIDEWAYS = 5
+#: Uniform ranges (rad) of the sideways throws' joint-1 sweep, joint-4/6 twists during the swing and joint-4/6 start angles.
+SIDE_RANGES = {"sweep": (-0.3, 0.3), "twist4": (-0.25, 0.25), "twist6": (-0.25, 0.25), "start4": (-0.15, 0.15), "start6": (-0.15, 0.15)}
+#: Sideways throws use amplitudes from here up (a slow swing from a turned wrist dropped the ball early: amplitude
+#: 0.26, joints 4/6 started at +0.19/-0.18 rad).
+SIDE_MIN_AMPLITUDE = 0.3
 #: Tilt probes in a diagnosis experiment by default (``besdrake diagnose --design``, ``besdrake learn``).
 DEFAULT_PROBES = 2
 #: Tilt probes: (joint-1 yaw, wrist tilt, elbow/shoulder tilt, tilt time) of the first two; more alternate their yaw sign.
@@ -49,13 +63,16 @@ def tilt_probe(yaw: float = 2.8, wrist: float = -1.4, arm: float = -0.15, tilt_t
     return min_jerk_plan(start, np.array([0.0, arm, arm, 0.0, wrist, 0.0]), tilt_time, hold, duration, dt, meta)
 
 
-def diagnosis_plans(n: int = 25, repeats: int = 8, seed: int = 0, probes: int = 0) -> list[MotionPlan]:
+def diagnosis_plans(n: int = 25, repeats: int = 8, seed: int = 0, probes: int = 0, sideways: int = 0) -> list[MotionPlan]:
     """``n`` plans in random order: ``n - repeats - probes`` distinct throws (stratified amplitudes, random yaw and
-    acceleration), ``probes`` tilt probes (:data:`PROBES`) and ``repeats`` plans thrown a second time: every probe
-    first (while the repeats last), then randomly chosen throws. Seeded with ``numpy.random.default_rng(seed)``;
-    ``probes=0`` gives the throws-only design of earlier versions."""
-    if n < 2 or not (0 <= repeats <= n // 2) or not (0 <= probes <= n - repeats - 2):
-        raise ValueError(f"diagnosis_plans: need n >= 2, 0 <= repeats <= n/2 and 0 <= probes <= n - repeats - 2, got n={n}, repeats={repeats}, probes={probes}")
+    acceleration; ``sideways`` of them, spread over the amplitudes, are sideways throws that also move joints 1, 4
+    and 6, :func:`side_plan`), ``probes`` tilt probes (:data:`PROBES`) and ``repeats`` plans thrown a second time:
+    every probe first (while the repeats last), then randomly chosen throws. Seeded with
+    ``numpy.random.default_rng(seed)``; ``probes=0, sideways=0`` gives the planar throws-only design of earlier
+    versions (the same plans for the same seed)."""
+    if n < 2 or not (0 <= repeats <= n // 2) or not (0 <= probes <= n - repeats - 2) or not (0 <= sideways <= n - repeats - probes):
+        raise ValueError(f"diagnosis_plans: need n >= 2, 0 <= repeats <= n/2, 0 <= probes <= n - repeats - 2 and 0 <= sideways <= n - repeats - probes, "
+                         f"got n={n}, repeats={repeats}, probes={probes}, sideways={sideways}")
     rng = np.random.default_rng(seed)
     k = n - repeats - probes
     lo, hi = AMPLITUDE_RANGE
@@ -63,8 +80,14 @@ def diagnosis_plans(n: int = 25, repeats: int = 8, seed: int = 0, probes: int = 
     yaws = rng.uniform(*YAW_RANGE, k)
     accels = rng.uniform(*ACCEL_RANGE, k)
     plans = []
+    # Sideways throws spread over the stratified amplitudes (their own generator, so the planar draws stay as before).
+    # Slow sideways swings from a turned wrist can tip the ball out before the throw: they take the amplitudes from
+    # SIDE_MIN_AMPLITUDE up where there are enough of them.
+    fast = np.nonzero(amps >= SIDE_MIN_AMPLITUDE)[0] if np.sum(amps >= SIDE_MIN_AMPLITUDE) >= sideways else np.arange(k)
+    side = set(fast[np.linspace(0, len(fast) - 1, sideways).round().astype(int)].tolist()) if sideways else set()
+    side_rng = np.random.default_rng([seed, 1])
     for i, (a, y, c) in enumerate(zip(amps, yaws, accels)):
-        p = default_throw(amplitude=float(a), yaw=float(y), accel=float(c))
+        p = side_plan(float(a), float(y), float(c), side_rng) if i in side else default_throw(amplitude=float(a), yaw=float(y), accel=float(c))
         p.meta["name"] = f"diag_{i:02d}"
         plans.append(p)
     # Every probe is thrown twice (while the repeats last): its own scatter, without the placement's, is measured.
@@ -80,4 +103,21 @@ def diagnosis_plans(n: int = 25, repeats: int = 8, seed: int = 0, probes: int = 
     return [allp[int(i)] for i in order]
 
 
-__all__ = ["diagnosis_plans", "tilt_probe", "PROBES", "DEFAULT_PROBES", "AMPLITUDE_RANGE", "YAW_RANGE", "ACCEL_RANGE"]
+def side_plan(amplitude: float, yaw: float, accel: float, rng: np.random.Generator, tries: int = 20) -> MotionPlan:
+    """A sideways throw (:func:`~besdrake.sim.throws.side_throw`) with its sweep, twists and start angles drawn from
+    :data:`SIDE_RANGES`, redrawn until it is within the joint position, velocity and acceleration limits (the safety
+    gate's check); the planar default throw if no draw is."""
+    for _ in range(tries):
+        kw = {name: float(rng.uniform(lo, hi)) for name, (lo, hi) in SIDE_RANGES.items()}
+        p = side_throw(amplitude=amplitude, yaw=yaw, accel=accel, **kw)
+        if not plan_limits_exceeded(p):
+            return p
+    return default_throw(amplitude=amplitude, yaw=yaw, accel=accel)
+
+
+def plan_limits_exceeded(plan: MotionPlan) -> bool:
+    """True when ``plan`` exceeds a joint position, velocity or acceleration limit (what the safety gate refuses)."""
+    return not plan.check_limits().ok
+
+
+__all__ = ["diagnosis_plans", "side_plan", "plan_limits_exceeded", "SIDE_RANGES", "DEFAULT_SIDEWAYS", "tilt_probe", "PROBES", "DEFAULT_PROBES", "AMPLITUDE_RANGE", "YAW_RANGE", "ACCEL_RANGE"]

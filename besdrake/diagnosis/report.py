@@ -148,7 +148,27 @@ def _markdown(diag: Diagnosis, figures: list[str], scenario_path: Path | None) -
     if diag.indistinguishable:
         L.append("### Causes the logged signals cannot tell apart")
         for a in diag.indistinguishable:
-            L.append(f"- cannot tell **{a['a']}** from **{a['b']}** (delta BIC {a['delta_bic']:.1f}). To separate them: {a.get('recommendation', '')}.")
+            if a.get("structural"):
+                L.append(f"- **{a['a']}** and **{a['b']}** are the same cause: {a['reason']}.")
+            else:
+                L.append(f"- cannot tell **{a['a']}** from **{a['b']}** (delta BIC {a['delta_bic']:.1f}). To separate them: {a.get('recommendation', '')}.")
+        L.append("")
+    if diag.structural:
+        L.append("### Structurally identical candidate parameters (no experiment separates them)")
+        for c in diag.structural:
+            L.append(f"- {c['reason']}")
+        L.append("")
+    if diag.residual:
+        r = diag.residual
+        L.append("### Not explained: where the residual lives")
+        L.append("- share of the chi-square by observable: " + ", ".join(f"{g} {v:.0%}" for g, v in sorted(r["group_share"].items(), key=lambda x: -x[1])))
+        L.append("- largest residuals: " + ", ".join(f"trial {w['trial']} ({w['plan']}, chi2 {w['chi2']:.0f})" for w in r["worst_throws"]))
+        if r["follows"]:
+            L.append("- the touchdown residual follows: " + ", ".join(f"{f['axis']} ~ {f['feature']} (r = {f['r']:.2f})" for f in r["follows"][:4]))
+        m = r.get("model", {})
+        if m.get("heldout_after_m") is not None:
+            L.append(f"- {m['label']}: held-out median touchdown disparity {m['heldout_before_m'] * 100:.1f} -> {m['heldout_after_m'] * 100:.1f} cm "
+                     f"({m['n_heldout']} throws, {m['folds']}-fold by plan)")
         L.append("")
     if diag.cannot_tell:
         L.append("### No discrepancy beyond the noise: what the log cannot exclude")

@@ -205,11 +205,15 @@ def apply_effects(setup: RolloutSetup, effects: dict[str, dict[str, float]]) -> 
 
 @register_effect
 class BaseOffset(Effect):
-    """Base pose offset: the arm stands somewhere other than designed (pedestal height, placement, yaw).
+    """Base pose offset: the arm stands somewhere other than designed (pedestal height, placement, yaw, tilt).
 
     The arm is welded to a FixedOffsetFrame whose pose is a Context parameter; the offset is composed
-    with the scenario's base pose (translation added in the world frame, yaw added about world z).
-    A higher base gives a longer throw. Applied via the Context, no rebuild.
+    with the scenario's base pose (translation added in the world frame, yaw added about world z; roll and
+    pitch tilt the base about its own forward x and sideways y axes, R = Rz(yaw) Ry(pitch) Rx(roll), e.g. an
+    uneven floor or a pedestal that leans). A higher base gives a longer throw; a base pitched forward
+    lowers the release elevation, a rolled base throws to the side. A base yaw is the same rotation about the
+    same vertical axis as a joint-1 encoder offset (joint 1 turns about the base's z axis through its origin):
+    no throw separates the two. Applied via the Context, no rebuild.
     """
 
     name = "base_offset"
@@ -218,6 +222,8 @@ class BaseOffset(Effect):
         "y": Param(0.0, -0.2, 0.2, "m", "lateral offset of the base"),
         "z": Param(0.0, -0.2, 0.2, "m", "height offset of the base"),
         "yaw": Param(0.0, -0.2, 0.2, "rad", "rotation of the base about the vertical"),
+        "roll": Param(0.0, -0.05, 0.05, "rad", "tilt of the base about its forward (x) axis"),
+        "pitch": Param(0.0, -0.05, 0.05, "rad", "tilt of the base about its sideways (y) axis"),
     }
 
     def apply(self, setup, values):
@@ -226,7 +232,7 @@ class BaseOffset(Effect):
         h = setup.handles
         b = h.scenario.base
         X = RigidTransform(
-            RollPitchYaw(0.0, 0.0, b.yaw + values["yaw"]),
+            RollPitchYaw(values["roll"], values["pitch"], b.yaw + values["yaw"]),
             [b.x + values["x"], b.y + values["y"], b.z + values["z"]],
         )
         h.base_frame.SetPoseInParentFrame(setup.plant_context, X)
@@ -466,3 +472,54 @@ class ScoopFriction(Effect):
             props = ProximityProperties(inspector.GetProximityProperties(gid))
             props.UpdateProperty("material", "coulomb_friction", friction)
             h.scene_graph.AssignRole(setup.scene_graph_context, h.plant.get_source_id(), gid, props, RoleAssign.kReplace)
+
+
+@register_effect
+class ScoopMount(Effect):
+    """Scoop mounting tilt: the scoop sits on the flange tilted by ``roll`` about the scoop frame's x axis and
+    ``pitch`` about its y axis (rad; the paper's "ball-release angle", which its simulation refinement fitted).
+
+    Physics: the ball is catapulted out of the funnel along the wall normal, so tilting the scoop on the flange
+    turns the release direction with it: a pitch (about y, the axis across the default throw's swing) raises or
+    lowers the release elevation (default throw, amplitude 0.4: -0.05 rad gives +2.6 degrees of elevation and a
+    slower ball, 1.4 cm shorter; near the elevation of longest range the landing hardly moves, the ball's path
+    does), a roll (about x) turns the release sideways (0.05 rad: 0.08 m/s sideways, 6.4 cm to one side at
+    1.9 m, growing with the throw's length; a yawed base or a joint-1 offset instead turn the whole arm). The ball's rest position, its
+    placement and the re-catch check all use the scoop body frame, so they follow the tilted scoop. A mounting
+    bracket bent or shimmed by a few degrees is realistic; larger tilts would be seen by eye.
+
+    Applied via the Context: the scoop is welded to the flange through the fixed joint's parent frame, a
+    ``FixedOffsetFrame`` whose pose is a Context parameter (``SetPoseInParentFrame``); the tilt is composed
+    after the designed mounting pose (X_PF = X_PF,nominal * R(roll, pitch, 0), about the scoop's origin).
+    No rebuild; the Context reset restores the designed mounting.
+    """
+
+    name = "scoop_mount"
+    params = {
+        "roll": Param(0.0, -0.08, 0.08, "rad", "tilt of the scoop on the flange about the scoop frame's x axis"),
+        "pitch": Param(0.0, -0.08, 0.08, "rad", "tilt of the scoop on the flange about the scoop frame's y axis"),
+    }
+
+    def apply(self, setup, values):
+        if values["roll"] == 0.0 and values["pitch"] == 0.0:
+            return
+        from pydrake.math import RigidTransform, RollPitchYaw
+
+        frame = scoop_mount_frame(setup.handles)
+        X_nominal = frame.GetPoseInParentFrame(setup.plant_context)
+        tilt = RigidTransform(RollPitchYaw(values["roll"], values["pitch"], 0.0), np.zeros(3))
+        frame.SetPoseInParentFrame(setup.plant_context, X_nominal.multiply(tilt))
+
+
+def scoop_mount_frame(handles: "SimHandles"):
+    """The parent frame of the joint that welds the scoop body to the arm (a FixedOffsetFrame whose pose in its
+    parent body is a Context parameter); EffectError when the scoop is not welded through one."""
+    plant = handles.plant
+    for index in plant.GetJointIndices(handles.arm):
+        joint = plant.get_joint(index)
+        if joint.child_body().index() == handles.scoop_body.index():
+            frame = joint.frame_on_parent()
+            if not hasattr(frame, "SetPoseInParentFrame"):
+                raise EffectError(f"scoop_mount: the scoop's joint {joint.name()!r} has no FixedOffsetFrame parent")
+            return frame
+    raise EffectError("scoop_mount: no joint of the arm has the scoop as its child")

@@ -59,6 +59,43 @@ def default_throw(
     return min_jerk_plan(start, SWING * amplitude, T, hold, duration, dt, meta)
 
 
+def side_throw(
+    amplitude: float = 0.35,
+    yaw: float = 0.0,
+    sweep: float = 0.0,
+    twist4: float = 0.0,
+    twist6: float = 0.0,
+    start4: float = 0.0,
+    start6: float = 0.0,
+    accel: float = 19.0,
+    duration: float = 1.5,
+    hold: float = 0.03,
+    dt: float = 0.01,
+) -> MotionPlan:
+    """A sideways variant of the default throw that moves every joint: the overhand swing of joints 2, 3 and 5
+    (``amplitude`` x :data:`SWING`) while joint 1 sweeps by ``sweep`` (the ball gets a sideways velocity), joint 4
+    turns the forearm by ``twist4`` and joint 6 the scoop about the flange by ``twist6`` (the release direction
+    leans sideways), from the start pose turned to ``yaw`` with joints 4 and 6 at ``start4``/``start6`` (rad).
+    The swing time keeps the peak joint acceleration at ``accel`` rad/s^2 (:func:`swing_time` of the largest joint
+    move). Offsets of joints 1, 4 and 6, a tilted base or scoop show in these throws differently than in the planar
+    ones (they turn the release direction in a plan-dependent way)."""
+    for name, v in (("amplitude", amplitude), ("yaw", yaw), ("sweep", sweep), ("twist4", twist4), ("twist6", twist6),
+                    ("start4", start4), ("start6", start6), ("accel", accel), ("duration", duration), ("hold", hold), ("dt", dt)):
+        if not np.isfinite(v):
+            raise ValueError(f"side_throw: {name} must be finite, got {v}")
+    if amplitude <= 0 or accel <= 0 or dt <= 0 or hold < 0:
+        raise ValueError(f"side_throw: amplitude, accel and dt must be positive and hold >= 0 (got {amplitude}, {accel}, {dt}, {hold})")
+    delta = SWING * amplitude + np.array([sweep, 0.0, 0.0, twist4, 0.0, twist6])
+    T = float(np.sqrt(MIN_JERK_PEAK_ACCEL * np.abs(delta).max() / accel))
+    if hold + T > duration:
+        raise ValueError(f"side_throw: hold {hold} s + swing {T:.3f} s exceed the duration {duration} s")
+    start = START_POSE.copy()
+    start[0], start[3], start[5] = yaw, start4, start6
+    meta = {"generator": "side_throw", "amplitude": amplitude, "yaw": yaw, "sweep": sweep, "twist4": twist4, "twist6": twist6,
+            "start4": start4, "start6": start6, "accel": accel, "swing_time": T}
+    return min_jerk_plan(start, delta, T, hold, duration, dt, meta)
+
+
 def min_jerk_plan(start: np.ndarray, delta: np.ndarray, move_time: float, hold: float, duration: float, dt: float, meta: dict) -> MotionPlan:
     """A plan of ``duration`` s sampled every ``dt`` s: hold ``start`` for ``hold`` s, move by ``delta`` (rad) along
     the minimum-jerk profile s(x) = 10x^3 - 15x^4 + 6x^5 in ``move_time`` s, hold the end pose."""
@@ -70,4 +107,4 @@ def min_jerk_plan(start: np.ndarray, delta: np.ndarray, move_time: float, hold: 
     return MotionPlan(t=t, q=start + np.outer(s, delta), qd=np.outer(ds, delta), meta=meta)
 
 
-__all__ = ["default_throw", "min_jerk_plan", "swing_time", "START_POSE", "SWING"]
+__all__ = ["default_throw", "side_throw", "min_jerk_plan", "swing_time", "START_POSE", "SWING"]

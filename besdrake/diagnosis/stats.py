@@ -1,0 +1,107 @@
+"""Statistics of a diagnosis: materiality of a prediction change, lack of fit, plan-level significance, bootstrap CIs."""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+from scipy import stats
+
+from besdrake.diagnosis import fitting, noise, observables
+from besdrake.diagnosis.observables import group_slices
+from besdrake.diagnosis.settings import ALPHA, MATERIAL_BALL_FACTOR, NESTED_TEST_MIN_PLANS
+
+
+def _bootstrap_median_ci(x: np.ndarray, rng: np.random.Generator, n_boot: int = 2000) -> tuple[float, float]:
+    if len(x) == 0:
+        return (float("nan"), float("nan"))
+    idx = rng.integers(0, len(x), size=(n_boot, len(x)))
+    meds = np.median(x[idx], axis=1)
+    return (float(np.quantile(meds, 0.025)), float(np.quantile(meds, 0.975)))
+
+
+def _material_change(y_a: np.ndarray, y_b: np.ndarray, nm: noise.NoiseModel, groups: list[str]) -> dict[str, float]:
+    """Median over throws of the RMS prediction difference of two fits, in units of the materiality scale: noise
+    SDs for the touchdown (always: it is what a refined model is for) and joint tracking, 4 noise SDs for the
+    ball groups (path and rest position, when measured)."""
+    sl = group_slices()
+    out = {}
+    for g in observables.group_names():
+        if g != "touchdown" and g not in groups:
+            continue
+        d = y_a[:, sl[g]] - y_b[:, sl[g]]
+        rms = np.sqrt(np.nanmean(d * d, axis=1))
+        rms = rms[np.isfinite(rms)]
+        # The ball path counts at 1/MATERIAL_BALL_FACTOR the weight: small systematic path differences (e.g. from
+        # how the ball is placed) that hardly move the touchdown are not worth an extra cause.
+        scale = MATERIAL_BALL_FACTOR if g.startswith("ball") else 1.0
+        out[g] = float(np.median(rms) / (nm.sd[g] * scale)) if rms.size else 0.0
+    return out
+
+
+def _lack_of_fit_p(prob: fitting.Problem, y_fit: np.ndarray, k: int, noise_model: noise.NoiseModel, groups: list[str]) -> tuple[float, dict[str, float]]:
+    """Lack-of-fit p-value per measured group and overall (Bonferroni over groups).
+
+    A group's weighted residual sum of squares is an F statistic against the pure error when its noise was
+    measured from repeated plans (dof of both), a chi-square when the noise is assumed. The k fitted
+    parameters are charged to the groups in proportion to their sizes.
+    """
+    c2 = fitting.chi2_by_group(prob, y_fit, group_slices())
+    sl = group_slices()
+    ps = {}
+    for g in groups:
+        n_g = int(prob.mask[:, sl[g]].sum())
+        if n_g == 0 or g not in c2:
+            continue
+        dof = max(n_g - k * n_g / max(prob.n, 1), 1.0)
+        nu = noise_model.dof.get(g, 0)
+        ps[g] = float(stats.f.sf(c2[g] / dof, dof, nu)) if nu > 0 else float(stats.chi2.sf(c2[g], dof))
+        # Systematic offset left over: t test of each feature's mean residual (Bonferroni within the group).
+        r = (prob.y_meas[:, sl[g]] - y_fit[:, sl[g]]) / prob.sd[:, sl[g]]
+        m = prob.mask[:, sl[g]]
+        tp = []
+        for j in range(r.shape[1]):
+            v = r[m[:, j], j]
+            v = v[np.isfinite(v)]
+            if len(v) >= 3:
+                tstat = abs(v.mean()) * np.sqrt(len(v))
+                tp.append(2 * (stats.t.sf(tstat, nu) if nu > 0 else stats.norm.sf(tstat)))
+        if tp:
+            ps[g + ":mean"] = float(min(1.0, len(tp) * min(tp)))
+    p = min(1.0, len(ps) * min(ps.values())) if ps else 1.0
+    return p, ps
+
+
+def _extra_effect_significant(prob: fitting.Problem, big: fitting.CandidateFit, effect: str, keys: Sequence[str], alpha: float = ALPHA) -> tuple[bool, float]:
+    """Whether ``effect``'s parameters in the refined candidate ``big`` differ from nominal significantly when the
+    plans, not the residual entries, are the independent units: Wald test with the cluster-robust (sandwich)
+    covariance H^-1 (sum_u g_u g_u^T) H^-1 U/(U-1), g_u the score of plan u's throws (weighted Jacobian^T residual),
+    H the Gauss-Newton information with the fit's weak prior; F(q, U-1) reference at level ``alpha``. The
+    residuals within a throw are strongly correlated (the touchdown scatter also moves the ball path and its speed),
+    so a chi-square over entries counts one throw's noise several times and lets a small effect (a joint offset)
+    absorb it; the plan-level scatter of the scores does not. Returns (significant, p-value)."""
+    idx = [j for j, s_ in enumerate(big.specs) if s_.effect == effect]
+    A = big.jac
+    if not idx or A is None or big.y_fit is None or A.shape[0] != prob.n:
+        return True, float("nan")
+    r = prob.weighted(big.y_fit)
+    entry_key = np.array([keys[i] for i in np.nonzero(prob.mask)[0]])
+    plans = list(dict.fromkeys(entry_key.tolist()))
+    U = len(plans)
+    if U < NESTED_TEST_MIN_PLANS:
+        return True, float("nan")
+    P, _ = fitting._prior_rows(big.specs, big.theta)
+    H = A.T @ A + P.T @ P
+    G = np.array([A[entry_key == u].T @ r[entry_key == u] for u in plans])
+    meat = G.T @ G * U / (U - 1)
+    try:
+        Hi = np.linalg.inv(H)
+    except np.linalg.LinAlgError:
+        return True, float("nan")
+    cov = Hi @ meat @ Hi
+    delta = big.theta[idx] - np.array([big.specs[j].nominal for j in idx])
+    C = cov[np.ix_(idx, idx)]
+    W = float(delta @ np.linalg.pinv(C) @ delta)
+    q = len(idx)
+    p = float(stats.f.sf(W / q, q, U - 1))
+    return p < alpha, p
