@@ -422,6 +422,7 @@ def main(argv=None) -> int:
     from besdrake.diagnosis import diagnose, diagnosis_plans
     from besdrake.diagnosis.design import DEFAULT_PROBES, DEFAULT_SIDEWAYS
     from besdrake.sim import Rollout
+    from besdrake.sim.scenario import load_scenario
     from besdrake.sim.effects import list_effects
     from besdrake.sim.executors import make_executor
     from besdrake.transfer.virtual_lab import VirtualLab
@@ -453,7 +454,8 @@ def main(argv=None) -> int:
             if only is not None and i not in only:
                 continue
             plans = diagnosis_plans(args.throws, args.repeats, seed=1000 * args.seed + i, probes=DEFAULT_PROBES if args.probes is None else args.probes,
-                                    sideways=DEFAULT_SIDEWAYS if args.sideways is None else args.sideways)
+                                    sideways=DEFAULT_SIDEWAYS if args.sideways is None else args.sideways,
+                                    limits=load_scenario("nominal").robot.limits)
             lab = VirtualLab({"name": "bench_lab", "effects": hidden, "seed": 1000 * args.seed + i})
             try:
                 ms = [lab.execute(p) for p in plans]

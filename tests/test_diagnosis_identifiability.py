@@ -15,6 +15,11 @@ import pytest
 from besdrake.diagnosis import identifiability as idf
 
 
+from besdrake.robot import load_robot
+
+COMPI = load_robot("compi")
+
+
 def _toy():
     rng = np.random.default_rng(0)
     a, c1, c2, d = (rng.normal(size=60) for _ in range(4))
@@ -48,8 +53,8 @@ def test_identical_causes_need_every_differing_parameter_in_a_shared_class():
 def test_the_plan_sample_moves_every_joint_within_the_gate():
     from besdrake.diagnosis.design import plan_limits_exceeded
 
-    plans = idf.sample_plans()
-    assert len(plans) >= 8 and not any(plan_limits_exceeded(p) for p in plans)
+    plans = idf.sample_plans(COMPI.limits)
+    assert len(plans) >= 8 and not any(plan_limits_exceeded(p, COMPI.limits) for p in plans)
     moved = np.zeros(6, bool)
     for p in plans:
         moved |= np.ptp(p.q, axis=0) > 0.05
@@ -66,7 +71,7 @@ def test_results_are_cached_as_json(tmp_path, monkeypatch):
         return keys, J
 
     monkeypatch.setattr(idf, "scaled_sensitivities", fake)
-    monkeypatch.setattr(idf, "sample_plans", lambda: [])
+    monkeypatch.setattr(idf, "sample_plans", lambda limits: [])
     r1 = idf.structural_classes(["air_drag"], executor=object())
     r2 = idf.structural_classes(["air_drag"], executor=object())
     assert len(calls) == 1 and r1.to_dict() == r2.to_dict()
@@ -90,7 +95,7 @@ def test_a_hidden_joint1_offset_is_stated_as_structurally_identical_to_a_base_ya
     from besdrake.transfer.virtual_lab import VirtualLab
 
     lab = VirtualLab({"name": "test_lab", "effects": {"joint_offset": {"joint1": 0.05}}, "seed": 4})
-    ms = [lab.execute(p) for p in diagnosis_plans(16, 5, seed=4, probes=0, sideways=3)]
+    ms = [lab.execute(p) for p in diagnosis_plans(16, 5, seed=4, probes=0, sideways=3, limits=COMPI.limits)]
     d = diagnose(ms, candidates=["base_offset", "joint_offset", "actuator_lag"], backend="serial", folds=2)
     assert set(d.best.effects) <= {"base_offset", "joint_offset"} and d.best.effects, d.verdict
     assert any(set(c["members"]) == {"base_offset.yaw", "joint_offset.joint1"} for c in d.structural)
@@ -106,9 +111,9 @@ def test_sideways_design_moves_joints_1_4_and_6_within_the_gate_and_keeps_the_pl
     from besdrake.diagnosis.design import plan_limits_exceeded
 
     for seed in range(4):
-        plans = diagnosis_plans(25, 8, seed=seed, probes=2, sideways=5)
+        plans = diagnosis_plans(25, 8, seed=seed, probes=2, sideways=5, limits=COMPI.limits)
         side = {id(p): p for p in plans if p.meta["generator"] == "side_throw"}
-        assert len(side) == 5 and not any(plan_limits_exceeded(p) for p in plans)
+        assert len(side) == 5 and not any(plan_limits_exceeded(p, COMPI.limits) for p in plans)
         for p in side.values():
             assert np.all(np.ptp(p.q[:, [0, 3, 5]], axis=0) > 0) and p.meta["amplitude"] >= 0.3
         planar = [p.meta["amplitude"] for p in diagnosis_plans(25, 8, seed=seed, probes=2) if p.meta["generator"] == "default_throw"]

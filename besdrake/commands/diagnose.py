@@ -55,7 +55,8 @@ def run(args: argparse.Namespace) -> int:
         if args.sideways is None:  # the default fits the design's distinct throws
             sideways = max(0, min(sideways, args.throws - args.repeats - probes))
         try:
-            plans = diagnosis_plans(args.throws, args.repeats, seed=args.seed, probes=probes, sideways=sideways)
+            plans = diagnosis_plans(args.throws, args.repeats, seed=args.seed, probes=probes, sideways=sideways,
+                                    limits=load_scenario(args.scenario).robot.limits)
         except ValueError as err:
             raise UserError(str(err)) from None
         args.design.mkdir(parents=True, exist_ok=True)

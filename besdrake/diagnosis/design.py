@@ -28,6 +28,7 @@ from __future__ import annotations
 import numpy as np
 
 from besdrake.plan import MotionPlan
+from besdrake.robot import JointLimits
 from besdrake.sim.throws import START_POSE, default_throw, min_jerk_plan, side_throw
 
 #: Ranges of the default-throw parameters used for diagnosis plans.
@@ -63,16 +64,19 @@ def tilt_probe(yaw: float = 2.8, wrist: float = -1.4, arm: float = -0.15, tilt_t
     return min_jerk_plan(start, np.array([0.0, arm, arm, 0.0, wrist, 0.0]), tilt_time, hold, duration, dt, meta)
 
 
-def diagnosis_plans(n: int = 25, repeats: int = 8, seed: int = 0, probes: int = 0, sideways: int = 0) -> list[MotionPlan]:
+def diagnosis_plans(n: int = 25, repeats: int = 8, seed: int = 0, probes: int = 0, sideways: int = 0,
+                    limits: JointLimits | None = None) -> list[MotionPlan]:
     """``n`` plans in random order: ``n - repeats - probes`` distinct throws (stratified amplitudes, random yaw and
     acceleration; ``sideways`` of them, spread over the amplitudes, are sideways throws that also move joints 1, 4
     and 6, :func:`side_plan`), ``probes`` tilt probes (:data:`PROBES`) and ``repeats`` plans thrown a second time:
     every probe first (while the repeats last), then randomly chosen throws. Seeded with
     ``numpy.random.default_rng(seed)``; ``probes=0, sideways=0`` gives the planar throws-only design of earlier
-    versions (the same plans for the same seed)."""
+    versions (the same plans for the same seed). ``limits``: the robot's joint limits, which sideways throws keep."""
     if n < 2 or not (0 <= repeats <= n // 2) or not (0 <= probes <= n - repeats - 2) or not (0 <= sideways <= n - repeats - probes):
         raise ValueError(f"diagnosis_plans: need n >= 2, 0 <= repeats <= n/2, 0 <= probes <= n - repeats - 2 and 0 <= sideways <= n - repeats - probes, "
                          f"got n={n}, repeats={repeats}, probes={probes}, sideways={sideways}")
+    if sideways and limits is None:
+        raise ValueError("diagnosis_plans: sideways throws need the robot's joint limits (limits=robot.limits)")
     rng = np.random.default_rng(seed)
     k = n - repeats - probes
     lo, hi = AMPLITUDE_RANGE
@@ -87,7 +91,7 @@ def diagnosis_plans(n: int = 25, repeats: int = 8, seed: int = 0, probes: int = 
     side = set(fast[np.linspace(0, len(fast) - 1, sideways).round().astype(int)].tolist()) if sideways else set()
     side_rng = np.random.default_rng([seed, 1])
     for i, (a, y, c) in enumerate(zip(amps, yaws, accels)):
-        p = side_plan(float(a), float(y), float(c), side_rng) if i in side else default_throw(amplitude=float(a), yaw=float(y), accel=float(c))
+        p = side_plan(float(a), float(y), float(c), side_rng, limits) if i in side else default_throw(amplitude=float(a), yaw=float(y), accel=float(c))
         p.meta["name"] = f"diag_{i:02d}"
         plans.append(p)
     # Every probe is thrown twice (while the repeats last): its own scatter, without the placement's, is measured.
@@ -103,21 +107,23 @@ def diagnosis_plans(n: int = 25, repeats: int = 8, seed: int = 0, probes: int = 
     return [allp[int(i)] for i in order]
 
 
-def side_plan(amplitude: float, yaw: float, accel: float, rng: np.random.Generator, tries: int = 20) -> MotionPlan:
+def side_plan(amplitude: float, yaw: float, accel: float, rng: np.random.Generator, limits: JointLimits,
+              tries: int = 20) -> MotionPlan:
     """A sideways throw (:func:`~besdrake.sim.throws.side_throw`) with its sweep, twists and start angles drawn from
     :data:`SIDE_RANGES`, redrawn until it is within the joint position, velocity and acceleration limits (the safety
     gate's check); the planar default throw if no draw is."""
     for _ in range(tries):
         kw = {name: float(rng.uniform(lo, hi)) for name, (lo, hi) in SIDE_RANGES.items()}
         p = side_throw(amplitude=amplitude, yaw=yaw, accel=accel, **kw)
-        if not plan_limits_exceeded(p):
+        if not plan_limits_exceeded(p, limits):
             return p
     return default_throw(amplitude=amplitude, yaw=yaw, accel=accel)
 
 
-def plan_limits_exceeded(plan: MotionPlan) -> bool:
-    """True when ``plan`` exceeds a joint position, velocity or acceleration limit (what the safety gate refuses)."""
-    return not plan.check_limits().ok
+def plan_limits_exceeded(plan: MotionPlan, limits: JointLimits) -> bool:
+    """True when ``plan`` exceeds one of the robot's joint position, velocity or acceleration ``limits`` (what the
+    safety gate refuses)."""
+    return not plan.check_limits(limits).ok
 
 
 __all__ = ["diagnosis_plans", "side_plan", "plan_limits_exceeded", "SIDE_RANGES", "DEFAULT_SIDEWAYS", "tilt_probe", "PROBES", "DEFAULT_PROBES", "AMPLITUDE_RANGE", "YAW_RANGE", "ACCEL_RANGE"]

@@ -102,18 +102,18 @@ class Identifiability:
         return found
 
 
-def sample_plans(n_planar: int = 4, n_side: int = 4, seed: int = 0) -> list:
-    """Plans the safety gate allows that together move every joint: planar default throws over the amplitude range,
-    sideways throws (joints 1, 4, 6 too) and the two tilt probes."""
+def sample_plans(limits, n_planar: int = 4, n_side: int = 4, seed: int = 0) -> list:
+    """Plans within the robot's ``limits`` (what the safety gate allows) that together move every joint: planar default
+    throws over the amplitude range, sideways throws (joints 1, 4, 6 too) and the two tilt probes."""
     from besdrake.diagnosis import design
     from besdrake.sim.throws import default_throw
 
     rng = np.random.default_rng(seed)
     lo, hi = design.AMPLITUDE_RANGE
     plans = [default_throw(amplitude=float(a), yaw=float(rng.uniform(*design.YAW_RANGE))) for a in np.linspace(lo, hi, n_planar)]
-    plans += [design.side_plan(float(a), float(rng.uniform(*design.YAW_RANGE)), 19.0, rng) for a in np.linspace(design.SIDE_MIN_AMPLITUDE, hi, n_side)]
+    plans += [design.side_plan(float(a), float(rng.uniform(*design.YAW_RANGE)), 19.0, rng, limits) for a in np.linspace(design.SIDE_MIN_AMPLITUDE, hi, n_side)]
     plans += [design.tilt_probe(*p[:3], tilt_time=p[3]) for p in design.PROBES]
-    return [p for p in plans if not design.plan_limits_exceeded(p)]
+    return [p for p in plans if not design.plan_limits_exceeded(p, limits)]
 
 
 def scaled_sensitivities(executor, effects: Sequence[str], plans: Sequence) -> tuple[list[str], np.ndarray]:
@@ -242,7 +242,7 @@ def structural_classes(effects: Sequence[str], scenario="nominal", executor=None
     own = executor is None
     ex = executor or make_executor("serial", scenario=scen, limits="flag")
     try:
-        plans = sample_plans()
+        plans = sample_plans(scen.robot.limits)
         keys, J = scaled_sensitivities(ex, effects, plans)
     finally:
         if own:
