@@ -14,8 +14,9 @@ this module matches the whole tool pose, as a gripper needs. Each pose is one Dr
   plant has any) bounded to the given opening, every other non-arm position to its default: the
   programs move the arm only.
 
-The first pose is solved from several starts (the branch the trajectory follows, see
-:func:`_first_pose`). A pose whose constraints cannot be met is solved again with the orientation as a cost only, then
+The first pose is solved from several starts; the forward pass runs from up to ``n_branches`` of its
+distinct solutions (IK branches) until one gives a trajectory with every pose reached and no jump
+(:func:`_first_poses`). A pose whose constraints cannot be met is solved again with the orientation as a cost only, then
 with the position as a cost too; it is then reported unreachable with its residuals. A forward pass
 (each pose seeded by the previous solution) is followed by a backward pass that removes the start-up
 transient of the first pose, as in :func:`besdrake.embodiment.ik.ik_trajectory`.
@@ -46,6 +47,8 @@ class PoseIKOptions:
     joint_margin: float = 0.05  # rad kept from every position limit
     backward_pass: bool = True
     n_starts: int = 8  # random starts for the first pose, besides the seed and the home pose
+    n_branches: int = 3  # first-pose solutions tried as the start of a forward pass (the first without
+    # unreachable poses and jumps is kept, else the one with the fewest, then the smallest largest step)
 
 
 @dataclass
@@ -158,11 +161,16 @@ def pose_ik_trajectory(
         raise ValueError("pose targets must be finite")
     solver = _PoseSolver(model, gripper, opt)
     seed = np.clip(np.asarray(q_seed, dtype=float), solver.lower, solver.upper)
-    q = np.empty((n, len(solver.arm)))
-    ok = np.zeros(n, dtype=bool)
-    q[0], ok[0] = _first_pose(solver, model, positions[0], rotations[0], seed, opt)
-    for i in range(1, n):
-        q[i], ok[i] = solver.solve(positions[i], rotations[i], q[i - 1], [q[i - 1]])
+    best = None
+    for q0, ok0 in _first_poses(solver, model, positions[0], rotations[0], seed, opt)[: opt.n_branches]:
+        q, ok = _forward(solver, positions, rotations, q0, ok0)
+        trial = IKTrajectory(t, q, np.zeros(n), np.zeros(n), ok)
+        key = (int((~ok).sum()), len(trial.jumps()), trial.max_joint_step)
+        if best is None or key < best[0]:
+            best = (key, q, ok)
+        if key[:2] == (0, 0):
+            break
+    _, q, ok = best
     if opt.backward_pass:
         for i in range(n - 2, -1, -1):
             q_new, ok_new = solver.solve(positions[i], rotations[i], q[i + 1], [q[i + 1], q[i]])
@@ -173,25 +181,36 @@ def pose_ik_trajectory(
                             orientation_tolerance=opt.orientation_tolerance)
 
 
-def _first_pose(solver: _PoseSolver, model: KinematicModel, p: np.ndarray, R: RotationMatrix, seed: np.ndarray,
-                opt: PoseIKOptions) -> tuple[np.ndarray, bool]:
-    """The first pose from several starts (the seed, the home pose, ``opt.n_starts`` random poses within
-    the limits, fixed random seed): the branch the whole trajectory follows. Best: reached, then the
+def _forward(solver: _PoseSolver, positions: np.ndarray, rotations: list, q0: np.ndarray, ok0: bool):
+    """Forward pass from the first pose's solution ``q0``: each pose from and towards the previous one."""
+    q = np.empty((len(positions), len(q0)))
+    ok = np.zeros(len(positions), dtype=bool)
+    q[0], ok[0] = q0, ok0
+    for i in range(1, len(positions)):
+        q[i], ok[i] = solver.solve(positions[i], rotations[i], q[i - 1], [q[i - 1]])
+    return q, ok
+
+
+def _first_poses(solver: _PoseSolver, model: KinematicModel, p: np.ndarray, R: RotationMatrix, seed: np.ndarray,
+                 opt: PoseIKOptions) -> list[tuple[np.ndarray, bool]]:
+    """Distinct solutions of the first pose from several starts (the seed, the home pose, ``opt.n_starts``
+    random poses within the limits, fixed random seed), best first: the branches a trajectory may
+    follow. Best: reached, then the
     smallest orientation residual (in steps of 0.05 rad), then the farthest from the joint limits (the
     smallest distance of any joint to its limit, relative to its range: a wrist that starts mid-range
     can follow a turning hand without running into its stop and flipping)."""
     rng = np.random.default_rng(0)
     starts = [seed, np.clip(model.robot.home, solver.lower, solver.upper)]
     starts += list(rng.uniform(solver.lower, solver.upper, size=(opt.n_starts, len(seed))))
-    best, best_key = None, None
+    found = []
     for start in starts:
         q, ok = solver.solve(p, R, seed, [start])
         _, ang = pose_residuals(model, q[None], p[None], [R])
         margin = np.min(np.minimum(q - solver.lower, solver.upper - q) / (solver.upper - solver.lower))
-        key = (not ok, round(float(ang[0]) / 0.05), -float(margin))
-        if best_key is None or key < best_key:
-            best, best_key = (q, ok), key
-    return best
+        if all(np.abs(q - other).max() > 0.1 for _, other, _ in found):
+            found.append(((not ok, round(float(ang[0]) / 0.05), -float(margin)), q, ok))
+    found.sort(key=lambda f: f[0])
+    return [(q, ok) for _, q, ok in found]
 
 
 def pose_residuals(model: KinematicModel, q: np.ndarray, positions: np.ndarray, rotations) -> tuple[np.ndarray, np.ndarray]:
