@@ -17,7 +17,7 @@ def _link(name: str, mass: float = 1.0) -> str:
             f'<inertia ixx="{i}" iyy="{i}" izz="{i}" ixy="0" ixz="0" iyz="0"/></inertial></link>')
 
 
-def _urdf() -> str:
+def _urdf(mimic: bool) -> str:
     parts = ['<?xml version="1.0"?>', '<robot name="test_gripper_arm">', _link("link0")]
     for k, ((ax, off), lim) in enumerate(zip(_JOINTS, _LIMITS), start=1):
         parts.append(_link(f"link{k}"))
@@ -29,16 +29,20 @@ def _urdf() -> str:
     for side, sign in (("left", 1), ("right", -1)):
         parts.append(_link(f"{side}_finger", 0.1))
         parts.append(f'<joint name="{side}_finger_joint" type="prismatic"><parent link="hand"/><child link="{side}_finger"/>'
-                     f'<origin xyz="0 0 0.1"/><axis xyz="0 {sign} 0"/><limit lower="0" upper="0.06" effort="20" velocity="0.2"/></joint>')
+                     f'<origin xyz="0 0 0.1"/><axis xyz="0 {sign} 0"/><limit lower="0" upper="0.06" effort="20" velocity="0.2"/>'
+                     + ('<mimic joint="left_finger_joint" multiplier="1"/>' if mimic and side == "right" else "") + "</joint>")
     parts.append('<link name="tool0"/>')
     parts.append('<joint name="tool" type="fixed"><parent link="hand"/><child link="tool0"/><origin xyz="0 0 0.15"/></joint>')
     parts.append("</robot>")
     return "\n".join(parts)
 
 
-def _yaml() -> str:
+def _yaml(mimic: bool) -> str:
     joints = "\n".join(f"  - {{name: joint{k}, position: [{-lim}, {lim}], velocity: 1.5, acceleration: 6.0, effort: 100, actuator: null}}"
                        for k, lim in enumerate(_LIMITS, start=1))
+    fingers = ("  joints: [left_finger_joint]\n  open: [0.055]\n  closed: [0.0]\n  actuators: [null]" if mimic else
+               "  joints: [left_finger_joint, right_finger_joint]\n  open: [0.055, 0.055]\n  closed: [0.0, 0.0]\n"
+               "  actuators: [null, null]")
     return f"""name: test_gripper_arm
 model: {{file: test_gripper_arm.urdf}}
 base_link: link0
@@ -48,10 +52,7 @@ tool_frame: tool0
 end_effector:
   type: gripper
   body: hand
-  joints: [left_finger_joint, right_finger_joint]
-  open: [0.055, 0.055]
-  closed: [0.0, 0.0]
-  actuators: [null, null]
+{fingers}
 home: [0.0, 0.35, 0.0, -1.4, 0.0, 1.0, 0.0]
 mapping:
   hand_to_tool_rpy: [0.0, 0.0, -1.5707963267948966]
@@ -59,10 +60,11 @@ mapping:
 """
 
 
-def write_gripper_arm(folder: Path) -> Path:
-    """Write the URDF and its robot file into ``folder``; returns the robot file's path."""
+def write_gripper_arm(folder: Path, mimic: bool = False) -> Path:
+    """Write the URDF and its robot file into ``folder``; returns the robot file's path. ``mimic``: the
+    right finger mimics the left one (URDF ``<mimic>``) and the robot file names the left one only."""
     folder = Path(folder)
-    (folder / "test_gripper_arm.urdf").write_text(_urdf())
+    (folder / "test_gripper_arm.urdf").write_text(_urdf(mimic))
     path = folder / "test_gripper_arm.yaml"
-    path.write_text(_yaml())
+    path.write_text(_yaml(mimic))
     return path

@@ -99,6 +99,15 @@ def test_pose_ik_moves_only_the_arm_of_a_robot_with_a_gripper(arm):
     assert np.all(robot.limits.within(ik.q, margin=0.049))
 
 
+def test_pose_ik_with_a_finger_that_mimics_the_gripper_joint(tmp_path):
+    robot = load_robot(write_gripper_arm(tmp_path, mimic=True))
+    model = welded_plant(robot)
+    assert model.plant.num_positions() == 9 and list(model.gripper_indices) == [7]
+    t, p, R = _fk_path(model, robot.home, robot.home + 0.2, n=5)
+    ik = pose_ik_trajectory(model, t, p, R, robot.home)
+    assert ik.reachable.all() and ik.position_residual.max() < 1e-3
+
+
 def test_pose_ik_reports_an_unreachable_pose_with_its_residual(compi):
     robot, model = compi
     t, p, R = _fk_path(model, robot.home + 0.3, robot.home + 0.5, n=3)

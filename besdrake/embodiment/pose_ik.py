@@ -11,8 +11,9 @@ this module matches the whole tool pose, as a gripper needs. Each pose is one Dr
   is given, and always pulled towards it by an ``OrientationCost`` (weight on ``1 - cos angle``);
 * a quadratic cost on the distance to the previous solution (no jumps between IK branches);
 * the arm joints within their limits shrunk by ``joint_margin``; the gripper's joints (if the
-  plant has any) bounded to the given opening, every other non-arm position to its default: the
-  programs move the arm only.
+  plant has any) bounded to the given opening; any other position (a finger that mimics a gripper
+  joint: ``InverseKinematics`` adds the plant's coupler constraints) within its joint limits, free to
+  follow. The tool pose depends on the arm joints only.
 
 The first pose is solved from several starts; the forward pass runs from up to ``n_branches`` of its
 distinct solutions (IK branches) until one gives a trajectory with every pose reached and no jump
@@ -92,11 +93,16 @@ class _PoseSolver:
         self.arm = model.arm_indices
         self.lower = limits[:, 0] + options.joint_margin
         self.upper = limits[:, 1] - options.joint_margin
-        # Bounds of all positions: the arm within its limits, everything else locked.
+        # Bounds of all positions: the arm within its limits, the gripper's joints locked; any other
+        # position (e.g. a finger that mimics a gripper joint: InverseKinematics adds the plant's coupler
+        # constraints) within its joint limits, free to follow.
         locked = model.positions(np.zeros(len(self.arm)), gripper)
-        self.x_lower, self.x_upper = locked.copy(), locked.copy()
+        self.x_lower = np.asarray(plant.GetPositionLowerLimits(), dtype=float).copy()
+        self.x_upper = np.asarray(plant.GetPositionUpperLimits(), dtype=float).copy()
+        g = model.gripper_indices
+        self.x_lower[g], self.x_upper[g] = locked[g], locked[g]
         self.x_lower[self.arm], self.x_upper[self.arm] = self.lower, self.upper
-        self.locked = locked
+        self.locked = np.clip(locked, self.x_lower, self.x_upper)
         self.solver = SnoptSolver()
 
     def solve(self, p: np.ndarray, R: RotationMatrix, anchor: np.ndarray, guesses: list[np.ndarray]) -> tuple[np.ndarray, bool]:
