@@ -20,7 +20,7 @@ from besdrake.embodiment.pose_ik import PoseIKOptions, pose_ik_trajectory
 from besdrake.robot import load_robot
 from besdrake.tasks.pick_and_place.classifier import load_classifier
 from besdrake.tasks.pick_and_place.demonstrations import extract_demonstrations
-from besdrake.tasks.pick_and_place.grasp_plan import grasp_plan, gripper_widths
+from besdrake.tasks.pick_and_place.grasp_plan import grasp_plan, gripper_widths, scene_task_frame
 from besdrake.tasks.pick_and_place.imitation import GraspImitationError, GraspSkill, grasp_point_path
 from besdrake.tasks.pick_and_place.parameters import GraspParameterization
 from gripper_arm import write_gripper_arm
@@ -245,3 +245,19 @@ def test_the_same_demonstration_on_two_robots(demos, compi, arm_plans):
     assert np.linalg.norm(tool - gp.target_position, axis=1)[ok].max() < IK_TOL
     summary = gp.summary()
     assert summary["ik_unreachable"] == int((~ok).sum()) and summary["duration_s"] == gp.plan.duration
+
+
+def test_a_plan_from_home_in_a_scene_given_by_its_box_places(demos, arm):
+    robot, model = arm
+    X_world_base = RigidTransform(RollPitchYaw(0, 0, 0.3), [0.2, -0.1, 0.0])
+    X_base_task = X_BASE_TASK[robot.name]
+    shelf = (X_world_base @ X_base_task).translation()
+    table = X_world_base @ X_base_task @ np.array([0.9, 0.05, -0.5])  # closer than demonstrated (1.03-1.09 m)
+    X_world_task, table_task = scene_task_frame(shelf, table)
+    assert np.allclose(table_task, [np.hypot(0.9, 0.05), 0, -0.5], atol=1e-9)
+    gp = grasp_plan(demos[0], robot, X_world_task, X_world_base=X_world_base, table_place=table_task, start="home",
+                    model=model, ik_dt=IK_DT)
+    assert np.abs(gp.plan.q[0] - robot.home).max() < robot.safety.start_tolerance
+    assert gp.ik.reachable.mean() > 0.8 and gp.plan.check_limits(robot.limits).ok
+    end = (X_world_base.inverse() @ X_world_task).multiply(gp.skill.table_place + gp.skill.release_offset)
+    assert np.linalg.norm(model.tcp_pose(gp.plan.q[-1]).translation() - end) < IK_TOL

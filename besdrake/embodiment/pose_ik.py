@@ -201,7 +201,8 @@ def _first_poses(solver: _PoseSolver, model: KinematicModel, p: np.ndarray, R: R
                  opt: PoseIKOptions) -> list[tuple[np.ndarray, bool]]:
     """Distinct solutions of the first pose from several starts (the seed, the home pose, ``opt.n_starts``
     random poses within the limits, fixed random seed), best first: the branches a trajectory may
-    follow. Best: reached, then the
+    follow. The seed itself comes first when it reaches the pose (within the position tolerance and
+    0.01 rad): a trajectory that starts where the arm stands. Then best: reached, then the
     smallest orientation residual (in steps of 0.05 rad), then the farthest from the joint limits (the
     smallest distance of any joint to its limit, relative to its range: a wrist that starts mid-range
     can follow a turning hand without running into its stop and flipping)."""
@@ -209,6 +210,9 @@ def _first_poses(solver: _PoseSolver, model: KinematicModel, p: np.ndarray, R: R
     starts = [seed, np.clip(model.robot.home, solver.lower, solver.upper)]
     starts += list(rng.uniform(solver.lower, solver.upper, size=(opt.n_starts, len(seed))))
     found = []
+    _, ang = pose_residuals(model, seed[None], p[None], [R])
+    if np.linalg.norm(model.tcp_pose(seed).translation() - p) <= opt.position_tolerance and ang[0] <= 0.01:
+        found.append(((False, -1, 0.0), seed.copy(), True))  # the seed is there already (e.g. the arm's pose)
     for start in starts:
         q, ok = solver.solve(p, R, seed, [start])
         _, ang = pose_residuals(model, q[None], p[None], [R])

@@ -24,6 +24,7 @@ demonstration it is fitted from) and a robot file:
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -35,6 +36,7 @@ from besdrake.embodiment.scaling import TemporalScaling, temporal_scaling
 from besdrake.plan import MotionPlan
 from besdrake.robot import Robot, load_robot
 from besdrake.tasks.pick_and_place.imitation import DEFAULT_CLOSE_DURATION, GraspSkill, rotation_matrices
+from besdrake.tasks.pick_and_place.task_frame import task_frame
 
 #: Robot file key: the tool frame's orientation in the hand plate frame (roll, pitch, yaw; rad).
 HAND_TO_TOOL_KEY = "hand_to_tool_rpy"
@@ -65,6 +67,14 @@ class GraspPlan:
                 "limiting": self.scaling.limiting, "ik_poses": int(len(self.ik.t)), "ik_unreachable": self.unreachable,
                 "position_residual_max_m": float(self.ik.position_residual.max()),
                 "angle_residual_max_rad": float(self.ik.angle_residual.max()), "notes": list(self.notes)}
+
+
+def scene_task_frame(shelf_place: np.ndarray, table_place: np.ndarray) -> tuple[RigidTransform, np.ndarray]:
+    """``X_world_task`` and the table place in the task frame (3,) for a scene's box places (world, m):
+    the task frame's definition (:func:`~besdrake.tasks.pick_and_place.task_frame.task_frame`: origin on
+    the shelf place, x horizontal towards the table place, z up)."""
+    frame = task_frame(shelf_place, table_place)
+    return RigidTransform(RotationMatrix(frame.rotation), frame.origin), frame.points(table_place)
 
 
 def hand_to_tool(robot: Robot) -> RotationMatrix:
@@ -134,7 +144,7 @@ def grasp_plan(
     module docstring). ``table_place`` (3,) m in the task frame and ``grasp_offset`` (3,) m (tool minus
     box midpoint, task frame): see :meth:`GraspSkill.adapted`. ``start``: "demonstration" (the approach
     starts at the demonstrated pose) or "home" (at the tool pose of the robot's home position, where a
-    simulation's arm stands). ``model``: the robot's :func:`welded_plant` (built when not given)."""
+    simulation's arm stands: the plan then starts at the home joint positions). ``model``: the robot's :func:`welded_plant` (built when not given)."""
     robot = load_robot(robot)
     model = model or welded_plant(robot)
     skill = skill_or_demo if isinstance(skill_or_demo, GraspSkill) else GraspSkill.from_demonstration(
@@ -148,6 +158,8 @@ def grasp_plan(
         raise ValueError(f"start must be 'demonstration' or 'home', got {start!r}")
     t, positions, rotations = tool_targets(skill, X_base_task, R_ht, ik_dt)
     seed = np.asarray(robot.mapping.get("ik_seed", robot.home), dtype=float) if start == "demonstration" else robot.home
+    if start == "home":  # the plan must start where the arm stands: the home branch only
+        ik_options = dataclasses.replace(ik_options or PoseIKOptions(), n_branches=1)
     ik = pose_ik_trajectory(model, t, positions, rotations, seed, options=ik_options)
     scaling = temporal_scaling(t, ik.q, robot.limits, safety=safety, min_duration=0.0)
     notes = []
