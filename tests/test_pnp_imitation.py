@@ -20,7 +20,7 @@ from besdrake.embodiment.pose_ik import PoseIKOptions, pose_ik_trajectory
 from besdrake.robot import load_robot
 from besdrake.tasks.pick_and_place.classifier import load_classifier
 from besdrake.tasks.pick_and_place.demonstrations import extract_demonstrations
-from besdrake.tasks.pick_and_place.grasp_plan import grasp_plan, gripper_widths, scene_task_frame
+from besdrake.tasks.pick_and_place.grasp_plan import grasp_plan, gripper_widths, scene_task_frame, with_lead_in
 from besdrake.tasks.pick_and_place.imitation import GraspImitationError, GraspSkill, grasp_point_path
 from besdrake.tasks.pick_and_place.parameters import GraspParameterization
 from gripper_arm import write_gripper_arm
@@ -261,3 +261,13 @@ def test_a_plan_from_home_in_a_scene_given_by_its_box_places(demos, arm):
     assert gp.ik.reachable.mean() > 0.8 and gp.plan.check_limits(robot.limits).ok
     end = (X_world_base.inverse() @ X_world_task).multiply(gp.skill.table_place + gp.skill.release_offset)
     assert np.linalg.norm(model.tcp_pose(gp.plan.q[-1]).translation() - end) < IK_TOL
+
+
+def test_a_lead_in_from_home_keeps_the_limits_and_shifts_the_gripper(arm, arm_plans):
+    robot, _ = arm
+    plan = arm_plans[0].plan
+    led = with_lead_in(plan, robot.home, robot)
+    T = led.meta["lead_in_s"]
+    assert np.allclose(led.q[0], robot.home) and np.allclose(led.sample([T + 1.0]), plan.sample([1.0]), atol=1e-9)
+    assert led.check_limits(robot.limits).ok and led.duration == pytest.approx(plan.duration + T)
+    assert np.allclose(np.array(led.meta["gripper"]["t"][1:]) - T, plan.meta["gripper"]["t"])

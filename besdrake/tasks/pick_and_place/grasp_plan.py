@@ -158,8 +158,8 @@ def grasp_plan(
         raise ValueError(f"start must be 'demonstration' or 'home', got {start!r}")
     t, positions, rotations = tool_targets(skill, X_base_task, R_ht, ik_dt)
     seed = np.asarray(robot.mapping.get("ik_seed", robot.home), dtype=float) if start == "demonstration" else robot.home
-    if start == "home":  # the plan must start where the arm stands: the home branch only
-        ik_options = dataclasses.replace(ik_options or PoseIKOptions(), n_branches=1)
+    if start == "home":  # the plan must start where the arm stands: the home branch, no backward pass
+        ik_options = dataclasses.replace(ik_options or PoseIKOptions(), n_branches=1, backward_pass=False)
     ik = pose_ik_trajectory(model, t, positions, rotations, seed, options=ik_options)
     scaling = temporal_scaling(t, ik.q, robot.limits, safety=safety, min_duration=0.0)
     notes = []
@@ -175,6 +175,26 @@ def grasp_plan(
         plan.meta["gripper"] = command
     quats = np.array([_quaternion(R) for R in rotations])
     return GraspPlan(plan, skill, ik, scaling, positions, quats, X_base_task, notes)
+
+
+def with_lead_in(plan: MotionPlan, q_from: np.ndarray, robot: Robot, safety: float = 0.9) -> MotionPlan:
+    """``plan`` preceded by a rest-to-rest quintic joint move from ``q_from`` (e.g. where the arm stands) to
+    its start, as short as ``safety`` x the velocity and acceleration limits allow (a quintic's peaks:
+    1.875 d / T and 5.774 d / T**2 for a step d); the gripper command's times are shifted with the arm's."""
+    d = np.abs(plan.q[0] - np.asarray(q_from, dtype=float))
+    T = max(float(np.max(1.875 * d / (safety * robot.velocity_limits))),
+            float(np.sqrt(np.max(5.774 * d / (safety * robot.acceleration_limits)))), 0.1)
+    s = np.linspace(0.0, 1.0, max(3, int(np.ceil(T / 0.02)) + 1))
+    blend = 10 * s**3 - 15 * s**4 + 6 * s**5
+    q_in = q_from + blend[:, None] * (plan.q[0] - q_from)
+    qd_in = ((30 * s**2 - 60 * s**3 + 30 * s**4) / T)[:, None] * (plan.q[0] - q_from)
+    meta = dict(plan.meta, lead_in_s=T)
+    if "gripper" in meta:
+        meta["gripper"] = {"t": [0.0] + [t + T for t in meta["gripper"]["t"]],
+                           "width": [meta["gripper"]["width"][0]] + list(meta["gripper"]["width"])}
+    qd = plan.knot_velocities()
+    return MotionPlan(t=np.concatenate([s * T, plan.t[1:] + T]), q=np.vstack([q_in, plan.q[1:]]),
+                      qd=np.vstack([qd_in, qd[1:]]), meta=meta, joint_names=plan.joint_names).validate()
 
 
 def _scaled_plan(t: np.ndarray, q: np.ndarray, robot: Robot, scaling: TemporalScaling, safety: float,
