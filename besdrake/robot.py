@@ -5,7 +5,8 @@ world, the arm's joints with their position / velocity / acceleration / effort l
 limit comes from), the tool frame, the end effector (a tool without joints, or a gripper with its
 joints and open / closed positions), a home pose, the joint servo gains, what the safety gate needs
 (longest plan, control period, start tolerance) and the hints the embodiment mapping reads (which
-demonstrated body part drives the tool, which tool axis matches the palm).
+demonstrated body part drives the tool, which tool axis matches the palm; for a full tool pose, the tool
+frame's orientation in the hand plate frame, ``mapping.hand_to_tool_rpy``).
 
 Built-in robots live beside their model files, ``besdrake/models/<name>/robot.yaml``, and are found by
 name (``load_robot("compi")``); any other file is found by path. Relative model and package paths in a

@@ -53,9 +53,34 @@ class KinematicModel:
         """The robot's tool frame."""
         return self.plant.GetFrameByName(self.robot.tool_frame)
 
+    @property
+    def arm_indices(self) -> np.ndarray:
+        """Indices of the arm's joints (robot file order) in the plant's positions."""
+        return np.array([self.plant.GetJointByName(n).position_start() for n in self.robot.joint_names], dtype=int)
+
+    @property
+    def gripper_indices(self) -> np.ndarray:
+        """Indices of the gripper's joints in the plant's positions (empty without a gripper)."""
+        g = self.robot.end_effector.gripper
+        return np.array([self.plant.GetJointByName(n).position_start() for n in (g.joints if g else ())], dtype=int)
+
+    def positions(self, q: np.ndarray, gripper: np.ndarray | None = None) -> np.ndarray:
+        """All positions of the welded plant for arm joints ``q``: the gripper's joints at ``gripper``
+        (default: the robot file's open position), any other position at the plant's default."""
+        if self.n_mount:
+            raise ValueError("positions() is for the welded plant")
+        if self.plant.num_positions() == self.robot.n_joints:
+            return np.asarray(q, dtype=float)
+        x = self.plant.GetDefaultPositions().copy()
+        x[self.arm_indices] = q
+        g = self.robot.end_effector.gripper
+        if g is not None:
+            x[self.gripper_indices] = g.open if gripper is None else gripper
+        return x
+
     def tcp_pose(self, q: np.ndarray, mount: np.ndarray | None = None) -> RigidTransform:
-        """Pose of the tool frame in the plant's world for joint positions ``q``."""
-        x = q if self.n_mount == 0 else np.concatenate([mount, q])
+        """Pose of the tool frame in the plant's world for arm joint positions ``q`` (a gripper stands open)."""
+        x = self.positions(q) if self.n_mount == 0 else np.concatenate([mount, q])
         self.plant.SetPositions(self.context, x)
         return self.plant.CalcRelativeTransform(self.context, self.plant.world_frame(), self.tcp)
 

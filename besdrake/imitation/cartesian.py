@@ -100,12 +100,14 @@ class CartesianDMP:
         self.position.set_weights(weights[: self.position.n_weights])
         self.orientation.set_weights(weights[self.position.n_weights :])
 
-    def fit(self, t: np.ndarray, poses: np.ndarray, regularization: float = 0.0) -> "CartesianDMP":
-        """Imitate poses (N, 7) at times (N,) s."""
+    def fit(self, t: np.ndarray, poses: np.ndarray, regularization: float = 0.0,
+            start_velocity: np.ndarray | None = None) -> "CartesianDMP":
+        """Imitate poses (N, 7) at times (N,) s; ``start_velocity`` (3,) m/s: the linear velocity the
+        movement starts with (default: at rest; see :meth:`.dmp.DMP.fit`)."""
         t, poses = demonstration(t, poses)
         if poses.shape[1] != 7:
             raise DMPParameterError(f"poses must have 7 columns (x, y, z, qw, qx, qy, qz), got {poses.shape[1]}")
-        self.position.fit(t, poses[:, :3], regularization)
+        self.position.fit(t, poses[:, :3], regularization, start_velocity)
         self.orientation.fit(t, poses[:, 3:], regularization)
         return self
 

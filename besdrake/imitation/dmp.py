@@ -226,17 +226,20 @@ class DMP(_WeightedDMP):
         return new
 
     # -- imitation ----------------------------------------------------------------------------
-    def fit(self, t: np.ndarray, y: np.ndarray, regularization: float = 0.0) -> "DMP":
+    def fit(self, t: np.ndarray, y: np.ndarray, regularization: float = 0.0,
+            start_velocity: np.ndarray | None = None) -> "DMP":
         """Imitate a demonstration: times ``(N,)`` in s, positions ``(N, n_dims)``.
 
         Sets start and goal to the first and last sample, the goal velocity and acceleration to
-        backward differences at the last sample (start velocity and acceleration to zero), the
+        backward differences at the last sample (start velocity and acceleration to zero, or the
+        start velocity to ``start_velocity``: a segment that continues one ending in motion), the
         execution time to the demonstration's duration, and the weights by (ridge) regression of
         the forcing term that reproduces the demonstrated accelerations.
         """
         t, y = demonstration(t, y, self.n_dims)
         if not (np.isfinite(regularization) and regularization >= 0.0):
             raise DMPParameterError(f"regularization must be finite and >= 0, got {regularization}")
+        v0 = np.zeros(self.n_dims) if start_velocity is None else finite_array("start_velocity", start_velocity, (self.n_dims,))
         t = t - t[0]
         tau = float(t[-1])
         dts = np.diff(t)[:, None]
@@ -245,7 +248,7 @@ class DMP(_WeightedDMP):
         ydd = np.zeros_like(y)
         ydd[1:] = np.diff(yd, axis=0) / dts
         zeros = np.zeros(self.n_dims)
-        coefficients = quintic_coefficients(tau, y[0], zeros, zeros, y[-1], yd[-1], ydd[-1])
+        coefficients = quintic_coefficients(tau, y[0], v0, zeros, y[-1], yd[-1], ydd[-1])
         g, gd, gdd = moving_goal(t, coefficients, y[-1], tau)
         a, b = self.alpha_y, self.beta_y
         forces = tau**2 * ydd - a * (b * (g - y) + tau * (gd - yd)) - tau**2 * gdd
@@ -256,7 +259,7 @@ class DMP(_WeightedDMP):
         weights = np.linalg.lstsq(X, forces, rcond=None)[0].T
         self.execution_time = tau
         self.start, self.goal = y[0], y[-1]
-        self.start_velocity = self.start_acceleration = zeros
+        self.start_velocity, self.start_acceleration = v0, zeros
         self.goal_velocity, self.goal_acceleration = yd[-1], ydd[-1]
         self.weights = weights
         return self
