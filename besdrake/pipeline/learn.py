@@ -699,10 +699,7 @@ def run_scenario(config: dict[str, Any], root: Path) -> str:
     path = Path(root) / "scenario.yaml"
     text = yaml.safe_dump(scenario.to_dict(), sort_keys=False)
     if not path.is_file() or path.read_text() != text:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(".tmp")
-        tmp.write_text(text)
-        tmp.replace(path)
+        _atomic_write_text(path, text)
     return str(path)
 
 
