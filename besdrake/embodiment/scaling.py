@@ -109,6 +109,43 @@ def toppra_duration(
     return float(result.end_time() - result.start_time())
 
 
+def toppra_retime(
+    t: np.ndarray,
+    q: np.ndarray,
+    limits: JointLimits,
+    model,
+    safety: float = 0.9,
+    dt: float = 0.02,
+    gridpoints: int = 400,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The joint path ``q(t)`` (n, arm joints) retimed as fast as ``safety`` x the velocity and acceleration limits
+    allow along it (Drake's Toppra on ``model``, a :class:`~besdrake.embodiment.kinematics.KinematicModel` of the
+    robot welded at its base; a gripper's joints held where ``model.positions`` puts them), sampled every ``dt``
+    s from 0: ``(t_new, q_new, t_path)`` (``t_path``: the path's own time ``t`` reached at each ``t_new``, to map
+    events along the path), or None when Toppra fails."""
+    from pydrake.multibody.optimization import Toppra
+    from pydrake.trajectories import PiecewisePolynomial
+
+    s = (t - t[0]) / (t[-1] - t[0])
+    full = np.array([model.positions(qi) for qi in q])
+    n_all, arm = full.shape[1], model.arm_indices
+    path = PiecewisePolynomial.CubicWithContinuousSecondDerivatives(s, full.T, np.zeros(n_all), np.zeros(n_all))
+    top = Toppra(path, model.plant, Toppra.CalcGridPoints(path, _GridOptions(gridpoints)))
+    vel, acc = np.full(n_all, 1e3), np.full(n_all, 1e3)  # a gripper's joints do not move along the path
+    vel[arm], acc[arm] = safety * limits.velocity, safety * limits.acceleration
+    top.AddJointVelocityLimit(-vel, vel)
+    top.AddJointAccelerationLimit(-acc, acc)
+    s_of_t = top.SolvePathParameterization()
+    if s_of_t is None:
+        return None
+    t0, T = s_of_t.start_time(), float(s_of_t.end_time() - s_of_t.start_time())
+    if not np.isfinite(T) or T <= 0:
+        return None
+    t_new = np.linspace(0.0, T, max(3, int(np.ceil(T / dt)) + 1))
+    s_new = np.clip([s_of_t.value(t0 + ti)[0, 0] for ti in t_new], 0.0, 1.0)
+    return t_new, np.array([path.value(si)[arm, 0] for si in s_new]), t[0] + s_new * (t[-1] - t[0])
+
+
 def _GridOptions(n: int):
     from pydrake.multibody.optimization import CalcGridPointsOptions
 

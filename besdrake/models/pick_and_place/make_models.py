@@ -4,9 +4,14 @@ both SDFs are committed.
 
 Layout (world frame, z up, floor at z = 0; the robot stands on a 0.75 m pedestal at the origin, facing +x):
 * shelf in front (+x): board top at z = 1.24 m, x 0.70-1.10 m, y -0.4-0.4 m; back panel, four legs;
-* table to the left (+y): top at z = 0.70 m, x -0.4-0.4 m, y 0.62-1.22 m (the arm's wrist stays off its edge
+* table to the right (-y): top at z = 0.70 m, x -0.4-0.4 m, y -1.22 to -0.62 m (the arm's wrist stays off its edge
   when it puts the box down with a horizontal gripper);
-* the box starts 0.78 m in front of the robot on the shelf, 0.08 m from the board's front edge, and is to be put 0.75 m to its left on the table, 0.13 m from its edge.
+* the box starts 0.78 m in front of the robot on the shelf, 0.08 m from the board's front edge, and is to be put 0.75 m to its right on the table, 0.13 m from its edge.
+The table is on the robot's right because it was on the demonstrators' right: in the task frame (origin on the
+shelf place, x towards the table place) every recording's ``Shoulder`` marker stands on the -y side (median
+(0.81, -0.45, -0.01) m over the 15 recordings), where this layout puts the robot's base ((0.56, -0.54, -0.49) m);
+with the table on the left the demonstrated hand approaches the box from the side away from the robot (last
+layout: 54 of 1,820 demonstrated tool poses out of the iiwa's reach, its elbow stretched at the grasp).
 The boards are 0.54 m apart in height, as the box's two resting heights in the recordings
 (``shared/data/pick_and_place``: 0.535-0.538 m); the distances from the robot suit the iiwa's reach with a
 horizontal grasp (its elbow bends at most 120 deg, so a horizontal tool cannot come closer than ~0.64 m at the
@@ -23,7 +28,7 @@ from pathlib import Path
 HERE = Path(__file__).parent
 SHELF_TOP, TABLE_TOP = 1.24, 0.70
 BOX_START = (0.78, 0.0, SHELF_TOP)
-PLACE_TARGET = (0.0, 0.75, TABLE_TOP)
+PLACE_TARGET = (0.0, -0.75, TABLE_TOP)
 BOX_SIZE, BOX_MASS, BOX_MU = (0.07, 0.07, 0.09), 0.2, 0.5
 CORNER_R, CORNER_PROUD = 0.004, 0.001   # corner spheres stand 1 mm proud of the faces
 
@@ -57,8 +62,8 @@ def fixtures() -> str:
     shelf += box("shelf_back", (1.09, 0, SHELF_TOP), (0.02, 0.8, 0.5), wood)
     for i, (x, y) in enumerate([(0.72, -0.38), (0.72, 0.38), (1.08, -0.38), (1.08, 0.38)]):
         shelf += box(f"shelf_leg_{i}", (x, y, (SHELF_TOP - 0.03) / 2), (0.04, 0.04, SHELF_TOP - 0.03), wood)
-    table = box("table_top", (0, 0.92, TABLE_TOP - 0.015), (0.8, 0.6, 0.03), grey)
-    for i, (x, y) in enumerate([(-0.37, 0.65), (0.37, 0.65), (-0.37, 1.19), (0.37, 1.19)]):
+    table = box("table_top", (0, -0.92, TABLE_TOP - 0.015), (0.8, 0.6, 0.03), grey)
+    for i, (x, y) in enumerate([(-0.37, -0.65), (0.37, -0.65), (-0.37, -1.19), (0.37, -1.19)]):
         table += box(f"table_leg_{i}", (x, y, (TABLE_TOP - 0.03) / 2), (0.04, 0.04, TABLE_TOP - 0.03), grey)
     floor = box("floor", (0, 0, -0.025), (4, 4, 0.05), "0.8 0.8 0.8 1")
     frame = lambda name, link, p: f'    <frame name="{name}" attached_to="{link}"><pose>{" ".join(f"{v:g}" for v in p)} 0 0 0</pose></frame>\n'  # noqa: E731

@@ -97,12 +97,13 @@ class GraspDemonstration:
     hold_aperture: float
     frame_origin: np.ndarray
     frame_rotation: np.ndarray
+    closing_axis_hand: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
     notes: list[str] = field(default_factory=list)
 
     _SCALARS = ("border_index", "close_time", "lift_time", "place_time", "open_time", "shelf_box_yaw",
                 "table_box_yaw", "box_marker_span", "hold_aperture")
     _ARRAYS = ("frames", "t", "hand_position", "hand_orientation", "aperture", "box_position",
-               "shelf_box_position", "table_box_position", "frame_origin", "frame_rotation")
+               "shelf_box_position", "table_box_position", "frame_origin", "frame_rotation", "closing_axis_hand")
 
     @property
     def task_frame(self) -> TaskFrame:
@@ -135,7 +136,7 @@ class GraspDemonstration:
             meta = json.loads(str(npz["meta"]))
             if meta.get("format") != "besdrake.pnp_grasp_demonstration/1":
                 raise ValueError(f"{path}: not a besdrake grasp demonstration")
-            arrays = {k: npz[k].copy() for k in cls._ARRAYS}
+            arrays = {k: npz[k].copy() for k in cls._ARRAYS if k in npz}  # closing_axis_hand: newer files
             scalars = {k: npz[k].item() for k in cls._SCALARS}
         return cls(source=meta["source"], approach_frames=tuple(meta["approach_frames"]),
                    transport_frames=tuple(meta["transport_frames"]), notes=list(meta["notes"]),
@@ -295,6 +296,7 @@ def _demonstration(source: str, pre, approach: tuple[int, int], transport: tuple
     frame = task_frame(np.median(box[before], axis=0), np.median(box[rest], axis=0))
     axis = box_markers[:, 1] - box_markers[:, 0]
     hand_rot = back_frame(*(pre.positions[rows, names.index(n)] for n in HAND_MARKERS))[1]
+    closing = closing_axis(pre, hand_rot[ev.lift - a : ev.place - a + 1], np.arange(ev.lift, ev.place + 1))
     t0 = pre.time[a]
     notes = list(ev.notes)
     if ev.open > transport[1]:
@@ -312,8 +314,24 @@ def _demonstration(source: str, pre, approach: tuple[int, int], transport: tuple
         shelf_box_position=frame.points(np.median(box[before], axis=0)), shelf_box_yaw=_yaw(frame, axis[before]),
         table_box_position=frame.points(np.median(box[rest], axis=0)), table_box_yaw=_yaw(frame, axis[rest]),
         box_marker_span=float(np.median(np.linalg.norm(axis[ev.lift : ev.place + 1], axis=1))),
-        hold_aperture=ev.hold_aperture, frame_origin=frame.origin, frame_rotation=frame.rotation, notes=notes,
+        hold_aperture=ev.hold_aperture, frame_origin=frame.origin, frame_rotation=frame.rotation,
+        closing_axis_hand=closing, notes=notes,
     )
+
+
+def closing_axis(pre, hand_rot: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """The grip's closing line in the hand plate frame (unit, from the ``Thumb`` towards the midpoint of ``Index``
+    and ``Middle``): the median over the carried frames ``rows`` where the three fingertip markers are seen
+    (``hand_rot`` (len(rows), 3, 3): the hand plate's rotation in the capture frame); NaN when none is."""
+    names = pre.marker_names
+    thumb = pre.positions[rows, names.index("Thumb")]
+    fingers = 0.5 * (pre.positions[rows, names.index("Index")] + pre.positions[rows, names.index("Middle")])
+    v = np.einsum("nji,nj->ni", hand_rot, fingers - thumb)
+    v = v[np.isfinite(v).all(axis=1)]
+    if len(v) == 0:
+        return np.full(3, np.nan)
+    m = np.median(v / np.linalg.norm(v, axis=1, keepdims=True), axis=0)
+    return m / np.linalg.norm(m)
 
 
 def _yaw(frame: TaskFrame, world_axis: np.ndarray) -> float:

@@ -35,7 +35,7 @@ The robot side (hand-to-tool rotation, IK, temporal scaling, the plan) is in
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -116,6 +116,7 @@ class GraspSkill:
     grasp_offset_hand: np.ndarray
     demo_close_time: float = float("nan")
     source: str = ""
+    closing_axis_hand: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
 
     @property
     def duration(self) -> float:
@@ -144,7 +145,8 @@ class GraspSkill:
                    shelf_place=np.asarray(demo.shelf_box_position, dtype=float).copy(),
                    table_place=np.asarray(demo.table_box_position, dtype=float).copy(),
                    release_offset=path[-1] - demo.table_box_position,
-                   grasp_offset_hand=offset, source=str(demo.source))
+                   grasp_offset_hand=offset, source=str(demo.source),
+                   closing_axis_hand=np.asarray(getattr(demo, "closing_axis_hand", np.full(3, np.nan)), dtype=float))
 
     def adapted(self, table_place: np.ndarray | None = None, grasp_offset: np.ndarray | None = None,
                 start_position: np.ndarray | None = None) -> "GraspSkill":
@@ -181,7 +183,8 @@ class GraspSkill:
                 "close_time": self.close_time, "open_time": self.open_time,
                 "shelf_place": self.shelf_place.tolist(), "table_place": self.table_place.tolist(),
                 "release_offset": self.release_offset.tolist(), "grasp_offset_hand": self.grasp_offset_hand.tolist(),
-                "demo_close_time": self.demo_close_time, "source": self.source}
+                "demo_close_time": self.demo_close_time, "source": self.source,
+                "closing_axis_hand": [float(v) for v in self.closing_axis_hand]}
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "GraspSkill":
@@ -190,6 +193,7 @@ class GraspSkill:
                        float(d["close_time"]), float(d["open_time"]),
                        *(np.asarray(d[k], dtype=float) for k in ("shelf_place", "table_place", "release_offset",
                                                                  "grasp_offset_hand")),
-                       demo_close_time=float(d.get("demo_close_time", "nan")), source=str(d.get("source", "")))
+                       demo_close_time=float(d.get("demo_close_time", "nan")), source=str(d.get("source", "")),
+                       closing_axis_hand=np.asarray(d.get("closing_axis_hand", [np.nan] * 3), dtype=float))
         except (KeyError, TypeError) as err:
             raise GraspImitationError(f"not a grasp skill description: {err}") from err
