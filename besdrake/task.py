@@ -53,6 +53,12 @@ class Task(ABC):
         """A JSON-ready summary of one ``outcome`` (its ``summary()`` or ``to_dict()`` by default)."""
         return outcome.summary() if hasattr(outcome, "summary") else outcome.to_dict()
 
+    def behaviour_descriptor(self, plan, outcome) -> Any:
+        """The behaviour features (a 1-D float array, the same length for every rollout) of ``plan`` as simulated in
+        ``outcome``: what the Transferability surrogate (:mod:`besdrake.transfer.transferability`) learns the
+        sim-to-lab disparity from."""
+        raise TaskError(f"the task {self.name!r} describes no behaviour (Transferability needs behaviour_descriptor)")
+
     def check_robot(self, robot) -> None:
         """Raise :class:`~besdrake.robot.RobotError` when ``robot`` lacks what the task needs (e.g. a scoop)."""
 

@@ -12,15 +12,16 @@ import gc
 
 from pathlib import Path
 
+from typing import Any
+
 import numpy as np
 
 from besdrake._io import write_text as _atomic_write_text
 from besdrake.plan import MotionPlan
-from besdrake.sim.outcome import Outcome
 from besdrake.sim.scenario import Scenario
 
 
-def record_html(plan: MotionPlan, out: str | Path, scenario: Scenario | str = "nominal", effects: dict | None = None, fps: float = 60.0, limits: str = "raise", host: str = "localhost") -> tuple[Path, Outcome]:
+def record_html(plan: MotionPlan, out: str | Path, scenario: Scenario | str = "nominal", effects: dict | None = None, fps: float = 60.0, limits: str = "raise", host: str = "localhost") -> tuple[Path, Any]:
     """Simulate ``plan`` and write the replay to ``out`` (.html); returns (path, Outcome). The meshcat server
     that records it listens on ``host`` only (localhost by default; "*" would open it to the network)."""
     from pydrake.geometry import Meshcat, MeshcatParams, Rgba, Sphere
