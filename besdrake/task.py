@@ -18,6 +18,8 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 TASKS_DIR = Path(__file__).resolve().parent / "tasks"
+#: The task a stage uses where none is named (e.g. a refinement problem without ``task=``, an old run record).
+DEFAULT_TASK = "throwing"
 _REGISTRY: dict[str, type["Task"]] = {}
 
 
@@ -52,6 +54,17 @@ class Task(ABC):
     def summary(self, outcome) -> dict[str, Any]:
         """A JSON-ready summary of one ``outcome`` (its ``summary()`` or ``to_dict()`` by default)."""
         return outcome.summary() if hasattr(outcome, "summary") else outcome.to_dict()
+
+    def reward(self, **settings) -> Any:
+        """The task's reward for policy search with ``settings`` (e.g. ``target``): a callable
+        ``reward(plan, outcome, limits) -> RewardBreakdown`` (:mod:`besdrake.search.refinement.records`) with ``target``,
+        ``penalty(plan, limits)`` (m) and ``to_dict()``, what :class:`~besdrake.search.refinement.RefinementProblem`
+        maximises."""
+        raise TaskError(f"the task {self.name!r} defines no reward for refinement")
+
+    def reward_from_dict(self, settings: dict[str, Any]) -> Any:
+        """The reward written by its ``to_dict()`` (a refinement run's record)."""
+        return self.reward(**settings)
 
     def behaviour_descriptor(self, plan, outcome) -> Any:
         """The behaviour features (a 1-D float array, the same length for every rollout) of ``plan`` as simulated in

@@ -30,6 +30,18 @@ class ThrowingTask(Task):
 
         return default_throw(0.35)
 
+    def reward(self, **settings):
+        """:class:`~besdrake.tasks.throwing.reward.ThrowReward`: minus the touchdown's distance to the target, minus the
+        limit penalties."""
+        from besdrake.tasks.throwing.reward import ThrowReward
+
+        return ThrowReward(**settings)
+
+    def reward_from_dict(self, settings):
+        from besdrake.tasks.throwing.reward import ThrowReward
+
+        return ThrowReward.from_dict(settings)
+
     def behaviour_descriptor(self, plan, outcome):
         """The 17 features of a throw (release time and state, peak joint accelerations, half-time posture)."""
         from besdrake.tasks.throwing.descriptor import behaviour_descriptor
