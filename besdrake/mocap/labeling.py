@@ -214,8 +214,23 @@ class MarkerLabeler:
         if missing:
             raise LabelingError(f"reference markers never visible, cannot learn them: {missing}")
         self.marker_names_ = list(reference.marker_names)
-        n_bins = int(np.ceil(self.max_distance / self.bin_m)) + 1
         d = np.linalg.norm(pos[:, :, None, :] - pos[:, None, :, :], axis=3)  # (n, m, m)
+        self.pair_cost_, informative, spread = self._learn_pair_costs(d)
+        self._learn_rigid_pairs(d, informative, spread)
+        self.plates_ = self._find_plates(spread, informative)
+        self._learn_thresholds(pos, d)
+        self.frequency_ = reference.frequency
+        self.nearest_distance_ = _median_nearest_distance(pos)
+        # Initial pose: the first reference frame with the most markers visible.
+        vis = reference.visible()
+        self.initial_pose_ = pos[int(np.argmax(vis.sum(axis=1)))].copy()
+        return self
+
+    def _learn_pair_costs(self, d: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per ordered label pair the cost of each distance bin (-log of the smoothed histogram of the reference's
+        distances, capped at 12), whether the pair was seen together, and the robust spread of its distance (m)."""
+        m = d.shape[1]
+        n_bins = int(np.ceil(self.max_distance / self.bin_m)) + 1
         cost = np.zeros((m, m, n_bins))
         informative = np.zeros((m, m), dtype=bool)
         spread = np.full((m, m), np.inf)
@@ -234,8 +249,11 @@ class MarkerLabeler:
                 dens = gaussian_filter1d(hist, self.smooth_m / self.bin_m, mode="constant")
                 dens /= dens.max()
                 cost[i, j] = np.minimum(-np.log(dens + 1e-6), 12.0)
-        self.pair_cost_ = cost
-        # Rigid pairs (plates): mean and spread of the distance for a Gaussian cost.
+        return cost, informative, spread
+
+    def _learn_rigid_pairs(self, d: np.ndarray, informative: np.ndarray, spread: np.ndarray) -> None:
+        """Rigid pairs (plates): mean and spread of the distance for a Gaussian cost; the pairs' weights."""
+        m = d.shape[1]
         mu = np.zeros((m, m))
         for i in range(m):
             for j in range(m):
@@ -247,7 +265,10 @@ class MarkerLabeler:
         self.pair_weight_ = np.where(informative, 1.0 / (np.minimum(spread, 1.0) + self.weight_scale), 0.0)
         self.informative_ = informative
         self.spread_ = spread
-        # Rigid plates: triples whose pairwise distances barely vary.
+
+    def _find_plates(self, spread: np.ndarray, informative: np.ndarray) -> list[list[int]]:
+        """Rigid plates: disjoint triples whose pairwise distances barely vary, the most rigid first."""
+        m = spread.shape[0]
         rigid = (spread < self.rigid_tol) & informative
         triples = [
             tri for tri in itertools.combinations(range(m), 3)
@@ -258,8 +279,11 @@ class MarkerLabeler:
         for tri in triples:  # most rigid first, disjoint
             if not any(set(tri) & set(p) for p in plates):
                 plates.append(list(tri))
-        self.plates_ = plates
-        # Per-label thresholds: how well the true markers fit their neighbours in the reference.
+        return plates
+
+    def _learn_thresholds(self, pos: np.ndarray, d: np.ndarray) -> None:
+        """Per-label thresholds: how well the true markers fit their neighbours in the reference."""
+        m = d.shape[1]
         frame_cost = self._frame_costs(pos, d)
         thresholds, typical, strict = np.zeros(m), np.zeros(m), np.zeros(m)
         for i in range(m):
@@ -271,12 +295,6 @@ class MarkerLabeler:
         self.thresholds_ = thresholds
         self.strict_thresholds_ = strict
         self.typical_ = typical
-        self.frequency_ = reference.frequency
-        self.nearest_distance_ = _median_nearest_distance(pos)
-        # Initial pose: the first reference frame with the most markers visible.
-        vis = reference.visible()
-        self.initial_pose_ = pos[int(np.argmax(vis.sum(axis=1)))].copy()
-        return self
 
     def _frame_costs(self, pos: np.ndarray, d: np.ndarray) -> np.ndarray:
         """Mean pair cost of each visible marker against the other visible markers, per frame."""
