@@ -180,8 +180,35 @@ class ThrowRollout:
         """Simulate ``plan`` with ``effects`` ``{name: {param: value}}``; never raises for simulation trouble."""
         plan_limit_exceeded = self._check_plan(plan, limits)
         effects_done = merge_effects(self.scenario.effects, effects)
+        setup, cmd, skip = self._prepare(plan, effects_done)
+        out = Outcome(effects=effects_done, scenario=self.scenario.name)
+        flags = {k: False for k in FLAG_NAMES}
+        rel = self.scenario.release
+        separated, on_floor, diverged = self._simulate(cmd.duration + rel.tail - skip, setup.ball_radius, out, flags, skip)
+        ts, q_arm, ball_p, ball_v = self._read_log(skip, out)
+        out.joint_t = ts
+        out.q_measured = q_arm - setup.measurement_offset
+        out.q_commanded = plan.sample(ts)
+        measured_over = np.any(self.robot.position_limits[:, 0] - LIMIT_TOLERANCE > q_arm) or np.any(q_arm > self.robot.position_limits[:, 1] + LIMIT_TOLERANCE)
+        flags["joint_limit_exceeded"] = bool(plan_limit_exceeded or measured_over)
+        if flags["sim_failed"] or not (separated or on_floor):
+            if not flags["sim_failed"]:
+                flags["never_released"] = True
+                out.message = out.message or f"ball still in the scoop {rel.tail:g} s after the plan ended"
+            out.ball_t, out.ball_path = ts, ball_p
+            out.flags = flags
+            return out
+        self._release_and_flight(out, ts, ball_p, ball_v, setup)
+        if np.linalg.norm(out.release_velocity) < rel.min_speed:
+            flags["dropped_early"] = True
+            out.message = f"ball fell out of the scoop at t={out.release_time:.3f} s with {np.linalg.norm(out.release_velocity):.2f} m/s"
+        out.flags = flags
+        return out
+
+    def _prepare(self, plan: MotionPlan, effects_done: dict) -> tuple[RolloutSetup, MotionPlan, float]:
+        """Reset the Context, apply the effects, swap the plan in and place the arm and the ball; returns the effects'
+        setup, the commanded plan (with knot velocities) and the seconds of the initial hold not simulated."""
         h = self.handles
-        plant = h.plant
         self.context.SetTimeStateAndParametersFrom(self.default_context)
         if h.gains_scaled:
             set_gains(h)
@@ -216,15 +243,14 @@ class ThrowRollout:
         skip = self._initial_hold(cmd, qd_all)
         self._skip = skip
         h.plan_source.UpdateTrajectory(cmd_src.trajectory(time_shift=-self.reference_lead - skip))
-        q0 = cmd.q[0]
-        v0 = qd_all[0]
-        self._place_ball(q0, v0, setup.ball_radius, setup.ball_offset)
+        self._place_ball(cmd.q[0], qd_all[0], setup.ball_radius, setup.ball_offset)
         self.logger_log.Clear()
+        return setup, cmd, skip
 
-        out = Outcome(effects=effects_done, scenario=self.scenario.name)
-        flags = {k: False for k in FLAG_NAMES}
+    def _simulate(self, t_end: float, radius: float, out: Outcome, flags: dict[str, bool], skip: float) -> tuple[bool, bool, bool]:
+        """Advance to ``t_end`` (simulation clock) in chunks, stopping once the ball has left the scoop for good, touches
+        the floor or diverges; a solver error or divergence sets ``sim_failed``. Returns (separated, on_floor, diverged)."""
         rel = self.scenario.release
-        t_end = cmd.duration + rel.tail - skip
         separated = on_floor = diverged = False
         try:
             self.simulator.Initialize()
@@ -232,7 +258,7 @@ class ThrowRollout:
             while t < t_end - 1e-12:
                 t = min(t + rel.check_interval, t_end)
                 self.simulator.AdvanceTo(t)
-                separated, on_floor, diverged = self._ball_outside(setup.ball_radius)
+                separated, on_floor, diverged = self._ball_outside(radius)
                 if separated or on_floor or diverged:
                     break
         except RuntimeError as err:
@@ -242,7 +268,12 @@ class ThrowRollout:
             flags["sim_failed"] = True
             out.message = f"simulation diverged at t={self.context.get_time() + skip:.3f} s"
         out.sim_time = float(self.context.get_time()) + skip
+        return separated, on_floor, diverged
 
+    def _read_log(self, skip: float, out: Outcome) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Plan times, arm joint angles, ball positions and velocities from the state log (the final state included,
+        the skipped hold prepended, non-finite rows dropped)."""
+        plant = self.handles.plant
         log = self.logger_log
         ts = np.asarray(log.sample_times()).copy() + skip
         xs = np.asarray(log.data()).T.copy().reshape(-1, plant.num_multibody_states())
@@ -254,24 +285,11 @@ class ThrowRollout:
             xs = np.vstack([xs[:1], xs])
         finite = np.all(np.isfinite(xs), axis=1)
         ts, xs = ts[finite], xs[finite]
-        q_arm = xs[:, self._arm_q_idx]
-        out.joint_t = ts
-        out.q_measured = q_arm - setup.measurement_offset
-        out.q_commanded = plan.sample(ts)
-        ball_p = xs[:, self._ball_q0 + 4 : self._ball_q0 + 7]
-        ball_v = xs[:, self._ball_v0 + 3 : self._ball_v0 + 6]
-        measured_over = np.any(self.robot.position_limits[:, 0] - LIMIT_TOLERANCE > q_arm) or np.any(q_arm > self.robot.position_limits[:, 1] + LIMIT_TOLERANCE)
-        flags["joint_limit_exceeded"] = bool(plan_limit_exceeded or measured_over)
+        return ts, xs[:, self._arm_q_idx], xs[:, self._ball_q0 + 4 : self._ball_q0 + 7], xs[:, self._ball_v0 + 3 : self._ball_v0 + 6]
 
-        if flags["sim_failed"] or not (separated or on_floor):
-            if not flags["sim_failed"]:
-                flags["never_released"] = True
-                out.message = out.message or f"ball still in the scoop {rel.tail:g} s after the plan ended"
-            out.ball_t, out.ball_path = ts, ball_p
-            out.flags = flags
-            return out
-
-        # Release: the last sample whose velocity change is not gravity alone, before any floor contact.
+    def _release_and_flight(self, out: Outcome, ts: np.ndarray, ball_p: np.ndarray, ball_v: np.ndarray, setup: RolloutSetup) -> None:
+        """Release: the last sample whose velocity change is not gravity alone, before any floor contact; then the
+        free flight from there to the touchdown."""
         airborne = ball_p[:, 2] > setup.ball_radius + 2e-3
         n = int(np.argmin(airborne)) if not np.all(airborne) else len(ts)
         dv = np.diff(ball_v[:n], axis=0) - self._gravity * np.diff(ts[:n])[:, None]
@@ -295,8 +313,3 @@ class ThrowRollout:
         out.touchdown_time = float(ts[k] + flight.duration)
         out.ball_t = np.concatenate([ts[: k + 1], ts[k] + flight.t[1:]])
         out.ball_path = np.vstack([ball_p[: k + 1], flight.path[1:]])
-        if np.linalg.norm(out.release_velocity) < rel.min_speed:
-            flags["dropped_early"] = True
-            out.message = f"ball fell out of the scoop at t={out.release_time:.3f} s with {np.linalg.norm(out.release_velocity):.2f} m/s"
-        out.flags = flags
-        return out
