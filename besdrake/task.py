@@ -55,6 +55,11 @@ class Task(ABC):
         """A JSON-ready summary of one ``outcome`` (its ``summary()`` or ``to_dict()`` by default)."""
         return outcome.summary() if hasattr(outcome, "summary") else outcome.to_dict()
 
+    def record_replay(self, rollout, plan, outcome, meshcat, fps: float) -> None:
+        """Pose ``rollout``'s Diagram frame by frame (every ``1/fps`` s) as ``plan`` ran in ``outcome`` and record the
+        frames into ``meshcat`` (``besdrake record``, ``simulate --record``: :func:`besdrake.sim.record.record_html`)."""
+        raise TaskError(f"the task {self.name!r} draws no replay")
+
     def reward(self, **settings) -> Any:
         """The task's reward for policy search with ``settings`` (e.g. ``target``): a callable
         ``reward(plan, outcome, limits) -> RewardBreakdown`` (:mod:`besdrake.search.refinement.records`) with ``target``,

@@ -30,6 +30,12 @@ class ThrowingTask(Task):
 
         return default_throw(0.35)
 
+    def record_replay(self, rollout, plan, outcome, meshcat, fps):
+        """The arm as measured (then as commanded), the ball along its path and a marker at the touchdown."""
+        from besdrake.tasks.throwing.replay import record_throw
+
+        record_throw(rollout, plan, outcome, meshcat, fps)
+
     def reward(self, **settings):
         """:class:`~besdrake.tasks.throwing.reward.ThrowReward`: minus the touchdown's distance to the target, minus the
         limit penalties."""
