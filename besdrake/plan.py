@@ -29,6 +29,10 @@ class PlanError(ValueError):
     """A motion plan is malformed (shape, NaN/inf, time) or violates the joint limits."""
 
 
+class PlanLimitError(PlanError):
+    """A motion plan commands joint positions beyond the robot's limits (velocity excess is flagged, not raised)."""
+
+
 @dataclass
 class LimitReport:
     """Largest violation per joint (0 where within the limit), in the limit's units.

@@ -18,6 +18,8 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 TASKS_DIR = Path(__file__).resolve().parent / "tasks"
+#: The task a stage uses where none is named (e.g. a refinement problem without ``task=``, an old run record).
+DEFAULT_TASK = "throwing"
 _REGISTRY: dict[str, type["Task"]] = {}
 
 
@@ -52,6 +54,28 @@ class Task(ABC):
     def summary(self, outcome) -> dict[str, Any]:
         """A JSON-ready summary of one ``outcome`` (its ``summary()`` or ``to_dict()`` by default)."""
         return outcome.summary() if hasattr(outcome, "summary") else outcome.to_dict()
+
+    def record_replay(self, rollout, plan, outcome, meshcat, fps: float) -> None:
+        """Pose ``rollout``'s Diagram frame by frame (every ``1/fps`` s) as ``plan`` ran in ``outcome`` and record the
+        frames into ``meshcat`` (``besdrake record``, ``simulate --record``: :func:`besdrake.sim.record.record_html`)."""
+        raise TaskError(f"the task {self.name!r} draws no replay")
+
+    def reward(self, **settings) -> Any:
+        """The task's reward for policy search with ``settings`` (e.g. ``target``): a callable
+        ``reward(plan, outcome, limits) -> RewardBreakdown`` (:mod:`besdrake.search.refinement.records`) with ``target``,
+        ``penalty(plan, limits)`` (m) and ``to_dict()``, what :class:`~besdrake.search.refinement.RefinementProblem`
+        maximises."""
+        raise TaskError(f"the task {self.name!r} defines no reward for refinement")
+
+    def reward_from_dict(self, settings: dict[str, Any]) -> Any:
+        """The reward written by its ``to_dict()`` (a refinement run's record)."""
+        return self.reward(**settings)
+
+    def behaviour_descriptor(self, plan, outcome) -> Any:
+        """The behaviour features (a 1-D float array, the same length for every rollout) of ``plan`` as simulated in
+        ``outcome``: what the Transferability surrogate (:mod:`besdrake.transfer.transferability`) learns the
+        sim-to-lab disparity from."""
+        raise TaskError(f"the task {self.name!r} describes no behaviour (Transferability needs behaviour_descriptor)")
 
     def check_robot(self, robot) -> None:
         """Raise :class:`~besdrake.robot.RobotError` when ``robot`` lacks what the task needs (e.g. a scoop)."""

@@ -51,7 +51,8 @@ def _median_all(runs: list[dict]) -> float | None:
 def main(argv: list[str] | None = None) -> int:
     from besdrake.commands.refine import collect_imitated
     from besdrake.imitation import load_dmp
-    from besdrake.search.refinement import MIN_EXECUTION_TIME, ParameterScaling, RefinementProblem, ThrowReward, rank_starts, refine, restart_points, scout_start_points, DEFAULT_RETIME, DEFAULT_SCOUT_STARTS
+    from besdrake.search.refinement import MIN_EXECUTION_TIME, ParameterScaling, RefinementProblem, rank_starts, refine, restart_points, scout_start_points, DEFAULT_RETIME, DEFAULT_SCOUT_STARTS
+    from besdrake.tasks.throwing.reward import ThrowReward
     from besdrake.search.refinement import DEFAULT_CMA_OPTIONS, DEFAULT_POPSIZE_GROWTH, DEFAULT_RESTART_REGIMES, DEFAULT_STAGNATION_GENERATIONS, STAGNATION_TOL
     from besdrake.search.refinement import DEFAULT_PATIENCE, DEFAULT_SCOUT_GENERATIONS, DEFAULT_SCOUT_HALVING, DEFAULT_SCOUTS
     from besdrake.sim import make_executor

@@ -7,7 +7,7 @@ import argparse
 import json
 import sys
 
-from besdrake.sim.bench import run_bench
+from besdrake.tasks.throwing.bench import run_bench
 
 
 def main(argv: list[str] | None = None) -> int:

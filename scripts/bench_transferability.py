@@ -120,7 +120,8 @@ def run_subject(
     ``refine_runs``: refinement runs with seeds ``refine_seed + k`` until one reaches the goal (the paper ran 6 per subject,
     ``besdrake learn`` runs 2); the search starts from the closest throw of all runs."""
     from besdrake.imitation import DMPParameterization, load_dmp
-    from besdrake.search.refinement import ParameterScaling, RefinementProblem, ThrowReward, rank_starts, refine, scout_start_points
+    from besdrake.search.refinement import ParameterScaling, RefinementProblem, rank_starts, refine, scout_start_points
+    from besdrake.tasks.throwing.reward import ThrowReward
     from besdrake.sim import make_executor
     from besdrake.transfer.lab import SafetyGate
     from besdrake.transfer.log import LabLog

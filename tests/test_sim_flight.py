@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from besdrake.sim.flight import GRAVITY, fly
+from besdrake.tasks.throwing.flight import GRAVITY, fly
 
 
 def test_parabola_lands_where_kinematics_says():

@@ -9,7 +9,7 @@ import pytest
 
 from besdrake.sim import Rollout, make_executor
 from besdrake.sim.throws import default_throw
-from besdrake.transfer.descriptor import DESCRIPTOR_NAMES, behaviour_descriptor
+from besdrake.tasks.throwing.descriptor import DESCRIPTOR_NAMES, behaviour_descriptor
 from besdrake.transfer.lab import SafetyGate
 from besdrake.transfer.log import LabLog
 from besdrake.transfer.measurement import plan_hash

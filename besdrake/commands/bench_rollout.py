@@ -19,7 +19,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from besdrake.cli import UserError
-    from besdrake.sim.bench import run_bench
+    from besdrake.tasks.throwing.bench import run_bench
     from besdrake.sim.scenario import ScenarioError
 
     try:

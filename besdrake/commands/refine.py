@@ -161,8 +161,9 @@ def run(args: argparse.Namespace) -> int:
     from besdrake.cli import UserError
     from besdrake.imitation import DMPParameterError, load_dmp, save_dmp
     from besdrake.search.loop import ResumeError
-    from besdrake.search.refinement import (RefinementError, RefinementProblem, ThrowReward, rank_starts, refine, scout_points,
+    from besdrake.search.refinement import (RefinementError, RefinementProblem, rank_starts, refine, scout_points,
                                             scout_starts_checked)
+    from besdrake.tasks.throwing.reward import ThrowReward
     from besdrake.sim.cliutil import executor_from_args
     from besdrake.sim.executors import ExecutorError
     from besdrake.sim.scenario import ScenarioError, load_scenario

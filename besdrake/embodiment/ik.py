@@ -3,7 +3,7 @@
 With the synchronization frame fixed, every demonstrated hand pose (at the recording's full
 rate) is solved with Drake's :class:`~pydrake.multibody.inverse_kinematics.InverseKinematics`:
 the tool origin within ``position_tolerance`` of the hand centre (a constraint), the robot file's
-tool axis towards the palm normal (a cost: a tool such as a scoop cannot turn like a wrist, so the
+tool axis towards the palm normal (a cost: a rigid tool cannot turn like a wrist, so the
 angle is matched as well as the arm allows and reported), and a cost on the distance to the previous
 solution so that consecutive configurations stay close (no jumps between IK branches). A pose
 whose position constraint cannot be met is solved again with the position as a cost and

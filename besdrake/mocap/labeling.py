@@ -46,9 +46,9 @@ from scipy.ndimage import gaussian_filter1d
 from scipy.optimize import linear_sum_assignment
 
 from besdrake.mocap.gaps import GapFillResult, GapInfo, fill_gaps
+from besdrake.mocap.label_state import GHOST, LabelAssignment
 from besdrake.mocap.recording import MocapRecording
 
-GHOST = -1
 EMPTY = -2
 
 
@@ -214,8 +214,23 @@ class MarkerLabeler:
         if missing:
             raise LabelingError(f"reference markers never visible, cannot learn them: {missing}")
         self.marker_names_ = list(reference.marker_names)
-        n_bins = int(np.ceil(self.max_distance / self.bin_m)) + 1
         d = np.linalg.norm(pos[:, :, None, :] - pos[:, None, :, :], axis=3)  # (n, m, m)
+        self.pair_cost_, informative, spread = self._learn_pair_costs(d)
+        self._learn_rigid_pairs(d, informative, spread)
+        self.plates_ = self._find_plates(spread, informative)
+        self._learn_thresholds(pos, d)
+        self.frequency_ = reference.frequency
+        self.nearest_distance_ = _median_nearest_distance(pos)
+        # Initial pose: the first reference frame with the most markers visible.
+        vis = reference.visible()
+        self.initial_pose_ = pos[int(np.argmax(vis.sum(axis=1)))].copy()
+        return self
+
+    def _learn_pair_costs(self, d: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per ordered label pair the cost of each distance bin (-log of the smoothed histogram of the reference's
+        distances, capped at 12), whether the pair was seen together, and the robust spread of its distance (m)."""
+        m = d.shape[1]
+        n_bins = int(np.ceil(self.max_distance / self.bin_m)) + 1
         cost = np.zeros((m, m, n_bins))
         informative = np.zeros((m, m), dtype=bool)
         spread = np.full((m, m), np.inf)
@@ -234,8 +249,11 @@ class MarkerLabeler:
                 dens = gaussian_filter1d(hist, self.smooth_m / self.bin_m, mode="constant")
                 dens /= dens.max()
                 cost[i, j] = np.minimum(-np.log(dens + 1e-6), 12.0)
-        self.pair_cost_ = cost
-        # Rigid pairs (plates): mean and spread of the distance for a Gaussian cost.
+        return cost, informative, spread
+
+    def _learn_rigid_pairs(self, d: np.ndarray, informative: np.ndarray, spread: np.ndarray) -> None:
+        """Rigid pairs (plates): mean and spread of the distance for a Gaussian cost; the pairs' weights."""
+        m = d.shape[1]
         mu = np.zeros((m, m))
         for i in range(m):
             for j in range(m):
@@ -247,7 +265,10 @@ class MarkerLabeler:
         self.pair_weight_ = np.where(informative, 1.0 / (np.minimum(spread, 1.0) + self.weight_scale), 0.0)
         self.informative_ = informative
         self.spread_ = spread
-        # Rigid plates: triples whose pairwise distances barely vary.
+
+    def _find_plates(self, spread: np.ndarray, informative: np.ndarray) -> list[list[int]]:
+        """Rigid plates: disjoint triples whose pairwise distances barely vary, the most rigid first."""
+        m = spread.shape[0]
         rigid = (spread < self.rigid_tol) & informative
         triples = [
             tri for tri in itertools.combinations(range(m), 3)
@@ -258,8 +279,11 @@ class MarkerLabeler:
         for tri in triples:  # most rigid first, disjoint
             if not any(set(tri) & set(p) for p in plates):
                 plates.append(list(tri))
-        self.plates_ = plates
-        # Per-label thresholds: how well the true markers fit their neighbours in the reference.
+        return plates
+
+    def _learn_thresholds(self, pos: np.ndarray, d: np.ndarray) -> None:
+        """Per-label thresholds: how well the true markers fit their neighbours in the reference."""
+        m = d.shape[1]
         frame_cost = self._frame_costs(pos, d)
         thresholds, typical, strict = np.zeros(m), np.zeros(m), np.zeros(m)
         for i in range(m):
@@ -271,12 +295,6 @@ class MarkerLabeler:
         self.thresholds_ = thresholds
         self.strict_thresholds_ = strict
         self.typical_ = typical
-        self.frequency_ = reference.frequency
-        self.nearest_distance_ = _median_nearest_distance(pos)
-        # Initial pose: the first reference frame with the most markers visible.
-        vis = reference.visible()
-        self.initial_pose_ = pos[int(np.argmax(vis.sum(axis=1)))].copy()
-        return self
 
     def _frame_costs(self, pos: np.ndarray, d: np.ndarray) -> np.ndarray:
         """Mean pair cost of each visible marker against the other visible markers, per frame."""
@@ -450,13 +468,29 @@ class MarkerLabeler:
         )
 
     def predict(self, rec: MocapRecording, fill: bool = True) -> LabelingResult:
-        """Label the unnamed trajectories of ``rec`` (any marker names; slots may be shuffled)."""
+        """Label the unnamed trajectories of ``rec`` (any marker names; slots may be shuffled): track, seed the plates,
+        decide the most certain tracklet first, refine, label the rest by elimination, fill the gaps."""
+        t_start = _time.process_time()
+        warnings = self._check_input(rec)
+        tid, spans = self._track(rec.positions)
+        s = LabelAssignment(rec.positions, tid, len(spans), len(self.marker_names_))
+        min_len = int(round(self.min_length_s * rec.frequency))
+        self._seed(s)
+        self._decide_most_certain_first(s, min_len, rec.frequency)
+        self._refine_labels(s, min_len, 1.0 / rec.frequency)
+        eliminated = self._label_by_elimination(s, min_len)
+        if eliminated:
+            warnings.append(
+                f"{eliminated} long trajectories fitted no label within its threshold and were labelled by "
+                "elimination (markers moved since the reference recording?)"
+            )
+        return self._labeling_result(rec, s, tid, fill, warnings, t_start)
+
+    def _check_input(self, rec: MocapRecording) -> list[str]:
+        """:class:`LabelingError` for an unfitted labeler or a recording that cannot be labelled; the warnings so far."""
         if not hasattr(self, "pair_cost_"):
             raise LabelingError("the labeler is not fitted: call fit(reference) first")
-        t_start = _time.process_time()
-        pos = rec.positions
-        n, k, _ = pos.shape
-        m = len(self.marker_names_)
+        n = rec.positions.shape[0]
         if n < 2:
             raise LabelingError(f"the recording is too short to label ({n} frame(s))")
         if not rec.visible().any():
@@ -465,166 +499,140 @@ class MarkerLabeler:
         warnings: list[str] = []
         if abs(rec.frequency - self.frequency_) > 1e-6:
             warnings.append(f"frequency {rec.frequency:g} Hz differs from the reference's {self.frequency_:g} Hz")
-        dt = 1.0 / rec.frequency
-        tid, spans = self._track(pos)
-        n_t = len(spans)
-        # Per-tracklet points (rows and positions).
-        rows_of: list[np.ndarray] = [None] * n_t  # type: ignore[list-item]
-        pts_of: list[np.ndarray] = [None] * n_t  # type: ignore[list-item]
-        f_idx, s_idx = np.nonzero(tid >= 0)
-        order = np.argsort(tid[f_idx, s_idx], kind="stable")
-        f_idx, s_idx = f_idx[order], s_idx[order]
-        bounds = np.searchsorted(tid[f_idx, s_idx], np.arange(n_t + 1))
-        for t in range(n_t):
-            fr, sl = f_idx[bounds[t] : bounds[t + 1]], s_idx[bounds[t] : bounds[t + 1]]
-            rows_of[t], pts_of[t] = fr, pos[fr, sl]
-        label_pos = np.full((n, m, 3), np.nan)
-        occupied = np.zeros((n, m), dtype=bool)
-        label_of = np.full(n_t, GHOST, dtype=int)
-        lengths = np.array([len(r) for r in rows_of])
-        min_len = int(round(self.min_length_s * rec.frequency))
+        return warnings
+
+    def _cost_row(self, s: LabelAssignment, t: int, min_len: int, dt: float, displace: bool = False) -> np.ndarray:
+        """Per-label cost of tracklet ``t`` (lower is better), inf where the label is taken or fails its threshold;
+        NaN everywhere when there is nothing to compare with yet."""
+        m = len(self.marker_names_)
+        rows = s.rows_of[t]
+        sample = np.unique(np.linspace(0, len(rows) - 1, min(self.window, len(rows))).round().astype(int))
+        geo = self._geometry_cost(s.pts_of[t][sample], rows[sample], s.label_pos)
+        free = ~s.occupied[rows].any(axis=0)
+        if displace:
+            # A long trajectory may take over a label held only by short (ghost-like) pieces.
+            own = s.owner[rows]
+            if len(rows) >= min_len:
+                held_by_short = np.where(own >= 0, s.lengths[np.maximum(own, 0)] < min_len, True).all(axis=0)
+                free |= held_by_short
+        short = len(rows) < min_len
         in_plate = np.zeros(m, dtype=bool)
         for p in self.plates_:
             in_plate[p] = True
+        out = np.full(m, np.inf)
+        any_evidence = False
+        for lab in np.nonzero(free)[0]:
+            cont = self._continuity_cost(lab, rows, s.pts_of[t], s.label_pos, dt)
+            g = geo[lab]
+            any_evidence |= bool(np.isfinite(g) or np.isfinite(cont))
+            limit = self.strict_thresholds_[lab] if short else self.thresholds_[lab]
+            if cont <= 4.0:  # continues the label's motion across a gap
+                out[lab] = min(g, self.typical_[lab])
+            elif g <= limit and not (short and not in_plate[lab]):
+                # A short trajectory of a single (non-plate) marker must continue the
+                # marker's motion: alone, such pieces are mostly ghosts.
+                out[lab] = g
+        if not any_evidence and free.any():
+            out[:] = np.nan
+        return out
 
-        owner = np.full((n, m), -1, dtype=int)
-
-        def assign(t: int, lab: int) -> None:
-            for u in np.unique(owner[rows_of[t], lab]):
-                if u >= 0:  # displaced (only ever a much shorter trajectory)
-                    unassign(int(u))
-            label_of[t] = lab
-            label_pos[rows_of[t], lab] = pts_of[t]
-            occupied[rows_of[t], lab] = True
-            owner[rows_of[t], lab] = t
-
-        def unassign(t: int) -> None:
-            lab = label_of[t]
-            if lab >= 0:
-                label_pos[rows_of[t], lab] = np.nan
-                occupied[rows_of[t], lab] = False
-                owner[rows_of[t], lab] = -1
-                label_of[t] = GHOST
-
-        def cost_row(t: int, displace: bool = False) -> np.ndarray:
-            """Per-label cost of tracklet ``t`` (lower is better), inf where the label is taken or
-            fails its threshold; NaN everywhere when there is nothing to compare with yet."""
-            rows = rows_of[t]
-            sample = np.unique(np.linspace(0, len(rows) - 1, min(self.window, len(rows))).round().astype(int))
-            geo = self._geometry_cost(pts_of[t][sample], rows[sample], label_pos)
-            free = ~occupied[rows].any(axis=0)
-            if displace:
-                # A long trajectory may take over a label held only by short (ghost-like) pieces.
-                own = owner[rows]
-                if len(rows) >= min_len:
-                    held_by_short = np.where(own >= 0, lengths[np.maximum(own, 0)] < min_len, True).all(axis=0)
-                    free |= held_by_short
-            short = len(rows) < min_len
-            out = np.full(m, np.inf)
-            any_evidence = False
-            for lab in np.nonzero(free)[0]:
-                cont = self._continuity_cost(lab, rows, pts_of[t], label_pos, dt)
-                g = geo[lab]
-                any_evidence |= bool(np.isfinite(g) or np.isfinite(cont))
-                limit = self.strict_thresholds_[lab] if short else self.thresholds_[lab]
-                if cont <= 4.0:  # continues the label's motion across a gap
-                    out[lab] = min(g, self.typical_[lab])
-                elif g <= limit and not (short and not in_plate[lab]):
-                    # A short trajectory of a single (non-plate) marker must continue the
-                    # marker's motion: alone, such pieces are mostly ghosts.
-                    out[lab] = g
-            if not any_evidence and free.any():
-                out[:] = np.nan
-            return out
-
-        # 1. Seed: at the frame where most long tracklets coexist, whole plates (initial pose).
+    def _seed(self, s: LabelAssignment) -> None:
+        """Step 1: at the frame where most long tracklets coexist, whole plates (the initial pose); then plates again
+        wherever long tracklets start (re-acquisition after occlusions), so that plate members are decided jointly
+        rather than one by one."""
+        lengths, rows_of = s.lengths, s.rows_of
         long_ts = np.nonzero(lengths >= min(self.window, lengths.max()))[0]
-        active = np.zeros(n, dtype=int)
+        active = np.zeros(len(s.label_pos), dtype=int)
         for t in long_ts:
             active[rows_of[t][0] : rows_of[t][-1] + 1] += 1
         f_seed = int(np.argmax(active))
         seed_group = [int(t) for t in long_ts if rows_of[t][0] <= f_seed <= rows_of[t][-1]]
-        self._seed_plates(seed_group, f_seed, rows_of, pts_of, label_pos, occupied, assign)
-        if not occupied.any():
+        self._seed_plates(seed_group, f_seed, rows_of, s.pts_of, s.label_pos, s.occupied, s.assign)
+        if not s.occupied.any():
             # No plate found: fall back on the reference's initial pose.
-            self._seed_initial_pose(seed_group, f_seed, rows_of, pts_of, assign)
-        # Plates again wherever long tracklets start (re-acquisition after occlusions), so that
-        # plate members are decided jointly rather than one by one.
+            self._seed_initial_pose(seed_group, f_seed, rows_of, s.pts_of, s.assign)
         if self.plates_:
             for f in sorted({int(rows_of[t][0]) for t in long_ts}):
-                group = [int(t) for t in long_ts if label_of[t] == GHOST and rows_of[t][0] <= f <= rows_of[t][-1]]
+                group = [int(t) for t in long_ts if s.label_of[t] == GHOST and rows_of[t][0] <= f <= rows_of[t][-1]]
                 if len(group) >= 2:
-                    self._seed_plates(group, f, rows_of, pts_of, label_pos, occupied, assign)
-        # 2. The most certain decision first: repeatedly assign the pending tracklet whose best
-        #    label beats its runner-up (or its threshold) by the widest margin; decisions
-        #    change the neighbours' costs, so tracklets overlapping in time are re-scored.
-        max_gap = int(round(self.max_gap_s * rec.frequency))
-        starts = np.array([r[0] for r in rows_of])
-        ends = np.array([r[-1] for r in rows_of])
-        pending = {int(t) for t in range(n_t) if label_of[t] == GHOST}
-        rows_cache = {t: cost_row(t) for t in pending}
+                    self._seed_plates(group, f, rows_of, s.pts_of, s.label_pos, s.occupied, s.assign)
 
-        def margin(t: int) -> float:
-            c = rows_cache[t]
-            finite = np.sort(c[np.isfinite(c)])
-            if len(finite) == 0:
-                return -np.inf
-            lab = int(np.nanargmin(np.where(np.isfinite(c), c, np.inf)))
-            second = finite[1] if len(finite) > 1 else self.thresholds_[lab]
-            return float(second - finite[0]) + 1e-3 * min(lengths[t], 1000)
-
-        margins = {t: margin(t) for t in pending}
+    def _decide_most_certain_first(self, s: LabelAssignment, min_len: int, frequency: float) -> None:
+        """Step 2: repeatedly assign the pending tracklet whose best label beats its runner-up (or its threshold) by
+        the widest margin; decisions change the neighbours' costs, so tracklets overlapping in time are re-scored."""
+        dt = 1.0 / frequency
+        max_gap = int(round(self.max_gap_s * frequency))
+        starts = np.array([r[0] for r in s.rows_of])
+        ends = np.array([r[-1] for r in s.rows_of])
+        pending = {int(t) for t in range(s.n_tracklets) if s.label_of[t] == GHOST}
+        rows_cache = {t: self._cost_row(s, t, min_len, dt) for t in pending}
+        margins = {t: self._margin(rows_cache[t], s.lengths[t]) for t in pending}
         while pending:
             t = max(pending, key=margins.__getitem__)
             if not np.isfinite(margins[t]):
                 break
             c = rows_cache[t]
-            assign(t, int(np.nanargmin(np.where(np.isfinite(c), c, np.inf))))
+            s.assign(t, int(np.nanargmin(np.where(np.isfinite(c), c, np.inf))))
             pending.discard(t)
             near = [u for u in pending if starts[u] <= ends[t] + max_gap and ends[u] >= starts[t] - max_gap]
             for u in near:
-                rows_cache[u] = cost_row(u)
-                margins[u] = margin(u)
-        # 3. Refinement: re-decide every tracklet with all the others labelled.
+                rows_cache[u] = self._cost_row(s, u, min_len, dt)
+                margins[u] = self._margin(rows_cache[u], s.lengths[u])
+
+    def _margin(self, c: np.ndarray, length: int) -> float:
+        """How much a tracklet's best label (costs ``c``) beats its runner-up or its threshold; longer ones first on
+        a tie; -inf when no label fits."""
+        finite = np.sort(c[np.isfinite(c)])
+        if len(finite) == 0:
+            return -np.inf
+        lab = int(np.nanargmin(np.where(np.isfinite(c), c, np.inf)))
+        second = finite[1] if len(finite) > 1 else self.thresholds_[lab]
+        return float(second - finite[0]) + 1e-3 * min(length, 1000)
+
+    def _refine_labels(self, s: LabelAssignment, min_len: int, dt: float) -> None:
+        """Step 3: re-decide every tracklet (the longest first) with all the others labelled, until nothing changes."""
         for _pass in range(self.refine_passes):
             changed = 0
-            for t in np.argsort(-lengths, kind="stable"):
-                before = label_of[t]
-                unassign(t)
-                costs = cost_row(t, displace=True)
+            for t in np.argsort(-s.lengths, kind="stable"):
+                before = s.label_of[t]
+                s.unassign(t)
+                costs = self._cost_row(s, t, min_len, dt, displace=True)
                 if np.isfinite(costs).any():
-                    assign(t, int(np.nanargmin(np.where(np.isnan(costs), np.inf, costs))))
-                changed += int(label_of[t] != before)
+                    s.assign(t, int(np.nanargmin(np.where(np.isnan(costs), np.inf, costs))))
+                changed += int(s.label_of[t] != before)
             if changed == 0:
                 break
-        # 4. Elimination: a long trajectory that fits no label within its threshold (e.g. a
-        #    marker re-attached since the reference was recorded) takes the free label it fits
-        #    best if that is within ``elimination_factor`` times the threshold; reported.
+
+    def _label_by_elimination(self, s: LabelAssignment, min_len: int) -> int:
+        """Step 4: a long trajectory that fits no label within its threshold (e.g. a marker re-attached since the
+        reference was recorded) takes the free label it fits best if that is within ``elimination_factor`` times the
+        threshold. Returns how many did."""
         eliminated = 0
-        if self.elimination_factor > 1.0:
-            for t in np.argsort(-lengths, kind="stable"):
-                if label_of[t] != GHOST or lengths[t] < max(min_len, 2 * self.window):
-                    continue
-                rows = rows_of[t]
-                sample = np.unique(np.linspace(0, len(rows) - 1, min(self.window, len(rows))).round().astype(int))
-                geo = self._geometry_cost(pts_of[t][sample], rows[sample], label_pos)
-                free = ~occupied[rows].any(axis=0)
-                ratio = np.where(free, geo / self.thresholds_, np.inf)
-                lab = int(np.argmin(ratio))
-                if ratio[lab] <= self.elimination_factor:
-                    assign(t, lab)
-                    eliminated += 1
-        if eliminated:
-            warnings.append(
-                f"{eliminated} long trajectories fitted no label within its threshold and were labelled by "
-                "elimination (markers moved since the reference recording?)"
-            )
-        # Outputs.
+        if self.elimination_factor <= 1.0:
+            return eliminated
+        for t in np.argsort(-s.lengths, kind="stable"):
+            if s.label_of[t] != GHOST or s.lengths[t] < max(min_len, 2 * self.window):
+                continue
+            rows = s.rows_of[t]
+            sample = np.unique(np.linspace(0, len(rows) - 1, min(self.window, len(rows))).round().astype(int))
+            geo = self._geometry_cost(s.pts_of[t][sample], rows[sample], s.label_pos)
+            free = ~s.occupied[rows].any(axis=0)
+            ratio = np.where(free, geo / self.thresholds_, np.inf)
+            lab = int(np.argmin(ratio))
+            if ratio[lab] <= self.elimination_factor:
+                s.assign(t, lab)
+                eliminated += 1
+        return eliminated
+
+    def _labeling_result(self, rec: MocapRecording, s: LabelAssignment, tid: np.ndarray, fill: bool, warnings: list[str],
+                         t_start: float) -> LabelingResult:
+        """The labelled recording (gaps filled with ``fill``), each slot's label and the report."""
+        n, k, _ = rec.positions.shape
         slot_labels = np.full((n, k), EMPTY, dtype=int)
         has = tid >= 0
-        slot_labels[has] = label_of[tid[has]]
+        slot_labels[has] = s.label_of[tid[has]]
         names = list(self.marker_names_)
-        raw = MocapRecording(names, label_pos, rec.frequency, rec.frames.copy(), rec.time.copy(), dict(rec.metadata))
+        raw = MocapRecording(names, s.label_pos, rec.frequency, rec.frames.copy(), rec.time.copy(), dict(rec.metadata))
         never = raw.missing_markers()
         if never:
             warnings.append(f"markers never found: {never}")
@@ -635,8 +643,8 @@ class MarkerLabeler:
         else:
             out_rec, gaps = raw, []
         return LabelingResult(
-            names, slot_labels, out_rec, raw, gaps, n_t, int((label_of == GHOST).sum()), never,
-            _time.process_time() - t_start, warnings, tid, label_of,
+            names, slot_labels, out_rec, raw, gaps, s.n_tracklets, int((s.label_of == GHOST).sum()), never,
+            _time.process_time() - t_start, warnings, tid, s.label_of,
         )
 
     def _seed_initial_pose(self, group, frame, rows_of, pts_of, assign, max_error: float = 0.1) -> None:

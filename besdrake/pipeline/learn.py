@@ -320,13 +320,15 @@ def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int
     (short first attempts from the best throws) run only with ``scouting`` and where they take at most half of
     ``budget``: a re-refinement from throws refined already goes straight to CMA-ES from the best of them."""
     from besdrake.imitation import DMPParameterization
-    from besdrake.search.refinement import (DEFAULT_SCOUTS, RefinementProblem, ThrowReward, plot_learning_curves, rank_starts,
-                                            refine, scout_start_points, scouting_episodes)
+    from besdrake.search.refinement import (DEFAULT_SCOUTS, RefinementProblem, plot_learning_curves, rank_starts, refine,
+                                            scout_start_points, scouting_episodes)
+    from besdrake.task import DEFAULT_TASK, get_task
 
     cfg = ctx.config["refinement"]
-    reward = ThrowReward(target=tuple(cfg["target"]))
+    task = str(ctx.config.get("task") or DEFAULT_TASK)
+    reward = get_task(task).reward(target=tuple(cfg["target"]))
     robot = ctx.robot(scenario)
-    problems = [RefinementProblem(robot, d, reward) for d in dmps]
+    problems = [RefinementProblem(robot, d, reward, task=task) for d in dmps]
     runs, results = [], []
     with _executor(ctx, scenario) as executor:
         ranking = rank_starts(problems, executor)

@@ -8,8 +8,8 @@ seeded with a ``numpy.random.Generator`` and saves a resumable state (JSON + npz
 * contextual: :class:`CREPS`, :class:`BOCPS`, :class:`ACES` (active context selection);
 * drivers: :func:`run_search` / :func:`run_contextual_search` write every episode to disk before the
   optimizer sees it and resume a killed run;
-* the throwing problem: :mod:`besdrake.search.refinement` (49 DMP parameters) and
-  :mod:`besdrake.search.templates` (behaviour templates and the template pool).
+* refinement of a task's DMP towards its reward: :mod:`besdrake.search.refinement` (the task's reward,
+  :meth:`besdrake.task.Task.reward`) and :mod:`besdrake.search.templates` (behaviour templates and the template pool).
 """
 
 from besdrake.search.aces import ACES

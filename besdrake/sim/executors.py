@@ -2,7 +2,7 @@
 
 ``make_executor(backend, workers, scenario)`` returns an executor with ``evaluate(plans, effects=None)``
 (``effects``: one ``{name: {param: value}}`` for all plans or a list with one per plan) that returns one
-:class:`~besdrake.sim.outcome.Outcome` per plan, in order. Backends:
+outcome of the scenario's task per plan, in order. Backends:
 
 * ``"serial"``: one rollout black box of the scenario's task (:mod:`besdrake.task`) in this process.
 * ``"process"``: a local ``multiprocessing`` pool, one Diagram per worker built once by the pool initializer
@@ -15,7 +15,7 @@
 
 Every rollout starts from the same reset Context, so the same inputs give the same Outcomes on every
 backend, in any order. Plans are validated in the caller's process (:class:`~besdrake.plan.PlanError`
-raised there); anything unexpected inside a worker becomes an Outcome flagged ``sim_failed``.
+raised there); anything unexpected inside a worker becomes an outcome flagged ``sim_failed``.
 Executors are context managers: ``with make_executor("process", workers=2) as ex: ex.evaluate(plans)``.
 """
 
@@ -30,7 +30,6 @@ from typing import Any, Sequence
 
 from besdrake.plan import MotionPlan, PlanError
 from besdrake.sim.effects import merge_effects
-from besdrake.sim.outcome import Outcome
 from besdrake.sim.scenario import Scenario, load_scenario
 
 BACKENDS = ("serial", "process", "ray")
@@ -123,7 +122,7 @@ class Executor:
             merge_effects(self.scenario.effects, e)  # raises EffectError here, not in a worker
         return list(zip(plans, effs))
 
-    def evaluate(self, plans: Sequence[MotionPlan], effects: dict | list | None = None) -> list[Outcome]:
+    def evaluate(self, plans: Sequence[MotionPlan], effects: dict | list | None = None) -> list[Any]:
         """Simulate every plan (with its effects); Outcomes in the order of ``plans``."""
         items = self._prepare(plans, effects)
         if not items:
@@ -136,7 +135,7 @@ class Executor:
         self.stats.workers = int(getattr(self, "workers", 1))
         return out
 
-    def _evaluate(self, items) -> tuple[list[Outcome], float]:  # pragma: no cover - abstract
+    def _evaluate(self, items) -> tuple[list[Any], float]:  # pragma: no cover - abstract
         """Outcomes in order, and the workers' busy seconds."""
         raise NotImplementedError
 
@@ -197,7 +196,7 @@ def _init_worker(scenario: Scenario, plugins: tuple[str, ...] = ()) -> None:
         _WORKER_ERROR = f"{type(err).__name__}: {err}"
 
 
-def _worker_batch(args) -> tuple[list[Outcome], float]:
+def _worker_batch(args) -> tuple[list[Any], float]:
     """A worker's batch: its Outcomes and the seconds it spent on them."""
     items, limits = args
     if _WORKER_ROLLOUT is None:
@@ -223,7 +222,7 @@ class ProcessExecutor(Executor):
     A worker that dies (killed, out of memory, a crash inside the simulator) does not hang the
     caller: ``multiprocessing.Pool`` replaces it but loses its task, so the executor watches the
     workers' process ids while it waits; when one changes, every episode of the batch comes back
-    as a failed Outcome (``sim_failed``, with the reason), the pool is rebuilt, and the next batch
+    as a failed outcome (``sim_failed``, with the reason), the pool is rebuilt, and the next batch
     runs normally.
     """
 

@@ -8,7 +8,7 @@ simulation, minimises three objectives at once:
    :func:`placement_quadrature`): a plan on a cliff, where a few millimetres in the scoop send the ball elsewhere,
    scores badly even when its nominal throw hits;
 2. the simulation-to-reality **disparity predicted by a surrogate** (a Gaussian process over the
-   17-feature behaviour description of :mod:`besdrake.transfer.descriptor`, trained on every plan
+   behaviour features the scenario's task describes (:meth:`besdrake.task.Task.behaviour_descriptor`), trained on every plan
    transferred so far: disparity = distance between simulated and measured touchdown);
 3. minus the **behavioural diversity** (mean distance to the nearest behaviours of the population
    and of the plans already transferred), which keeps the search exploring.
@@ -76,7 +76,6 @@ from besdrake.plan import MotionPlan
 from besdrake.robot import JointLimits
 from besdrake.search.base import load_state, rng_from_state, rng_state, save_state
 from besdrake.sim.effects import ball_placed, placement_quadrature
-from besdrake.transfer.descriptor import N_FEATURES, behaviour_descriptor
 from besdrake.transfer.measurement import Measurement, plan_hash
 
 #: Touchdown "distance" given to a throw that never lands (m): worse than any real throw.
@@ -181,7 +180,7 @@ class _DescriptorGP:
     noise = (0.1, (1e-4, 1.0))  # WhiteKernel level and bounds (on the normalised targets)
 
     def __init__(self) -> None:
-        self.X = np.zeros((0, N_FEATURES))
+        self.X = np.zeros((0, 0))  # (rows, features); the width comes with the first row
         self.T = np.zeros((0, self.width))
         self.keep: np.ndarray | None = None  # rows used (None: all)
         self._gp = None
@@ -198,7 +197,7 @@ class _DescriptorGP:
         return self.X[self.keep], self.T[self.keep]
 
     def _append(self, descriptor: np.ndarray, value) -> None:
-        self.X = np.vstack([self.X, descriptor])
+        self.X = _stack(self.X, descriptor)
         self.T = np.vstack([self.T, np.asarray(value, dtype=float).reshape(1, self.width)])
         self._gp = None
 
@@ -311,6 +310,18 @@ def crowding_distance(F: np.ndarray) -> np.ndarray:
     return dist
 
 
+def _stack(rows: np.ndarray, row: np.ndarray) -> np.ndarray:
+    """``rows`` with ``row`` appended (an empty table takes the row's width)."""
+    row = np.atleast_2d(np.asarray(row, dtype=float))
+    return row.copy() if len(rows) == 0 else np.vstack([rows, row])
+
+
+def _table(values) -> np.ndarray:
+    """A saved table of descriptors as a 2-D array ((0, 0) when empty)."""
+    a = np.atleast_2d(np.asarray(values, dtype=float))
+    return np.zeros((0, 0)) if a.size == 0 else a
+
+
 def _novelty(D: np.ndarray, archive: np.ndarray, k: int) -> np.ndarray:
     """Mean distance of each row of ``D`` to its ``k`` nearest neighbours in ``D`` and ``archive``."""
     ref = np.vstack([D, archive]) if len(archive) else D
@@ -375,7 +386,8 @@ class TransferabilityApproach:
         self.offsets = OffsetSurrogate()
         self._offset_trials: list[int] | None = []  # lab trial of each offset row (None: unknown, an old state)
         self.transfers: list[Transfer] = []
-        self.transferred_descriptors = np.zeros((0, N_FEATURES))
+        self.transferred_descriptors = np.zeros((0, 0))
+        self._describe = None  # the task's behaviour_descriptor, looked up on first use
         self.sim_episodes = 0
         self.generation = 0
         self.success_at: int | None = None
@@ -393,6 +405,18 @@ class TransferabilityApproach:
                 raise ValueError("TransferabilityApproach needs limits= (neither the lab nor the executor names a robot)")
             self._limits = robot.limits
         return self._limits
+
+    def describe(self, plan: MotionPlan, outcome) -> np.ndarray:
+        """The behaviour features of ``plan`` simulated in ``outcome``, as the executor's scenario's task describes them
+        (:meth:`besdrake.task.Task.behaviour_descriptor`)."""
+        if self._describe is None:
+            from besdrake.task import get_task
+
+            scenario = getattr(self.executor, "scenario", None)
+            if scenario is None:
+                raise ValueError("TransferabilityApproach needs an executor with a scenario (its task describes behaviours)")
+            self._describe = get_task(scenario.task).behaviour_descriptor
+        return np.asarray(self._describe(plan, outcome), dtype=float)
 
     # -- simulation ---------------------------------------------------------------------------
     def _evaluate(self, thetas: np.ndarray) -> tuple[np.ndarray, np.ndarray, list, np.ndarray]:
@@ -418,7 +442,7 @@ class TransferabilityApproach:
         dist = np.linalg.norm(td - self.target, axis=2)
         f1 = np.where(np.isfinite(dist), dist, NO_TOUCHDOWN_DISTANCE) @ self.placement_weights + penalties
         outcomes = runs[::k]
-        D = np.array([behaviour_descriptor(p, o) for p, o in zip(plans, outcomes)])
+        D = np.array([self.describe(p, o) for p, o in zip(plans, outcomes)])
         return f1, D, outcomes, td - td[:, :1]
 
     def _mutate(self, parents: np.ndarray) -> np.ndarray:
@@ -492,7 +516,7 @@ class TransferabilityApproach:
         if descriptor is not None and "refused_by_safety_gate" not in raised:
             self.surrogate.add(descriptor, disparity)
             if kind == "transfer":
-                self.transferred_descriptors = np.vstack([self.transferred_descriptors, descriptor])
+                self.transferred_descriptors = _stack(self.transferred_descriptors, descriptor)
             if lab_td is not None and sim_touchdown is not None:
                 self.offsets.add(descriptor, lab_td - sim_touchdown)
                 if self._offset_trials is not None:
@@ -656,10 +680,10 @@ class TransferabilityApproach:
             raise ValueError(f"{self.out_dir} holds a search with other settings: use a new output folder")
         self.generation, self.sim_episodes = int(s["generation"]), int(s["sim_episodes"])
         self.transfers = [Transfer(**t) for t in s["transfers"]]
-        self.surrogate.X, self.surrogate.y = np.atleast_2d(s["surrogate_X"]).reshape(-1, N_FEATURES), np.asarray(s["surrogate_y"])
-        self.transferred_descriptors = np.asarray(s["transferred_descriptors"]).reshape(-1, N_FEATURES)
+        self.surrogate.X, self.surrogate.y = _table(s["surrogate_X"]), np.asarray(s["surrogate_y"])
+        self.transferred_descriptors = _table(s["transferred_descriptors"])
         if "offset_X" in s:
-            self.offsets.X = np.asarray(s["offset_X"], dtype=float).reshape(-1, N_FEATURES)
+            self.offsets.X = _table(s["offset_X"])
             self.offsets.Y = np.asarray(s["offset_Y"], dtype=float).reshape(-1, 2)
         self._offset_trials = [int(t) for t in s["offset_trials"]] if s.get("offset_trials") is not None else None
         self.success_at, self.success_plans = s["success_at"], s["success_plans"]

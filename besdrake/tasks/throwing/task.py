@@ -1,8 +1,9 @@
 """The throwing task as a plug-in: a ball thrown from the robot's scoop onto a target on the floor.
 
 Scene: the ball (in the scoop) and the floor (``models: ball, ground`` of the scenario). A rollout runs until
-the ball has left the scoop for good and computes its flight (:class:`besdrake.sim.rollout.Rollout`); the
-outcome is the touchdown and the release state (:class:`besdrake.sim.outcome.Outcome`).
+the ball has left the scoop for good and computes its flight (:class:`~besdrake.tasks.throwing.rollout.ThrowRollout`);
+the outcome is the touchdown and the release state (:class:`~besdrake.tasks.throwing.outcome.Outcome`). The behaviour
+features for Transferability: :mod:`besdrake.tasks.throwing.descriptor`.
 """
 
 from __future__ import annotations
@@ -19,15 +20,39 @@ class ThrowingTask(Task):
                "scoop_friction")
 
     def make_rollout(self, scenario, meshcat=None):
-        from besdrake.sim.rollout import Rollout
+        from besdrake.tasks.throwing.rollout import ThrowRollout
 
-        return Rollout(scenario, meshcat=meshcat)
+        return ThrowRollout(scenario, meshcat=meshcat)
 
     def default_plan(self, rollout):
         """The default overhand throw (amplitude 0.35)."""
-        from besdrake.sim.throws import default_throw
+        from besdrake.tasks.throwing.throws import default_throw
 
         return default_throw(0.35)
+
+    def record_replay(self, rollout, plan, outcome, meshcat, fps):
+        """The arm as measured (then as commanded), the ball along its path and a marker at the touchdown."""
+        from besdrake.tasks.throwing.replay import record_throw
+
+        record_throw(rollout, plan, outcome, meshcat, fps)
+
+    def reward(self, **settings):
+        """:class:`~besdrake.tasks.throwing.reward.ThrowReward`: minus the touchdown's distance to the target, minus the
+        limit penalties."""
+        from besdrake.tasks.throwing.reward import ThrowReward
+
+        return ThrowReward(**settings)
+
+    def reward_from_dict(self, settings):
+        from besdrake.tasks.throwing.reward import ThrowReward
+
+        return ThrowReward.from_dict(settings)
+
+    def behaviour_descriptor(self, plan, outcome):
+        """The 17 features of a throw (release time and state, peak joint accelerations, half-time posture)."""
+        from besdrake.tasks.throwing.descriptor import behaviour_descriptor
+
+        return behaviour_descriptor(plan, outcome)
 
     def check_robot(self, robot) -> None:
         """Throwing needs a scoop: a fixed end effector with the scoop's geometry in its params."""
@@ -36,7 +61,7 @@ class ThrowingTask(Task):
         Scoop.of(robot)
 
     def failed_outcome(self, message: str):
-        from besdrake.sim.outcome import FLAG_NAMES, Outcome
+        from besdrake.tasks.throwing.outcome import FLAG_NAMES, Outcome
 
         flags = {k: False for k in FLAG_NAMES}
         flags["sim_failed"] = True

@@ -41,7 +41,7 @@ assert N_FEATURES == 17
 
 
 def behaviour_descriptor(plan: MotionPlan, outcome) -> np.ndarray:
-    """The 17 features of ``plan`` as simulated in ``outcome`` (a :class:`besdrake.sim.Outcome`)."""
+    """The 17 features of ``plan`` as simulated in ``outcome`` (a :class:`~besdrake.tasks.throwing.outcome.Outcome`)."""
     t = np.linspace(0.0, plan.duration, max(3, int(plan.duration / 0.005) + 1))
     qdd = plan.sample(t, derivative=2)
     half = plan.sample(np.array([0.5 * plan.duration]))[0]

@@ -70,9 +70,9 @@ def _landing(o) -> float:
 def run_bench(quick: bool = False, out_dir: str | Path = "runs/bench", scenario: str = "nominal", progress=None) -> BenchResult:
     """Run the benchmark (``quick``: fewer throws and a smaller batch, for smoke tests) and plot the sweep."""
     from besdrake.sim.executors import make_executor
-    from besdrake.sim.rollout import Rollout
+    from besdrake.tasks.throwing.rollout import ThrowRollout as Rollout
     from besdrake.sim.scenario import load_scenario
-    from besdrake.sim.throws import default_throw
+    from besdrake.tasks.throwing.throws import default_throw
 
     say = progress or (lambda msg: None)
     out_dir = Path(out_dir)

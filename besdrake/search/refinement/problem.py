@@ -1,0 +1,168 @@
+"""The refinement problem: a template DMP, the robot, the task's reward and the normalised parameter space.
+
+:class:`RefinementProblem` turns normalised candidates into motion plans (retimed to keep the joint limits where a
+stretch mends them), evaluates batches of them through a rollout executor (:func:`besdrake.sim.make_executor`) and
+records every episode (:mod:`besdrake.search.refinement.records`).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from besdrake.imitation import DMP, DMPParameterError, DMPParameterization
+from besdrake.plan import MotionPlan, PlanError
+from besdrake.robot import Robot
+from besdrake.search.refinement.records import RewardBreakdown, _append_details, _details_row, failed_breakdown, params_key
+from besdrake.search.refinement.scaling import ParameterScaling
+from besdrake.search.refinement.settings import DEFAULT_RETIME, PLAN_DT, RETIME_MARGIN, RETIME_ROUNDS, RefinementError
+from besdrake.task import DEFAULT_TASK, get_task
+
+
+class RefinementProblem:
+    """Refinement of a template DMP towards a target, in the normalised space of :class:`ParameterScaling`.
+
+    ``reward`` scores one rollout (``reward(plan, outcome, limits) -> RewardBreakdown``; it has ``target``,
+    ``penalty(plan, limits)`` and ``to_dict()``); default: the reward of ``task`` (:meth:`besdrake.task.Task.reward`,
+    ``task`` None: the platform's default task, :data:`besdrake.task.DEFAULT_TASK`).
+
+    ``evaluate(X)`` simulates a batch of normalised candidates (rows of ``X``) with ``executor``
+    (anything with ``evaluate(plans) -> list[Outcome]``) and returns one :class:`RewardBreakdown` each.
+    Candidates whose DMP cannot be rolled out become failed episodes; an executor that raises fails the batch.
+    """
+
+    def __init__(
+        self,
+        robot: Robot,
+        template: DMP,
+        reward=None,
+        scaling: ParameterScaling | None = None,
+        dt: float = PLAN_DT,
+        retime: bool | None = None,
+        task: str | None = None,
+    ) -> None:
+        if not isinstance(robot, Robot):
+            raise RefinementError(f"robot must be a besdrake.robot.Robot, got {type(robot).__name__}")
+        if not isinstance(template, DMP):
+            raise RefinementError(f"template must be a besdrake.imitation.DMP, got {type(template).__name__}")
+        if template.n_dims != robot.n_joints:
+            raise RefinementError(f"the DMP has {template.n_dims} dimensions, the robot {robot.name!r} {robot.n_joints} joints")
+        self.robot = robot
+        self.parameterization = DMPParameterization(template, robot.joint_names)
+        self.task = DEFAULT_TASK if task is None else str(task)
+        self.reward = reward if reward is not None else get_task(self.task).reward()
+        self.scaling = scaling if scaling is not None else ParameterScaling.for_dmp(template, robot.position_limits)
+        if self.scaling.theta0.size != self.parameterization.n_params:
+            raise RefinementError(f"scaling has {self.scaling.theta0.size} parameters, the DMP {self.parameterization.n_params}")
+        if not (np.isfinite(dt) and dt > 0):
+            raise RefinementError(f"dt must be > 0 s, got {dt!r}")
+        self.dt = float(dt)
+        self.retime = DEFAULT_RETIME if retime is None else bool(retime)
+        self.records: dict[str, RewardBreakdown] = {}
+
+    @property
+    def n_params(self) -> int:
+        return self.parameterization.n_params
+
+    @property
+    def target(self) -> tuple[float, float]:
+        return self.reward.target
+
+    def theta(self, x: np.ndarray) -> np.ndarray:
+        """DMP parameters of normalised candidate ``x`` (retimed when the problem retimes, see :meth:`retimed`)."""
+        theta = self.scaling.to_theta(x)
+        return self.retimed(theta) if self.retime else theta
+
+    def retimed(self, theta: np.ndarray) -> np.ndarray:
+        """``theta`` with its execution time stretched just enough that the plan keeps every joint's velocity and
+        acceleration limit, as the embodiment mapping's temporal scaling does (:mod:`besdrake.embodiment.scaling`):
+        stretching by ``k`` divides velocities by ``k`` and accelerations by ``k**2``. Never faster than ``theta``,
+        never beyond the execution-time bound. A stretch is kept only when it mends the plan: what a stretch cannot
+        mend (the acceleration of the DMP's final approach to its goal velocity, which a stretch does not lower) is
+        left to the reward's penalty, on the plan as it was. A ``theta`` without a valid rollout is returned unchanged
+        (its evaluation fails as before)."""
+        theta = np.array(theta, dtype=float)
+        upper = self.scaling.bounds[-1, 1]
+        stretched = theta.copy()
+        for round_ in range(RETIME_ROUNDS + 1):
+            try:
+                vel, acc = self.parameterization.motion_plan(stretched, dt=self.dt).peak_limit_ratios(self.robot.limits)
+            except (DMPParameterError, PlanError, ValueError):
+                return theta
+            k = max(float(vel.max()), float(np.sqrt(acc.max())))
+            if k <= 1.0:
+                return stretched
+            if not np.isfinite(k) or round_ == RETIME_ROUNDS or stretched[-1] >= upper:
+                return theta
+            stretched[-1] = min(upper, stretched[-1] * k * (1.0 + RETIME_MARGIN))
+        return theta
+
+    def plan(self, x: np.ndarray) -> MotionPlan:
+        """Motion plan of normalised candidate ``x`` (raises DMPParameterError/PlanError for a bad one)."""
+        plan = self.parameterization.motion_plan(self.theta(x), dt=self.dt)
+        return plan.validate()
+
+    def evaluate(self, X: np.ndarray, executor) -> list[RewardBreakdown]:
+        X = np.atleast_2d(np.asarray(X, dtype=float))
+        plans: list[MotionPlan | None] = []
+        out: list[RewardBreakdown | None] = []
+        for x in X:
+            try:
+                if not np.isfinite(x).all():
+                    raise DMPParameterError("candidate contains NaN or infinite values")
+                plans.append(self.plan(x))
+                out.append(None)
+            except (DMPParameterError, PlanError, ValueError) as err:
+                plans.append(None)
+                out.append(failed_breakdown(f"no motion plan: {err}"))
+        todo = [i for i, p in enumerate(plans) if p is not None]
+        if todo:
+            outcomes = executor.evaluate([plans[i] for i in todo])
+            if len(outcomes) != len(todo):
+                raise RuntimeError(f"executor returned {len(outcomes)} outcomes for {len(todo)} plans")
+            for i, o in zip(todo, outcomes):
+                out[i] = self.reward(plans[i], o, self.robot.limits)
+        return [r for r in out if r is not None]
+
+    def batch_evaluator(self, executor, details_path: Path | None = None) -> Callable[[np.ndarray], list[float]]:
+        """``evaluate_batch`` for :func:`besdrake.search.loop.run_search`; records every episode
+        (in memory and, with ``details_path``, appended to a CSV keyed by :func:`params_key`)."""
+
+        def evaluate_batch(X: np.ndarray) -> list[float]:
+            results = self.evaluate(X, executor)
+            rows = []
+            for x, r in zip(np.atleast_2d(X), results):
+                key = params_key(x)
+                self.records[key] = r
+                rows.append(_details_row(key, r))
+            if details_path is not None:
+                _append_details(details_path, rows)
+            return [r.reward for r in results]
+
+        return evaluate_batch
+
+    def describe(self) -> dict[str, Any]:
+        """JSON record of the problem (template, reward, scaling, dt): enough to rebuild it."""
+        return {
+            "robot": self.robot.reference,
+            "template": self.parameterization.template.to_dict(),
+            "reward": self.reward.to_dict(),
+            "scaling": self.scaling.to_dict(),
+            "dt": self.dt,
+            "names": list(self.parameterization.names),
+        } | ({"retime": True} if self.retime else {}) | ({"task": self.task} if self.task != DEFAULT_TASK else {})
+
+    @classmethod
+    def from_description(cls, d: dict[str, Any]) -> "RefinementProblem":
+        from besdrake.robot import RobotError, load_robot
+
+        try:
+            template = DMP.from_dict(d["template"])
+            robot = load_robot(d["robot"])
+        except (KeyError, TypeError, ValueError, RobotError) as err:
+            raise RefinementError(f"bad problem record: {err}") from err
+        task = str(d.get("task", DEFAULT_TASK))
+        return cls(robot, template, get_task(task).reward_from_dict(d["reward"]), ParameterScaling.from_dict(d["scaling"]),
+                   float(d["dt"]), retime=bool(d.get("retime", False)), task=task)

@@ -1,0 +1,261 @@
+"""Refinement runs: :func:`refine` drives the search (:mod:`besdrake.search.refinement.optimizer`) through the resumable
+search loop (:func:`besdrake.search.loop.run_search`), writing ``problem.json`` and the episode records beside the
+loop's files, and returns a :class:`RefinementResult`; :func:`plot_learning_curves` draws runs."""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from besdrake._io import save_figure as _save_figure
+from besdrake._io import write_json
+from besdrake.search.refinement.optimizer import _scouting_defaults, _search_defaults, make_optimizer
+from besdrake.search.refinement.problem import RefinementProblem
+from besdrake.search.refinement.records import params_key, read_details
+from besdrake.search.refinement.settings import (DEFAULT_PATIENCE, DEFAULT_POPSIZE, DETAILS_FILE, PROBLEM_FILE, STAGNATION_TOL,
+                                                 SUCCESS_DISTANCE, RefinementError)
+
+
+@dataclass
+class RefinementResult:
+    """Outcome of one refinement run (distances in m, times in s)."""
+
+    best_theta: np.ndarray
+    best_reward: float
+    best_distance: float
+    best_touchdown: tuple[float, float] | None
+    success: bool
+    episodes_to_success: int | None
+    n_episodes: int
+    n_failed: int
+    wall_time: float
+    rewards: np.ndarray
+    distances: np.ndarray
+    successes: np.ndarray
+    penalties: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    resumed: bool = False
+    stop_reason: str = "budget"
+    #: restart attempts of a :class:`~besdrake.search.cmaes.StagnationRestartCMAES` run (finished ones), else empty
+    attempts: list[dict[str, Any]] = field(default_factory=list)
+
+    def best_so_far(self) -> np.ndarray:
+        """Best target distance (m) of the episodes within every limit, up to each episode (NaN before the first)."""
+        valid = np.isfinite(self.distances) & (self.penalties == 0.0) if self.penalties.size == self.distances.size else np.isfinite(self.distances)
+        d = np.where(valid, self.distances, np.inf)
+        best = np.minimum.accumulate(d) if d.size else d
+        return np.where(np.isfinite(best), best, np.nan)
+
+    def summary(self) -> dict[str, Any]:
+        return {
+            "success": self.success,
+            "episodes_to_success": self.episodes_to_success,
+            "best_distance_m": None if not np.isfinite(self.best_distance) else self.best_distance,
+            "best_distance_within_limits_m": (float(np.nanmin(self.best_so_far())) if np.isfinite(self.best_so_far()).any() else None),
+            "best_reward": None if not np.isfinite(self.best_reward) else self.best_reward,
+            "best_touchdown_m": None if self.best_touchdown is None else list(self.best_touchdown),
+            "n_episodes": self.n_episodes,
+            "n_failed": self.n_failed,
+            "wall_time_s": self.wall_time,
+            "resumed": self.resumed,
+            "stop_reason": self.stop_reason,
+            "n_restarts": len(self.attempts),
+        }
+
+
+def refine(
+    problem: RefinementProblem,
+    executor,
+    n_episodes: int = 2000,
+    seed: int = 0,
+    out_dir: str | Path | None = None,
+    sigma0: float = 1.0,
+    popsize: int = DEFAULT_POPSIZE,
+    stop_on_success: bool = True,
+    progress: Callable[[int, float, float], None] | None = None,
+    optimizer=None,
+    *,
+    meta_episodes: int = 0,
+    meta_sigma: float = 1.0,
+    stagnation_generations: int | None = None,
+    starts: np.ndarray | None = None,
+    restart_from_best: bool = True,
+    stagnation_tol: float = STAGNATION_TOL,
+    max_attempt_generations: int = 0,
+    cma_options: dict[str, Any] | None = None,
+    popsize_growth: float | None = None,
+    restart_regimes: str | None = None,
+    small_share: float = 1.0,
+    patience: int = DEFAULT_PATIENCE,
+    scouts: int | None = None,
+    scout_generations: int | None = None,
+    scout_halving: bool | None = None,
+) -> RefinementResult:
+    """Refine ``problem`` with CMA-ES for at most ``n_episodes`` episodes (stops at the first
+    generation with a success when ``stop_on_success``). With ``out_dir`` the run is resumable:
+    calling again with the same folder continues it (see :mod:`besdrake.search.loop`).
+    ``progress(n_episodes, best_distance, generation_wall_time)`` is called after each generation.
+    ``meta_episodes``/``meta_sigma``: the meta-parameter stage of :func:`make_optimizer` (0: none)."""
+    from besdrake.search.loop import run_search
+
+    settings = _checked_settings(n_episodes, meta_episodes, meta_sigma, stagnation_generations, patience, cma_options,
+                                 restart_regimes, popsize_growth, scouts, scout_generations, scout_halving)
+    search = dict(meta_episodes=meta_episodes, meta_sigma=meta_sigma, starts=starts, restart_from_best=restart_from_best,
+                  stagnation_tol=stagnation_tol, max_attempt_generations=max_attempt_generations, small_share=small_share,
+                  patience=patience, **settings)
+    out = None if out_dir is None else Path(out_dir)
+    details_path = None
+    if out is not None:
+        details_path = _open_run_folder(out, _run_record(problem, seed, sigma0, popsize, **search), problem)
+    opt = optimizer if optimizer is not None else make_optimizer(problem, seed, sigma0, popsize, **search)
+    t0 = time.perf_counter()
+    callback = _generation_callback(problem, progress, stop_on_success, t0)
+    loop = run_search(opt, problem.batch_evaluator(executor, details_path), n_evaluations=n_episodes, out_dir=out, callback=callback)
+    wall = time.perf_counter() - t0
+    return _result(problem, loop, wall)
+
+
+def _checked_settings(n_episodes: int, meta_episodes: int, meta_sigma: float, stagnation_generations: int | None,
+                      patience: int, cma_options, restart_regimes, popsize_growth, scouts, scout_generations,
+                      scout_halving) -> dict[str, Any]:
+    """The search settings of :func:`refine` with the defaults filled in, checked (:class:`RefinementError`)."""
+    if n_episodes < 1:
+        raise RefinementError(f"n_episodes must be >= 1, got {n_episodes}")
+    cma_options, stagnation_generations, restart_regimes, popsize_growth = _search_defaults(
+        cma_options, stagnation_generations, meta_episodes, restart_regimes, popsize_growth)
+    if stagnation_generations < 0:
+        raise RefinementError(f"stagnation_generations must be >= 0, got {stagnation_generations}")
+    if int(patience) != patience or patience < 1:
+        raise RefinementError(f"patience must be an integer >= 1, got {patience!r}")
+    scouts, scout_generations, scout_halving = _scouting_defaults(scouts, scout_generations, scout_halving)
+    if meta_episodes < 0 or not (np.isfinite(meta_sigma) and meta_sigma > 0):
+        raise RefinementError(f"meta_episodes must be >= 0 and meta_sigma > 0, got {meta_episodes}, {meta_sigma}")
+    return dict(cma_options=cma_options, stagnation_generations=stagnation_generations, restart_regimes=restart_regimes,
+                popsize_growth=popsize_growth, scouts=scouts, scout_generations=scout_generations, scout_halving=scout_halving)
+
+
+def _run_record(problem: RefinementProblem, seed: int, sigma0: float, popsize: int, *, meta_episodes: int, meta_sigma: float,
+                stagnation_generations: int, starts, restart_from_best: bool, stagnation_tol: float,
+                max_attempt_generations: int, cma_options: dict[str, Any], popsize_growth: float, restart_regimes: str,
+                small_share: float, patience: int, scouts: int, scout_generations: int, scout_halving: bool) -> dict[str, Any]:
+    """The run's ``problem.json``: the problem and every setting that differs from the plain search (what a resumed
+    run must match)."""
+    desc = problem.describe() | {"seed": int(seed), "sigma0": float(sigma0), "popsize": int(popsize)}
+    if meta_episodes > 0:
+        desc |= {"meta_episodes": int(meta_episodes), "meta_sigma": float(meta_sigma)}
+    if stagnation_generations > 0:
+        desc |= {"stagnation_generations": int(stagnation_generations), "stagnation_tol": float(stagnation_tol),
+                 "max_attempt_generations": int(max_attempt_generations), "restart_from_best": bool(restart_from_best),
+                 "starts": None if starts is None else np.atleast_2d(np.asarray(starts, dtype=float)).tolist()}
+        if popsize_growth != 1.0:
+            desc |= {"popsize_growth": float(popsize_growth)}
+        if restart_regimes != "large":
+            desc |= {"restart_regimes": str(restart_regimes)}
+        if small_share != 1.0:
+            desc |= {"small_share": float(small_share)}
+        if restart_regimes == "local":
+            desc |= {"patience": int(patience)}
+        if scouts > 1:
+            desc |= {"scouts": int(scouts), "scout_generations": int(scout_generations)}
+            if scout_halving:
+                desc["scout_halving"] = True
+    if cma_options:
+        desc |= {"cma_options": dict(cma_options)}
+    return desc
+
+
+def _open_run_folder(out: Path, desc: dict[str, Any], problem: RefinementProblem) -> Path:
+    """Create ``out`` with the run's record, or check that it holds the same run (then load its episode records into
+    ``problem``); the path of its details file."""
+    out.mkdir(parents=True, exist_ok=True)
+    desc_path = out / PROBLEM_FILE
+    if desc_path.exists():
+        try:
+            old = json.loads(desc_path.read_text())
+        except (OSError, json.JSONDecodeError) as err:
+            raise RefinementError(f"{desc_path} is corrupt: {err}") from err
+        if json.dumps(old, sort_keys=True) != json.dumps(json.loads(json.dumps(desc)), sort_keys=True):
+            raise RefinementError(f"{out} holds another refinement run (different template, target, seed or settings); use another folder")
+    else:
+        write_json(desc_path, desc)
+    details_path = out / DETAILS_FILE
+    problem.records.update(read_details(details_path))
+    return details_path
+
+
+def _generation_callback(problem: RefinementProblem, progress, stop_on_success: bool, t0: float):
+    """The search loop's callback: reports ``progress`` after each generation and stops at a success when asked."""
+    best = [np.inf]
+    last = [t0]
+
+    def callback(info) -> bool:
+        recs = [problem.records.get(params_key(x)) for x in info.candidates]
+        for r in recs:
+            if r is not None and np.isfinite(r.distance) and r.penalty == 0.0:
+                best[0] = min(best[0], r.distance)
+        now = time.perf_counter()
+        if progress is not None:
+            progress(info.n_evaluations, best[0], now - last[0])
+        last[0] = now
+        return bool(stop_on_success and any(r is not None and r.success for r in recs))
+
+    return callback
+
+
+def _result(problem: RefinementProblem, loop, wall: float) -> RefinementResult:
+    recs = [problem.records.get(params_key(x)) for x in loop.params]
+    distances = np.array([np.nan if r is None else r.distance for r in recs], dtype=float)
+    successes = np.array([r is not None and r.success for r in recs], dtype=bool)
+    penalties = np.array([np.nan if r is None else r.penalty for r in recs], dtype=float)
+    rewards = np.asarray(loop.rewards, dtype=float)
+    ok = np.flatnonzero(np.isfinite(rewards) & ~loop.failed)
+    if successes.any():
+        # best = the closest successful episode
+        idx = np.flatnonzero(successes)
+        i = int(idx[np.argmin(distances[idx])])
+    elif ok.size:
+        i = int(ok[np.argmax(rewards[ok])])
+    else:
+        i = -1
+    if i >= 0:
+        r = recs[i]
+        best_theta = problem.theta(loop.params[i])
+        best_reward, best_distance = float(rewards[i]), float(distances[i])
+        best_td = None if r is None else r.touchdown
+    else:
+        best_theta, best_reward, best_distance, best_td = problem.scaling.theta0.copy(), -np.inf, np.inf, None
+    first = int(np.argmax(successes)) + 1 if successes.any() else None
+    return RefinementResult(
+        best_theta=best_theta, best_reward=best_reward, best_distance=best_distance, best_touchdown=best_td,
+        success=bool(successes.any()), episodes_to_success=first, n_episodes=int(loop.n_evaluations),
+        n_failed=int(loop.n_failed), wall_time=wall, rewards=rewards, distances=distances, successes=successes,
+        penalties=penalties, resumed=bool(loop.resumed), stop_reason=loop.stop_reason,
+        attempts=[dict(a) for a in getattr(loop.optimizer, "attempt_history", [])],
+    )
+
+
+def plot_learning_curves(results: Sequence[RefinementResult], path: str | Path) -> Path:
+    """PNG of the best target distance within limits over the episodes, one line per run."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for k, r in enumerate(results):
+        best = r.best_so_far()
+        ax.plot(np.arange(1, best.size + 1), best, label=f"run {k}")
+    ax.axhline(SUCCESS_DISTANCE, color="gray", lw=1, ls="--", label="goal 0.1 m")
+    ax.set_xlabel("episode")
+    ax.set_ylabel("best distance within limits so far (m)")
+    ax.set_yscale("log")
+    ax.legend()
+    fig.tight_layout()
+    path = Path(path)
+    _save_figure(fig, path, dpi=100)
+    plt.close(fig)
+    return path

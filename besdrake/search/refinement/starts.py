@@ -1,0 +1,61 @@
+"""Where refinement starts: the imitated movements ranked by their reward (:func:`rank_starts`) and their
+parameters as start points of restarts and scouts in the best one's normalised space."""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+from besdrake.search.refinement.problem import RefinementProblem
+from besdrake.search.refinement.records import RewardBreakdown
+from besdrake.search.refinement.settings import DEFAULT_SCOUT_STARTS, RefinementError
+
+
+def best_start(problems: Sequence[RefinementProblem], executor) -> tuple[int, RewardBreakdown]:
+    """Index of the imitated movement (x = 0 of each problem) with the highest reward, and its record."""
+    return rank_starts(problems, executor)[0]
+
+
+def rank_starts(problems: Sequence[RefinementProblem], executor) -> list[tuple[int, RewardBreakdown]]:
+    """Every imitated movement (x = 0 of each problem) with its record, best reward first (failed ones last)."""
+    results = [(i, p.evaluate(np.zeros((1, p.n_params)), executor)[0]) for i, p in enumerate(problems)]
+    if not any(np.isfinite(r.reward) for _, r in results):
+        raise RefinementError("none of the imitated movements could be simulated")
+    return sorted(results, key=lambda ir: -ir[1].reward if np.isfinite(ir[1].reward) else np.inf)
+
+
+def restart_points(problem: RefinementProblem, others: Sequence[RefinementProblem]) -> np.ndarray:
+    """The imitated movements of ``others`` as candidates of ``problem``'s normalised space, shape
+    ``(len(others), n_params)`` (clipped to its bounds): start points of restart attempts."""
+    rows = []
+    for p in others:
+        if p.n_params != problem.n_params:
+            raise RefinementError(f"restart point with {p.n_params} parameters for a problem with {problem.n_params}")
+        rows.append(problem.scaling.to_x(p.scaling.theta0))
+    return np.array(rows, dtype=float).reshape(-1, problem.n_params)
+
+
+def scout_start_points(problems: Sequence[RefinementProblem], ranking: Sequence[tuple[int, RewardBreakdown]],
+                       n: int | None = None) -> np.ndarray | None:
+    """Start points of the scouts (``refine(starts=...)``): the ``n`` best imitated movements of ``ranking`` (from
+    :func:`rank_starts`; default :data:`DEFAULT_SCOUT_STARTS`) in the normalised space of the best one, the best first;
+    None when ``n`` is 1 (every scout from the start point). A movement that failed in simulation is not a start point."""
+    return scout_points(problems, [i for i, r in ranking if np.isfinite(r.reward)], n)
+
+
+def scout_starts_checked(n: int | None) -> int:
+    """The number of scout start points, :data:`DEFAULT_SCOUT_STARTS` where None; :class:`RefinementError` unless >= 1."""
+    n = DEFAULT_SCOUT_STARTS if n is None else n
+    if int(n) != n or n < 1:
+        raise RefinementError(f"scout starts must be an integer >= 1, got {n!r}")
+    return int(n)
+
+
+def scout_points(problems: Sequence[RefinementProblem], order: Sequence[int], n: int | None = None) -> np.ndarray | None:
+    """:func:`scout_start_points` from ``order``: the indices of the imitated movements that could be simulated, best
+    first (as ``besdrake refine`` keeps them in its start.json)."""
+    n = scout_starts_checked(n)
+    if n == 1:
+        return None
+    return restart_points(problems[order[0]], [problems[i] for i in order[:n]])
