@@ -64,17 +64,24 @@ class TrialDraws:
 
 class PickPlaceLab(TrialCounter):
     """A simulated pick-and-place lab (module docstring). ``PickPlaceLab(config)`` with a
-    :class:`PickPlaceLabConfig`, a config mapping or a lab YAML path / name; the Diagram is built on first use."""
+    :class:`PickPlaceLabConfig`, a config mapping or a lab YAML path / name; the Diagram is built on first use, or
+    ``rollout`` (a :class:`~besdrake.tasks.pick_and_place.rollout.PickPlaceRollout` of the same scenario and robot,
+    e.g. another lab's ``rollout``) is reused: labs that differ in effects or noise share one Diagram."""
 
     measurement_type = PickPlaceMeasurement
 
-    def __init__(self, config: PickPlaceLabConfig | dict | str | Path) -> None:
+    def __init__(self, config: PickPlaceLabConfig | dict | str | Path, rollout=None) -> None:
         if isinstance(config, dict):
             config = parse_pick_place_lab_config(config)
         self.config = config if isinstance(config, PickPlaceLabConfig) else load_pick_place_lab_config(config)
         self.name = self.config.name
-        self._rollout = None
+        self._rollout = rollout
         self._scenario = None
+        if rollout is not None:
+            mine = self.scenario
+            if (rollout.scenario.name, rollout.robot.name) != (mine.name, mine.robot.name):
+                raise ValueError(f"the rollout simulates {rollout.scenario.name!r} on {rollout.robot.name!r}, the lab "
+                                 f"{mine.name!r} on {mine.robot.name!r}")
         self._pose = None if self.config.home_pose is None else np.array(self.config.home_pose, dtype=float)
 
     @property
