@@ -19,6 +19,7 @@ from besdrake.transfer.lab import SafetyGate
 from besdrake.transfer.lab_config import LabConfigError, open_lab
 from besdrake.transfer.log import LabLog, LogError, read_log, run_plans
 from besdrake.transfer.measurement import plan_hash
+from besdrake.transfer.recorded_lab import RecordedLab
 
 QUIET = {"placement_sd": 0.0, "placement_yaw_sd": 0.0, "pose_noise_sd": 0.0, "angle_noise_sd": 0.0, "encoder_noise_sd": 0.0}
 
@@ -65,6 +66,8 @@ def test_a_hidden_box_offset_spoils_the_same_plan(ideal, scripted):
     off = like(ideal, effects={"box_pose_offset": {"x": 0.035}}).execute(scripted, trial=0)
     assert not off.success and "missed_place" in off.raised_flags, off.message
     assert off.place_error > base.place_error + 0.025, (base.place_error, off.place_error)
+    sideways = like(ideal, effects={"box_pose_offset": {"y": 0.035}}).execute(scripted, trial=0)
+    assert not sideways.success and not sideways.lifted and "not_lifted" in sideways.raised_flags, sideways.message
 
 
 def test_trials_are_reproducible_by_index(ideal):
@@ -138,6 +141,9 @@ def test_a_killed_log_resumes_and_reads_back(tmp_path, ideal):
     assert header["version"] == 2 and header["task"] == "pick_and_place"
     assert (tmp_path / "run" / "trials.csv").read_text().splitlines()[0] == \
         "trial,plan_hash,success,place_error,tilt,box_x,box_y,box_z,box_yaw,flags,message"
+    replay = SafetyGate(RecordedLab(tmp_path / "run"))
+    assert replay.execute(plans[3], trial=0).result_dict() == direct.result_dict()
+    assert isinstance(replay.execute(plans[1], trial=1), PickPlaceMeasurement)
     with pytest.raises(LogError, match="cannot append"):
         from besdrake.transfer.measurement import Measurement
 
@@ -201,7 +207,8 @@ def test_lab_run_cli_fills_a_pick_and_place_log_and_names_bad_fields(tmp_path, c
     plans.write_text(json.dumps([still(ideal).to_dict(), still(ideal, 0.3).to_dict()]))
     args = ["lab", "run", "--lab", str(lab_file), "--plans", str(plans), "--out", str(tmp_path / "log"), "--quiet"]
     assert main(args) == 0
-    assert json.loads(capsys.readouterr().out)["flag_counts"] == {"missed_place": 2, "not_lifted": 2}
+    first = json.loads(capsys.readouterr().out)
+    assert first["flag_counts"] == {"missed_place": 2, "not_lifted": 2} and first["successes"] == 0
     assert main(args) == 0 and json.loads(capsys.readouterr().out)["resumed_after"] == 2
     bad = config()
     bad["effects"] = {"box_mass": 99}

@@ -109,11 +109,14 @@ def run(args: argparse.Namespace) -> int:
     for row in log.rows():
         for f in filter(None, row["flags"].split(";")):
             counts[f] = counts.get(f, 0) + 1
-    print(json.dumps({
+    result = {
         "log": str(args.out),
         "trials": summary.total,
         "executed_now": summary.executed,
         "resumed_after": summary.skipped,
         "flag_counts": counts,
-    }))
+    }
+    if "success" in log.measurement_type.SUMMARY_COLUMNS:  # a task's measurement that judges success
+        result["successes"] = sum(row["success"] == "1" for row in log.rows())
+    print(json.dumps(result))
     return 0
