@@ -70,6 +70,12 @@ def test_a_hidden_box_offset_spoils_the_same_plan(ideal, scripted):
     assert not sideways.success and not sideways.lifted and "not_lifted" in sideways.raised_flags, sideways.message
 
 
+def test_hidden_pad_friction_acts_and_does_not_leak_into_the_next_trial(ideal, scripted):
+    slippery = like(ideal, effects={"pad_friction": 0.01, "box_mass": 0.3}).execute(scripted, trial=0)
+    assert not slippery.success and slippery.grasped and not slippery.lifted, slippery.message
+    assert ideal.execute(scripted, trial=0).success, "the same Diagram without the effect grips again"
+
+
 def test_trials_are_reproducible_by_index(ideal):
     lab = like(ideal, effects={"box_mass": 0.3}, noise={"placement_sd": 0.005, "pose_noise_sd": 0.001})
     plan = still(lab)
