@@ -37,6 +37,8 @@ class Task(ABC):
     default_scenario: ClassVar[str] = ""
     #: Names of the registry's effects that act on this task's rollouts.
     effects: ClassVar[tuple[str, ...]] = ()
+    #: The built-in lab (``diagrams/labs/<name>.yaml``) the task's commands open when none is given; "" for none.
+    default_lab: ClassVar[str] = ""
 
     @abstractmethod
     def make_rollout(self, scenario, meshcat=None) -> Any:
@@ -50,6 +52,19 @@ class Task(ABC):
         """A motion plan that performs the task in ``rollout``'s scene (what ``besdrake simulate`` runs when no
         plan is given)."""
         raise TaskError(f"the task {self.name!r} has no default plan: give --plan FILE")
+
+    def make_lab(self, config, seed: int | None = None) -> Any:
+        """The task's virtual lab (a :class:`~besdrake.transfer.lab.Lab`) from a lab config: a YAML path, a built-in
+        lab's name or a mapping (see :func:`besdrake.transfer.lab_config.open_lab`, which picks the task from the
+        config's scenario); ``seed`` replaces the config's noise seed. Raises ``LabConfigError`` naming the field."""
+        raise TaskError(f"the task {self.name!r} has no virtual lab")
+
+    def measurement_type(self) -> type:
+        """The :class:`~besdrake.transfer.measurement.Measurement` (sub)class the task's labs return and its logs
+        hold (read back by :mod:`besdrake.transfer.log` from the log's ``task``)."""
+        from besdrake.transfer.measurement import Measurement
+
+        return Measurement
 
     def summary(self, outcome) -> dict[str, Any]:
         """A JSON-ready summary of one ``outcome`` (its ``summary()`` or ``to_dict()`` by default)."""
@@ -82,7 +97,7 @@ class Task(ABC):
 
     def describe(self) -> dict[str, Any]:
         return {"name": self.name, "description": self.description, "default_scenario": self.default_scenario,
-                "effects": list(self.effects)}
+                "effects": list(self.effects), "default_lab": self.default_lab}
 
 
 def register_task(cls: type[Task]) -> type[Task]:

@@ -82,6 +82,9 @@ def run(args: argparse.Namespace) -> int:
         measurements = read_log(args.logdir)
     except (OSError, ValueError) as err:
         raise UserError(f"cannot read the log {args.logdir}: {err}") from None
+    tasks = sorted({type(m).TASK for m in measurements if type(m).TASK is not None})
+    if tasks:
+        raise UserError(f"the log {args.logdir} holds {tasks[0]} trials; the diagnosis reads throwing logs only so far")
     candidates = None if args.candidates is None else [c.strip() for c in args.candidates.split(",") if c.strip()]
     try:
         scenario = load_scenario(args.scenario)

@@ -11,7 +11,8 @@ HELP = "execute motion plans in a virtual lab (behind the safety gate) and fill 
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--lab", type=Path, required=True, help="lab YAML path, or a built-in lab by name (default_lab, ideal_lab, touchdown_only_lab)")
+    parser.add_argument("--lab", type=Path, required=True, help="lab YAML path, or a built-in lab by name (default_lab, ideal_lab, touchdown_only_lab, "
+                        "pick_and_place_lab); its scenario's task builds the lab")
     parser.add_argument("--plans", type=Path, required=True,
                         help="a plan JSON file, a JSON list of plans, or a folder of *.plan.json (sorted by name)")
     parser.add_argument("--seed", type=int, default=None, help="noise seed of the lab (default: the YAML's seed)")
@@ -70,21 +71,23 @@ def run(args: argparse.Namespace) -> int:
     from besdrake.transfer.lab import SafetyGate
     from besdrake.transfer.log import LabLog, LogError, run_plans
     from besdrake.plugins import PluginError, load_plugins
-    from besdrake.transfer.virtual_lab import LabConfigError, VirtualLab, load_lab_config
+    from besdrake.transfer.lab_config import LabConfigError, open_lab
 
     try:
         load_plugins(args.plugin)
-        cfg = load_lab_config(args.lab)
-        if args.seed is not None:
-            cfg = cfg.with_seed(args.seed)
+        virtual = open_lab(args.lab, seed=args.seed)
         plans = load_plans(args.plans)
     except (PluginError, LabConfigError, PlanError) as err:
         raise UserError(str(err)) from None
-    lab = SafetyGate(VirtualLab(cfg))
+    lab = SafetyGate(virtual)
+    cfg = virtual.config
     run_info = {"seed": cfg.seed, "lab": cfg.name, "plans": len(plans)}
     try:
         if (args.out / "log.json").is_file():
             log = LabLog.open(args.out)
+            if log.measurement_type.TASK != lab.measurement_type.TASK:
+                raise UserError(f"{args.out} holds {log.measurement_type.TASK or 'throwing'} trials, the lab measures "
+                                f"{lab.measurement_type.TASK or 'throwing'} trials: use a new --out folder")
             before = log.header.get("run") or {}
             for key in ("seed", "lab"):
                 if before.get(key) != run_info[key]:
@@ -93,13 +96,11 @@ def run(args: argparse.Namespace) -> int:
                         "not the same run (use a new --out folder)"
                     )
         else:
-            log = LabLog.create(args.out, lab.description(), run=run_info)
+            log = LabLog.create(args.out, lab.description(), run=run_info, measurement=lab.measurement_type)
 
         def progress(m) -> None:
             if not args.quiet:
-                td = "not measured" if m.touchdown is None else f"({m.touchdown[0]:.3f}, {m.touchdown[1]:.3f}) m"
-                flags = ",".join(m.raised_flags) or "-"
-                print(f"trial {m.trial}: touchdown {td}, flags {flags}", file=sys.stderr)
+                print(f"trial {m.trial}: {m.progress_text()}", file=sys.stderr)
 
         summary = run_plans(lab, plans, log, progress=progress)
     except (LogError, EffectError) as err:
@@ -108,11 +109,14 @@ def run(args: argparse.Namespace) -> int:
     for row in log.rows():
         for f in filter(None, row["flags"].split(";")):
             counts[f] = counts.get(f, 0) + 1
-    print(json.dumps({
+    result = {
         "log": str(args.out),
         "trials": summary.total,
         "executed_now": summary.executed,
         "resumed_after": summary.skipped,
         "flag_counts": counts,
-    }))
+    }
+    if "success" in log.measurement_type.SUMMARY_COLUMNS:  # a task's measurement that judges success
+        result["successes"] = sum(row["success"] == "1" for row in log.rows())
+    print(json.dumps(result))
     return 0

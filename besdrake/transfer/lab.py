@@ -31,7 +31,8 @@ class Lab(Protocol):
     A lab whose measurements are random must make trial ``k`` reproducible (resuming a run re-executes
     the trial that was interrupted). ``description()`` returns the public facts written into a log.
     A lab's ``robot`` (a :class:`~besdrake.robot.Robot` read from its robot file) gives the safety gate its
-    limits; a lab without one needs the gate's ``limits=``.
+    limits; a lab without one needs the gate's ``limits=``. A lab whose measurements are a task's subclass of
+    :class:`Measurement` names it as ``measurement_type`` (the gate's refusals and the log use it).
     """
 
     name: str
@@ -78,6 +79,8 @@ class SafetyGate(TrialCounter):
         self.resolution = float(resolution)
         self.name = f"{getattr(lab, 'name', type(lab).__name__)}"
         self.refused = 0
+        #: The Measurement class of the wrapped lab (its ``measurement_type``; a refused plan is logged as one).
+        self.measurement_type = getattr(lab, "measurement_type", Measurement)
 
     def check(self, plan: MotionPlan) -> list[str]:
         """The reasons to refuse ``plan`` (empty when it may run)."""
@@ -113,7 +116,7 @@ class SafetyGate(TrialCounter):
             self.refused += 1
             if not isinstance(plan, MotionPlan):
                 raise TypeError(f"SafetyGate.execute needs a MotionPlan, got {type(plan).__name__}")
-            return Measurement(
+            return self.measurement_type(
                 trial=trial,
                 plan=plan,
                 flags={"refused_by_safety_gate": True},

@@ -35,7 +35,30 @@ from besdrake.transfer.measurement import Measurement, MeasurementError
 
 LOG_FORMAT = "besdrake-lab-log"
 LOG_VERSION = 1
+#: Version of a log whose trials hold a task's measurement (``log.json`` names the ``task``; see LOG_FORMAT.md).
+TASK_LOG_VERSION = 2
+SUPPORTED_VERSIONS = (LOG_VERSION, TASK_LOG_VERSION)
 CSV_COLUMNS = ("trial", "plan_hash", "touchdown_x", "touchdown_y", "flags", "message")
+
+
+def csv_columns(measurement_type: type[Measurement] = Measurement) -> tuple[str, ...]:
+    """Header of trials.csv for logs of ``measurement_type`` (:data:`CSV_COLUMNS` for the touchdown measurement)."""
+    return ("trial", "plan_hash", *measurement_type.SUMMARY_COLUMNS, "flags", "message")
+
+
+def measurement_type_of(header: dict[str, Any], where: Path | str = "log.json") -> type[Measurement]:
+    """The Measurement class of a log's trials: the touchdown measurement in a version-1 log, else its ``task``'s."""
+    if header.get("version") == LOG_VERSION:
+        return Measurement
+    from besdrake.task import TaskError, get_task
+
+    task = header.get("task")
+    if not isinstance(task, str) or not task:
+        raise LogError(f"{where}: a version {TASK_LOG_VERSION} log must name its task (\"task\": \"...\")")
+    try:
+        return get_task(task).measurement_type()
+    except TaskError as err:
+        raise LogError(f"{where}: {err}") from err
 
 
 def joint_columns(plan: MotionPlan) -> tuple[str, ...]:
@@ -88,10 +111,13 @@ def _fmt(x: float) -> str:
 class LabLog:
     """An open measured-data log; create with :meth:`create`, reopen with :meth:`open`."""
 
-    def __init__(self, root: Path, header: dict[str, Any], rows: list[dict[str, str]]) -> None:
+    def __init__(self, root: Path, header: dict[str, Any], rows: list[dict[str, str]],
+                 measurement_type: type[Measurement] = Measurement) -> None:
         self.root = root
         self.header = header
         self._rows = rows
+        #: The Measurement class of this log's trials.
+        self.measurement_type = measurement_type
         self._lock = None  # file object holding the writer's lock, taken on the first append
 
     def _take_writer_lock(self) -> None:
@@ -117,11 +143,15 @@ class LabLog:
 
     # ------------------------------------------------------------------ open / create
     @classmethod
-    def create(cls, logdir: str | Path, lab_description: dict[str, Any] | str, run: dict[str, Any] | None = None) -> "LabLog":
+    def create(cls, logdir: str | Path, lab_description: dict[str, Any] | str, run: dict[str, Any] | None = None,
+               measurement: type[Measurement] = Measurement) -> "LabLog":
         """Start a new log in ``logdir`` (created; must not already hold a log or other files).
 
         ``lab_description``: the lab's public description (name, sensors; never hidden truth);
-        ``run``: facts about the run to check on resume (e.g. the seed)."""
+        ``run``: facts about the run to check on resume (e.g. the seed); ``measurement``: the class of the trials
+        (a task's, e.g. a lab's ``measurement_type``: a version-2 log naming the task)."""
+        if not (isinstance(measurement, type) and issubclass(measurement, Measurement)):
+            raise LogError(f"measurement must be a Measurement class, got {measurement!r}")
         root = Path(logdir)
         if root.exists() and (not root.is_dir() or not cls._is_unfinished_create(root)):
             raise LogError(f"{root} already exists and is not an empty folder; open it with LabLog.open to resume")
@@ -133,16 +163,17 @@ class LabLog:
         (root / "trials").mkdir(exist_ok=True)
         header = {
             "format": LOG_FORMAT,
-            "version": LOG_VERSION,
+            "version": LOG_VERSION if measurement.TASK is None else TASK_LOG_VERSION,
+            **({} if measurement.TASK is None else {"task": measurement.TASK}),
             "lab": lab_description,
             "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
             "units": "SI (m, s, rad)",
             "run": dict(run or {}),
         }
-        _fsync_write(root / "trials.csv", ",".join(CSV_COLUMNS) + "\n")
+        _fsync_write(root / "trials.csv", ",".join(csv_columns(measurement)) + "\n")
         _fsync_write(root / "log.json", json.dumps(header, indent=2) + "\n")
         _fsync_dir(root)
-        return cls(root, header, [])
+        return cls(root, header, [], measurement)
 
     @staticmethod
     def _is_unfinished_create(root: Path) -> bool:
@@ -170,13 +201,15 @@ class LabLog:
         header = _load_json(hp)
         if not isinstance(header, dict) or header.get("format") != LOG_FORMAT:
             raise LogError(f"{hp}: format is {header.get('format') if isinstance(header, dict) else None!r}, expected {LOG_FORMAT!r}")
-        if header.get("version") != LOG_VERSION:
-            raise LogError(f"{hp}: log format version {header.get('version')!r} is not supported (this reader knows version {LOG_VERSION})")
-        rows = cls._read_rows(root / "trials.csv")
-        return cls(root, header, rows)
+        if header.get("version") not in SUPPORTED_VERSIONS:
+            raise LogError(f"{hp}: log format version {header.get('version')!r} is not supported (this reader knows versions "
+                           f"{', '.join(map(str, SUPPORTED_VERSIONS))})")
+        kind = measurement_type_of(header, hp)
+        rows = cls._read_rows(root / "trials.csv", csv_columns(kind))
+        return cls(root, header, rows, kind)
 
     @staticmethod
-    def _read_rows(path: Path) -> list[dict[str, str]]:
+    def _read_rows(path: Path, columns: tuple[str, ...] = CSV_COLUMNS) -> list[dict[str, str]]:
         if not path.is_file():
             raise LogError(f"{path.parent} is not a complete log: trials.csv is missing")
         raw = path.read_bytes()
@@ -192,14 +225,14 @@ class LabLog:
             head = next(reader)
         except StopIteration:
             raise LogError(f"{path} is empty (no header line)") from None
-        if tuple(head) != CSV_COLUMNS:
-            raise LogError(f"{path}: header {head} differs from the format's {list(CSV_COLUMNS)}")
+        if tuple(head) != columns:
+            raise LogError(f"{path}: header {head} differs from the format's {list(columns)}")
         rows = []
         for k, fields in enumerate(reader):
             line = k + 2
-            if len(fields) != len(CSV_COLUMNS):
-                raise LogError(f"{path}, line {line}: {len(fields)} fields, expected {len(CSV_COLUMNS)}")
-            row = dict(zip(CSV_COLUMNS, fields))
+            if len(fields) != len(columns):
+                raise LogError(f"{path}, line {line}: {len(fields)} fields, expected {len(columns)}")
+            row = dict(zip(columns, fields))
             if row["trial"] != str(k):
                 raise LogError(f"{path}, line {line}: trial {row['trial']!r}, expected {k} (trials must be 0, 1, 2, ... without gaps)")
             rows.append(row)
@@ -226,7 +259,7 @@ class LabLog:
         """Read trial ``trial`` back; :class:`LogError` naming the file when something is missing or corrupt."""
         if not 0 <= trial < len(self._rows):
             raise LogError(f"trial {trial} is not in the log {self.root} ({len(self._rows)} trials)")
-        return read_trial(self.root, trial, expected_hash=self._rows[trial]["plan_hash"])
+        return read_trial(self.root, trial, expected_hash=self._rows[trial]["plan_hash"], measurement_type=self.measurement_type)
 
     def measurements(self) -> list[Measurement]:
         """All logged trials in order."""
@@ -240,6 +273,9 @@ class LabLog:
         if not isinstance(m, Measurement):
             raise LogError(f"LabLog.append needs a Measurement, got {type(m).__name__}")
         m.validate()
+        if type(m).TASK != self.measurement_type.TASK or type(m).SUMMARY_COLUMNS != self.measurement_type.SUMMARY_COLUMNS:
+            raise LogError(f"cannot append a {type(m).__name__} to the log {self.root}: it holds "
+                           f"{self.measurement_type.__name__} trials (task {self.measurement_type.TASK or 'of format version 1'})")
         self._take_writer_lock()
         if m.trial != len(self._rows):
             raise LogError(f"cannot append trial {m.trial}: the log {self.root} holds {len(self._rows)} trials, so the next is {len(self._rows)}")
@@ -256,7 +292,7 @@ class LabLog:
         _fsync_dir(d.parent)
         row = self._row(m)
         buf = io.StringIO()
-        csv.writer(buf, lineterminator="\n").writerow([row[c] for c in CSV_COLUMNS])
+        csv.writer(buf, lineterminator="\n").writerow([row[c] for c in csv_columns(self.measurement_type)])
         with open(self.root / "trials.csv", "r+b") as f:
             size = f.seek(0, os.SEEK_END)
             f.seek(max(size - 4096, 0))
@@ -274,12 +310,10 @@ class LabLog:
 
     @staticmethod
     def _row(m: Measurement) -> dict[str, str]:
-        td = m.touchdown
         return {
             "trial": str(m.trial),
             "plan_hash": m.plan_hash,
-            "touchdown_x": "" if td is None else _fmt(td[0]),
-            "touchdown_y": "" if td is None else _fmt(td[1]),
+            **m.summary_row(),
             "flags": ";".join(m.raised_flags),
             "message": " ".join(m.message.split()),  # one line; the full text is in measurement.json
         }
@@ -359,11 +393,14 @@ def _load_json(path: Path) -> Any:
         raise LogError(f"{path} is not valid JSON: {err}") from err
 
 
-def read_trial(root: str | Path, trial: int, expected_hash: str | None = None) -> Measurement:
-    """Read one committed trial folder of the log at ``root``."""
+def read_trial(root: str | Path, trial: int, expected_hash: str | None = None,
+               measurement_type: type[Measurement] | None = None) -> Measurement:
+    """Read one committed trial folder of the log at ``root`` (as ``measurement_type``; None: the log's)."""
     from besdrake.mocap.qualisys import read_tsv
     from besdrake.mocap.recording import MocapFormatError
 
+    if measurement_type is None:
+        measurement_type = measurement_type_of(_load_json(Path(root) / "log.json"), Path(root) / "log.json")
     d = _trial_dir(Path(root), trial)
     verify_trial(root, trial)
     info = _load_json(d / "measurement.json")
@@ -408,7 +445,7 @@ def read_trial(root: str | Path, trial: int, expected_hash: str | None = None) -
             ball_path = rec.marker(BALL_MARKER)
             ball_t = np.asarray(info["ball_t"], float) if info.get("ball_t") is not None else rec.time
     try:
-        m = Measurement(
+        m = measurement_type(
             trial=int(info.get("trial", trial)),
             plan=plan,
             touchdown=info.get("touchdown"),
@@ -420,6 +457,7 @@ def read_trial(root: str | Path, trial: int, expected_hash: str | None = None) -
             flags=dict(info.get("flags") or {}),
             message=info.get("message", ""),
             meta=dict(info.get("meta") or {}),
+            **measurement_type.result_kwargs(info),
         )
     except MeasurementError as err:
         raise LogError(f"{d}: {err}") from err
@@ -481,4 +519,5 @@ def run_plans(lab: Any, plans: list[MotionPlan], log: LabLog, progress: Callable
     return RunSummary(skipped=len(done), executed=len(plans) - len(done), total=len(log), flag_counts=flag_counts)
 
 
-__all__ = ["LabLog", "LogError", "RunSummary", "run_plans", "read_log", "read_trial", "write_trial_files", "verify_trial", "LOG_FORMAT", "LOG_VERSION", "CSV_COLUMNS", "joint_columns"]
+__all__ = ["LabLog", "LogError", "RunSummary", "run_plans", "read_log", "read_trial", "write_trial_files", "verify_trial", "LOG_FORMAT",
+           "LOG_VERSION", "TASK_LOG_VERSION", "CSV_COLUMNS", "csv_columns", "joint_columns", "measurement_type_of"]

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import hashlib
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -40,18 +40,31 @@ class MeasurementError(ValueError):
 
 
 def plan_hash(plan: MotionPlan) -> str:
-    """Content hash of a plan (hex SHA-256 of its float64 ``t``, ``q`` and ``qd``; ``meta`` is ignored).
+    """Content hash of a plan (hex SHA-256 of its float64 ``t``, ``q`` and ``qd``; ``meta`` is ignored but for a
+    gripper command).
 
     Two plans hash equal when they command the same trajectory, whatever their names; JSON round trips
-    keep the hash (Python writes floats exactly).
+    keep the hash (Python writes floats exactly). A gripper command in ``meta["gripper"]`` (``{"t": [...],
+    "width": [...]}``) is commanded too: when present, its ``t`` and ``width`` are hashed after ``qd`` the same way
+    (plans without one hash as before).
     """
     h = hashlib.sha256()
-    for name, arr in (("t", plan.t), ("q", plan.q), ("qd", plan.qd)):
+    arrays = [("t", plan.t), ("q", plan.q), ("qd", plan.qd)]
+    grip = plan.meta.get("gripper") if isinstance(plan.meta, dict) else None
+    if isinstance(grip, dict):
+        arrays += [("gripper_t", grip.get("t")), ("gripper_width", grip.get("width"))]
+    for name, arr in arrays:
         h.update(name.encode())
         if arr is None:
             h.update(b"none")
         else:
-            a = np.ascontiguousarray(np.asarray(arr, dtype="<f8"))
+            try:
+                a = np.ascontiguousarray(np.asarray(arr, dtype="<f8"))
+            except (TypeError, ValueError):
+                if not name.startswith("gripper"):
+                    raise
+                h.update(repr(arr).encode())  # a malformed gripper command (the lab refuses it): its text
+                continue
             h.update(str(a.shape).encode())
             h.update(a.tobytes())
     return h.hexdigest()
@@ -86,7 +99,15 @@ class Measurement:
     * ``joint_t`` (K,) s, ``q_commanded``/``q_measured`` (K, n) rad (n: the plan's joints): what the controller was sent and the
       encoder readings; None when not recorded;
     * ``flags``, ``message`` (why a flag was raised), ``meta`` (plan name, wall time, lab name; never hidden truth).
+
+    A task's lab may return a subclass with more fields (``TASK`` names the task; ``SUMMARY_COLUMNS``,
+    :meth:`summary_row`, :meth:`result_dict` and :meth:`result_kwargs` say how the log writes and reads them).
     """
+
+    #: The task whose measurement this is; None: the touchdown measurement of log format version 1.
+    TASK: ClassVar[str | None] = None
+    #: The columns of trials.csv between ``plan_hash`` and ``flags``.
+    SUMMARY_COLUMNS: ClassVar[tuple[str, ...]] = ("touchdown_x", "touchdown_y")
 
     trial: int
     plan: MotionPlan
@@ -155,6 +176,25 @@ class Measurement:
         """True when a touchdown was measured and no flag is raised."""
         return self.touchdown is not None and not self.raised_flags
 
+    def summary_row(self) -> dict[str, str]:
+        """This trial's values of :attr:`SUMMARY_COLUMNS` for trials.csv (full precision, empty when not measured)."""
+        td = self.touchdown
+        return {"touchdown_x": "" if td is None else repr(float(td[0])), "touchdown_y": "" if td is None else repr(float(td[1]))}
+
+    def progress_text(self) -> str:
+        """One line about what was measured (``besdrake lab run`` prints it per trial)."""
+        td = "not measured" if self.touchdown is None else f"({self.touchdown[0]:.3f}, {self.touchdown[1]:.3f}) m"
+        return f"touchdown {td}, flags {','.join(self.raised_flags) or '-'}"
+
+    def result_dict(self) -> dict[str, Any]:
+        """A subclass's own fields, JSON-ready, merged into :meth:`to_dict` (none here)."""
+        return {}
+
+    @classmethod
+    def result_kwargs(cls, d: dict[str, Any]) -> dict[str, Any]:
+        """Constructor arguments of a subclass's own fields from a :meth:`to_dict` mapping (none here)."""
+        return {}
+
     @property
     def plan_hash(self) -> str:
         """Content hash of the plan (see :func:`plan_hash`)."""
@@ -174,6 +214,7 @@ class Measurement:
             "flags": dict(self.flags),
             "message": self.message,
             "meta": dict(self.meta),
+            **self.result_dict(),
         }
         if arrays:
             d["plan"] = self.plan.to_dict()
@@ -218,6 +259,7 @@ class Measurement:
             flags=dict(d.get("flags") or {}),
             message=d.get("message", ""),
             meta=dict(d.get("meta") or {}),
+            **cls.result_kwargs(d),
         )
         expected = d.get("plan_hash")
         if expected is not None and expected != m.plan_hash:

@@ -30,6 +30,8 @@ class RecordedLab(TrialCounter):
     def __init__(self, logdir: str | Path) -> None:
         self.log = LabLog.open(logdir)
         self.name = f"recorded:{self.log.lab.get('name', Path(logdir).name)}"
+        #: The Measurement class of the replayed log (a task's for a version-2 log).
+        self.measurement_type = self.log.measurement_type
         self._trials: dict[str, list[int]] = {}
         for k, h in enumerate(self.log.plan_hashes()):
             self._trials.setdefault(h, []).append(k)

@@ -62,15 +62,12 @@ import yaml
 from besdrake.plan import MotionPlan, PlanError
 from besdrake.sim.effects import ball_placed
 from besdrake.transfer.lab import TrialCounter
+from besdrake.transfer.lab_config import LabConfigError, _bool, _number, _seed, resolve_lab_path
 from besdrake.transfer.measurement import Measurement
 from besdrake.plugins import load_plugins
 
 #: Largest |dx| + |dy| (m) of the ball placement: keeps the ball well below the scoop's lip.
 MAX_PLACEMENT_OFFSET = 0.008
-
-
-class LabConfigError(ValueError):
-    """A lab configuration (YAML) is missing, unreadable or has an invalid field; the message names it."""
 
 
 # ---------------------------------------------------------------------------------------- config
@@ -159,27 +156,6 @@ class LabConfig:
         return new
 
 
-def _number(key: str, value: Any, low: float, high: float) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise LabConfigError(f"lab config field {key} must be a number, got {value!r}")
-    v = float(value)
-    if not np.isfinite(v) or not (low <= v <= high):
-        raise LabConfigError(f"lab config field {key}={value!r} is outside [{low:g}, {high:g}]")
-    return v
-
-
-def _seed(value: Any, key: str) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
-        raise LabConfigError(f"lab config field {key} must be a non-negative integer, got {value!r}")
-    return int(value)
-
-
-def _bool(key: str, value: Any) -> bool:
-    if not isinstance(value, bool):
-        raise LabConfigError(f"lab config field {key} must be true or false, got {value!r}")
-    return value
-
-
 def parse_lab_config(data: Any, base_dir: Path | None = None, name: str = "lab") -> LabConfig:
     """Validate a lab config mapping (as read from YAML); paths are resolved against ``base_dir``."""
     from besdrake.sim.effects import EffectError, normalize_effects
@@ -262,21 +238,6 @@ def parse_lab_config(data: Any, base_dir: Path | None = None, name: str = "lab")
         description=description.strip(),
         home_pose=home,
     )
-
-
-def resolve_lab_path(path: str | Path) -> Path:
-    """``path`` as given where it names a file; else a built-in lab by name (``default_lab`` is
-    ``besdrake/diagrams/labs/default_lab.yaml``) or a relative path looked up in the installed package
-    (``diagrams/labs/default_lab.yaml`` works from any working folder). Unchanged when none exists."""
-    p = Path(path)
-    if p.is_file() or p.is_absolute():
-        return p
-    from besdrake.sim.scenario import DIAGRAMS_DIR
-
-    for q in (DIAGRAMS_DIR / "labs" / f"{p}.yaml", DIAGRAMS_DIR.parent / p):
-        if q.is_file():
-            return q
-    return p
 
 
 def load_lab_config(path: str | Path) -> LabConfig:

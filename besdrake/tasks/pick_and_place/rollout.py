@@ -81,12 +81,13 @@ class PickPlaceRollout:
                 low = min(low, z - shape.height() / 2)
         return -low
 
-    def _set_box_friction(self, mu: float) -> None:
+    def _set_box_friction(self, mu: float, geometries=None) -> None:
+        """Friction coefficient ``mu`` (static and dynamic) of the box's collision geometries (or of ``geometries``)."""
         from pydrake.geometry import ProximityProperties, RoleAssign
         from pydrake.multibody.plant import CoulombFriction
 
         inspector = self.h.scene_graph.model_inspector()
-        for gid in self.h.box_geometries:
+        for gid in self.h.box_geometries if geometries is None else geometries:
             props = ProximityProperties(inspector.GetProximityProperties(gid))
             props.UpdateProperty("material", "coulomb_friction", CoulombFriction(mu, mu))
             self.h.scene_graph.AssignRole(self.sg_context, self.h.plant.get_source_id(), gid, props, RoleAssign.kReplace)
@@ -122,10 +123,18 @@ class PickPlaceRollout:
         X = self.h.box_start.multiply(RigidTransform(RollPitchYaw(0, 0, yaw), [dx, dy, self._rest_height + 1e-4]))
         self.h.plant.SetFreeBodyPose(self.plant_context, self.h.box_body, X)
 
-    def _reset(self, plan: MotionPlan, grip: GripperCommand, box_friction, box_mass, box_offset) -> None:
+    def _finger_geometries(self) -> list:
+        """Collision geometries of the gripper's fingers (the bodies its joints move: their pads)."""
+        h, g = self.h, self.robot.end_effector.gripper
+        bodies = [h.plant.GetJointByName(j, h.robot_instance).child_body() for j in (*g.joints, *g.coupled)]
+        return [gid for b in bodies for gid in h.plant.GetCollisionGeometriesForBody(b)]
+
+    def _reset(self, plan: MotionPlan, grip: GripperCommand, box_friction, box_mass, box_offset, pad_friction=None) -> None:
         self.context.SetTimeStateAndParametersFrom(self.default_context)
         if box_friction is not None:
             self._set_box_friction(float(box_friction))
+        if pad_friction is not None:
+            self._set_box_friction(float(pad_friction), self._finger_geometries())
         if box_mass is not None:
             self.h.box_body.SetMass(self.plant_context, float(box_mass))
         lead = self.scenario.time_step  # the implicit PD acts on the end of the step: lead the reference by one step
@@ -179,10 +188,11 @@ class PickPlaceRollout:
 
     # ------------------------------------------------------------------ main
     def rollout(self, plan: MotionPlan, effects: dict | None = None, limits: str = "flag", box_friction: float | None = None,
-                box_mass: float | None = None, box_offset: np.ndarray | None = None) -> PickPlaceOutcome:
+                box_mass: float | None = None, box_offset: np.ndarray | None = None,
+                pad_friction: float | None = None) -> PickPlaceOutcome:
         """Simulate ``plan`` (arm joints; gripper command in ``plan.meta["gripper"]``). ``box_friction`` replaces the
         box's friction coefficient, ``box_mass`` (kg) its mass, ``box_offset`` (dx m, dy m, yaw rad) moves its start
-        on the shelf. ``limits``: "flag" simulates a plan beyond the joint limits and flags it, "raise" refuses one
+        on the shelf, ``pad_friction`` the finger pads' friction coefficient. ``limits``: "flag" simulates a plan beyond the joint limits and flags it, "raise" refuses one
         beyond the position limits (:class:`~besdrake.plan.PlanError`). ``effects``: the registry's effects act on
         throwing rollouts only so far; a pick-and-place rollout takes none (ValueError). Never raises for
         simulation trouble."""
@@ -197,7 +207,7 @@ class PickPlaceRollout:
         if limits == "raise" and np.any(report.position > 0):
             raise PlanError(f"motion plan exceeds {self.robot.name}'s position limits: " + ", ".join(report.violations()))
         grip = GripperCommand.of(plan, self.robot)
-        self._reset(plan, grip, box_friction, box_mass, box_offset)
+        self._reset(plan, grip, box_friction, box_mass, box_offset, pad_friction)
         out = PickPlaceOutcome()
         out.limits_kept = not (np.any(report.position > 0) or np.any(report.velocity > 0))
         self._simulate(plan.duration + self.criteria.tail, out)

@@ -17,6 +17,7 @@ class PickAndPlaceTask(Task):
     description = "pick a box from a shelf and put it upright on a table with a gripper, held by friction only"
     default_scenario = "pick_and_place"
     effects = ()  # none of the registry's effects acts on this task yet (box friction, mass, offset: rollout arguments)
+    default_lab = "pick_and_place_lab"
 
     def make_rollout(self, scenario, meshcat=None):
         from besdrake.tasks.pick_and_place.rollout import PickPlaceRollout
@@ -36,6 +37,21 @@ class PickAndPlaceTask(Task):
         from besdrake.tasks.pick_and_place.scripted import scripted_plan_for
 
         return scripted_plan_for(rollout)
+
+    def make_lab(self, config, seed: int | None = None):
+        """The virtual pick-and-place lab (:class:`~besdrake.tasks.pick_and_place.lab.PickPlaceLab`) from a lab YAML
+        path, name or mapping."""
+        from besdrake.tasks.pick_and_place.lab import PickPlaceLab
+        from besdrake.tasks.pick_and_place.lab_config import load_pick_place_lab_config, parse_pick_place_lab_config
+
+        cfg = parse_pick_place_lab_config(config) if isinstance(config, dict) else load_pick_place_lab_config(config)
+        return PickPlaceLab(cfg if seed is None else cfg.with_seed(seed))
+
+    def measurement_type(self) -> type:
+        """:class:`~besdrake.tasks.pick_and_place.measurement.PickPlaceMeasurement`."""
+        from besdrake.tasks.pick_and_place.measurement import PickPlaceMeasurement
+
+        return PickPlaceMeasurement
 
     def failed_outcome(self, message: str):
         from besdrake.tasks.pick_and_place.outcome import failed_outcome

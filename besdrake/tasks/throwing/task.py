@@ -18,6 +18,7 @@ class ThrowingTask(Task):
     default_scenario = "nominal"
     effects = ("base_offset", "joint_offset", "actuator_lag", "gain_scale", "air_drag", "ball_placement", "ball",
                "scoop_friction")
+    default_lab = "default_lab"
 
     def make_rollout(self, scenario, meshcat=None):
         from besdrake.tasks.throwing.rollout import ThrowRollout
@@ -53,6 +54,13 @@ class ThrowingTask(Task):
         from besdrake.tasks.throwing.descriptor import behaviour_descriptor
 
         return behaviour_descriptor(plan, outcome)
+
+    def make_lab(self, config, seed: int | None = None):
+        """The throwing lab (:class:`~besdrake.transfer.virtual_lab.VirtualLab`) from a lab YAML path, name or mapping."""
+        from besdrake.transfer.virtual_lab import VirtualLab, load_lab_config, parse_lab_config
+
+        cfg = parse_lab_config(config) if isinstance(config, dict) else load_lab_config(config)
+        return VirtualLab(cfg if seed is None else cfg.with_seed(seed))
 
     def check_robot(self, robot) -> None:
         """Throwing needs a scoop: a fixed end effector with the scoop's geometry in its params."""
