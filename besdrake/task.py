@@ -39,6 +39,14 @@ class Task(ABC):
     effects: ClassVar[tuple[str, ...]] = ()
     #: The built-in lab (``diagrams/labs/<name>.yaml``) the task's commands open when none is given; "" for none.
     default_lab: ClassVar[str] = ""
+    #: The task's own ``besdrake learn`` configuration (YAML; its ``quick:`` section is the ``--quick`` profile), or
+    #: None when the task runs the pipeline's default stages (:mod:`besdrake.pipeline.learn`) and configuration.
+    learn_config: ClassVar[Path | None] = None
+
+    def learn_stages(self) -> list | None:
+        """The task's ``besdrake learn`` stages ``[(name, fn(ctx, out_dir) -> summary)]``, or None for the pipeline's
+        default stages. The last stage's summary is the run's JSON line."""
+        return None
 
     @abstractmethod
     def make_rollout(self, scenario, meshcat=None) -> Any:

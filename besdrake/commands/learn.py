@@ -56,7 +56,7 @@ def _input_errors() -> tuple[type[Exception], ...]:
 def run(args: argparse.Namespace) -> int:
     from besdrake.cli import UserError
     from besdrake.pipeline.config import ConfigError, load_config
-    from besdrake.pipeline.learn import STAGES, diagnosis_design, learn, learn_scenario, transfer_config
+    from besdrake.pipeline.learn import diagnosis_design, learn, learn_scenario, stages_of, transfer_config
     from besdrake.pipeline.run import RunError, RunFolder
 
     overrides = list(args.set)
@@ -74,14 +74,15 @@ def run(args: argparse.Namespace) -> int:
         overrides.append(f"workers={args.workers}")
     try:
         config = load_config(args.config, quick=args.quick, overrides=overrides)
-        transfer_config(config)  # a bad value is refused now, not after the refinement
-        if config["diagnosis"].get("enabled", True):
-            diagnosis_design(config)
         learn_scenario(config)  # an unknown task, or a robot without what the task needs: refused now
+        if "transfer" in config:  # the default (throwing) stages: a bad value is refused now, not after the refinement
+            transfer_config(config)
+        if "diagnosis" in config and config["diagnosis"].get("enabled", True):
+            diagnosis_design(config)  # an unknown task, or a robot without what the task needs: refused now
         run_folder = RunFolder(args.out, config)
     except (ConfigError, RunError) as err:
         raise UserError(str(err)) from None
-    known = [name for name, _ in STAGES]
+    known = [name for name, _ in stages_of(config)]
     for name in args.stage or []:
         if name not in known:
             raise UserError(f"unknown stage {name!r}; stages: {', '.join(known)}")
@@ -110,7 +111,11 @@ def run(args: argparse.Namespace) -> int:
         if bar is not None:
             bar.close()
     if args.json:
-        print(json.dumps({name: rec["summary"] | {"seconds": rec["seconds"]} for name, rec in records.items()}, default=str))
+        stages = {name: rec["summary"] | {"seconds": rec["seconds"]} for name, rec in records.items()}
+        if "task" in records.get("report", {}).get("summary", {}):  # a task's own pipeline: its figures first
+            print(json.dumps(records["report"]["summary"] | {"stages": stages}, default=str))
+        else:
+            print(json.dumps(stages, default=str))
     else:
         report = run_folder.root / "report.md"
         print(f"done: {len(records)} stages in {run_folder.root}" + (f"; report: {report}" if report.is_file() else ""))

@@ -146,6 +146,25 @@ def toppra_retime(
     return t_new, np.array([path.value(si)[arm, 0] for si in s_new]), t[0] + s_new * (t[-1] - t[0])
 
 
+def local_retime(t: np.ndarray, q: np.ndarray, limits: JointLimits, safety: float = 0.9, window: int = 5,
+                 min_factor: float = 0.25) -> tuple[np.ndarray, np.ndarray]:
+    """A robust fallback of :func:`toppra_retime`: each sample interval of ``q(t)`` stretched by its own factor, the
+    largest that its finite-difference velocity (and the acceleration at its ends) needs under ``safety`` x the limits
+    (at least ``min_factor``), smoothed by a running maximum over ``window`` intervals each side. Returns ``(t_new,
+    t)``: the new times of the same samples and the path's own times."""
+    dt = np.diff(t)
+    v = np.abs(np.diff(q, axis=0)) / dt[:, None] / (safety * limits.velocity)
+    k = v.max(axis=1)
+    if len(t) > 2:
+        a = np.abs(np.diff(q, 2, axis=0)) / (0.5 * (dt[1:] + dt[:-1]) ** 2)[:, None] / (safety * limits.acceleration)
+        ka = np.sqrt(a.max(axis=1))
+        k = np.maximum(k, np.maximum(np.concatenate([ka, [0.0]]), np.concatenate([[0.0], ka])))
+    k = np.maximum(k, min_factor)
+    padded = np.concatenate([np.full(window, k[0]), k, np.full(window, k[-1])])
+    k = np.array([padded[i : i + 2 * window + 1].max() for i in range(len(k))])
+    return np.concatenate([[0.0], np.cumsum(k * dt)]), t
+
+
 def _GridOptions(n: int):
     from pydrake.multibody.optimization import CalcGridPointsOptions
 

@@ -1,7 +1,8 @@
 """Configuration of ``besdrake learn``: the packaged defaults, a user's YAML, profiles and overrides.
 
-Precedence, lowest first: :file:`default_learn.yaml` (beside this module), the ``--quick`` profile,
-the user's ``--config`` file, then ``--set section.key=value`` flags.
+Precedence, lowest first: :file:`default_learn.yaml` (beside this module) or, for a task with its own
+pipeline, the task's learn configuration (:attr:`besdrake.task.Task.learn_config`, its ``quick:`` section the
+``--quick`` profile), the ``--quick`` profile, the user's ``--config`` file, then ``--set section.key=value`` flags.
 """
 
 from __future__ import annotations
@@ -64,22 +65,44 @@ def parse_override(text: str) -> dict[str, Any]:
     return out
 
 
+def _user_config(path: str | Path | None) -> dict[str, Any]:
+    if path is None:
+        return {}
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"configuration file {path} not found")
+    try:
+        user = yaml.safe_load(path.read_text()) or {}
+    except yaml.YAMLError as err:
+        raise ConfigError(f"{path}: not valid YAML: {err}") from None
+    if not isinstance(user, dict):
+        raise ConfigError(f"{path}: the configuration must be a mapping")
+    return user
+
+
+def _defaults(task: Any) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The packaged defaults and the ``--quick`` profile of ``task`` (its own learn configuration, if it has one)."""
+    from besdrake.task import TaskError, get_task
+
+    try:
+        own = get_task(str(task)).learn_config if task else None
+    except TaskError:
+        own = None  # an unknown task is refused later, with the list of known ones
+    if own is None:
+        return yaml.safe_load(DEFAULT_CONFIG.read_text()), QUICK
+    config = yaml.safe_load(Path(own).read_text())
+    return config, config.pop("quick", {}) or {}
+
+
 def load_config(path: str | Path | None = None, quick: bool = False, overrides: list[str] = ()) -> dict[str, Any]:
     """The effective configuration (see the module docstring)."""
-    config = yaml.safe_load(DEFAULT_CONFIG.read_text())
+    user = _user_config(path)
+    parsed = [parse_override(text) for text in overrides]
+    task = next((o["task"] for o in reversed(parsed) if "task" in o), user.get("task"))
+    config, quick_profile = _defaults(task)
     if quick:
-        config = deep_merge(config, QUICK)
-    if path is not None:
-        path = Path(path)
-        if not path.is_file():
-            raise ConfigError(f"configuration file {path} not found")
-        try:
-            user = yaml.safe_load(path.read_text()) or {}
-        except yaml.YAMLError as err:
-            raise ConfigError(f"{path}: not valid YAML: {err}") from None
-        if not isinstance(user, dict):
-            raise ConfigError(f"{path}: the configuration must be a mapping")
-        config = deep_merge(config, user)
-    for text in overrides:
-        config = deep_merge(config, parse_override(text))
+        config = deep_merge(config, quick_profile)
+    config = deep_merge(config, user)
+    for extra in parsed:
+        config = deep_merge(config, extra)
     return config

@@ -683,8 +683,9 @@ def learn_scenario(config: dict[str, Any]):
         task.check_robot(scenario.robot)
     except (TaskError, ScenarioError, RobotError) as err:
         raise ConfigError(str(err)) from None
-    if name not in LEARN_TASKS:
-        raise ConfigError(f"besdrake learn runs the {', '.join(LEARN_TASKS)} task so far, not {name!r}")
+    if name not in LEARN_TASKS and task.learn_stages() is None:
+        raise ConfigError(f"besdrake learn runs the {', '.join(LEARN_TASKS)} task and tasks with their own stages, "
+                          f"not {name!r}")
     if scenario.task != name:
         raise ConfigError(f"scenario {scenario.name!r} simulates the task {scenario.task!r}, not {name!r}")
     return scenario
@@ -719,6 +720,14 @@ STAGES: list[tuple[str, Callable[[Context, Path], dict[str, Any]]]] = [
 ]
 
 
+def stages_of(config: dict[str, Any]) -> list[tuple[str, Callable[[Context, Path], dict[str, Any]]]]:
+    """The stages of ``config``'s task: its own (:meth:`besdrake.task.Task.learn_stages`) or :data:`STAGES`."""
+    from besdrake.task import DEFAULT_TASK, get_task
+
+    own = get_task(str(config.get("task") or DEFAULT_TASK)).learn_stages()
+    return STAGES if own is None else own
+
+
 def learn(
     run: RunFolder,
     progress: Callable[[str], None] = print,
@@ -731,14 +740,15 @@ def learn(
     ``progress`` receives messages; ``on_stage(name, record)`` is called after each stage, run or skipped."""
     ctx = Context(run, dict(run.config, scenario=run_scenario(run.config, run.root)), progress, meshcat_host=meshcat_host)
     records = {}
-    for i, (name, fn) in enumerate(STAGES, 1):
-        if name == "diagnose" and not run.config["diagnosis"]["enabled"]:
+    all_stages = stages_of(run.config)
+    for i, (name, fn) in enumerate(all_stages, 1):
+        if name == "diagnose" and not run.config.get("diagnosis", {}).get("enabled", True):
             continue
         if stages is not None and name not in stages:
             continue
         rec = run.done(i, name)
         if rec is None:
-            progress(f"[{i}/{len(STAGES)}] {name} ...")
+            progress(f"[{i}/{len(all_stages)}] {name} ...")
             t0 = time.perf_counter()
             summary = fn(ctx, run.stage_dir(i, name))
             stats = _executor_stats(ctx)
@@ -746,9 +756,9 @@ def learn(
                 summary = summary | {"executor": stats}
             rec = run.mark_done(i, name, summary, time.perf_counter() - t0)
             busy = "" if stats is None else f" ({stats['rollouts']} rollouts, {stats['rollouts_per_s']}/s, workers busy {stats['busy_share']:.0%})"
-            progress(f"[{i}/{len(STAGES)}] {name} done in {_fmt_time(rec['seconds'])}{busy}")
+            progress(f"[{i}/{len(all_stages)}] {name} done in {_fmt_time(rec['seconds'])}{busy}")
         else:
-            progress(f"[{i}/{len(STAGES)}] {name}: done earlier, skipped")
+            progress(f"[{i}/{len(all_stages)}] {name}: done earlier, skipped")
         records[name] = rec
         if on_stage is not None:
             on_stage(name, rec)

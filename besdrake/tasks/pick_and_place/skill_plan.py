@@ -11,7 +11,8 @@ into a :class:`~besdrake.plan.MotionPlan` in four steps:
 3. resolved-rate path IK from the home position (:class:`~besdrake.embodiment.path_ik.PathIK`: continuous joints,
    the tool lagging where a pose is out of reach);
 4. time-optimal retiming under ``safety`` x the velocity and acceleration limits
-   (:func:`~besdrake.embodiment.scaling.toppra_retime`; where Toppra fails, the uniform scaling), a last uniform
+   (:func:`~besdrake.embodiment.scaling.toppra_retime`; where Toppra fails, a per-interval stretch:
+   :func:`~besdrake.embodiment.scaling.local_retime`), a last uniform
    stretch if the plan's spline peaks above the limits between samples, and the gripper command's close and open
    times carried through the same time map.
 """
@@ -26,7 +27,7 @@ from pydrake.math import RotationMatrix
 from besdrake.embodiment.kinematics import KinematicModel, welded_plant
 from besdrake.embodiment.path_ik import PathIK, PathIKOptions
 from besdrake.embodiment.pose_ik import PoseIKTrajectory
-from besdrake.embodiment.scaling import temporal_scaling, toppra_retime
+from besdrake.embodiment.scaling import local_retime, toppra_retime
 from besdrake.plan import MotionPlan
 from besdrake.robot import Robot
 from besdrake.tasks.pick_and_place.grasp_plan import (_start_from_home, gripper_command, hand_to_tool,
@@ -44,7 +45,7 @@ class SkillPlan:
     plan: MotionPlan
     skill: GraspSkill
     ik: PoseIKTrajectory
-    retiming: str  # "toppra" or "uniform"
+    retiming: str  # "toppra" or "local"
     notes: list[str] = field(default_factory=list)
 
     def summary(self) -> dict:
@@ -103,8 +104,8 @@ class SkillPlanner:
         retimed = toppra_retime(t, ik.q, robot.limits, self.model, safety=self.safety)
         retiming = "toppra"
         if retimed is None:
-            k = temporal_scaling(t, ik.q, robot.limits, safety=self.safety, min_duration=0.0).factor
-            retimed, retiming = ((t - t[0]) * k, ik.q, t), "uniform"
+            t_new, t_path = local_retime(t, ik.q, robot.limits, safety=self.safety)
+            retimed, retiming = (t_new, ik.q, t_path), "local"
         t_plan, q_plan, t_path = retimed
         plan = MotionPlan(t=t_plan, q=q_plan, joint_names=robot.joint_names,
                           meta={"source": "grasp_skill", "demonstration": skill.source}).validate()

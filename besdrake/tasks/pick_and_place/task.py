@@ -8,6 +8,8 @@ robot needs a gripper. A rollout simulates the arm plan and the gripper command 
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from besdrake.task import Task, register_task
 
 
@@ -18,6 +20,14 @@ class PickAndPlaceTask(Task):
     default_scenario = "pick_and_place"
     effects = ()  # none of the registry's effects acts on this task yet (box friction, mass, offset: rollout arguments)
     default_lab = "pick_and_place_lab"
+
+    learn_config = Path(__file__).resolve().parent / "learn.yaml"
+
+    def learn_stages(self):
+        """Demonstrations, refinement in simulation, lab trials, report (:mod:`besdrake.tasks.pick_and_place.learn`)."""
+        from besdrake.tasks.pick_and_place.learn import STAGES
+
+        return list(STAGES)
 
     def make_rollout(self, scenario, meshcat=None):
         from besdrake.tasks.pick_and_place.rollout import PickPlaceRollout
