@@ -50,7 +50,7 @@ def _input_errors() -> tuple[type[Exception], ...]:
     from besdrake.transfer.virtual_lab import LabConfigError
 
     return (MocapFormatError, PreprocessError, LabelingError, SegmentationError, PlanError, ScenarioError, EffectError,
-            LogError, PluginError, LabConfigError, ResumeError, RunError)
+            LogError, PluginError, LabConfigError, ResumeError, RunError, FileNotFoundError)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -175,7 +175,7 @@ def refine_grasp(skill: GraspSkill, scenario: str = "pick_and_place", out_dir: s
         return s.stop_on_success and any(details.rows.get(_key(x), {}).get("success") for x in info.candidates)
 
     try:
-        popsize = optimizer.popsize if hasattr(optimizer, "popsize") else 4 + int(3 * np.log(param.n_params))
+        popsize = s.popsize or 4 + int(3 * np.log(param.n_params))  # cma's default
         loop = run_search(optimizer, evaluate_batch, n_evaluations=s.max_generations * popsize, out_dir=out,
                           callback=callback)
     finally:
