@@ -191,13 +191,34 @@ def _register_unknown():
             p = setup.plan
             setup.plan = MotionPlan(t=p.t / values["factor"], q=p.q.copy(), qd=None if p.qd is None else p.qd * values["factor"], meta=dict(p.meta))
 
+    class JointScale(Effect):
+        """Joint 2's gear ratio differs from the controller's: the joint travels ``scale`` times the planned travel
+        from the plan's first sample (the encoders read the true angle)."""
+
+        name = "bench_joint_scale"
+        applied_via = "plan"
+        params = {"scale": Param(1.0, 0.9, 1.1, "1")}
+
+        def apply(self, setup, values):
+            p = setup.plan
+            q = p.q.copy()
+            q[:, 1] = q[0, 1] + values["scale"] * (q[:, 1] - q[0, 1])
+            qd = None if p.qd is None else p.qd.copy()
+            if qd is not None:
+                qd[:, 1] *= values["scale"]
+            setup.plan = MotionPlan(t=p.t.copy(), q=q, qd=qd, meta=dict(p.meta), joint_names=p.joint_names)
+
     register_effect(CrossWind, replace=True)
     register_effect(FastClock, replace=True)
+    register_effect(JointScale, replace=True)
 
     def draw(i: int, rng: np.random.Generator) -> dict:
-        if i % 2 == 0:
+        """Unknown-effect trial ``i``: a cross wind, a fast controller clock, a joint-2 gear scale, cycled."""
+        if i % 3 == 0:
             return {"bench_cross_wind": {"vy": round(float(rng.choice([-1, 1]) * rng.uniform(2.0, 4.0)), 2)}}
-        return {"bench_fast_clock": {"factor": round(float(rng.uniform(1.04, 1.08)), 3)}}
+        if i % 3 == 1:
+            return {"bench_fast_clock": {"factor": round(float(rng.uniform(1.04, 1.08)), 3)}}
+        return {"bench_joint_scale": {"scale": round(float(rng.choice([-1, 1]) * rng.uniform(0.03, 0.06) + 1.0), 3)}}
 
     return draw
 
