@@ -115,15 +115,18 @@ class ResidualModel:
         return bool(d.sum() > self.min_step_gain * cur.sum() and d.mean() > self.se_factor * se)
 
     def _best_step(self, Z, Y, rows, state, cur: np.ndarray) -> tuple[np.ndarray, tuple | None]:
-        """Of the forward steps with a clear gain over ``cur`` (:meth:`_clear_gain`), the one that lowers the
-        cross-validated error most (None: none has): add the intercept, or a feature (each penalty of ``alphas``,
-        the penalty of the features already in refitted with it)."""
+        """The next forward step (None: no step has a clear gain over ``cur``, :meth:`_clear_gain`): of adding the
+        intercept and adding the feature (at its best penalty of ``alphas``, refitted for the features already in) that
+        lowers the cross-validated error most, the better one with a clear gain. Only these two face the rule: the
+        best of every feature and penalty passes it by chance alone."""
         cols, alpha, icpt = state
-        options = [] if icpt else [(cols, alpha, True)]
-        options += [(cols + [j], a, icpt) for j in range(Z.shape[1]) if j not in cols and self.sd_[j] > 1e-12 for a in self.alphas]
+        feats = [(cols + [j], a, icpt) for j in range(Z.shape[1]) if j not in cols and self.sd_[j] > 1e-12 for a in self.alphas]
+        errs = [_cv_errors(Z, Y, rows, *o) for o in feats]
+        options = [(errs[k], feats[k]) for k in ([int(np.argmin([e.sum() for e in errs]))] if errs else [])]
+        if not icpt:
+            options.append((_cv_errors(Z, Y, rows, cols, alpha, True), (cols, alpha, True)))
         best: tuple[np.ndarray, tuple | None] = (cur, None)
-        for o in options:
-            err = _cv_errors(Z, Y, rows, *o)
+        for err, o in options:
             if err.sum() < best[0].sum() and self._clear_gain(cur, err):
                 best = (err, o)
         return best
