@@ -3,17 +3,21 @@
 :class:`ResidualModel` (scikit-learn style: parameters in ``__init__``, :meth:`~ResidualModel.fit` /
 :meth:`~ResidualModel.predict`) predicts the touchdown residual (N x 2, m) from behaviour features (N x P) with a
 ridge regression whose **feature subset and penalty are chosen by leave-one-plan-out cross-validation** (repeats of a
-plan are held out together, so a held-out plan was never seen): forward selection adds, one at a time, the feature
-(each at its best penalty of :data:`ALPHAS`) that lowers the cross-validated squared error most, and stops when no
-feature lowers it by :data:`MIN_STEP_GAIN`; the simplest models compete too: no correction (the physical model as it
-is) and a constant offset. A model is only as good as its cross-validated error, so with a few dozen throws and
-several centimetres of touchdown scatter it keeps one or two features, or none.
+plan are held out together, so a held-out plan was never seen; exact from the hat matrix, no refits): forward
+selection from "no correction" (the physical model as it is), each step the better of adding a constant offset and
+adding the feature (at its best penalty of :data:`ALPHAS`) that lowers the cross-validated squared error most, taken
+only with a clear gain (:data:`MIN_STEP_GAIN` and one standard error of the per-plan differences, :data:`SE_FACTOR`).
+Predictions clip every feature to the range the model was fitted on.
 
-Why not a fixed penalty on every feature (the first version): 9 features for about 17 distinct plans, most of them
-unrelated to the residual, added their fitted noise to every held-out prediction (a cross wind, benchmark trial 15:
-held-out median 7.3 -> 8.9 cm). :func:`nested_heldout` measures the whole procedure, selection included, on plans held
-out from it (nested cross-validation): that figure, not the selection's own cross-validated error (optimistic: it is
-the minimum over the candidates), decides whether the model is offered.
+What went wrong before (a ridge on all 9 features at a fixed penalty, printed whatever its held-out result; a cross
+wind, benchmark trial 15: held-out median 7.3 -> 8.9 cm), measured on 8 unknown-effect logs of the benchmark (cross
+wind, fast clock, joint-2 gear scale; nested 5-fold x 3 by plan): after the best registry fit the cross winds leave a
+residual at the level of the touchdown scatter (mean 1-4 cm against 5-6 cm per axis), which no model of ~17 plans can
+learn (the old ridge: 7.7 -> 9.1 and 8.0 -> 10.0 cm on two of the three); a held-out plan whose joint twist lay beyond
+every training plan's was predicted 2 m off (one split's RMS 0.55 m): no clipping; and a selection's own
+cross-validated error is optimistic (the best of many candidates: on pure noise it kept a feature in 2 of 5 fits).
+So :func:`nested_heldout` measures the whole procedure, selection included, on plans held out from it (nested
+cross-validation), and that figure decides whether the model is offered.
 """
 
 from __future__ import annotations
@@ -22,13 +26,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-#: Ridge penalties tried per feature subset (per throw, on standardised features: the ridge term is alpha * n * |w|^2).
+#: Ridge penalties tried per feature subset (per trial, on standardised features: the ridge term is alpha * n * |w|^2).
 ALPHAS = (0.003, 0.01, 0.03, 0.1, 0.3, 1.0, 3.0)
 #: Forward selection stops when the best next feature lowers the cross-validated squared error by less than this share.
 MIN_STEP_GAIN = 0.02
 #: ... and by more than this many standard errors of its per-plan differences (the one-standard-error rule).
 SE_FACTOR = 1.0
-#: At most this many features (about one per 6-8 distinct plans of a 25-throw log).
+#: At most this many features (about one per 6-8 distinct plans of a 25-trial log).
 MAX_FEATURES = 3
 
 
@@ -51,8 +55,8 @@ def _cv_errors(Z: np.ndarray, Y: np.ndarray, groups: list[np.ndarray], cols: lis
     correction at all); ``groups``: the row indices of each plan.
 
     Exact without refits (a penalised least-squares fit is a linear smoother): with the hat matrix H of the fit on all
-    throws and its residuals r, the residuals of group g predicted by the fit without it are (I - H_gg)^-1 r_g; the
-    penalty is alpha times the number of all throws in both."""
+    trials and its residuals r, the residuals of group g predicted by the fit without it are (I - H_gg)^-1 r_g; the
+    penalty is alpha times the number of all trials in both."""
     if not (intercept or cols):
         return np.array([float(np.sum(Y[i] ** 2)) for i in groups])
     A, P = _design(Z, cols, alpha, intercept)
@@ -86,7 +90,7 @@ class ResidualModel:
     se_factor: float = SE_FACTOR
 
     def fit(self, X: np.ndarray, Y: np.ndarray, groups: np.ndarray) -> "ResidualModel":
-        """Choose and fit the model on throws ``X`` (N, P), residuals ``Y`` (N, 2) and plan ``groups`` (N,)."""
+        """Choose and fit the model on trials ``X`` (N, P), residuals ``Y`` (N, 2) and plan ``groups`` (N,)."""
         X, Y, groups = np.asarray(X, float), np.asarray(Y, float), np.asarray(groups)
         self.mu_, self.sd_ = X.mean(axis=0), X.std(axis=0)
         self.lo_, self.hi_ = X.min(axis=0), X.max(axis=0)
@@ -132,16 +136,16 @@ class ResidualModel:
         return best
 
     def predict(self, X: np.ndarray) -> np.ndarray:
-        """Predicted touchdown residual (N, 2) of throws with behaviour features ``X`` (N, P), each feature clipped to
-        the range of the throws the model was fitted on (a linear model far outside its data is a guess: a held-out
-        sideways throw twisted beyond every training throw was predicted 2 m off)."""
-        X = np.clip(np.asarray(X, float), self.lo_, self.hi_)  # no extrapolation beyond the throws it was fitted on
+        """Predicted residual (N, 2) of trials with behaviour features ``X`` (N, P), each feature clipped to
+        the range of the trials the model was fitted on (a linear model far outside its data is a guess: a held-out
+        trial whose plan turned a joint beyond every training trial was predicted 2 m off)."""
+        X = np.clip(np.asarray(X, float), self.lo_, self.hi_)  # no extrapolation beyond the trials it was fitted on
         Z = (X[:, self.features_] - self.mu_[self.features_]) / np.where(self.sd_[self.features_] > 1e-12, self.sd_[self.features_], 1.0)
         return self.intercept_ + Z @ self.coef_ if self.features_ else np.tile(self.intercept_, (len(X), 1))
 
     def describe(self, names: list[str]) -> dict:
         """The chosen model as JSON-ready data (feature names, penalty, coefficients in m per feature SD, the
-        features' mean, SD and fitted range): :meth:`from_dict` rebuilds it for new throws."""
+        features' mean, SD and fitted range): :meth:`from_dict` rebuilds it for new trials."""
         sel = self.features_
         return {"kind": self.kind_, "features": [names[j] for j in sel], "alpha": self.alpha_ if sel else None, "intercept": self.intercept,
                 "intercept_m": self.intercept_.tolist(), "coef_m_per_sd": self.coef_.tolist(),
