@@ -191,13 +191,34 @@ def _register_unknown():
             p = setup.plan
             setup.plan = MotionPlan(t=p.t / values["factor"], q=p.q.copy(), qd=None if p.qd is None else p.qd * values["factor"], meta=dict(p.meta))
 
+    class JointScale(Effect):
+        """Joint 2's gear ratio differs from the controller's: the joint travels ``scale`` times the planned travel
+        from the plan's first sample (the encoders read the true angle)."""
+
+        name = "bench_joint_scale"
+        applied_via = "plan"
+        params = {"scale": Param(1.0, 0.9, 1.1, "1")}
+
+        def apply(self, setup, values):
+            p = setup.plan
+            q = p.q.copy()
+            q[:, 1] = q[0, 1] + values["scale"] * (q[:, 1] - q[0, 1])
+            qd = None if p.qd is None else p.qd.copy()
+            if qd is not None:
+                qd[:, 1] *= values["scale"]
+            setup.plan = MotionPlan(t=p.t.copy(), q=q, qd=qd, meta=dict(p.meta), joint_names=p.joint_names)
+
     register_effect(CrossWind, replace=True)
     register_effect(FastClock, replace=True)
+    register_effect(JointScale, replace=True)
 
     def draw(i: int, rng: np.random.Generator) -> dict:
-        if i % 2 == 0:
+        """Unknown-effect trial ``i``: a cross wind, a fast controller clock, a joint-2 gear scale, cycled."""
+        if i % 3 == 0:
             return {"bench_cross_wind": {"vy": round(float(rng.choice([-1, 1]) * rng.uniform(2.0, 4.0)), 2)}}
-        return {"bench_fast_clock": {"factor": round(float(rng.uniform(1.04, 1.08)), 3)}}
+        if i % 3 == 1:
+            return {"bench_fast_clock": {"factor": round(float(rng.uniform(1.04, 1.08)), 3)}}
+        return {"bench_joint_scale": {"scale": round(float(rng.choice([-1, 1]) * rng.uniform(0.03, 0.06) + 1.0), 3)}}
 
     return draw
 
@@ -272,6 +293,59 @@ def _signature_size(sig: np.ndarray, d, k: int) -> dict:
     n = d.causes[0].n if d.causes else 1
     limit = INDISTINGUISHABLE_DBIC + k * np.log(max(n, 1))
     return {"signature_chi2": lam, "signature_chi2_by_group": per_group, "detection_limit_chi2": float(limit), "signature_over_limit": lam / limit}
+
+
+def _fresh_residual_check(d, fresh_ms: list, ex, cache: dict, dkw: dict) -> dict | None:
+    """The residual model on throws no part of the diagnosis saw: ``fresh_ms``, new plans thrown in the same lab (fresh
+    noise and placements), replayed as the diagnosis replays a log, their touchdown disparity to the refined model before and
+    after adding the residual model's prediction (median over the throws, m). None when no model was fitted."""
+    from besdrake.diagnosis.observables import group_slices
+    from besdrake.diagnosis.replay import replay
+    from besdrake.diagnosis.residual import behaviour_features
+    from besdrake.diagnosis.residual_model import ResidualModel
+    from besdrake.diagnosis.settings import PLACEMENT_SD
+    from besdrake.diagnosis import observables
+    from besdrake.transfer.measurement import plan_hash
+
+    fit = (d.residual or {}).get("model", {}).get("fit")
+    if fit is None:
+        return None
+    used = [m for m in fresh_ms if observables.usable(m)[0]]
+    ev = replay(used, [plan_hash(m.plan) for m in used], ex, cache, d.scenario, dkw.get("placement_sd", PLACEMENT_SD))
+    names, X = behaviour_features(ev)
+    td = group_slices()["touchdown"]
+    R = ev.y_meas[:, td] - ev.sim.one(d.refined_effects())[:, td]
+    ok = np.all(np.isfinite(X), axis=1) & np.all(np.isfinite(R), axis=1)
+    before = np.linalg.norm(R[ok], axis=1)
+    after = np.linalg.norm(R[ok] - ResidualModel.from_dict(fit, names).predict(X[ok]), axis=1)
+    return {"fresh_n": int(ok.sum()), "fresh_before_m": float(np.median(before)), "fresh_after_m": float(np.median(after)),
+            "fresh_rms_before_m": float(np.sqrt(np.mean(before**2))), "fresh_rms_after_m": float(np.sqrt(np.mean(after**2)))}
+
+
+def _residual_row(d) -> dict:
+    """The residual model's figures of an unexplained diagnosis (offered, kind, features, nested held-out gain)."""
+    m = (d.residual or {}).get("model", {})
+    return {"residual_offered": bool(m.get("offered")), "residual_kind": m.get("fit", {}).get("kind"), "residual_features": m.get("fit", {}).get("features"),
+            "residual_heldout_before_m": m.get("heldout_before_m"), "residual_heldout_after_m": m.get("heldout_after_m"),
+            "residual_heldout_rms_before_m": m.get("heldout_rms_before_m"), "residual_heldout_rms_after_m": m.get("heldout_rms_after_m")}
+
+
+def _residual_summary(unk: list[dict]) -> dict:
+    """Issue 25's residual-model figures over the unknown-effect trials: per trial its gain, and the shares improved."""
+    rows = [r for r in unk if r.get("residual_heldout_before_m") is not None]
+    per = [{k: r.get(k) for k in ("trial", "hidden", "residual_offered", "residual_kind", "residual_features", "residual_heldout_before_m",
+                                  "residual_heldout_after_m", "fresh_before_m", "fresh_after_m")} for r in rows]
+    off = [r for r in rows if r["residual_offered"]]
+    fresh = [r for r in off if r.get("fresh_after_m") is not None]
+    fitted = [r for r in rows if r.get("fresh_after_m") is not None and r["residual_kind"] != "none"]
+    return {"trials_with_residual_report": len(rows), "offered": len(off),
+            "offered_heldout_lower": int(sum(r["residual_heldout_after_m"] < r["residual_heldout_before_m"] for r in off)),
+            "offered_fresh_lower": int(sum(r["fresh_after_m"] < r["fresh_before_m"] for r in fresh)), "offered_fresh_checked": len(fresh),
+            "share_offered_fresh_lower": float(np.mean([r["fresh_after_m"] < r["fresh_before_m"] for r in fresh])) if fresh else None,
+            "share_all_heldout_lower": float(np.mean([r["residual_heldout_after_m"] < r["residual_heldout_before_m"] for r in rows])) if rows else None,
+            "fitted_not_offered_fresh_lower": int(sum(r["fresh_after_m"] < r["fresh_before_m"] for r in fitted if not r["residual_offered"])),
+            "fitted_not_offered_fresh_checked": int(sum(not r["residual_offered"] for r in fitted)),
+            "per_trial": per}
 
 
 def _strip(ms):
@@ -380,6 +454,7 @@ def _summarize(results: list[dict], modes: list[str], args, t_bench: float, regi
                                    + sum(r["explained"] and r["confidence"] == "high" and bool(r["best"]) for r in unk)),
             "structural_trials": int(sum(r.get("structural_arises", False) for r in known)),
             "structural_named_and_stated": int(sum(r.get("structural_arises", False) and r.get("structural_in_verdict", False) for r in known)),
+            "residual_model": _residual_summary(unk),
             "errors": [r for r in results if r["mode"] == mode and "error" in r],
         }
     out["trials"] = results
@@ -403,6 +478,8 @@ def main(argv=None) -> int:
     ap.add_argument("--modes", default="full,touchdown")
     ap.add_argument("--only", default=None, help="comma-separated trial indices to run (the others are drawn but skipped): re-run single trials")
     ap.add_argument("--placement-sd", type=float, default=None, help="diagnose's placement_sd (m; default: diagnose's default)")
+    ap.add_argument("--fresh", type=int, default=15, help="unknown-effect trials: throws of new plans in the same lab on which the residual model "
+                                                          "is checked (no part of the diagnosis saw them; 0: none)")
     ap.add_argument("--progress", action="store_true", help="one line per diagnosis on stderr")
     ap.add_argument("--out", default=None, help="also (re)write the summary JSON to this file after every diagnosis")
     ap.add_argument("--resummarize", default=None, help="print the summary of the trials in this earlier output JSON (no new diagnoses)")
@@ -480,6 +557,7 @@ def main(argv=None) -> int:
             sig_exp = None if unknown else _expected_signature(hidden, ms, plans, truth_roll, lab.config.noise.ball_placement_sd, seed=1000 * args.seed + i)
             k_hidden = sum(len(v) for v in hidden.values())
             cache: dict = {}
+            fresh_ms = None
             for mode in modes:
                 log = ms if mode == "full" else _strip(ms)
                 t0 = time.perf_counter()
@@ -521,6 +599,16 @@ def main(argv=None) -> int:
                     "after_over_floor": (d.gain.median_disparity_after_m / floor) if d.gain and floor > 0 else None,
                     "wall_s": wall, "rollouts": d.n_rollouts,
                 }
+                if unknown and d.residual is not None:
+                    row.update(_residual_row(d))
+                    if args.fresh:
+                        if fresh_ms is None:
+                            fresh_ms = [lab.execute(p) for p in diagnosis_plans(args.fresh, 0, seed=1000 * args.seed + i + 500, sideways=min(DEFAULT_SIDEWAYS, args.fresh // 3),
+                                                                                limits=load_scenario("nominal").robot.limits)]
+                        try:
+                            row.update(_fresh_residual_check(d, fresh_ms, ex, cache, dkw) or {})
+                        except Exception as err:  # noqa: BLE001 - a benchmark records failures
+                            row["fresh_error"] = f"{type(err).__name__}: {err}"
                 if sig is not None:
                     row.update(_signature_size(sig, d, k_hidden))
                     row.update({k + "_expected": v for k, v in _signature_size(sig_exp, d, k_hidden).items()})
@@ -531,7 +619,9 @@ def main(argv=None) -> int:
                     with open(args.out, "w") as fh:
                         json.dump(_summarize(results, modes, args, t_bench, registry), fh, indent=1, default=float)
                 if args.progress:
-                    print(json.dumps({k: row.get(k) for k in ("trial", "mode", "hidden", "best", "explained", "confidence", "correct", "honest_cannot_tell", "cannot_tell", "signature_over_limit", "signature_over_limit_expected", "after_over_floor", "wall_s")}), file=sys.stderr, flush=True)
+                    print(json.dumps({k: row.get(k) for k in ("trial", "mode", "hidden", "best", "explained", "confidence", "correct", "honest_cannot_tell", "cannot_tell", "signature_over_limit", "signature_over_limit_expected", "after_over_floor", "wall_s",
+                                                  "residual_offered", "residual_features", "residual_heldout_before_m", "residual_heldout_after_m", "fresh_before_m", "fresh_after_m")
+                                      if k in row}), file=sys.stderr, flush=True)
 
     out = _summarize(results, modes, args, t_bench, registry)
     print(json.dumps(out, indent=1, default=float))

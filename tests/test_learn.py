@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
+
 import pytest
 import yaml
 
@@ -68,12 +70,31 @@ def test_unknown_stage_is_refused(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("override", ["transfer.placement_sd=0.01", "transfer.transfer_choice=random", "transfer.population=many",
-                                      "diagnosis.probes=9", "diagnosis.repeats=-1", "diagnosis.throws=lots"])
+                                      "diagnosis.probes=9", "diagnosis.repeats=-1", "diagnosis.throws=lots",
+                                      "diagnosis.sideways=99", "diagnosis.sideways=some"])
 def test_a_bad_transfer_or_diagnosis_setting_is_refused_before_any_stage_runs(tmp_path, capsys, override):
     code = main(["learn", "--quick", "--set", override, "--out", str(tmp_path / "run")])
     err = capsys.readouterr().err
     assert code == 2 and override.split(".")[0] + ":" in err and "Traceback" not in err
     assert not (tmp_path / "run").exists()
+
+
+def test_the_diagnosis_design_has_sideways_throws_within_the_robots_limits():
+    """Issue 25: learn's diagnosis experiment moves joints 1, 4 and 6 too (sideways throws), within the joint limits."""
+    from besdrake.pipeline.learn import diagnosis_design, learn_scenario
+
+    config = load_config()
+    limits = learn_scenario(config).robot.limits
+    distinct = {p.meta["name"]: p for p in diagnosis_design(config) if p.meta["name"].startswith("diag_")}
+    side = [p for p in distinct.values() if p.meta["generator"] == "side_throw"]
+    assert len(side) == config["diagnosis"]["sideways"] == 5
+    for p in side:
+        travel = np.abs(p.q[-1] - p.q[0])
+        assert travel[0] > 1e-3 and (travel[3] > 1e-3 or travel[5] > 1e-3) and p.check_limits(limits).ok
+    planar = load_config(overrides=["diagnosis.sideways=0"])
+    assert all(p.meta["generator"] != "side_throw" for p in diagnosis_design(planar))
+    quick = load_config(quick=True)
+    assert sum(p.meta["generator"] == "side_throw" for p in {p.meta["name"]: p for p in diagnosis_design(quick)}.values()) == 2
 
 
 @pytest.mark.slow

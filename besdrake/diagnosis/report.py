@@ -167,8 +167,12 @@ def _markdown(diag: Diagnosis, figures: list[str], scenario_path: Path | None) -
             L.append("- the touchdown residual follows: " + ", ".join(f"{f['axis']} ~ {f['feature']} (r = {f['r']:.2f})" for f in r["follows"][:4]))
         m = r.get("model", {})
         if m.get("heldout_after_m") is not None:
-            L.append(f"- {m['label']}: held-out median touchdown disparity {m['heldout_before_m'] * 100:.1f} -> {m['heldout_after_m'] * 100:.1f} cm "
-                     f"({m['n_heldout']} throws, {m['folds']}-fold by plan)")
+            figs = (f"held-out median touchdown disparity {m['heldout_before_m'] * 100:.1f} -> {m['heldout_after_m'] * 100:.1f} cm "
+                    f"({m['n_heldout']} held-out predictions, {m['folds']}-fold by plan x {m.get('repeats', 1)}, the choice of features refitted in every fold)")
+            if m.get("offered"):
+                L.append(f"- {m['label']}, on {', '.join(m['fit']['features']) or 'a constant offset'}: {figs}")
+            else:
+                L.append(f"- no gain: no data-driven residual model lowers the touchdown disparity on held-out plans ({figs}); none offered")
         L.append("")
     if diag.cannot_tell:
         L.append("### No discrepancy beyond the noise: what the log cannot exclude")

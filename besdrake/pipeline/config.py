@@ -22,7 +22,7 @@ QUICK: dict[str, Any] = {
     "imitation": {"max_throws": 2},
     "refinement": {"plans": 1, "evaluations": 60, "population": 10},
     "transfer": {"population": 8, "max_transfers": 2, "final_repetitions": 1},
-    "diagnosis": {"throws": 12, "repeats": 4, "pairs": False},
+    "diagnosis": {"throws": 12, "repeats": 4, "sideways": 2, "pairs": False},
     "templates": {"episodes": 10},
 }
 

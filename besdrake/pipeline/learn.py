@@ -408,16 +408,24 @@ def transfer_config(config: dict[str, Any]):
         raise ConfigError(f"transfer: {err}") from None
 
 
-def diagnosis_design(config: dict[str, Any]) -> list:
-    """The diagnosis experiment's plans of a learn configuration (checked before any stage runs);
-    :class:`~besdrake.pipeline.config.ConfigError` names a bad value."""
+def diagnosis_design(config: dict[str, Any], limits=None) -> list:
+    """The diagnosis experiment's plans of a learn configuration (checked before any stage runs): ``throws`` plans
+    with ``repeats``, ``probes`` tilt probes and ``sideways`` sideways throws (joints 1, 4 and 6 moved, within the
+    robot's joint ``limits``; default: those of :func:`learn_scenario`'s robot). :class:`~besdrake.pipeline.config.ConfigError`
+    names a bad value."""
     from besdrake.diagnosis import diagnosis_plans
     from besdrake.pipeline.config import ConfigError
 
     cfg = config["diagnosis"]
     try:
-        return diagnosis_plans(n=int(cfg["throws"]), repeats=int(cfg["repeats"]), seed=int(config["transfer"]["seed"]), probes=int(cfg.get("probes", 0)))
+        sideways = int(cfg.get("sideways", 0))
+        if sideways and limits is None:
+            limits = learn_scenario(config).robot.limits
+        return diagnosis_plans(n=int(cfg["throws"]), repeats=int(cfg["repeats"]), seed=int(config["transfer"]["seed"]), probes=int(cfg.get("probes", 0)),
+                               sideways=sideways, limits=limits)
     except (TypeError, ValueError) as err:
+        if isinstance(err, ConfigError):
+            raise
         raise ConfigError(f"diagnosis: {err}") from None
 
 
@@ -467,7 +475,7 @@ def stage_diagnose(ctx: Context, out: Path) -> dict[str, Any]:
     lab = _lab(ctx)
     log = _open_log(out / "lab_log", lab)
     cfg = ctx.config["diagnosis"]
-    plans = diagnosis_design(ctx.config)
+    plans = diagnosis_design(ctx.config, limits=ctx.robot().limits)
     run_plans(lab, plans, log)
     t0 = time.perf_counter()
     with _executor(ctx, ctx.config["scenario"]) as executor:
