@@ -2,7 +2,7 @@
 
 :mod:`besdrake.embodiment.pose_ik` solves one nonlinear program per pose: accurate, but each pose may
 land anywhere on a redundant arm's self-motion manifold, so a 7-joint arm's elbow can swing between
-samples (seen on the iiwa: 20-40 rad/s peaks on the redundant joints of a human grasp, time scaling
+samples (seen on the iiwa: 20-40 rad/s peaks on the redundant joints of a demonstrated hand path, time scaling
 factors of 6-26). Here the path is *followed* instead: from a start configuration, each sample's joint
 step is the damped least-squares solution of the tool's 6-D pose error (Drake's spatial Jacobian of the
 tool frame), so the joints move continuously and by the least the pose change needs; the remaining
