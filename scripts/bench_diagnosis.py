@@ -50,8 +50,13 @@ import argparse
 import json
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
+
+# The checkout this script belongs to comes first: run as ``python3 scripts/bench_diagnosis.py``, Python puts only
+# scripts/ on the path, and ``besdrake`` would be the installed (editable) copy, perhaps another worktree's.
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
 def _draw(effect: str, rng: np.random.Generator) -> dict:
