@@ -88,3 +88,18 @@ def test_structurally_identical_answers_count_as_right_and_reliability_is_per_le
     rel = bench.reliability(rows)
     assert rel["high"]["n"] == 2 and rel["high"]["share_right"] == 0.5 and [w["trial"] for w in rel["high"]["wrong_trials"]] == [1]
     assert rel["low"]["right_or_honest"] == 1 and rel["low"]["wrong"] == 0
+
+
+def test_the_residual_model_summary_counts_offered_trials_checked_on_fresh_throws(script):
+    bench = script("bench_diagnosis")
+    rows = [{"trial": 0, "hidden": {}, "residual_offered": True, "residual_kind": "ridge", "residual_features": ["vel_y"], "residual_heldout_before_m": 0.10,
+             "residual_heldout_after_m": 0.07, "fresh_before_m": 0.11, "fresh_after_m": 0.08},
+            {"trial": 1, "hidden": {}, "residual_offered": True, "residual_kind": "offset", "residual_features": [], "residual_heldout_before_m": 0.08,
+             "residual_heldout_after_m": 0.07, "fresh_before_m": 0.07, "fresh_after_m": 0.09},
+            {"trial": 2, "hidden": {}, "residual_offered": False, "residual_kind": "none", "residual_features": [], "residual_heldout_before_m": 0.08,
+             "residual_heldout_after_m": 0.08, "fresh_before_m": 0.07, "fresh_after_m": 0.07},
+            {"trial": 3, "hidden": {}, "explained": True}]
+    s = bench._residual_summary(rows)
+    assert s["trials_with_residual_report"] == 3 and s["offered"] == 2 and s["offered_heldout_lower"] == 2
+    assert s["offered_fresh_checked"] == 2 and s["offered_fresh_lower"] == 1 and s["share_offered_fresh_lower"] == 0.5
+    assert s["fitted_not_offered_fresh_checked"] == 0 and [r["trial"] for r in s["per_trial"]] == [0, 1, 2]
