@@ -292,8 +292,8 @@ def test_batch_evaluator_keeps_failures_with_their_episode():
 @pytest.mark.slow
 def test_cmaes_aims_the_default_throw_through_the_rollout_executor(tmp_path):
     """Integration with besdrake.sim: search amplitude and yaw of the default throw for a target."""
-    executors = pytest.importorskip("besdrake.sim.executors")
-    throws = pytest.importorskip("besdrake.sim.throws")
+    from besdrake.sim import executors
+    from besdrake.tasks.throwing import throws
     target = np.array([1.8, 0.3])
 
     def to_reward(outcome):

@@ -153,22 +153,12 @@ def search_options(args: argparse.Namespace) -> dict:
     return out
 
 
-def run(args: argparse.Namespace) -> int:
-    import logging
-
+def _check_args(args: argparse.Namespace) -> None:
+    """Refuse a bad number before anything runs (one UserError line)."""
     import numpy as np
 
     from besdrake.cli import UserError
-    from besdrake.imitation import DMPParameterError, load_dmp, save_dmp
-    from besdrake.search.loop import ResumeError
-    from besdrake.search.refinement import (RefinementError, RefinementProblem, rank_starts, refine, scout_points,
-                                            scout_starts_checked)
-    from besdrake.tasks.throwing.reward import ThrowReward
-    from besdrake.sim.cliutil import executor_from_args
-    from besdrake.sim.executors import ExecutorError
-    from besdrake.sim.scenario import ScenarioError, load_scenario
 
-    logging.getLogger("drake").setLevel(logging.ERROR)
     for name, v, lo in (("--runs", args.runs, 1), ("--episodes", args.episodes, 1), ("--popsize", args.popsize, 2), ("--workers", args.workers, 1)):
         if v < lo:
             raise UserError(f"{name} must be >= {lo}, got {v}")
@@ -186,11 +176,16 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--popsize-growth must be >= 1, got {args.popsize_growth}")
     if not np.isfinite(args.target).all():
         raise UserError(f"--target must be finite, got {args.target}")
-    t_start = time.perf_counter()
-    args.out.mkdir(parents=True, exist_ok=True)
-    files = collect_imitated(args.imitated, args.out)
-    if not files:
-        raise UserError("no imitated throws to refine")
+
+
+def _problems(args: argparse.Namespace, files: list[Path]):
+    """One refinement problem per imitated throw, and the number of scout start points."""
+    from besdrake.cli import UserError
+    from besdrake.imitation import DMPParameterError, load_dmp
+    from besdrake.search.refinement import RefinementError, RefinementProblem, scout_starts_checked
+    from besdrake.sim.scenario import ScenarioError, load_scenario
+    from besdrake.tasks.throwing.reward import ThrowReward
+
     try:
         extra = {} if args.dropped_penalty is None else {"dropped_penalty": args.dropped_penalty}
         if args.violation_offset is not None:
@@ -198,59 +193,71 @@ def run(args: argparse.Namespace) -> int:
         reward = ThrowReward(target=tuple(args.target), **extra)
         robot = load_scenario(args.scenario).robot
         problems = [RefinementProblem(robot, load_dmp(f), reward, retime=args.retime) for f in files]
-        scout_starts = scout_starts_checked(args.scout_starts)  # before anything is simulated
+        return problems, scout_starts_checked(args.scout_starts)  # before anything is simulated
     except (DMPParameterError, RefinementError, ScenarioError) as err:
         raise UserError(str(err)) from None
-    show = not args.quiet and sys.stderr.isatty()
-    try:
-        executor = executor_from_args(args, args.scenario)
-    except (ScenarioError, ExecutorError) as err:
-        raise UserError(str(err)) from None
-    search = search_options(args)
+
+
+def _start(args: argparse.Namespace, files: list[Path], problems: list, executor, scout_starts: int) -> dict:
+    """The ranked start points (``OUT/start.json``, written once; a resumed run must refine the same throws)."""
+    import numpy as np
+
+    from besdrake.cli import UserError
+    from besdrake.search.refinement import rank_starts
+
     start_file = args.out / "start.json"
-    runs = []
-    with executor:
-        if start_file.exists():
-            start = json.loads(start_file.read_text())
-            if start["files"] != [str(f) for f in files] or start["target"] != list(args.target):
-                raise UserError(f"{args.out} holds a refinement of other throws or another target; use another --out")
-            index = int(start["index"])
-        else:
-            start = None
-        if start is None or (scout_starts > 1 and "ranking" not in start):
-            ranking = rank_starts(problems, executor)
-            index, rec = ranking[0]
-            start = {"files": [str(f) for f in files], "target": list(args.target), "index": index,
-                     "start_distance_m": rec.distance, "start_touchdown_m": rec.touchdown, "start_flags": rec.flags,
-                     "ranking": [int(i) for i, r in ranking if np.isfinite(r.reward)]}
-            _atomic_write_text(start_file, json.dumps(start, indent=1))
-        problem = problems[index]
-        starts = scout_points(problems, start.get("ranking", []), scout_starts)  # None with one start point
-        for k in range(args.runs):
-            run_dir = args.out / f"run{k}"
-            bar = None
-            if show:
-                from tqdm import tqdm
+    start = None
+    if start_file.exists():
+        start = json.loads(start_file.read_text())
+        if start["files"] != [str(f) for f in files] or start["target"] != list(args.target):
+            raise UserError(f"{args.out} holds a refinement of other throws or another target; use another --out")
+    if start is None or (scout_starts > 1 and "ranking" not in start):
+        ranking = rank_starts(problems, executor)
+        index, rec = ranking[0]
+        start = {"files": [str(f) for f in files], "target": list(args.target), "index": index,
+                 "start_distance_m": rec.distance, "start_touchdown_m": rec.touchdown, "start_flags": rec.flags,
+                 "ranking": [int(i) for i, r in ranking if np.isfinite(r.reward)]}
+        _atomic_write_text(start_file, json.dumps(start, indent=1))
+    return start
 
-                bar = tqdm(total=args.episodes, desc=f"run {k + 1}/{args.runs}", unit="ep", file=sys.stderr)
 
-            def progress(n: int, best: float, _wall: float, bar=bar) -> None:
-                if bar is not None:
-                    bar.update(n - bar.n)
-                    bar.set_postfix(best_m=f"{best:.3f}")
+def _refine_run(k: int, args: argparse.Namespace, problem, executor, search: dict, starts, show: bool):
+    """Run ``k`` of the refinement into ``OUT/run{k}`` (resumable), its refined DMP saved beside it."""
+    from besdrake.cli import UserError
+    from besdrake.imitation import save_dmp
+    from besdrake.search.loop import ResumeError
+    from besdrake.search.refinement import RefinementError, refine
 
-            try:
-                result = refine(problem, executor, args.episodes, seed=args.seed + k, out_dir=run_dir, sigma0=args.sigma0,
-                                popsize=args.popsize, stop_on_success=not args.continue_after_success, progress=progress,
-                                meta_episodes=args.meta_episodes, meta_sigma=args.meta_sigma, **search,
-                                **({} if starts is None else {"starts": starts}))
-            except (RefinementError, ResumeError) as err:
-                raise UserError(str(err)) from None
-            finally:
-                if bar is not None:
-                    bar.close()
-            save_dmp(problem.parameterization.from_vector(result.best_theta), run_dir / "refined.dmp.json")
-            runs.append(result)
+    run_dir = args.out / f"run{k}"
+    bar = None
+    if show:
+        from tqdm import tqdm
+
+        bar = tqdm(total=args.episodes, desc=f"run {k + 1}/{args.runs}", unit="ep", file=sys.stderr)
+
+    def progress(n: int, best: float, _wall: float) -> None:
+        if bar is not None:
+            bar.update(n - bar.n)
+            bar.set_postfix(best_m=f"{best:.3f}")
+
+    try:
+        result = refine(problem, executor, args.episodes, seed=args.seed + k, out_dir=run_dir, sigma0=args.sigma0,
+                        popsize=args.popsize, stop_on_success=not args.continue_after_success, progress=progress,
+                        meta_episodes=args.meta_episodes, meta_sigma=args.meta_sigma, **search,
+                        **({} if starts is None else {"starts": starts}))
+    except (RefinementError, ResumeError) as err:
+        raise UserError(str(err)) from None
+    finally:
+        if bar is not None:
+            bar.close()
+    save_dmp(problem.parameterization.from_vector(result.best_theta), run_dir / "refined.dmp.json")
+    return result
+
+
+def _summary(args: argparse.Namespace, files: list[Path], start: dict, runs: list, t_start: float) -> dict:
+    """The refinement's ``summary.json`` (written here) and its learning curves unless ``--no-figures``."""
+    import numpy as np
+
     summary = {
         "target_m": list(args.target),
         "n_imitated_throws": len(files),
@@ -264,9 +271,39 @@ def run(args: argparse.Namespace) -> int:
         from besdrake.search.refinement import plot_learning_curves
 
         summary["learning_curve"] = str(plot_learning_curves(runs, args.out / "learning_curve.png"))
-    tmp = args.out / "summary.tmp"
-    tmp.write_text(json.dumps(summary, indent=1, default=float))
-    tmp.replace(args.out / "summary.json")
+    _atomic_write_text(args.out / "summary.json", json.dumps(summary, indent=1, default=float))
+    return summary
+
+
+def run(args: argparse.Namespace) -> int:
+    import logging
+
+    from besdrake.cli import UserError
+    from besdrake.search.refinement import scout_points
+    from besdrake.sim.cliutil import executor_from_args
+    from besdrake.sim.executors import ExecutorError
+    from besdrake.sim.scenario import ScenarioError
+
+    logging.getLogger("drake").setLevel(logging.ERROR)
+    _check_args(args)
+    t_start = time.perf_counter()
+    args.out.mkdir(parents=True, exist_ok=True)
+    files = collect_imitated(args.imitated, args.out)
+    if not files:
+        raise UserError("no imitated throws to refine")
+    problems, scout_starts = _problems(args, files)
+    show = not args.quiet and sys.stderr.isatty()
+    try:
+        executor = executor_from_args(args, args.scenario)
+    except (ScenarioError, ExecutorError) as err:
+        raise UserError(str(err)) from None
+    search = search_options(args)
+    with executor:
+        start = _start(args, files, problems, executor, scout_starts)
+        problem = problems[int(start["index"])]
+        starts = scout_points(problems, start.get("ranking", []), scout_starts)  # None with one start point
+        runs = [_refine_run(k, args, problem, executor, search, starts, show) for k in range(args.runs)]
+    summary = _summary(args, files, start, runs, t_start)
     if args.json:
         print(json.dumps(summary, default=float))
     else:

@@ -101,13 +101,9 @@ def _figures(diag: Diagnosis, out: Path) -> list[str]:
     return files
 
 
-def _markdown(diag: Diagnosis, figures: list[str], scenario_path: Path | None) -> str:
-    s = diag.summary()
-    L = ["# Diagnosis of the simulation against the lab log", ""]
-    L.append(f"**Verdict:** {diag.verdict}.  ")
-    L.append(f"**Explained:** {'yes' if diag.explained else 'no'} (confidence: {diag.confidence}).")
-    L.append("")
-    L.append(f"Trials in the log: {diag.n_trials}; compared: {diag.n_used}; skipped: {len(diag.skipped)}. Signals measured: {', '.join(diag.groups_measured)}.")
+def _md_comparison(diag: Diagnosis) -> list[str]:
+    """Section 1: the nominal replay against the lab, per signal and per throw, and the noise."""
+    L: list[str] = []
     L += ["", "## 1. What the simulation gets wrong (nominal replay of every logged plan)", ""]
     L.append("| signal | throws | mean residual (lab - sim) | SE | RMS | noise SD | systematic |")
     L.append("|---|---|---|---|---|---|---|")
@@ -136,6 +132,12 @@ def _markdown(diag: Diagnosis, figures: list[str], scenario_path: Path | None) -
     if axis:
         L.append("- the fit weighs every throw by its own SD: the scatter its ball placement gives it in simulation, times a scale, "
                  "plus a base SD, both fitted to the repeats per axis: " + "; ".join(f"{g} " + ", ".join(f"{k.replace('_placement_scale', ' scale')} {v:.3g}" for k, v in d.items()) for g, d in axis.items()))
+    return L
+
+
+def _md_causes(diag: Diagnosis) -> list[str]:
+    """Section 2: the candidates ranked by BIC and what cannot be told apart."""
+    L: list[str] = []
     L += ["", "## 2. The cause: candidates ranked by BIC", ""]
     L.append("| rank | candidate | delta BIC | lack-of-fit p | fitted parameters (+- 1 SE) |")
     L.append("|---|---|---|---|---|")
@@ -158,6 +160,12 @@ def _markdown(diag: Diagnosis, figures: list[str], scenario_path: Path | None) -
         for c in diag.structural:
             L.append(f"- {c['reason']}")
         L.append("")
+    return L
+
+
+def _md_residual(diag: Diagnosis) -> list[str]:
+    """Not explained: where the residual lives, and the residual model (offered or not)."""
+    L: list[str] = []
     if diag.residual:
         r = diag.residual
         L.append("### Not explained: where the residual lives")
@@ -174,6 +182,12 @@ def _markdown(diag: Diagnosis, figures: list[str], scenario_path: Path | None) -
             else:
                 L.append(f"- no gain: no data-driven residual model lowers the touchdown disparity on held-out plans ({figs}); none offered")
         L.append("")
+    return L
+
+
+def _md_cannot_tell(diag: Diagnosis) -> list[str]:
+    """No discrepancy beyond the noise: what the log cannot exclude; the unconstrained and the verdict's caveat."""
+    L: list[str] = []
     if diag.cannot_tell:
         L.append("### No discrepancy beyond the noise: what the log cannot exclude")
         L.append("")
@@ -196,6 +210,12 @@ def _markdown(diag: Diagnosis, figures: list[str], scenario_path: Path | None) -
     if not diag.explained:
         L.append("**Not explained**: no candidate brings the residual down to the noise level. An effect outside the registry "
                  "(or a combination of more than two) is at work; the refined scenario below is only the best available approximation.")
+    return L
+
+
+def _md_refined(diag: Diagnosis, scenario_path: Path | None) -> list[str]:
+    """Sections 3 and 4: the refined model and its held-out gain."""
+    L: list[str] = []
     L += ["", "## 3. Refined model", ""]
     L.append(f"Scenario file: `{scenario_path}`" if scenario_path else "No refined scenario written.")
     L.append("")
@@ -218,6 +238,12 @@ def _markdown(diag: Diagnosis, figures: list[str], scenario_path: Path | None) -
         L.append(f"Median disparity of pure measurement noise (from the noise estimate): {floor:.3f} m.")
     else:
         L.append("No held-out gain computed (no cause fitted or too few touchdowns).")
+    return L
+
+
+def _md_notes(diag: Diagnosis, figures: list[str], s: dict) -> list[str]:
+    """Figures and notes."""
+    L: list[str] = []
     L += ["", "## Figures", ""]
     for f in figures:
         L.append(f"![{f}]({f})")
@@ -225,6 +251,18 @@ def _markdown(diag: Diagnosis, figures: list[str], scenario_path: Path | None) -
     for n in diag.notes:
         L.append(f"- {n}")
     L.append(f"- {diag.n_rollouts} rollouts in {s['timings_s']['total']:.1f} s ({', '.join(f'{k} {v:.1f} s' for k, v in s['timings_s'].items() if k != 'total')}).")
+    return L
+
+
+def _markdown(diag: Diagnosis, figures: list[str], scenario_path: Path | None) -> str:
+    s = diag.summary()
+    L = ["# Diagnosis of the simulation against the lab log", ""]
+    L.append(f"**Verdict:** {diag.verdict}.  ")
+    L.append(f"**Explained:** {'yes' if diag.explained else 'no'} (confidence: {diag.confidence}).")
+    L.append("")
+    L.append(f"Trials in the log: {diag.n_trials}; compared: {diag.n_used}; skipped: {len(diag.skipped)}. Signals measured: {', '.join(diag.groups_measured)}.")
+    L += _md_comparison(diag) + _md_causes(diag) + _md_residual(diag) + _md_cannot_tell(diag)
+    L += _md_refined(diag, scenario_path) + _md_notes(diag, figures, s)
     return "\n".join(L) + "\n"
 
 

@@ -131,7 +131,9 @@ class PathIK:
             raise ValueError("pose targets must be finite")
         q = np.clip(np.asarray(q_start, dtype=float), self.lower, self.upper)
         for _ in range(10):
-            q, pe, ae = self.solve_pose(q, positions[0], rotations[0])
+            q, pos_err, ang_err = self.solve_pose(q, positions[0], rotations[0])
+            if pos_err <= 0.2 * self.opt.position_tolerance and ang_err <= 0.2 * self.opt.angle_tolerance:
+                break
         out = np.empty((n, len(q)))
         pos_res, ang_res = np.empty(n), np.empty(n)
         for i in range(n):

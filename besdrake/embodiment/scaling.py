@@ -142,8 +142,8 @@ def toppra_retime(
     if not np.isfinite(T) or T <= 0:
         return None
     t_new = np.linspace(0.0, T, max(3, int(np.ceil(T / dt)) + 1))
-    s_new = np.clip([s_of_t.value(t0 + ti)[0, 0] for ti in t_new], 0.0, 1.0)
-    return t_new, np.array([path.value(si)[arm, 0] for si in s_new]), t[0] + s_new * (t[-1] - t[0])
+    s_new = np.clip(s_of_t.vector_values(list(t0 + t_new))[0], 0.0, 1.0)
+    return t_new, path.vector_values(list(s_new))[arm].T, t[0] + s_new * (t[-1] - t[0])
 
 
 def local_retime(t: np.ndarray, q: np.ndarray, limits: JointLimits, safety: float = 0.9, window: int = 5,

@@ -116,7 +116,7 @@ def tool_targets(skill: GraspSkill, X_base_task: RigidTransform, R_hand_tool: Ro
     return traj.t, positions, rotations
 
 
-def _start_from_home(skill: GraspSkill, model: KinematicModel, X_base_task: RigidTransform,
+def start_from_home(skill: GraspSkill, model: KinematicModel, X_base_task: RigidTransform,
                      R_hand_tool: RotationMatrix) -> GraspSkill:
     """The skill with its approach starting at the tool pose of the robot's home position."""
     X_task_tool = X_base_task.inverse() @ model.tcp_pose(model.robot.home)
@@ -153,7 +153,7 @@ def grasp_plan(
     R_ht = hand_to_tool(robot)
     skill = skill.adapted(table_place, grasp_offset)
     if start == "home":
-        skill = _start_from_home(skill, model, X_base_task, R_ht)
+        skill = start_from_home(skill, model, X_base_task, R_ht)
     elif start != "demonstration":
         raise ValueError(f"start must be 'demonstration' or 'home', got {start!r}")
     t, positions, rotations = tool_targets(skill, X_base_task, R_ht, ik_dt)

@@ -17,6 +17,7 @@ Default demonstration: the recording shipped with the package (``data/``, with i
 
 from __future__ import annotations
 
+import json
 import time
 from pathlib import Path
 from typing import Any
@@ -53,8 +54,8 @@ def stage_demonstrations(ctx, out: Path) -> dict[str, Any]:
             name = f"{f.stem}_{i}"
             d.to_npz(out / f"{name}.npz")
             used.append(name)
-        problems += [{"file": f.name, "problem": p} for p in res.to_dict().get("problems", [])]
-        problems += [{"file": f.name, "rejected": r} for r in res.to_dict().get("rejected", [])]
+        problems += [{"file": f.name, "problem": p} for p in res.problems]
+        problems += [{"file": f.name, "rejected": r.to_dict()} for r in res.rejected]
     write_json(out / "demonstrations.json", {"used": used, "problems": problems})
     ctx.progress(f"  {len(used)} grasp demonstrations, {len(problems)} problems")
     return {"demonstrations_used": len(used), "problems": len(problems)}
@@ -138,8 +139,6 @@ def _lab_config(ctx) -> dict[str, Any]:
 
 
 def _read_json(path: Path):
-    import json
-
     return json.loads(Path(path).read_text())
 
 

@@ -19,6 +19,7 @@ import concurrent.futures as cf
 import csv
 import json
 import os
+import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -28,6 +29,7 @@ import numpy as np
 from besdrake._io import write_json
 from besdrake.search.cmaes import CMAES
 from besdrake.search.loop import GenerationInfo, run_search
+from besdrake.search.refinement import ParameterScaling
 from besdrake.tasks.pick_and_place.imitation import GraspImitationError, GraspSkill
 from besdrake.tasks.pick_and_place.parameters import GraspParameterization
 
@@ -83,30 +85,29 @@ class GraspEpisode:
         self.rollout = PickPlaceRollout(load_scenario(scenario))
         self.planner = SkillPlanner.for_rollout(self.rollout)
         self.param = GraspParameterization(GraspSkill.from_dict(skill), weights=weights)
-        self.theta0, self.scale, self.bounds = self.param.scaling()
+        self.scaling = ParameterScaling(*self.param.scaling())
         self.max_duration = min(MAX_PLAN_DURATION, self.rollout.robot.safety.max_plan_duration)
 
-    def skill(self, x: np.ndarray) -> GraspSkill:
-        return self.param.from_vector(self.theta0 + self.scale * np.asarray(x, dtype=float))
-
     def __call__(self, x: np.ndarray) -> dict[str, Any]:
-        import time
-
         t0 = time.process_time()
         try:
-            sp = self.planner.plan(self.skill(x))
+            sp = self.planner.plan(self.param.from_vector(self.scaling.to_theta(x)))
         except (GraspImitationError, ValueError) as err:
-            return {"reward": float("nan"), "success": False, "message": f"no plan: {err}", "place_error_m": float("nan"),
-                    "plan_duration_s": float("nan"), "ik_lag_m": float("nan"), "cpu_s": time.process_time() - t0}
+            return _row(t0, float("nan"), f"no plan: {err}")
         if sp.plan.duration > self.max_duration:  # not simulated: a plan this slow is refused (and costly)
-            return {"reward": -(2.0 + sp.plan.duration / 100.0), "success": False,
-                    "message": f"plan too slow: {sp.plan.duration:.1f} s > {self.max_duration:.1f} s",
-                    "place_error_m": float("nan"), "plan_duration_s": float(sp.plan.duration),
-                    "ik_lag_m": float(sp.ik.position_residual.max()), "cpu_s": time.process_time() - t0}
+            return _row(t0, -(2.0 + sp.plan.duration / 100.0),
+                        f"plan too slow: {sp.plan.duration:.1f} s > {self.max_duration:.1f} s", sp)
         out = self.rollout.rollout(sp.plan)
-        return {"reward": float(out.reward), "success": bool(out.success), "message": out.message,
-                "place_error_m": float(out.place_error), "plan_duration_s": float(sp.plan.duration),
-                "ik_lag_m": float(sp.ik.position_residual.max()), "cpu_s": time.process_time() - t0}
+        return _row(t0, out.reward, out.message, sp, bool(out.success), out.place_error)
+
+
+def _row(t0: float, reward: float, message: str, sp=None, success: bool = False,
+         place_error: float = float("nan")) -> dict[str, Any]:
+    """One ``details.csv`` row (``t0``: the episode's start, process CPU time; ``sp``: its SkillPlan, if any)."""
+    return {"reward": float(reward), "success": success, "message": message, "place_error_m": float(place_error),
+            "plan_duration_s": float("nan") if sp is None else float(sp.plan.duration),
+            "ik_lag_m": float("nan") if sp is None else float(sp.ik.position_residual.max()),
+            "cpu_s": time.process_time() - t0}
 
 
 _EPISODES: dict[str, GraspEpisode] = {}
@@ -160,10 +161,9 @@ def refine_grasp(skill: GraspSkill, scenario: str = "pick_and_place", out_dir: s
         out.mkdir(parents=True, exist_ok=True)
     skill_d = skill.to_dict()
     param = GraspParameterization(skill, weights=s.weights)
-    theta0, scale, bounds = param.scaling()
-    x_bounds = (bounds - theta0[:, None]) / scale[:, None]
+    scaling = ParameterScaling(*param.scaling())
     optimizer = CMAES(np.zeros(param.n_params), s.sigma0, np.random.default_rng(s.seed), popsize=s.popsize,
-                      bounds=x_bounds)
+                      bounds=scaling.x_bounds)
     details = _Details(None if out is None else out / DETAILS_FILE)
     pool = cf.ProcessPoolExecutor(s.workers) if s.workers > 1 else None
     initial = _evaluate([np.zeros(param.n_params)], skill_d, scenario, s.weights, details, pool)[0]
@@ -175,13 +175,12 @@ def refine_grasp(skill: GraspSkill, scenario: str = "pick_and_place", out_dir: s
         return s.stop_on_success and any(details.rows.get(_key(x), {}).get("success") for x in info.candidates)
 
     try:
-        popsize = s.popsize or 4 + int(3 * np.log(param.n_params))  # cma's default
-        loop = run_search(optimizer, evaluate_batch, n_evaluations=s.max_generations * popsize, out_dir=out,
+        loop = run_search(optimizer, evaluate_batch, n_evaluations=s.max_generations * optimizer.popsize0, out_dir=out,
                           callback=callback)
     finally:
         if pool is not None:
             pool.shutdown()
-    return _result(loop, details, initial, param, theta0, scale, out)
+    return _result(loop, details, initial, lambda x: param.from_vector(scaling.to_theta(x)), out)
 
 
 def _evaluate(X, skill_d: dict, scenario: str, weights: bool, details: _Details, pool) -> list[dict[str, Any]]:
@@ -202,13 +201,14 @@ def _reward(row: dict) -> float:
     return r if np.isfinite(r) else -np.inf
 
 
-def _result(loop, details: _Details, initial: dict, param, theta0, scale, out: Path | None) -> RefineResult:
-    """The best episode (a successful one first, then the highest reward) and its skill, written to ``out``."""
+def _result(loop, details: _Details, initial: dict, skill_of, out: Path | None) -> RefineResult:
+    """The best episode (a successful one first, then the highest reward) and its skill (``skill_of(x)``), written
+    to ``out``."""
     rows = [(details.rows.get(_key(x), {}), x) for x in loop.params]
     hits = [i for i, (r, _) in enumerate(rows) if r.get("success")]
     ranked = sorted(rows, key=lambda r: (not r[0].get("success", False), -_reward(r[0])))
-    best, x_best = ranked[0] if ranked else (initial, np.zeros(param.n_params))
-    skill = param.from_vector(theta0 + scale * np.asarray(x_best, dtype=float))
+    best, x_best = ranked[0] if ranked else (initial, np.zeros(loop.params.shape[1]))
+    skill = skill_of(np.asarray(x_best, dtype=float))
     result = RefineResult(
         success=bool(best.get("success", False)), best_reward=float(best.get("reward", "nan")),
         best_message=str(best.get("message", "")), best_place_error_m=float(best.get("place_error_m", "nan") or "nan"),

@@ -30,8 +30,8 @@ from besdrake.embodiment.pose_ik import PoseIKTrajectory
 from besdrake.embodiment.scaling import local_retime, toppra_retime
 from besdrake.plan import MotionPlan
 from besdrake.robot import Robot
-from besdrake.tasks.pick_and_place.grasp_plan import (_start_from_home, gripper_command, hand_to_tool,
-                                                      scene_task_frame, tool_targets)
+from besdrake.tasks.pick_and_place.grasp_plan import (gripper_command, hand_to_tool, scene_task_frame,
+                                                      start_from_home, tool_targets)
 from besdrake.tasks.pick_and_place.imitation import GraspSkill
 
 #: Fraction of the velocity and acceleration limits a plan may use.
@@ -83,7 +83,7 @@ class SkillPlanner:
     def adapt(self, skill: GraspSkill) -> GraspSkill:
         """``skill`` with the scene's goals and its approach starting at the home tool pose (step 1)."""
         adapted = skill.adapted(self.table_place + self.grasp_offset, self.grasp_offset)
-        return _start_from_home(adapted, self.model, self.X_base_task, self.hand_to_tool(skill))
+        return start_from_home(adapted, self.model, self.X_base_task, self.hand_to_tool(skill))
 
     def hand_to_tool(self, skill: GraspSkill) -> RotationMatrix:
         """``R_hand_tool`` from the demonstrated grasp: the tool's closing axis (robot file

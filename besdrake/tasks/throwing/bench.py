@@ -69,24 +69,32 @@ def _landing(o) -> float:
 
 def run_bench(quick: bool = False, out_dir: str | Path = "runs/bench", scenario: str = "nominal", progress=None) -> BenchResult:
     """Run the benchmark (``quick``: fewer throws and a smaller batch, for smoke tests) and plot the sweep."""
-    from besdrake.sim.executors import make_executor
-    from besdrake.tasks.throwing.rollout import ThrowRollout as Rollout
     from besdrake.sim.scenario import load_scenario
-    from besdrake.tasks.throwing.throws import default_throw
+    from besdrake.tasks.throwing.rollout import ThrowRollout as Rollout
 
     say = progress or (lambda msg: None)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     scen = load_scenario(scenario)
     ref_scen = scen.with_overrides(time_step=0.001, name=f"{scen.name}_1ms")
+    say(f"building diagrams (default step {scen.time_step} s and 1 ms reference)")
+    sim, ref = Rollout(scen), Rollout(ref_scen)
+    fid = _fidelity(sim, ref, 8 if quick else 24, say)
+    smooth = _smoothness(sim, 15 if quick else 41, say)
+    speed = _speedup(scen, 16 if quick else 64, 1 if quick else 3, say)
+    plot = _plot(out_dir / "landing_sweep.png", fid["amps"], fid["land"], fid["land_ref"], smooth["dense_a"],
+                 smooth["dense"], scen.time_step)
+    res = _bench_result(fid, smooth, speed, scen.time_step, plot, quick)
+    _atomic_write_text(out_dir / "bench_rollout.json", json.dumps(res.to_dict(), indent=2))
+    return res
 
-    # 1. fidelity sweep + timing (default step, this process)
-    n_fid = 8 if quick else 24
+
+def _fidelity(sim, ref, n_fid: int, say) -> dict[str, Any]:
+    """1. The fidelity sweep against the 1 ms reference, and the timing of the default step (this process)."""
+    from besdrake.tasks.throwing.throws import default_throw
+
     amps = np.linspace(*AMPLITUDE_RANGE, n_fid)
     plans = [default_throw(amplitude=float(a)) for a in amps]
-    say(f"building diagrams (default step {scen.time_step} s and 1 ms reference)")
-    sim = Rollout(scen)
-    ref = Rollout(ref_scen)
     sim.rollout(plans[0])  # warm-up
     wall, cpu, default_out = [], [], []
     say(f"timing {n_fid} throws at the default step")
@@ -100,13 +108,17 @@ def run_bench(quick: bool = False, out_dir: str | Path = "runs/bench", scenario:
     land = np.array([_landing(o) for o in default_out])
     land_ref = np.array([_landing(o) for o in ref_out])
     err = np.abs(land - land_ref)
-    flagged = sum(not o.ok for o in default_out + ref_out)
     max_err = float(np.nanmax(err)) if np.isfinite(err).any() else float("nan")
     if np.isnan(err).any():
         max_err = float("inf")
+    return {"amps": amps, "land": land, "land_ref": land_ref, "wall": wall, "cpu": cpu, "max_err": max_err,
+            "flagged": sum(not o.ok for o in default_out + ref_out), "n": n_fid}
 
-    # 2. dense sweep for smoothness
-    n_dense = 15 if quick else 41
+
+def _smoothness(sim, n_dense: int, say) -> dict[str, Any]:
+    """2. A dense sweep: is the landing monotonic in the amplitude, and how uneven are its steps?"""
+    from besdrake.tasks.throwing.throws import default_throw
+
     dense_a = np.linspace(AMPLITUDE_RANGE[0] - 0.02, AMPLITUDE_RANGE[1] + 0.02, n_dense)
     say(f"dense sweep of {n_dense} throws")
     dense = np.array([_landing(sim.rollout(default_throw(amplitude=float(a)))) for a in dense_a])
@@ -114,14 +126,17 @@ def run_bench(quick: bool = False, out_dir: str | Path = "runs/bench", scenario:
     # the swing is too weak to catapult the ball, it rolls out of the funnel and the landing drops steeply).
     inside = (dense_a >= AMPLITUDE_RANGE[0] - 1e-9) & (dense_a <= AMPLITUDE_RANGE[1] + 1e-9)
     steps = np.diff(dense[inside])
-    monotonic = bool(np.all(steps > 0))
-    max_step_ratio = float(np.max(np.abs(steps)) / np.median(np.abs(steps)))
+    return {"dense_a": dense_a, "dense": dense, "monotonic": bool(np.all(steps > 0)),
+            "max_step_ratio": float(np.max(np.abs(steps)) / np.median(np.abs(steps)))}
 
-    # 3. parallel speed-up on a batch
-    batch = 16 if quick else 64
+
+def _speedup(scen, batch: int, reps: int, say) -> dict[str, Any]:
+    """3. The parallel speed-up on a batch: 1 against 2 worker processes, alternated ``reps`` times."""
+    from besdrake.sim.executors import make_executor
+    from besdrake.tasks.throwing.throws import default_throw
+
     rng = np.random.default_rng(0)
     batch_plans = [default_throw(amplitude=float(a), yaw=float(y)) for a, y in zip(rng.uniform(*AMPLITUDE_RANGE, batch), rng.uniform(-0.3, 0.3, batch))]
-    reps = 1 if quick else 3
     say(f"batch of {batch} on 1 and 2 workers, {reps} alternating repetitions")
     t1s, t2s = [], []
     with make_executor("process", workers=1, scenario=scen) as ex1, make_executor("process", workers=2, scenario=scen) as ex2:
@@ -132,47 +147,49 @@ def run_bench(quick: bool = False, out_dir: str | Path = "runs/bench", scenario:
             t0 = time.perf_counter()
             out2 = ex2.evaluate(batch_plans)
             t2s.append(time.perf_counter() - t0)
-    t1, t2 = float(np.median(t1s)), float(np.median(t2s))
     identical = all(
         (a.touchdown is None and b.touchdown is None) or (a.touchdown is not None and b.touchdown is not None and np.array_equal(a.touchdown, b.touchdown))
         for a, b in zip(out1, out2)
     )
+    return {"batch": batch, "t1": float(np.median(t1s)), "t2": float(np.median(t2s)), "identical": bool(identical)}
 
-    plot = _plot(out_dir / "landing_sweep.png", amps, land, land_ref, dense_a, dense, scen.time_step)
-    ms = float(np.median(wall) * 1000.0)
+
+def _bench_result(fid: dict, smooth: dict, speed: dict, time_step: float, plot: Path, quick: bool) -> BenchResult:
+    """The figures of the three parts, the machine, and which targets they pass."""
+    ms = float(np.median(fid["wall"]) * 1000.0)
+    land = fid["land"]
     try:
         load = os.getloadavg()
     except OSError:  # pragma: no cover
         load = (float("nan"),) * 3
     res = BenchResult(
-        max_landing_error_m=max_err,
+        max_landing_error_m=fid["max_err"],
         ms_per_rollout=ms,
-        cpu_ms_per_rollout=float(np.median(cpu) * 1000.0),
+        cpu_ms_per_rollout=float(np.median(fid["cpu"]) * 1000.0),
         rollouts_per_s=1000.0 / ms,
         realtime_factor=1500.0 / ms,
-        speedup_2_workers=t1 / t2,
-        backends_identical=bool(identical),
-        n_fidelity_throws=n_fid,
+        speedup_2_workers=speed["t1"] / speed["t2"],
+        backends_identical=speed["identical"],
+        n_fidelity_throws=fid["n"],
         landing_range_m=(float(np.nanmin(land)), float(np.nanmax(land))),
         n_landing_1_to_2_5_m=int(np.sum((land >= 1.0) & (land <= 2.5))),
-        landing_monotonic=monotonic,
-        max_step_ratio=max_step_ratio,
-        time_step_s=scen.time_step,
+        landing_monotonic=smooth["monotonic"],
+        max_step_ratio=smooth["max_step_ratio"],
+        time_step_s=time_step,
         reference_time_step_s=0.001,
-        batch_size=batch,
-        t_batch_1_worker_s=t1,
-        t_batch_2_workers_s=t2,
+        batch_size=speed["batch"],
+        t_batch_1_worker_s=speed["t1"],
+        t_batch_2_workers_s=speed["t2"],
         plot=str(plot),
         machine={"cpu_count": os.cpu_count(), "loadavg_1_5_15": list(load), "quick": quick},
-        flagged_throws=int(flagged),
+        flagged_throws=int(fid["flagged"]),
     )
     res.passed = {
         "max_landing_error_m": res.max_landing_error_m <= TARGETS["max_landing_error_m"],
         "ms_per_rollout": res.ms_per_rollout <= TARGETS["ms_per_rollout"],
         "speedup_2_workers": res.speedup_2_workers >= TARGETS["speedup_2_workers"],
-        "smooth": monotonic,
+        "smooth": smooth["monotonic"],
     }
-    _atomic_write_text(out_dir / "bench_rollout.json", json.dumps(res.to_dict(), indent=2))
     return res
 
 
