@@ -105,11 +105,9 @@ def base_transform(scenario: Scenario):
 
 def build_diagram(scenario: Scenario | str = "nominal", meshcat=None) -> SimHandles:
     """Build the Diagram for ``scenario`` (a Scenario or a name/path); optionally visualise in ``meshcat``."""
-    from pydrake.geometry import Box, CollisionFilterDeclaration, GeometrySet, MeshcatVisualizer, MeshcatVisualizerParams, Role, Sphere
-    from pydrake.math import RigidTransform
+    from pydrake.geometry import MeshcatVisualizer, MeshcatVisualizerParams, Role
     from pydrake.multibody.parsing import Parser
     from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
-    from pydrake.multibody.tree import PdControllerGains
     from pydrake.multibody.tree import FixedOffsetFrame
     from pydrake.systems.framework import DiagramBuilder
     from pydrake.systems.primitives import LogVectorOutput, TrajectorySource
@@ -133,21 +131,8 @@ def build_diagram(scenario: Scenario | str = "nominal", meshcat=None) -> SimHand
     base_frame = plant.AddFrame(FixedOffsetFrame("robot_base", plant.world_frame(), base_transform(scenario)))
     plant.WeldFrames(base_frame, plant.GetFrameByName(robot.base_link, arm))
     ground = _parse(parser, scenario, "ground")[0]  # a <static> model: welded to the world by the parser
-    z = scenario.base.z
-    if z > 0.02:
-        plant.RegisterVisualGeometry(
-            plant.world_body(),
-            RigidTransform([scenario.base.x, scenario.base.y, z / 2 - 0.06]),
-            Box(0.25, 0.25, max(z - 0.12, 0.01)),
-            "pedestal",
-            np.array([0.45, 0.45, 0.45, 1.0]),
-        )
-
-    actuators = []
-    for i, name in enumerate(robot.joint_names):
-        act = plant.GetJointActuatorByName(robot.actuator_name(name), arm)
-        act.set_controller_gains(PdControllerGains(p=scenario.controller.kp[i], d=scenario.controller.kd[i]))
-        actuators.append(act)
+    _add_pedestal(plant, scenario)
+    actuators = _servo_actuators(plant, arm, scenario)
     plant.Finalize()
 
     # Plan source; the actual plan is swapped in per rollout.
@@ -164,18 +149,9 @@ def build_diagram(scenario: Scenario | str = "nominal", meshcat=None) -> SimHand
     diagram = builder.Build()
     diagram.set_name(f"besdrake_{scenario.name}")
 
-    # The floor is handled by the rollout (it stops when the ball reaches the floor and computes the
-    # touchdown analytically), so no contact with it is ever needed: filtering it saves ~15% per step.
-    ground_geoms = GeometrySet([g for b in plant.GetBodyIndices(ground) for g in plant.GetCollisionGeometriesForBody(plant.get_body(b))])
-    all_geoms = GeometrySet(list(scene_graph.model_inspector().GetAllGeometryIds(Role.kProximity)))
-    scene_graph.collision_filter_manager().Apply(CollisionFilterDeclaration().ExcludeBetween(ground_geoms, all_geoms))
-
+    _filter_ground(plant, scene_graph, ground)
     inspector = scene_graph.model_inspector()
-    ball_body = plant.GetBodyByName("ball", ball_instance)
-    ball_coll = list(plant.GetCollisionGeometriesForBody(ball_body))
-    if len(ball_coll) != 1 or not isinstance(inspector.GetShape(ball_coll[0]), Sphere):
-        raise ScenarioError("the ball model must have exactly one sphere collision geometry")
-    ball_ids = [g for g in inspector.GetGeometries(plant.GetBodyFrameIdOrThrow(ball_body.index())) if isinstance(inspector.GetShape(g), Sphere)]
+    ball_body, ball_coll, ball_ids = _ball_geometry(plant, inspector, ball_instance)
     scoop_body = plant.GetBodyByName(robot.end_effector.body, arm)
     return SimHandles(
         scenario=scenario,
@@ -197,3 +173,53 @@ def build_diagram(scenario: Scenario | str = "nominal", meshcat=None) -> SimHand
         nominal_ball_radius=float(inspector.GetShape(ball_coll[0]).radius()),
         visualizer=visualizer,
     )
+
+
+def _add_pedestal(plant, scenario: Scenario) -> None:
+    """A grey box under a base raised more than 2 cm (visual only)."""
+    from pydrake.geometry import Box
+    from pydrake.math import RigidTransform
+
+    z = scenario.base.z
+    if z > 0.02:
+        plant.RegisterVisualGeometry(
+            plant.world_body(),
+            RigidTransform([scenario.base.x, scenario.base.y, z / 2 - 0.06]),
+            Box(0.25, 0.25, max(z - 0.12, 0.01)),
+            "pedestal",
+            np.array([0.45, 0.45, 0.45, 1.0]),
+        )
+
+
+def _servo_actuators(plant, arm, scenario: Scenario) -> list:
+    """The arm's actuators (looked up by name, robot file order) with the scenario's PD gains set."""
+    from pydrake.multibody.tree import PdControllerGains
+
+    robot, actuators = scenario.robot, []
+    for i, name in enumerate(robot.joint_names):
+        act = plant.GetJointActuatorByName(robot.actuator_name(name), arm)
+        act.set_controller_gains(PdControllerGains(p=scenario.controller.kp[i], d=scenario.controller.kd[i]))
+        actuators.append(act)
+    return actuators
+
+
+def _filter_ground(plant, scene_graph, ground) -> None:
+    """The floor is handled by the rollout (it stops when the ball reaches the floor and computes the touchdown
+    analytically), so no contact with it is ever needed: filtering it saves ~15% per step."""
+    from pydrake.geometry import CollisionFilterDeclaration, GeometrySet, Role
+
+    ground_geoms = GeometrySet([g for b in plant.GetBodyIndices(ground) for g in plant.GetCollisionGeometriesForBody(plant.get_body(b))])
+    all_geoms = GeometrySet(list(scene_graph.model_inspector().GetAllGeometryIds(Role.kProximity)))
+    scene_graph.collision_filter_manager().Apply(CollisionFilterDeclaration().ExcludeBetween(ground_geoms, all_geoms))
+
+
+def _ball_geometry(plant, inspector, ball_instance):
+    """The ball's body, its one sphere collision geometry and all its sphere geometries; ScenarioError otherwise."""
+    from pydrake.geometry import Sphere
+
+    ball_body = plant.GetBodyByName("ball", ball_instance)
+    ball_coll = list(plant.GetCollisionGeometriesForBody(ball_body))
+    if len(ball_coll) != 1 or not isinstance(inspector.GetShape(ball_coll[0]), Sphere):
+        raise ScenarioError("the ball model must have exactly one sphere collision geometry")
+    ball_ids = [g for g in inspector.GetGeometries(plant.GetBodyFrameIdOrThrow(ball_body.index())) if isinstance(inspector.GetShape(g), Sphere)]
+    return ball_body, ball_coll, ball_ids

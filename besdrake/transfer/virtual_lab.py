@@ -62,7 +62,7 @@ import yaml
 from besdrake.plan import MotionPlan, PlanError
 from besdrake.sim.effects import ball_placed
 from besdrake.transfer.lab import TrialCounter
-from besdrake.transfer.lab_config import LabConfigError, _bool, _number, _seed, resolve_lab_path
+from besdrake.transfer.lab_config import LabConfigError, _bool, _number, _seed, resolve_lab_path, scenario_path
 from besdrake.transfer.measurement import Measurement
 from besdrake.plugins import load_plugins
 
@@ -166,56 +166,11 @@ def parse_lab_config(data: Any, base_dir: Path | None = None, name: str = "lab")
     unknown = set(data) - known
     if unknown:
         raise LabConfigError(f"lab config has unknown field(s) {sorted(unknown)}; known: {sorted(known)}")
-    noise_d = data.get("noise") or {}
-    if not isinstance(noise_d, dict):
-        raise LabConfigError(f"lab config field noise must be a mapping, got {noise_d!r}")
-    noise_d = dict(noise_d)
-    record = {}
-    for key in ("record_ball_path", "record_joints"):  # accepted at the top level or inside noise
-        if key in data and key in noise_d:
-            raise LabConfigError(f"lab config gives {key} both at the top level and under noise")
-        record[key] = _bool(key, data[key] if key in data else noise_d.pop(key, True))
-    noise_known = set(NoiseConfig.RANGES) | {"capture_volume"}
-    unknown = set(noise_d) - noise_known
-    if unknown:
-        raise LabConfigError(f"lab config noise has unknown field(s) {sorted(unknown)}; known: {sorted(noise_known)}")
-    kwargs: dict[str, Any] = {k: _number(f"noise.{k}", noise_d[k], *NoiseConfig.RANGES[k]) for k in NoiseConfig.RANGES if k in noise_d}
-    if "capture_volume" in noise_d:
-        cv = noise_d["capture_volume"]
-        if not isinstance(cv, dict) or set(cv) != {"min", "max"}:
-            raise LabConfigError(f"noise.capture_volume must be {{min: [x, y, z], max: [x, y, z]}} in m, got {cv!r}")
-        try:
-            kwargs["capture_volume"] = CaptureVolume(np.asarray(cv["min"], float), np.asarray(cv["max"], float))
-        except (TypeError, ValueError) as err:
-            if isinstance(err, LabConfigError):
-                raise
-            raise LabConfigError(f"noise.capture_volume: {err}") from err
-    noise = NoiseConfig(**kwargs)
-
-    plugins = data.get("plugins") or []
-    if not isinstance(plugins, list) or not all(isinstance(p, str) for p in plugins):
-        raise LabConfigError(f"lab config field plugins must be a list of file paths, got {plugins!r}")
-    plugins = [str(Path(p) if Path(p).is_absolute() or base_dir is None else (base_dir / p)) for p in plugins]
+    noise, record = _noise_and_recording(data)
+    plugins = _plugins(data, base_dir)
     load_plugins(plugins)  # effects named in the config may come from them
-
-    scenario = data.get("scenario", "nominal")
-    if not isinstance(scenario, str) or not scenario:
-        raise LabConfigError(f"lab config field scenario must be a scenario name or path, got {scenario!r}")
-    if base_dir is not None and (scenario.endswith((".yaml", ".yml")) or "/" in scenario) and not Path(scenario).is_absolute():
-        candidate = base_dir / scenario
-        if candidate.exists():
-            scenario = str(candidate)
-    from besdrake.sim.scenario import ScenarioError, load_scenario
-
-    try:
-        load_scenario(scenario)  # a missing or broken scenario is named now, not at the first trial
-    except ScenarioError as err:
-        raise LabConfigError(f"lab config scenario: {err}") from err
-    home = data.get("home_pose")
-    if home is not None:
-        if not isinstance(home, list) or len(home) != 6:
-            raise LabConfigError(f"lab config field home_pose must be a list of 6 joint positions (rad), got {home!r}")
-        home = tuple(_number("home_pose", v, -np.pi * 2, np.pi * 2) for v in home)
+    scenario = _checked_scenario(data, base_dir)
+    home = _home_pose(data.get("home_pose"))
     try:
         effects = normalize_effects(data.get("effects") or {})
     except EffectError as err:
@@ -238,6 +193,67 @@ def parse_lab_config(data: Any, base_dir: Path | None = None, name: str = "lab")
         description=description.strip(),
         home_pose=home,
     )
+
+
+def _noise_and_recording(data: dict) -> tuple[NoiseConfig, dict[str, bool]]:
+    """The ``noise`` section, and the two recording switches (at the top level or inside ``noise``)."""
+    noise_d = data.get("noise") or {}
+    if not isinstance(noise_d, dict):
+        raise LabConfigError(f"lab config field noise must be a mapping, got {noise_d!r}")
+    noise_d = dict(noise_d)
+    record = {}
+    for key in ("record_ball_path", "record_joints"):  # accepted at the top level or inside noise
+        if key in data and key in noise_d:
+            raise LabConfigError(f"lab config gives {key} both at the top level and under noise")
+        record[key] = _bool(key, data[key] if key in data else noise_d.pop(key, True))
+    noise_known = set(NoiseConfig.RANGES) | {"capture_volume"}
+    unknown = set(noise_d) - noise_known
+    if unknown:
+        raise LabConfigError(f"lab config noise has unknown field(s) {sorted(unknown)}; known: {sorted(noise_known)}")
+    kwargs: dict[str, Any] = {k: _number(f"noise.{k}", noise_d[k], *NoiseConfig.RANGES[k]) for k in NoiseConfig.RANGES if k in noise_d}
+    if "capture_volume" in noise_d:
+        kwargs["capture_volume"] = _capture_volume(noise_d["capture_volume"])
+    return NoiseConfig(**kwargs), record
+
+
+def _capture_volume(cv: Any) -> CaptureVolume:
+    if not isinstance(cv, dict) or set(cv) != {"min", "max"}:
+        raise LabConfigError(f"noise.capture_volume must be {{min: [x, y, z], max: [x, y, z]}} in m, got {cv!r}")
+    try:
+        return CaptureVolume(np.asarray(cv["min"], float), np.asarray(cv["max"], float))
+    except (TypeError, ValueError) as err:
+        if isinstance(err, LabConfigError):
+            raise
+        raise LabConfigError(f"noise.capture_volume: {err}") from err
+
+
+def _plugins(data: dict, base_dir: Path | None) -> list[str]:
+    """The plugin files, relative paths resolved against ``base_dir``."""
+    plugins = data.get("plugins") or []
+    if not isinstance(plugins, list) or not all(isinstance(p, str) for p in plugins):
+        raise LabConfigError(f"lab config field plugins must be a list of file paths, got {plugins!r}")
+    return [str(Path(p) if Path(p).is_absolute() or base_dir is None else (base_dir / p)) for p in plugins]
+
+
+def _checked_scenario(data: dict, base_dir: Path | None) -> str:
+    """The scenario field resolved (:func:`~besdrake.transfer.lab_config.scenario_path`) and loaded once, so a
+    missing or broken scenario is named now, not at the first trial."""
+    from besdrake.sim.scenario import ScenarioError, load_scenario
+
+    scenario = scenario_path(data.get("scenario", "nominal"), base_dir)
+    try:
+        load_scenario(scenario)
+    except ScenarioError as err:
+        raise LabConfigError(f"lab config scenario: {err}") from err
+    return scenario
+
+
+def _home_pose(home: Any) -> tuple[float, ...] | None:
+    if home is None:
+        return None
+    if not isinstance(home, list) or len(home) != 6:
+        raise LabConfigError(f"lab config field home_pose must be a list of 6 joint positions (rad), got {home!r}")
+    return tuple(_number("home_pose", v, -np.pi * 2, np.pi * 2) for v in home)
 
 
 def load_lab_config(path: str | Path) -> LabConfig:
