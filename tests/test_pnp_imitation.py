@@ -159,6 +159,30 @@ def test_the_skill_goals_are_the_scene_places(demos):
     assert np.allclose(again.pose, skill.rollout(0.01).pose)
 
 
+def test_an_approach_reaching_from_a_robot_start_keeps_the_last_stretch(demos):
+    """The reach from the resting hand is cropped at the new start's distance; the path starts there at rest and
+    ends as demonstrated; the gripper times move with the crop."""
+    for d in demos[:4]:
+        skill = GraspSkill.from_demonstration(d)
+        goal = skill.approach.position.goal
+        start = goal + np.array([0.5, 0.15, 0.12])
+        new = skill.reaching_from(start)
+        old, a = skill.approach.open_loop(0.01), new.approach.open_loop(0.01)
+        assert np.allclose(a.pose[0, :3], start) and not new.approach.position.start_velocity.any()
+        assert np.linalg.norm(a.pose[-1, :3] - goal) < 0.01
+        shift = skill.approach.execution_time - new.approach.execution_time
+        farther = np.linalg.norm(old.pose[0, :3] - goal) > np.linalg.norm(start - goal)
+        assert (0.0 < shift < skill.approach.execution_time) if farther else shift == 0.0
+        assert new.close_time == pytest.approx(skill.close_time - shift, abs=0.02)
+        assert new.open_time == pytest.approx(skill.open_time - shift, abs=0.02)
+        # the last 5 cm towards the box: within 1 cm of the demonstrated path
+        near = np.linalg.norm(a.pose[:, :3] - goal, axis=1) < 0.05
+        gap = [np.min(np.linalg.norm(old.pose[:, :3] - p, axis=1)) for p in a.pose[near, :3]]
+        assert max(gap) < 0.01, (d.source, max(gap))
+        # the path never strays far from the segment between the new start and the goal
+        assert np.linalg.norm(a.pose[:, :3] - goal, axis=1).max() < 1.3 * np.linalg.norm(start - goal), d.source
+
+
 def test_a_bad_demonstration_is_a_clear_error(demos):
     d = demos[0]
     with pytest.raises(GraspImitationError, match="hand_position contains NaN"):

@@ -163,6 +163,34 @@ class GraspSkill:
             new.approach.position.start = np.asarray(start_position, dtype=float)
         return new
 
+    def reaching_from(self, start_position: np.ndarray, dt: float = 0.01) -> "GraspSkill":
+        """A copy whose approach starts at rest at ``start_position`` (task frame, m) and ends as demonstrated.
+
+        A robot starts its approach from its own home pose, often much nearer the box than a person's hand
+        hanging at the hip. Moving a DMP's start by a metre keeps the demonstration's deviation from a straight
+        line (for a reach from the hip: a rise of half a metre) and sends the tool over the shelf, out of reach.
+        Instead, the imitated approach is cropped where it first comes as near its goal as ``start_position``
+        is (the reach from the resting hand is dropped; the gripper times move with it), and the rest of the
+        path is warped onto the new start: shifted by the start's offset times ``(d / d0)**2``, ``d`` the
+        remaining distance to the goal (``d0`` at the start), so that the last stretch towards the box, where
+        the demonstration avoids the shelf, keeps its shape. The warped path is fitted again."""
+        a = self.approach.open_loop(dt)
+        goal = self.approach.position.goal
+        distance = np.linalg.norm(a.pose[:, :3] - goal, axis=1)
+        radius = float(np.linalg.norm(np.asarray(start_position, dtype=float) - goal))
+        inside = np.flatnonzero(distance <= radius)
+        k = min(int(inside[0]) if inside.size else 0, max(0, len(a.t) - MIN_SEGMENT_SAMPLES))
+        pose = a.pose[k:].copy()
+        weight = np.clip(distance[k:] / max(distance[k], 1e-9), 0.0, 1.0) ** 2
+        pose[:, :3] += np.outer(weight, np.asarray(start_position, dtype=float) - pose[0, :3])
+        new = self.copy()
+        new.approach = CartesianDMP(self.approach.position.n_weights_per_dim).fit(a.t[k:], pose)
+        new.approach.position.goal_velocity = self.approach.position.goal_velocity
+        shift = float(a.t[k])
+        new.close_time, new.open_time = self.close_time - shift, self.open_time - shift
+        new.demo_close_time = self.demo_close_time - shift
+        return new
+
     def rollout(self, dt: float = 0.01) -> CartesianTrajectory:
         """Both segments rolled out every ``dt`` s; the transport starts where and as fast as the approach ended."""
         a = self.approach.open_loop(dt)

@@ -6,7 +6,10 @@ into a :class:`~besdrake.plan.MotionPlan` in four steps:
 
 1. :meth:`SkillPlanner.adapt`: the skill's goals are set to the scene (the approach ends with the tool at the box's
    middle on the shelf, the transport with the box's middle over the table place, plus the demonstrated release
-   offset) and its approach starts at the tool pose of the robot's home position (where the arm stands);
+   offset) and its approach starts at the tool pose of the robot's home position (where the arm stands): the
+   demonstrated reach from the person's resting hand is cropped and the rest warped onto that start
+   (:meth:`~besdrake.tasks.pick_and_place.imitation.GraspSkill.reaching_from`; ``crop_approach=False``: the
+   DMP's start is moved instead);
 2. the skill's rollout, as tool poses in the base frame (``mapping.hand_to_tool_rpy`` of the robot file);
 3. resolved-rate path IK from the home position (:class:`~besdrake.embodiment.path_ik.PathIK`: continuous joints,
    the tool lagging where a pose is out of reach);
@@ -63,8 +66,10 @@ class SkillPlanner:
 
     def __init__(self, robot: Robot, X_world_base, box_start: np.ndarray, place_target: np.ndarray,
                  box_height: float, safety: float = DEFAULT_SAFETY, ik_dt: float = 0.02,
-                 ik_options: PathIKOptions | None = None, model: KinematicModel | None = None) -> None:
+                 ik_options: PathIKOptions | None = None, model: KinematicModel | None = None,
+                 crop_approach: bool = True) -> None:
         self.robot, self.safety, self.ik_dt = robot, float(safety), float(ik_dt)
+        self.crop_approach = bool(crop_approach)
         self.model = model or welded_plant(robot)
         self.path_ik = PathIK(self.model, ik_options)
         X_world_task, self.table_place = scene_task_frame(np.asarray(box_start, float), np.asarray(place_target, float))
@@ -83,6 +88,9 @@ class SkillPlanner:
     def adapt(self, skill: GraspSkill) -> GraspSkill:
         """``skill`` with the scene's goals and its approach starting at the home tool pose (step 1)."""
         adapted = skill.adapted(self.table_place + self.grasp_offset, self.grasp_offset)
+        if self.crop_approach:
+            home = (self.X_base_task.inverse() @ self.model.tcp_pose(self.robot.home)).translation()
+            adapted = adapted.reaching_from(home)
         return start_from_home(adapted, self.model, self.X_base_task, self.hand_to_tool(skill))
 
     def hand_to_tool(self, skill: GraspSkill) -> RotationMatrix:
