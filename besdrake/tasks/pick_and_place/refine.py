@@ -77,13 +77,14 @@ class RefineResult:
 class GraspEpisode:
     """Candidate (normalised parameters) -> skill -> plan -> rollout -> details; built once per process."""
 
-    def __init__(self, skill: dict[str, Any], scenario: str, weights: bool) -> None:
+    def __init__(self, skill: dict[str, Any], scenario: str, weights: bool, box_offset=None) -> None:
         from besdrake.sim.scenario import load_scenario
         from besdrake.tasks.pick_and_place.rollout import PickPlaceRollout
         from besdrake.tasks.pick_and_place.skill_plan import SkillPlanner
 
         self.rollout = PickPlaceRollout(load_scenario(scenario))
-        self.planner = SkillPlanner.for_rollout(self.rollout)
+        self.box_offset = None if box_offset is None else np.array([box_offset[0], box_offset[1], 0.0])
+        self.planner = SkillPlanner.for_rollout(self.rollout, box_offset=self.box_offset)
         self.param = GraspParameterization(GraspSkill.from_dict(skill), weights=weights)
         self.scaling = ParameterScaling(*self.param.scaling())
         self.max_duration = min(MAX_PLAN_DURATION, self.rollout.robot.safety.max_plan_duration)
@@ -97,7 +98,7 @@ class GraspEpisode:
         if sp.plan.duration > self.max_duration:  # not simulated: a plan this slow is refused (and costly)
             return _row(t0, -(2.0 + sp.plan.duration / 100.0),
                         f"plan too slow: {sp.plan.duration:.1f} s > {self.max_duration:.1f} s", sp)
-        out = self.rollout.rollout(sp.plan)
+        out = self.rollout.rollout(sp.plan, box_offset=self.box_offset)
         return _row(t0, out.reward, out.message, sp, bool(out.success), out.place_error)
 
 
@@ -113,12 +114,12 @@ def _row(t0: float, reward: float, message: str, sp=None, success: bool = False,
 _EPISODES: dict[str, GraspEpisode] = {}
 
 
-def _episode(skill: dict[str, Any], scenario: str, weights: bool, x: np.ndarray) -> dict[str, Any]:
+def _episode(skill: dict[str, Any], scenario: str, weights: bool, x: np.ndarray, box_offset=None) -> dict[str, Any]:
     """Evaluate ``x`` with this process's cached :class:`GraspEpisode` (built on first use)."""
-    key = json.dumps([skill, scenario, weights], sort_keys=True, default=float)
+    key = json.dumps([skill, scenario, weights, box_offset], sort_keys=True, default=float)
     if key not in _EPISODES:
         _EPISODES.clear()
-        _EPISODES[key] = GraspEpisode(skill, scenario, weights)
+        _EPISODES[key] = GraspEpisode(skill, scenario, weights, box_offset)
     return _EPISODES[key](x)
 
 
@@ -152,9 +153,11 @@ class _Details:
 
 
 def refine_grasp(skill: GraspSkill, scenario: str = "pick_and_place", out_dir: str | Path | None = None,
-                 settings: RefineSettings | None = None) -> RefineResult:
+                 settings: RefineSettings | None = None, box_offset=None) -> RefineResult:
     """Refine ``skill`` (adapted to the scene: :meth:`SkillPlanner.adapt`) with CMA-ES in ``scenario``'s simulation;
-    stops at the first successful episode (``stop_on_success``) or after ``max_generations``."""
+    stops at the first successful episode (``stop_on_success``) or after ``max_generations``. ``box_offset`` (dx, dy
+    m): the box stands that far from the scene's place on the shelf (the skill adapted to that)."""
+    box_offset = None if box_offset is None else [float(box_offset[0]), float(box_offset[1])]
     s = settings or RefineSettings()
     out = None if out_dir is None else Path(out_dir)
     if out is not None:
@@ -166,10 +169,11 @@ def refine_grasp(skill: GraspSkill, scenario: str = "pick_and_place", out_dir: s
                       bounds=scaling.x_bounds)
     details = _Details(None if out is None else out / DETAILS_FILE)
     pool = cf.ProcessPoolExecutor(s.workers) if s.workers > 1 else None
-    initial = _evaluate([np.zeros(param.n_params)], skill_d, scenario, s.weights, details, pool)[0]
+    episode = (skill_d, scenario, s.weights, box_offset)
+    initial = _evaluate([np.zeros(param.n_params)], episode, details, pool)[0]
 
     def evaluate_batch(X: np.ndarray) -> list[float]:
-        return [d["reward"] for d in _evaluate(X, skill_d, scenario, s.weights, details, pool)]
+        return [d["reward"] for d in _evaluate(X, episode, details, pool)]
 
     def callback(info: GenerationInfo) -> bool:
         return s.stop_on_success and any(details.rows.get(_key(x), {}).get("success") for x in info.candidates)
@@ -183,14 +187,17 @@ def refine_grasp(skill: GraspSkill, scenario: str = "pick_and_place", out_dir: s
     return _result(loop, details, initial, lambda x: param.from_vector(scaling.to_theta(x)), out)
 
 
-def _evaluate(X, skill_d: dict, scenario: str, weights: bool, details: _Details, pool) -> list[dict[str, Any]]:
-    """Details of every candidate (from ``details.csv`` when already simulated), new ones recorded."""
+def _evaluate(X, episode: tuple, details: _Details, pool) -> list[dict[str, Any]]:
+    """Details of every candidate (from ``details.csv`` when already simulated), new ones recorded; ``episode``:
+    (skill dict, scenario, weights, box offset) as :func:`_episode` takes them."""
     keys = [_key(x) for x in X]
     todo = [i for i, k in enumerate(keys) if k not in details.rows]
+    skill_d, scenario, weights, box_offset = episode
     if pool is None:
-        results = [_episode(skill_d, scenario, weights, np.asarray(X[i])) for i in todo]
+        results = [_episode(skill_d, scenario, weights, np.asarray(X[i]), box_offset) for i in todo]
     else:
-        results = list(pool.map(_episode, *zip(*[(skill_d, scenario, weights, np.asarray(X[i])) for i in todo])))
+        results = list(pool.map(_episode, *zip(*[(skill_d, scenario, weights, np.asarray(X[i]), box_offset)
+                                                  for i in todo])))
     for i, r in zip(todo, results):
         details.append(keys[i], r)
     return [{**details.rows[k], "reward": float(details.rows[k]["reward"])} for k in keys]

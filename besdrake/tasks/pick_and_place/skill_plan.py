@@ -14,7 +14,8 @@ into a :class:`~besdrake.plan.MotionPlan` in four steps:
 3. resolved-rate path IK from the home position (:class:`~besdrake.embodiment.path_ik.PathIK`: continuous joints,
    the tool lagging where a pose is out of reach);
 4. time-optimal retiming under ``safety`` x the velocity and acceleration limits
-   (:func:`~besdrake.embodiment.scaling.toppra_retime`; where Toppra fails, a per-interval stretch:
+   (:func:`~besdrake.embodiment.scaling.toppra_retime`; where Toppra fails at a sharp bend of the spline through
+   every IK sample, on every 2nd, then 3rd sample (a smoother spline); where all fail, a per-interval stretch:
    :func:`~besdrake.embodiment.scaling.local_retime`), a last uniform
    stretch if the plan's spline peaks above the limits between samples, and the gripper command's close and open
    times carried through the same time map.
@@ -22,9 +23,11 @@ into a :class:`~besdrake.plan.MotionPlan` in four steps:
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
+from pydrake.common.eigen_geometry import Quaternion
 from pydrake.math import RotationMatrix
 
 from besdrake.embodiment.kinematics import KinematicModel, welded_plant
@@ -48,7 +51,7 @@ class SkillPlan:
     plan: MotionPlan
     skill: GraspSkill
     ik: PoseIKTrajectory
-    retiming: str  # "toppra" or "local"
+    retiming: str  # "toppra", "toppra/2".. (Toppra on every 2nd.. IK sample) or "local"
     notes: list[str] = field(default_factory=list)
 
     def summary(self) -> dict:
@@ -78,20 +81,54 @@ class SkillPlanner:
         self.grasp_offset = np.array([0.0, 0.0, 0.5 * float(box_height)])
 
     @classmethod
-    def for_rollout(cls, rollout, **kwargs) -> "SkillPlanner":
-        """The planner of a :class:`~besdrake.tasks.pick_and_place.rollout.PickPlaceRollout`'s scene."""
+    def for_rollout(cls, rollout, box_offset=None, **kwargs) -> "SkillPlanner":
+        """The planner of a :class:`~besdrake.tasks.pick_and_place.rollout.PickPlaceRollout`'s scene; ``box_offset``
+        (dx, dy m in the world, as the rollout's): the box stands that far from the scene's place on the shelf."""
         from besdrake.sim.diagram import base_transform
 
-        return cls(rollout.robot, base_transform(rollout.scenario), rollout.box_start, rollout.place_target,
+        box_start = np.asarray(rollout.box_start, dtype=float).copy()
+        if box_offset is not None:
+            box_start[:2] += np.asarray(box_offset, dtype=float)[:2]
+        return cls(rollout.robot, base_transform(rollout.scenario), box_start, rollout.place_target,
                    2.0 * float(rollout.h.box_half_size[2]), **kwargs)
 
     def adapt(self, skill: GraspSkill) -> GraspSkill:
         """``skill`` with the scene's goals and its approach starting at the home tool pose (step 1)."""
-        adapted = skill.adapted(self.table_place + self.grasp_offset, self.grasp_offset)
+        adapted = self._nearer_closing_sign(skill.adapted(self.table_place + self.grasp_offset, self.grasp_offset))
         if self.crop_approach:
             home = (self.X_base_task.inverse() @ self.model.tcp_pose(self.robot.home)).translation()
             adapted = adapted.reaching_from(home)
-        return start_from_home(adapted, self.model, self.X_base_task, self.hand_to_tool(skill))
+        return start_from_home(adapted, self.model, self.X_base_task, self.hand_to_tool(adapted))
+
+    def carry_over(self, skill: GraspSkill) -> GraspSkill:
+        """A skill adapted (and perhaps refined) in a scene with the box elsewhere on the shelf, moved into this one:
+        its goals keep their offsets from the box places (the task frame moves with the box), its approach starts
+        again from the home tool pose."""
+        table = self.table_place + self.grasp_offset
+        new = skill.copy()
+        new.transport.position.goal = table + (skill.transport.position.goal - skill.table_place)
+        new.table_place = table
+        if self.crop_approach:
+            home = (self.X_base_task.inverse() @ self.model.tcp_pose(self.robot.home)).translation()
+            new = new.reaching_from(home)
+        return start_from_home(new, self.model, self.X_base_task, self.hand_to_tool(new))
+
+    def _nearer_closing_sign(self, skill: GraspSkill) -> GraspSkill:
+        """A parallel gripper grips alike turned half a turn about its approach axis: of the two, the skill keeps
+        the closing line (its sign) whose grasp orientation is nearer the tool's at home, so that the arm turns
+        the tool less on its way to the box (robot file ``mapping.tool_closing_symmetric``, default true)."""
+        if not self.robot.mapping.get("tool_closing_symmetric", True) or not np.isfinite(skill.closing_axis_hand).all():
+            return skill
+        R_home = self.model.tcp_pose(self.robot.home).rotation()
+        R_hand = self.X_base_task.rotation() @ RotationMatrix(Quaternion(skill.approach.orientation.goal))
+
+        def turn(closing: np.ndarray) -> float:
+            flipped = dataclasses.replace(skill, closing_axis_hand=closing)
+            return abs(R_home.InvertAndCompose(R_hand @ self.hand_to_tool(flipped)).ToAngleAxis().angle())
+
+        if turn(-skill.closing_axis_hand) < turn(skill.closing_axis_hand):
+            skill.closing_axis_hand = -skill.closing_axis_hand
+        return skill
 
     def hand_to_tool(self, skill: GraspSkill) -> RotationMatrix:
         """``R_hand_tool`` from the demonstrated grasp: the tool's closing axis (robot file
@@ -109,8 +146,7 @@ class SkillPlanner:
         robot = self.robot
         t, positions, rotations = tool_targets(skill, self.X_base_task, self.hand_to_tool(skill), self.ik_dt)
         ik = self.path_ik.follow(t, positions, rotations, robot.home)
-        retimed = toppra_retime(t, ik.q, robot.limits, self.model, safety=self.safety)
-        retiming = "toppra"
+        retimed, retiming = self._toppra(t, ik.q)
         if retimed is None:
             t_new, t_path = local_retime(t, ik.q, robot.limits, safety=self.safety)
             retimed, retiming = (t_new, ik.q, t_path), "local"
@@ -129,6 +165,16 @@ class SkillPlanner:
             f"{int((~ik.reachable).sum())} of {len(t)} tool poses off the path (largest lag "
             f"{ik.position_residual.max() * 1000:.0f} mm, {np.degrees(ik.angle_residual.max()):.0f} deg)"]
         return SkillPlan(plan, skill, ik, retiming, notes)
+
+    def _toppra(self, t: np.ndarray, q: np.ndarray, strides=(1, 2, 3)):
+        """Toppra on the IK path, on every ``stride``-th sample (and the last) until it succeeds: ``(result, label)``,
+        ``(None, "")`` when it fails on all."""
+        for stride in strides:
+            idx = np.unique(np.r_[np.arange(0, len(t), stride), len(t) - 1])
+            retimed = toppra_retime(t[idx], q[idx], self.robot.limits, self.model, safety=self.safety)
+            if retimed is not None:
+                return retimed, "toppra" if stride == 1 else f"toppra/{stride}"
+        return None, ""
 
     def _stretch(self, plan: MotionPlan) -> float:
         """Uniform stretch that brings the plan's spline within ``safety`` x the limits between samples."""
