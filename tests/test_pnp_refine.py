@@ -136,6 +136,9 @@ def test_learn_pick_and_place_runs_and_resumes(tmp_path):
                 "median_episodes_to_success", "place_error_m", "wall_s"):
         assert key in out
     assert out["task"] == "pick_and_place" and out["robot"] == "iiwa14" and out["demonstrations_used"] == 1
+    # the shipped recording's grasp works in simulation (refined or as imitated), so the template stage ran
+    assert out["success_rate_sim"] == 1.0 and out["template_success_rate_sim"] is not None
+    assert json.loads((tmp_path / "run" / "04_template" / "template.json").read_text())["type"] == "GraspTemplate"
     assert (tmp_path / "run" / "report.md").is_file()
     again = _learn(tmp_path / "run")
     assert again.returncode == 0 and json.loads(again.stdout.strip().splitlines()[-1])["stages"]["refine"] == \
@@ -146,3 +149,49 @@ def test_learn_pick_and_place_refuses_a_missing_source(tmp_path):
     r = _learn(tmp_path / "run", "--demonstrations", str(tmp_path / "nowhere"))
     assert r.returncode == 2 and r.stderr.strip().splitlines()[-1].startswith("besdrake: error:")
     assert "Traceback" not in r.stderr
+
+
+def test_a_grasp_template_interpolates_its_corrections_and_round_trips():
+    from besdrake.tasks.pick_and_place.template import GraspTemplate, context_grid
+
+    skill = _shipped_skill()
+    contexts = context_grid({"dx": [-0.03, 0.12], "dy": [-0.25, 0.25]}, 5)
+    assert np.allclose(contexts[0], [0.045, 0.0]) and len(np.unique(contexts, axis=0)) == 5
+    corrections = np.zeros((5, 9))
+    corrections[:, 2] = 0.01 * np.arange(5)  # the approach goal raised by 0..4 cm
+    t = GraspTemplate(skill).fit(contexts, corrections)
+    for c, k in zip(contexts, corrections):
+        assert np.allclose(t.correction(c), k, atol=2e-3)
+    far = t.correction([5.0, 5.0])
+    assert np.allclose(far, 0.0, atol=1e-6)  # far from every training place: no correction (the GP's zero prior)
+    again = GraspTemplate.from_dict(json.loads(json.dumps(t.to_dict())))
+    assert np.allclose(again.correction(contexts[3]), t.correction(contexts[3]))
+    assert np.allclose(GraspTemplate(skill).correction([0.0, 0.0]), 0.0)
+
+
+def test_a_skill_carried_over_to_another_box_place_keeps_its_goals_relative_to_the_box():
+    from besdrake.tasks.pick_and_place.rollout import PickPlaceRollout
+    from besdrake.tasks.pick_and_place.skill_plan import SkillPlanner
+
+    rollout = PickPlaceRollout("pick_and_place")
+    here = SkillPlanner.for_rollout(rollout)
+    skill = here.adapt(_shipped_skill())
+    skill.transport.position.goal = skill.transport.position.goal + np.array([0.01, -0.02, 0.0])  # a refined goal
+    there = SkillPlanner.for_rollout(rollout, box_offset=np.array([0.05, -0.2]))
+    moved = there.carry_over(skill)
+    assert np.allclose(moved.approach.position.goal, skill.approach.position.goal)  # the task frame moved with the box
+    # the table place is the same place in the world (the base frame: the base did not move); the transport's goal
+    # keeps its offset from it (release and refinement), turned with the task frame
+    assert np.allclose(there.X_base_task.multiply(moved.table_place), here.X_base_task.multiply(skill.table_place))
+    offset = skill.transport.position.goal - skill.table_place
+    assert np.allclose(moved.transport.position.goal - moved.table_place, offset)
+    start = moved.approach.open_loop(0.01).pose[0, :3]
+    home = there.X_base_task.inverse() @ there.model.tcp_pose(there.robot.home)
+    assert np.allclose(start, home.translation(), atol=1e-6)  # it starts from the arm's home again
+
+
+def _shipped_skill():
+    from besdrake.tasks.pick_and_place.demonstrations import extract_demonstrations
+    from besdrake.tasks.pick_and_place.imitation import GraspSkill
+
+    return GraspSkill.from_demonstration(extract_demonstrations(sorted(DATA_DIR.glob("*.tsv"))[0]).demonstrations[0])

@@ -117,12 +117,14 @@ def toppra_retime(
     safety: float = 0.9,
     dt: float = 0.02,
     gridpoints: int = 400,
+    max_duration: float = 600.0,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """The joint path ``q(t)`` (n, arm joints) retimed as fast as ``safety`` x the velocity and acceleration limits
     allow along it (Drake's Toppra on ``model``, a :class:`~besdrake.embodiment.kinematics.KinematicModel` of the
     robot welded at its base; a gripper's joints held where ``model.positions`` puts them), sampled every ``dt``
     s from 0: ``(t_new, q_new, t_path)`` (``t_path``: the path's own time ``t`` reached at each ``t_new``, to map
-    events along the path), or None when Toppra fails."""
+    events along the path), or None when Toppra fails or finds no retiming shorter than ``max_duration`` s (one
+    that crawls through a near-singular stretch would otherwise be sampled into millions of rows)."""
     from pydrake.multibody.optimization import Toppra
     from pydrake.trajectories import PiecewisePolynomial
 
@@ -139,7 +141,7 @@ def toppra_retime(
     if s_of_t is None:
         return None
     t0, T = s_of_t.start_time(), float(s_of_t.end_time() - s_of_t.start_time())
-    if not np.isfinite(T) or T <= 0:
+    if not np.isfinite(T) or T <= 0 or T > max_duration:
         return None
     t_new = np.linspace(0.0, T, max(3, int(np.ceil(T / dt)) + 1))
     s_new = np.clip(s_of_t.vector_values(list(t0 + t_new))[0], 0.0, 1.0)

@@ -185,6 +185,8 @@ class GraspSkill:
         pose[:, :3] += np.outer(weight, np.asarray(start_position, dtype=float) - pose[0, :3])
         new = self.copy()
         new.approach = CartesianDMP(self.approach.position.n_weights_per_dim).fit(a.t[k:], pose)
+        new.approach.position.goal = goal  # exactly (the rollout ends within a millimetre of it)
+        new.approach.orientation.goal = self.approach.orientation.goal
         new.approach.position.goal_velocity = self.approach.position.goal_velocity
         shift = float(a.t[k])
         new.close_time, new.open_time = self.close_time - shift, self.open_time - shift

@@ -10,7 +10,9 @@ rerun finds it done):
    scene and refined with CMA-ES in simulation until a rollout succeeds (:func:`~besdrake.tasks.pick_and_place.refine.refine_grasp`);
 3. ``lab``: each refined grasp that succeeded in simulation, planned and executed ``lab.trials`` times in the virtual
    lab behind the safety gate, every trial in the lab log before the next;
-4. ``report``: ``report.md`` and the run's figures (``summary.json``).
+4. ``template``: a behaviour template over the box's place on the shelf from the best refined grasp, trained and
+   tested at other places in simulation (:mod:`~besdrake.tasks.pick_and_place.template`);
+5. ``report``: ``report.md`` and the run's figures (``summary.json``).
 
 Default demonstration: the recording shipped with the package (``data/``, with its licence).
 """
@@ -124,6 +126,38 @@ def stage_lab(ctx, out: Path) -> dict[str, Any]:
             "place_error_m": float(np.median(errors)) if errors else None}
 
 
+def stage_template(ctx, out: Path) -> dict[str, Any]:
+    """Stage 4: a behaviour template over the box's place on the shelf, from the best refined grasp: trained at
+    ``template.train_contexts`` places of ``template.region`` (corners and centre first), tested at
+    ``template.test_contexts`` other, seeded places in simulation."""
+    from besdrake.tasks.pick_and_place.imitation import GraspSkill
+    from besdrake.tasks.pick_and_place.refine import RefineSettings
+    from besdrake.tasks.pick_and_place.template import context_grid, evaluate_grasp_template, learn_grasp_template
+
+    cfg = ctx.config["template"]
+    refine_dir = ctx.run.stage_dir(2, "refine")
+    hits = [r for r in _read_json(refine_dir / "refinement.json") if r.get("success")]
+    if not hits:
+        return {"template_success_rate_sim": None, "note": "no grasp succeeded in simulation"}
+    best = max(hits, key=lambda r: r["best_reward"])
+    base = GraspSkill.from_dict(_read_json(refine_dir / best["demonstration"] / "skill.json"))
+    rng = np.random.default_rng(int(cfg["seed"]))
+    train = context_grid(cfg["region"], int(cfg["train_contexts"]))
+    test = np.column_stack([rng.uniform(*cfg["region"]["dx"], int(cfg["test_contexts"])),
+                            rng.uniform(*cfg["region"]["dy"], int(cfg["test_contexts"]))])
+    settings = RefineSettings(max_generations=int(cfg["max_generations"]), workers=int(ctx.config.get("workers", 1)),
+                              seed=int(cfg["seed"]))
+    template = learn_grasp_template(base, ctx.config["scenario"], train, out, settings)
+    ev = evaluate_grasp_template(template, ctx.config["scenario"], test)
+    write_json(out / "evaluation.json", ev.summary())
+    training = _read_json(out / "training.json")
+    ctx.progress(f"  template from {best['demonstration']}: {sum(r['initial_success'] for r in training)} of "
+                 f"{len(training)} training places succeeded as carried over; test {ev.success_rate:.0%}")
+    return {"template_base": best["demonstration"], "template_train_contexts": len(training),
+            "template_train_initial_successes": sum(r["initial_success"] for r in training),
+            "template_success_rate_sim": ev.success_rate, "template_place_error_m": ev.summary()["median_place_error_m"]}
+
+
 def _lab_config(ctx) -> dict[str, Any]:
     """The configured lab's YAML as a mapping, with the run's scenario (its robot) in place of the lab's own."""
     import yaml
@@ -146,7 +180,7 @@ def stage_report(ctx, out: Path) -> dict[str, Any]:
     """Stage 4: ``report.md`` in the run folder and the run's figures."""
     from besdrake.sim.scenario import load_scenario
 
-    rec = {name: ctx.run.done(i, name) for i, name in enumerate(("demonstrations", "refine", "lab"), 1)}
+    rec = {name: ctx.run.done(i, name) for i, name in enumerate(("demonstrations", "refine", "lab", "template"), 1)}
     s = {k: (v or {}).get("summary", {}) for k, v in rec.items()}
     summary = {
         "task": "pick_and_place", "robot": load_scenario(ctx.config["scenario"]).robot.name,
@@ -154,6 +188,8 @@ def stage_report(ctx, out: Path) -> dict[str, Any]:
         "success_rate_sim": s["refine"].get("success_rate_sim"), "success_rate_lab": s["lab"].get("success_rate_lab"),
         "median_episodes_to_success": s["refine"].get("median_episodes_to_success"),
         "place_error_m": s["lab"].get("place_error_m"), "lab_trials": s["lab"].get("trials"),
+        "template_success_rate_sim": s["template"].get("template_success_rate_sim"),
+        "template_place_error_m": s["template"].get("template_place_error_m"),
         "wall_s": sum(float((v or {}).get("seconds", 0.0)) for v in rec.values()),
     }
     write_json(out / "summary.json", summary)
@@ -173,4 +209,4 @@ def _report_text(summary: dict[str, Any], rec: dict[str, Any]) -> str:
 
 
 STAGES = [("demonstrations", stage_demonstrations), ("refine", stage_refine), ("lab", stage_lab),
-          ("report", stage_report)]
+          ("template", stage_template), ("report", stage_report)]

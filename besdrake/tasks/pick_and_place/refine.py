@@ -155,7 +155,8 @@ class _Details:
 def refine_grasp(skill: GraspSkill, scenario: str = "pick_and_place", out_dir: str | Path | None = None,
                  settings: RefineSettings | None = None, box_offset=None) -> RefineResult:
     """Refine ``skill`` (adapted to the scene: :meth:`SkillPlanner.adapt`) with CMA-ES in ``scenario``'s simulation;
-    stops at the first successful episode (``stop_on_success``) or after ``max_generations``. ``box_offset`` (dx, dy
+    stops at the first successful episode (``stop_on_success``; 0 episodes when the skill as given succeeds) or after
+    ``max_generations``. ``box_offset`` (dx, dy
     m): the box stands that far from the scene's place on the shelf (the skill adapted to that)."""
     box_offset = None if box_offset is None else [float(box_offset[0]), float(box_offset[1])]
     s = settings or RefineSettings()
@@ -171,6 +172,10 @@ def refine_grasp(skill: GraspSkill, scenario: str = "pick_and_place", out_dir: s
     pool = cf.ProcessPoolExecutor(s.workers) if s.workers > 1 else None
     episode = (skill_d, scenario, s.weights, box_offset)
     initial = _evaluate([np.zeros(param.n_params)], episode, details, pool)[0]
+    if s.stop_on_success and initial.get("success"):  # the imitated grasp works as it is: nothing to search
+        if pool is not None:
+            pool.shutdown()
+        return _initial_result(initial, skill, out)
 
     def evaluate_batch(X: np.ndarray) -> list[float]:
         return [d["reward"] for d in _evaluate(X, episode, details, pool)]
@@ -206,6 +211,18 @@ def _evaluate(X, episode: tuple, details: _Details, pool) -> list[dict[str, Any]
 def _reward(row: dict) -> float:
     r = float(row.get("reward", "nan") or "nan")
     return r if np.isfinite(r) else -np.inf
+
+
+def _initial_result(initial: dict, skill: GraspSkill, out: Path | None) -> RefineResult:
+    """The result when the unrefined skill already succeeds (0 episodes of search)."""
+    result = RefineResult(success=True, best_reward=float(initial["reward"]), best_message=str(initial["message"]),
+                          best_place_error_m=float(initial.get("place_error_m", "nan") or "nan"), episodes=0,
+                          generations=0, episodes_to_success=0, stop_reason="initial_success", initial_success=True,
+                          initial_reward=float(initial["reward"]), best_skill=skill.to_dict())
+    if out is not None:
+        write_json(out / "result.json", result.summary())
+        write_json(out / "skill.json", result.best_skill)
+    return result
 
 
 def _result(loop, details: _Details, initial: dict, skill_of, out: Path | None) -> RefineResult:

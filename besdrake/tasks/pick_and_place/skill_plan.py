@@ -70,13 +70,15 @@ class SkillPlanner:
     def __init__(self, robot: Robot, X_world_base, box_start: np.ndarray, place_target: np.ndarray,
                  box_height: float, safety: float = DEFAULT_SAFETY, ik_dt: float = 0.02,
                  ik_options: PathIKOptions | None = None, model: KinematicModel | None = None,
-                 crop_approach: bool = True) -> None:
+                 crop_approach: bool = True, box_rotation: RotationMatrix | None = None) -> None:
         self.robot, self.safety, self.ik_dt = robot, float(safety), float(ik_dt)
         self.crop_approach = bool(crop_approach)
         self.model = model or welded_plant(robot)
         self.path_ik = PathIK(self.model, ik_options)
         X_world_task, self.table_place = scene_task_frame(np.asarray(box_start, float), np.asarray(place_target, float))
         self.X_base_task = X_world_base.inverse() @ X_world_task
+        R_task_box = X_world_task.rotation().inverse() @ (box_rotation or RotationMatrix())
+        self.box_face_normals = R_task_box.matrix()[:, :2].T  # the box's side faces' normals (x, y) in the task frame
         self.default_R_hand_tool = hand_to_tool(robot)
         self.grasp_offset = np.array([0.0, 0.0, 0.5 * float(box_height)])
 
@@ -90,11 +92,12 @@ class SkillPlanner:
         if box_offset is not None:
             box_start[:2] += np.asarray(box_offset, dtype=float)[:2]
         return cls(rollout.robot, base_transform(rollout.scenario), box_start, rollout.place_target,
-                   2.0 * float(rollout.h.box_half_size[2]), **kwargs)
+                   2.0 * float(rollout.h.box_half_size[2]), box_rotation=rollout.h.box_start.rotation(), **kwargs)
 
     def adapt(self, skill: GraspSkill) -> GraspSkill:
         """``skill`` with the scene's goals and its approach starting at the home tool pose (step 1)."""
-        adapted = self._nearer_closing_sign(skill.adapted(self.table_place + self.grasp_offset, self.grasp_offset))
+        turned = self._nearer_closing_sign(self._across_faces(skill.copy()))
+        adapted = turned.adapted(self.table_place + self.grasp_offset, self.grasp_offset)
         if self.crop_approach:
             home = (self.X_base_task.inverse() @ self.model.tcp_pose(self.robot.home)).translation()
             adapted = adapted.reaching_from(home)
@@ -113,6 +116,19 @@ class SkillPlanner:
             new = new.reaching_from(home)
         return start_from_home(new, self.model, self.X_base_task, self.hand_to_tool(new))
 
+    def _across_faces(self, skill: GraspSkill) -> GraspSkill:
+        """The demonstrated closing line turned onto the nearest normal of the box's side faces: a hand closes on a box
+        at a slant and still holds it, a parallel gripper's pads must lie flat on two opposite faces (and a narrow
+        gripper opens only as wide as the box, not as its diagonal)."""
+        closing = skill.closing_axis_hand
+        if not np.isfinite(closing).all():
+            return skill
+        R_task_hand = RotationMatrix(Quaternion(_unit(skill.approach.orientation.goal))).matrix()
+        c = R_task_hand @ closing
+        n = self.box_face_normals[int(np.argmax(np.abs(self.box_face_normals @ c)))]
+        skill.closing_axis_hand = R_task_hand.T @ (n * np.sign(n @ c))
+        return skill
+
     def _nearer_closing_sign(self, skill: GraspSkill) -> GraspSkill:
         """A parallel gripper grips alike turned half a turn about its approach axis: of the two, the skill keeps
         the closing line (its sign) whose grasp orientation is nearer the tool's at home, so that the arm turns
@@ -120,7 +136,7 @@ class SkillPlanner:
         if not self.robot.mapping.get("tool_closing_symmetric", True) or not np.isfinite(skill.closing_axis_hand).all():
             return skill
         R_home = self.model.tcp_pose(self.robot.home).rotation()
-        R_hand = self.X_base_task.rotation() @ RotationMatrix(Quaternion(skill.approach.orientation.goal))
+        R_hand = self.X_base_task.rotation() @ RotationMatrix(Quaternion(_unit(skill.approach.orientation.goal)))
 
         def turn(closing: np.ndarray) -> float:
             flipped = dataclasses.replace(skill, closing_axis_hand=closing)
@@ -171,7 +187,8 @@ class SkillPlanner:
         ``(None, "")`` when it fails on all."""
         for stride in strides:
             idx = np.unique(np.r_[np.arange(0, len(t), stride), len(t) - 1])
-            retimed = toppra_retime(t[idx], q[idx], self.robot.limits, self.model, safety=self.safety)
+            retimed = toppra_retime(t[idx], q[idx], self.robot.limits, self.model, safety=self.safety,
+                                    max_duration=self.robot.safety.max_plan_duration)
             if retimed is not None:
                 return retimed, "toppra" if stride == 1 else f"toppra/{stride}"
         return None, ""
@@ -187,6 +204,10 @@ class SkillPlanner:
         if t_skill <= t_path[-1]:
             return float(np.interp(t_skill, t_path, t_plan))
         return float(t_plan[-1] + t_skill - t_path[-1])
+
+
+def _unit(q: np.ndarray) -> np.ndarray:
+    return np.asarray(q, dtype=float) / np.linalg.norm(q)
 
 
 def _frame(a: np.ndarray, b: np.ndarray) -> np.ndarray:
