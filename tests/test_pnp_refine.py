@@ -139,6 +139,9 @@ def test_learn_pick_and_place_runs_and_resumes(tmp_path):
     # the shipped recording's grasp works in simulation (refined or as imitated), so the template stage ran
     assert out["success_rate_sim"] == 1.0 and out["template_success_rate_sim"] is not None
     assert json.loads((tmp_path / "run" / "04_template" / "template.json").read_text())["type"] == "GraspTemplate"
+    replay = tmp_path / "run" / out["replays"][0]
+    assert replay.is_file() and "animation" in replay.read_text() and replay.name in \
+        (tmp_path / "run" / "report.md").read_text()
     assert (tmp_path / "run" / "report.md").is_file()
     again = _learn(tmp_path / "run")
     assert again.returncode == 0 and json.loads(again.stdout.strip().splitlines()[-1])["stages"]["refine"] == \

@@ -60,6 +60,7 @@ class PickPlaceHandles:
     arm_q: np.ndarray             # indices of the arm joints in the plant's positions
     arm_v: np.ndarray
     arm_rows: np.ndarray          # rows of the arm's actuators in the model instance's actuation vector
+    visualizer: Any = None        # the MeshcatVisualizer (a Diagram built with meshcat), for replays
 
 
 def _parse(parser, scenario: Scenario, key: str):
@@ -199,8 +200,8 @@ def build_pick_place_diagram(scenario: Scenario | str = "pick_and_place", meshca
     arm_source, grip_source, feedforward, rows = _add_sources(builder, plant, instance, robot)
     logger = LogVectorOutput(plant.get_state_output_port(), builder, log_period)
     logger.set_name("state_logger")
-    if meshcat is not None:
-        MeshcatVisualizer.AddToBuilder(builder, scene_graph, meshcat, MeshcatVisualizerParams(role=Role.kIllustration))
+    visualizer = None if meshcat is None else MeshcatVisualizer.AddToBuilder(
+        builder, scene_graph, meshcat, MeshcatVisualizerParams(role=Role.kIllustration))
     diagram = builder.Build()
     diagram.set_name(f"besdrake_{scenario.name}")
 
@@ -221,5 +222,5 @@ def build_pick_place_diagram(scenario: Scenario | str = "pick_and_place", meshca
         coupled_q=np.array([q_index(j) for j in g.coupled], dtype=int),
         arm_q=np.array([q_index(j) for j in robot.joint_names]),
         arm_v=np.array([plant.GetJointByName(j, instance).velocity_start() for j in robot.joint_names]),
-        arm_rows=rows[:robot.n_joints],
+        arm_rows=rows[:robot.n_joints], visualizer=visualizer,
     )

@@ -12,7 +12,7 @@ rerun finds it done):
    lab behind the safety gate, every trial in the lab log before the next;
 4. ``template``: a behaviour template over the box's place on the shelf from the best refined grasp, trained and
    tested at other places in simulation (:mod:`~besdrake.tasks.pick_and_place.template`);
-5. ``report``: ``report.md`` and the run's figures (``summary.json``).
+5. ``report``: ``report.md``, the run's figures (``summary.json``) and a meshcat HTML replay of the best grasp.
 
 Default demonstration: the recording shipped with the package (``data/``, with its licence).
 """
@@ -192,9 +192,30 @@ def stage_report(ctx, out: Path) -> dict[str, Any]:
         "template_place_error_m": s["template"].get("template_place_error_m"),
         "wall_s": sum(float((v or {}).get("seconds", 0.0)) for v in rec.values()),
     }
+    summary["replays"] = _replays(ctx, out)
     write_json(out / "summary.json", summary)
     write_text(ctx.run.root / "report.md", _report_text(summary, rec))
     return summary
+
+
+def _replays(ctx, out: Path) -> list[str]:
+    """A meshcat HTML replay of the best refined grasp in simulation (path relative to the run folder), if any."""
+    from besdrake.sim.record import record_html
+    from besdrake.tasks.pick_and_place.imitation import GraspSkill
+    from besdrake.tasks.pick_and_place.rollout import PickPlaceRollout
+    from besdrake.tasks.pick_and_place.skill_plan import SkillPlanner
+
+    refine_dir = ctx.run.stage_dir(2, "refine")
+    hits = [r for r in _read_json(refine_dir / "refinement.json") if r.get("success")] \
+        if (refine_dir / "refinement.json").is_file() else []
+    if not hits:
+        return []
+    best = max(hits, key=lambda r: r["best_reward"])
+    skill = GraspSkill.from_dict(_read_json(refine_dir / best["demonstration"] / "skill.json"))
+    plan = SkillPlanner.for_rollout(PickPlaceRollout(ctx.config["scenario"])).plan(skill).plan
+    path, _ = record_html(plan, out / f"replay_{best['demonstration']}.html", ctx.config["scenario"], fps=30.0,
+                          limits="flag")
+    return [str(path.relative_to(ctx.run.root))]
 
 
 def _report_text(summary: dict[str, Any], rec: dict[str, Any]) -> str:
@@ -204,7 +225,11 @@ def _report_text(summary: dict[str, Any], rec: dict[str, Any]) -> str:
         if r:
             figures = ", ".join(f"{k} {v}" for k, v in r["summary"].items())
             lines.append(f"| {name} | {r['seconds']:.1f} | {figures} |")
-    lines += ["", "| figure | value |", "| --- | --- |"] + [f"| {k} | {v} |" for k, v in summary.items()]
+    lines += ["", "| figure | value |", "| --- | --- |"] + [f"| {k} | {v} |" for k, v in summary.items()
+                                                          if k != "replays"]
+    if summary.get("replays"):
+        lines += ["", "Replays (meshcat, self-contained HTML: open in a browser): "
+                  + ", ".join(f"[{Path(p).name}]({p})" for p in summary["replays"])]
     return "\n".join(lines) + "\n"
 
 

@@ -63,6 +63,12 @@ class PickAndPlaceTask(Task):
 
         return PickPlaceMeasurement
 
+    def record_replay(self, rollout, plan, outcome, meshcat, fps):
+        """The arm, gripper and box as simulated, and a marker on the table place."""
+        from besdrake.tasks.pick_and_place.replay import record_grasp
+
+        record_grasp(rollout, plan, outcome, meshcat, fps)
+
     def failed_outcome(self, message: str):
         from besdrake.tasks.pick_and_place.outcome import failed_outcome
 
