@@ -56,10 +56,21 @@ class Task(ABC):
     def failed_outcome(self, message: str) -> Any:
         """The outcome of a rollout that could not run (flagged as failed, ``message`` says why)."""
 
-    def default_plan(self, rollout) -> Any:
+    def scene(self) -> Any:
+        """The scene the task adds to the simulation's Diagram beside the robot (its objects and fixtures), or None
+        (the robot alone): an object with ``add_models(plant, parser, scenario)`` and ``finish(plant, scene_graph,
+        arm) -> handles`` (see :mod:`besdrake.sim.diagram`). A task that builds its own Diagram needs none."""
+        return None
+
+    def default_plan(self, rollout, **shape) -> Any:
         """A motion plan that performs the task in ``rollout``'s scene (what ``besdrake simulate`` runs when no
-        plan is given)."""
+        plan is given); ``shape``: the command line's ``amplitude``/``yaw``, for tasks whose default plan takes them."""
         raise TaskError(f"the task {self.name!r} has no default plan: give --plan FILE")
+
+    @staticmethod
+    def _no_shape(task: str, shape: dict) -> None:
+        if shape:
+            raise TaskError(f"--amplitude and --yaw shape a task's default plan; the {task} task takes --plan FILE")
 
     def make_lab(self, config, seed: int | None = None) -> Any:
         """The task's virtual lab (a :class:`~besdrake.transfer.lab.Lab`) from a lab config: a YAML path, a built-in
@@ -100,6 +111,15 @@ class Task(ABC):
         sim-to-lab disparity from."""
         raise TaskError(f"the task {self.name!r} describes no behaviour (Transferability needs behaviour_descriptor)")
 
+    def scatter_effects(self, scenario, sd: float) -> tuple[list, Any]:
+        """The lab's trial-to-trial scatter of the task's setup (``sd``, m per axis; e.g. where an object is put) as
+        ``(effects, weights)``: K effect mappings for one rollout each, the first None (the scenario's own setup), and
+        the K weights (summing to 1) of a quadrature over that scatter (the Transferability Approach's expected target
+        distance). Default: no scatter modelled, ``([None], [1.0])``."""
+        import numpy as np
+
+        return [None], np.ones(1)
+
     def check_robot(self, robot) -> None:
         """Raise :class:`~besdrake.robot.RobotError` when ``robot`` lacks what the task needs (e.g. a scoop)."""
 
@@ -114,6 +134,13 @@ def register_task(cls: type[Task]) -> type[Task]:
         raise TaskError(f"{cls!r} is not a Task subclass with a name")
     _REGISTRY[cls.name] = cls
     return cls
+
+
+def load_task_effects() -> None:
+    """Import every built-in task's effects module (``besdrake/tasks/<name>/effects.py``, in name order): their
+    ``@register_effect`` classes join the registry (:mod:`besdrake.sim.effects` calls this before it is first read)."""
+    for path in sorted(TASKS_DIR.glob("*/effects.py")):
+        importlib.import_module(f"besdrake.tasks.{path.parent.name}.effects")
 
 
 def known_tasks() -> list[str]:

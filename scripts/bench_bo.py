@@ -48,7 +48,7 @@ class SimThrow:
 
         logging.getLogger("drake").setLevel(logging.ERROR)
         from besdrake.sim.rollout import Rollout
-        from besdrake.sim.throws import default_throw
+        from besdrake.tasks.throwing.throws import default_throw
 
         self._rollout = Rollout("nominal")
         self._plan = default_throw

@@ -157,7 +157,7 @@ def make_seeds(root: Path) -> Seeds:
     from besdrake.mocap.qualisys import read_tsv, write_tsv
     from besdrake.mocap.synthetic import generate_dataset
     from besdrake.sim.scenario import DIAGRAMS_DIR
-    from besdrake.sim.throws import default_throw
+    from besdrake.tasks.throwing.throws import default_throw
 
     s = Seeds(root)
     generate_dataset(root / "syn", n_subjects=1, n_experiments=1, n_throws=2, seed=0)

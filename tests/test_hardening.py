@@ -19,7 +19,7 @@ def data(tmp_path_factory) -> Path:
     from besdrake.mocap.c3d_io import write_c3d
     from besdrake.mocap.qualisys import read_tsv, write_tsv
     from besdrake.mocap.synthetic import generate_dataset
-    from besdrake.sim.throws import default_throw
+    from besdrake.tasks.throwing.throws import default_throw
 
     root = tmp_path_factory.mktemp("hardening")
     generate_dataset(root / "syn", n_subjects=1, n_experiments=1, n_throws=2, seed=0)
@@ -87,7 +87,7 @@ def test_meshcat_listens_on_localhost_by_default(monkeypatch, tmp_path):
 
     from besdrake.sim.cliutil import add_common_arguments
     from besdrake.sim.record import record_html
-    from besdrake.sim.throws import default_throw
+    from besdrake.tasks.throwing.throws import default_throw
 
     hosts = []
     real = geometry.Meshcat
@@ -112,7 +112,7 @@ def test_meshcat_listens_on_localhost_by_default(monkeypatch, tmp_path):
 
 def _plan_variants():
     from besdrake.plan import MotionPlan
-    from besdrake.sim.throws import default_throw
+    from besdrake.tasks.throwing.throws import default_throw
 
     p = default_throw()
     long = MotionPlan(t=np.append(p.t, 3600.0), q=np.vstack([p.q, p.q[-1:]]))
@@ -121,9 +121,9 @@ def _plan_variants():
 
 
 def test_gate_refuses_long_plans_close_knots_and_a_far_start():
-    from besdrake.sim.throws import START_POSE
+    from besdrake.tasks.throwing.throws import START_POSE
     from besdrake.transfer.lab import SafetyGate, SafetyLimits
-    from besdrake.transfer.virtual_lab import VirtualLab, load_lab_config
+    from besdrake.tasks.throwing.lab import VirtualLab, load_lab_config
 
     p, long, close = _plan_variants()
     gate = SafetyGate(VirtualLab(load_lab_config("ideal_lab")))

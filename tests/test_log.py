@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 
 from besdrake.plan import MotionPlan
-from besdrake.sim.throws import default_throw
+from besdrake.tasks.throwing.throws import default_throw
 from besdrake.transfer.lab import SafetyGate
 from besdrake.transfer.log import LabLog, LogError, read_log, run_plans
 from besdrake.transfer.measurement import Measurement, MeasurementError
-from besdrake.transfer.virtual_lab import VirtualLab, parse_lab_config
+from besdrake.tasks.throwing.lab import VirtualLab, parse_lab_config
 
 # Distinctive hidden values, so that a leak cannot hide among ordinary numbers.
 HIDDEN = {"base_offset": {"z": -0.0317}, "actuator_lag": {"delay": 0.0123, "tau": 0.0179}}

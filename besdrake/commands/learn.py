@@ -47,7 +47,7 @@ def _input_errors() -> tuple[type[Exception], ...]:
     from besdrake.sim.scenario import ScenarioError
     from besdrake.transfer.log import LogError
     from besdrake.plugins import PluginError
-    from besdrake.transfer.virtual_lab import LabConfigError
+    from besdrake.tasks.throwing.lab import LabConfigError
 
     return (MocapFormatError, PreprocessError, LabelingError, SegmentationError, PlanError, ScenarioError, EffectError,
             LogError, PluginError, LabConfigError, ResumeError, RunError, FileNotFoundError)

@@ -375,13 +375,11 @@ def stage_refine(ctx: Context, out: Path) -> dict[str, Any]:
 # --------------------------------------------------------------------------------------------
 def _lab(ctx: Context):
     from besdrake.transfer.lab import SafetyGate
-    from besdrake.transfer.virtual_lab import VirtualLab
+    from besdrake.transfer.lab_config import open_lab, resolve_lab_path
 
     if "lab" not in ctx.cache:
-        from besdrake.transfer.virtual_lab import resolve_lab_path
-
         ctx.run.record_inputs({"lab": resolve_lab_path(ctx.config["lab"])})
-        ctx.cache["lab"] = SafetyGate(VirtualLab(ctx.config["lab"]))
+        ctx.cache["lab"] = SafetyGate(open_lab(ctx.config["lab"]))
     return ctx.cache["lab"]
 
 

@@ -60,7 +60,7 @@ import numpy as np
 import yaml
 
 from besdrake.plan import MotionPlan, PlanError
-from besdrake.sim.effects import ball_placed
+from besdrake.tasks.throwing.effects import ball_placed
 from besdrake.transfer.lab import TrialCounter
 from besdrake.transfer.lab_config import LabConfigError, _bool, _number, _seed, resolve_lab_path, scenario_path
 from besdrake.transfer.measurement import Measurement
