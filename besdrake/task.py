@@ -37,6 +37,9 @@ class Task(ABC):
     default_scenario: ClassVar[str] = ""
     #: Names of the registry's effects that act on this task's rollouts.
     effects: ClassVar[tuple[str, ...]] = ()
+    #: Markers of the manipulated object in the task's demonstrations (mocap marker names): the segment classifier's
+    #: ``markers="auto"`` adds them to the hand's features where they are visible throughout.
+    object_markers: ClassVar[tuple[str, ...]] = ()
     #: The built-in lab (``diagrams/labs/<name>.yaml``) the task's commands open when none is given; "" for none.
     default_lab: ClassVar[str] = ""
     #: The task's own ``besdrake learn`` configuration (YAML; its ``quick:`` section is the ``--quick`` profile), or
@@ -141,6 +144,14 @@ def load_task_effects() -> None:
     ``@register_effect`` classes join the registry (:mod:`besdrake.sim.effects` calls this before it is first read)."""
     for path in sorted(TASKS_DIR.glob("*/effects.py")):
         importlib.import_module(f"besdrake.tasks.{path.parent.name}.effects")
+
+
+def object_markers() -> tuple[str, ...]:
+    """The object markers of every known task (:attr:`Task.object_markers`), in task-name order, without repeats."""
+    out: list[str] = []
+    for name in known_tasks():
+        out += [m for m in get_task(name).object_markers if m not in out]
+    return tuple(out)
 
 
 def known_tasks() -> list[str]:

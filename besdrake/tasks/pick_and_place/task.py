@@ -18,6 +18,7 @@ class PickAndPlaceTask(Task):
     name = "pick_and_place"
     description = "pick a box from a shelf and put it upright on a table with a gripper, held by friction only"
     default_scenario = "pick_and_place"
+    object_markers = ("Box back",)
     effects = ()  # none of the registry's effects acts on this task yet (box friction, mass, offset: rollout arguments)
     default_lab = "pick_and_place_lab"
 

@@ -16,6 +16,7 @@ class ThrowingTask(Task):
     name = "throwing"
     description = "throw a ball from a scoop onto a target on the floor (BesMan's COMPI experiments)"
     default_scenario = "nominal"
+    object_markers = ("Ball",)
     effects = ("base_offset", "joint_offset", "actuator_lag", "gain_scale", "air_drag", "ball_placement", "ball",
                "scoop_friction")
     default_lab = "default_lab"
