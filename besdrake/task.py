@@ -46,6 +46,10 @@ class Task(ABC):
     #: None when the task runs the pipeline's default stages (:mod:`besdrake.pipeline.learn`) and configuration.
     learn_config: ClassVar[Path | None] = None
 
+    def check_learn_config(self, config: dict[str, Any]) -> None:
+        """Raise a ``ValueError`` (e.g. :class:`~besdrake.pipeline.config.ConfigError`) naming a bad value of the
+        task's ``besdrake learn`` configuration, before any stage runs (a late stage must not fail on it)."""
+
     def learn_stages(self) -> list | None:
         """The task's ``besdrake learn`` stages ``[(name, fn(ctx, out_dir) -> summary)]``, or None for the pipeline's
         default stages. The last stage's summary is the run's JSON line."""

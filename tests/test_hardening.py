@@ -18,7 +18,7 @@ def data(tmp_path_factory) -> Path:
     """A 300-frame synthetic recording (labelled rec.tsv, unlabelled unl.tsv, rec.c3d) and the default throw."""
     from besdrake.mocap.c3d_io import write_c3d
     from besdrake.mocap.qualisys import read_tsv, write_tsv
-    from besdrake.mocap.synthetic import generate_dataset
+    from besdrake.tasks.throwing.demonstrator import generate_dataset
     from besdrake.tasks.throwing.throws import default_throw
 
     root = tmp_path_factory.mktemp("hardening")
@@ -364,7 +364,8 @@ def test_corrupt_optimizer_state_on_resume_says_how_to_recover(tmp_path):
 
 def test_copied_run_folder_uses_its_own_refined_scenario(tmp_path):
     from besdrake.pipeline.config import load_config
-    from besdrake.pipeline.learn import Context, _refined_scenario
+    from besdrake.pipeline.learn import Context
+    from besdrake.tasks.throwing.learn import _refined_scenario
     from besdrake.pipeline.run import RunFolder
 
     config = load_config(None, quick=True)

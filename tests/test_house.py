@@ -30,8 +30,6 @@ NOT_YET_TASK_NEUTRAL = {
     "diagnosis/replay.py", "diagnosis/residual.py", "diagnosis/results.py", "diagnosis/selection.py",
     "diagnosis/settings.py", "diagnosis/simulate.py", "diagnosis/stats.py", "diagnosis/verdict.py", "diagnosis/fitting.py", "diagnosis/noise.py", "diagnosis/observables.py",
     "diagnosis/report.py",
-    "mocap/__init__.py", "mocap/arm_model.py", "mocap/synthetic.py", "pipeline/config.py",
-    "pipeline/default_learn.yaml", "pipeline/imitation.py", "pipeline/learn.py",
     "search/templates.py",
     "transfer/LOG_FORMAT.md",
     "transfer/log.py", "transfer/measurement.py",

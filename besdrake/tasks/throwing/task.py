@@ -8,6 +8,8 @@ features for Transferability: :mod:`besdrake.tasks.throwing.descriptor`.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from besdrake.task import Task, register_task
 
 
@@ -20,12 +22,28 @@ class ThrowingTask(Task):
     effects = ("base_offset", "joint_offset", "actuator_lag", "gain_scale", "air_drag", "ball_placement", "ball",
                "scoop_friction")
     default_lab = "default_lab"
+    learn_config = Path(__file__).resolve().parent / "learn.yaml"
 
     def scene(self):
         """The ball in the scoop and the floor (:class:`~besdrake.tasks.throwing.scene.ThrowScene`)."""
         from besdrake.tasks.throwing.scene import ThrowScene
 
         return ThrowScene()
+
+    def learn_stages(self):
+        """Label, segment, imitate, refine, transfer, diagnose, transfer_refined, template, pool, report
+        (:mod:`besdrake.tasks.throwing.learn`)."""
+        from besdrake.tasks.throwing.learn import STAGES
+
+        return list(STAGES)
+
+    def check_learn_config(self, config) -> None:
+        """The Transferability settings and the diagnosis experiment's design, checked before any stage runs."""
+        from besdrake.tasks.throwing.learn import diagnosis_design, transfer_config
+
+        transfer_config(config)
+        if config["diagnosis"].get("enabled", True):
+            diagnosis_design(config)
 
     def make_rollout(self, scenario, meshcat=None):
         from besdrake.tasks.throwing.rollout import ThrowRollout
