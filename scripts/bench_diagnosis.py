@@ -363,7 +363,7 @@ def _residual_summary(unk: list[dict]) -> dict:
 
 
 def _strip(ms):
-    from besdrake.transfer.measurement import Measurement
+    from besdrake.tasks.throwing.measurement import ThrowMeasurement as Measurement
 
     return [Measurement(trial=m.trial, plan=m.plan, touchdown=m.touchdown, flags=dict(m.flags), message=m.message, meta=dict(m.meta)) for m in ms]
 

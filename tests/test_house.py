@@ -30,9 +30,6 @@ NOT_YET_TASK_NEUTRAL = {
     "diagnosis/replay.py", "diagnosis/residual.py", "diagnosis/results.py", "diagnosis/selection.py",
     "diagnosis/settings.py", "diagnosis/simulate.py", "diagnosis/stats.py", "diagnosis/verdict.py", "diagnosis/fitting.py", "diagnosis/noise.py", "diagnosis/observables.py",
     "diagnosis/report.py",
-    "search/templates.py",
-    "transfer/LOG_FORMAT.md",
-    "transfer/log.py", "transfer/measurement.py",
 }
 
 

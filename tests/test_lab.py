@@ -13,7 +13,7 @@ from besdrake.plan import MotionPlan
 from besdrake.tasks.throwing.throws import default_throw
 from besdrake.transfer.lab import JointLimits, Lab, SafetyGate
 from besdrake.transfer.log import LabLog, run_plans
-from besdrake.transfer.measurement import Measurement
+from besdrake.tasks.throwing.measurement import ThrowMeasurement as Measurement
 from besdrake.plugins import PluginError, load_plugin
 from besdrake.transfer.recorded_lab import PlanNotRecordedError, RecordedLab
 from besdrake.tasks.throwing.lab import LabConfigError, VirtualLab, load_lab_config, parse_lab_config

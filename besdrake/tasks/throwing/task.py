@@ -80,6 +80,12 @@ class ThrowingTask(Task):
 
         return behaviour_descriptor(plan, outcome)
 
+    def measurement_type(self) -> type:
+        """:class:`~besdrake.tasks.throwing.measurement.ThrowMeasurement`: touchdown, ball marker, encoders."""
+        from besdrake.tasks.throwing.measurement import ThrowMeasurement
+
+        return ThrowMeasurement
+
     def scatter_effects(self, scenario, sd: float):
         """The ball's placement in the scoop, N(0, sd^2) per axis around the scenario's habit: the 9 placements of a
         3 x 3 Gauss-Hermite rule (:func:`~besdrake.tasks.throwing.effects.placement_quadrature`)."""
