@@ -54,6 +54,7 @@ class SpyLab:
     name = "spy"
 
     robot = COMPI
+    measurement_type = Measurement  # a throwing lab's (the gate's refusals are of this class)
 
     def __init__(self) -> None:
         self.calls: list[int] = []
