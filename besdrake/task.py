@@ -37,11 +37,18 @@ class Task(ABC):
     default_scenario: ClassVar[str] = ""
     #: Names of the registry's effects that act on this task's rollouts.
     effects: ClassVar[tuple[str, ...]] = ()
+    #: Markers of the manipulated object in the task's demonstrations (mocap marker names): the segment classifier's
+    #: ``markers="auto"`` adds them to the hand's features where they are visible throughout.
+    object_markers: ClassVar[tuple[str, ...]] = ()
     #: The built-in lab (``diagrams/labs/<name>.yaml``) the task's commands open when none is given; "" for none.
     default_lab: ClassVar[str] = ""
     #: The task's own ``besdrake learn`` configuration (YAML; its ``quick:`` section is the ``--quick`` profile), or
     #: None when the task runs the pipeline's default stages (:mod:`besdrake.pipeline.learn`) and configuration.
     learn_config: ClassVar[Path | None] = None
+
+    def check_learn_config(self, config: dict[str, Any]) -> None:
+        """Raise a ``ValueError`` (e.g. :class:`~besdrake.pipeline.config.ConfigError`) naming a bad value of the
+        task's ``besdrake learn`` configuration, before any stage runs (a late stage must not fail on it)."""
 
     def learn_stages(self) -> list | None:
         """The task's ``besdrake learn`` stages ``[(name, fn(ctx, out_dir) -> summary)]``, or None for the pipeline's
@@ -56,10 +63,21 @@ class Task(ABC):
     def failed_outcome(self, message: str) -> Any:
         """The outcome of a rollout that could not run (flagged as failed, ``message`` says why)."""
 
-    def default_plan(self, rollout) -> Any:
+    def scene(self) -> Any:
+        """The scene the task adds to the simulation's Diagram beside the robot (its objects and fixtures), or None
+        (the robot alone): an object with ``add_models(plant, parser, scenario)`` and ``finish(plant, scene_graph,
+        arm) -> handles`` (see :mod:`besdrake.sim.diagram`). A task that builds its own Diagram needs none."""
+        return None
+
+    def default_plan(self, rollout, **shape) -> Any:
         """A motion plan that performs the task in ``rollout``'s scene (what ``besdrake simulate`` runs when no
-        plan is given)."""
+        plan is given); ``shape``: the command line's ``amplitude``/``yaw``, for tasks whose default plan takes them."""
         raise TaskError(f"the task {self.name!r} has no default plan: give --plan FILE")
+
+    @staticmethod
+    def _no_shape(task: str, shape: dict) -> None:
+        if shape:
+            raise TaskError(f"--amplitude and --yaw shape a task's default plan; the {task} task takes --plan FILE")
 
     def make_lab(self, config, seed: int | None = None) -> Any:
         """The task's virtual lab (a :class:`~besdrake.transfer.lab.Lab`) from a lab config: a YAML path, a built-in
@@ -100,6 +118,15 @@ class Task(ABC):
         sim-to-lab disparity from."""
         raise TaskError(f"the task {self.name!r} describes no behaviour (Transferability needs behaviour_descriptor)")
 
+    def scatter_effects(self, scenario, sd: float) -> tuple[list, Any]:
+        """The lab's trial-to-trial scatter of the task's setup (``sd``, m per axis; e.g. where an object is put) as
+        ``(effects, weights)``: K effect mappings for one rollout each, the first None (the scenario's own setup), and
+        the K weights (summing to 1) of a quadrature over that scatter (the Transferability Approach's expected target
+        distance). Default: no scatter modelled, ``([None], [1.0])``."""
+        import numpy as np
+
+        return [None], np.ones(1)
+
     def check_robot(self, robot) -> None:
         """Raise :class:`~besdrake.robot.RobotError` when ``robot`` lacks what the task needs (e.g. a scoop)."""
 
@@ -114,6 +141,21 @@ def register_task(cls: type[Task]) -> type[Task]:
         raise TaskError(f"{cls!r} is not a Task subclass with a name")
     _REGISTRY[cls.name] = cls
     return cls
+
+
+def load_task_effects() -> None:
+    """Import every built-in task's effects module (``besdrake/tasks/<name>/effects.py``, in name order): their
+    ``@register_effect`` classes join the registry (:mod:`besdrake.sim.effects` calls this before it is first read)."""
+    for path in sorted(TASKS_DIR.glob("*/effects.py")):
+        importlib.import_module(f"besdrake.tasks.{path.parent.name}.effects")
+
+
+def object_markers() -> tuple[str, ...]:
+    """The object markers of every known task (:attr:`Task.object_markers`), in task-name order, without repeats."""
+    out: list[str] = []
+    for name in known_tasks():
+        out += [m for m in get_task(name).object_markers if m not in out]
+    return tuple(out)
 
 
 def known_tasks() -> list[str]:

@@ -3,7 +3,7 @@
 
 Task (paper section 4): learn an upper-level policy ``theta = pi(s)`` for targets ``s`` in
 ``[1, 2.5] x [-1, 1]`` m with ``theta`` = (swing amplitude, joint-1 angle in rad) of
-:func:`besdrake.sim.throws.default_throw`. The paper's two meta-parameters are the execution time and
+:func:`besdrake.tasks.throwing.throws.default_throw`. The paper's two meta-parameters are the execution time and
 the goal of joint 1; the amplitude sets the swing (execution) time, ``T = sqrt(5.77 * 0.75 * amplitude /
 accel)``, and the swing's extent. Reward: minus the squared
 distance (m^2) between touchdown and target; a throw without touchdown is a failed episode (NaN).
@@ -48,7 +48,7 @@ class SimThrow:
 
         logging.getLogger("drake").setLevel(logging.ERROR)
         from besdrake.sim.rollout import Rollout
-        from besdrake.sim.throws import default_throw
+        from besdrake.tasks.throwing.throws import default_throw
 
         self._rollout = Rollout("nominal")
         self._plan = default_throw

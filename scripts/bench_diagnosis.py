@@ -242,7 +242,7 @@ def _signature(hidden: dict, lab_seed: int, ms, plans, truth_roll) -> np.ndarray
     noise-free labs with the same seed (so the same per-trial ball placement draws), the effect on minus off, read
     at the windows the diagnosis uses (layout from the logged trial and the nominal rollout). NaN where not logged."""
     from besdrake.diagnosis import observables
-    from besdrake.transfer.virtual_lab import VirtualLab
+    from besdrake.tasks.throwing.lab import VirtualLab
 
     quiet = {"touchdown_sd": 0.0, "mocap_noise_sd": 0.0, "mocap_dropout": 0.0, "encoder_noise_sd": 0.0}
     on = VirtualLab({"name": "bench_lab_on", "effects": hidden, "seed": lab_seed, "noise": quiet})
@@ -363,7 +363,7 @@ def _residual_summary(unk: list[dict]) -> dict:
 
 
 def _strip(ms):
-    from besdrake.transfer.measurement import Measurement
+    from besdrake.tasks.throwing.measurement import ThrowMeasurement as Measurement
 
     return [Measurement(trial=m.trial, plan=m.plan, touchdown=m.touchdown, flags=dict(m.flags), message=m.message, meta=dict(m.meta)) for m in ms]
 
@@ -516,7 +516,7 @@ def main(argv=None) -> int:
     from besdrake.sim.scenario import load_scenario
     from besdrake.sim.effects import list_effects
     from besdrake.sim.executors import make_executor
-    from besdrake.transfer.virtual_lab import VirtualLab
+    from besdrake.tasks.throwing.lab import VirtualLab
 
     registry = list(list_effects())
     only = None if args.only is None else {int(x) for x in args.only.split(",") if x.strip()}

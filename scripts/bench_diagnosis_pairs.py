@@ -38,7 +38,7 @@ def main(argv: list[str] | None = None) -> int:
     from besdrake.diagnosis.design import DEFAULT_PROBES
     from besdrake.sim.effects import list_effects
     from besdrake.sim.executors import make_executor
-    from besdrake.transfer.virtual_lab import VirtualLab
+    from besdrake.tasks.throwing.lab import VirtualLab
 
     registry = list(list_effects())
     rows = []

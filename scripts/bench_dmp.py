@@ -16,7 +16,7 @@ import types
 
 import numpy as np
 
-from besdrake.imitation import DMP, THROW_WEIGHTS_PER_JOINT, DMPParameterization, QuaternionDMP
+from besdrake.imitation import DMP, WEIGHTS_PER_JOINT, DMPParameterization, QuaternionDMP
 from besdrake.imitation import quaternion as quat
 
 
@@ -60,19 +60,19 @@ def main() -> int:
     t = np.linspace(0.0, 1.5, 301)
     s = t / t[-1]
     q = 0.3 * np.sin(np.pi * s[:, None] * (1 + 0.2 * np.arange(6)) + 0.4 * np.arange(6)) + s[:, None] ** 3
-    dmp = DMP(6, THROW_WEIGHTS_PER_JOINT).fit(t, q)
+    dmp = DMP(6, WEIGHTS_PER_JOINT).fit(t, q)
     param = DMPParameterization(dmp)
     theta = param.to_vector()
 
     figures: dict[str, object] = {
         "machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
         "note": "wall-clock medians; the machine may be shared",
-        "dmp": {"n_dims": 6, "n_weights_per_dim": THROW_WEIGHTS_PER_JOINT, "execution_time_s": 1.5, "int_dt_s": dmp.int_dt},
+        "dmp": {"n_dims": 6, "n_weights_per_dim": WEIGHTS_PER_JOINT, "execution_time_s": 1.5, "int_dt_s": dmp.int_dt},
     }
     mp = _oracle()
     for dt in (0.001, 0.002):
         ours = _median_ms(lambda: dmp.open_loop(dt), repeats)
-        oracle = mp.DMPWithFinalVelocity(6, execution_time=1.5, dt=dt, n_weights_per_dim=THROW_WEIGHTS_PER_JOINT)
+        oracle = mp.DMPWithFinalVelocity(6, execution_time=1.5, dt=dt, n_weights_per_dim=WEIGHTS_PER_JOINT)
         oracle.imitate(t, q)
         theirs = _median_ms(lambda: oracle.open_loop(), max(3, repeats // 10))
         diff = float(np.max(np.abs(dmp.open_loop(dt).y - oracle.open_loop()[1])))
@@ -83,7 +83,7 @@ def main() -> int:
             "max_abs_difference_rad": diff,
         }
     figures["motion_plan_dt_0.002_ms"] = round(_median_ms(lambda: param.motion_plan(theta, 0.002), repeats), 4)
-    figures["fit_301_samples_ms"] = round(_median_ms(lambda: DMP(6, THROW_WEIGHTS_PER_JOINT).fit(t, q), repeats), 4)
+    figures["fit_301_samples_ms"] = round(_median_ms(lambda: DMP(6, WEIGHTS_PER_JOINT).fit(t, q), repeats), 4)
     y, yd = dmp.start, dmp.start_velocity
     figures["step_dt_0.001_us"] = round(1e3 * _median_ms(lambda: dmp.step(0.5, y, yd, 0.001), repeats), 2)
 

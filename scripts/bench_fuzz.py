@@ -155,9 +155,9 @@ def make_seeds(root: Path) -> Seeds:
 
     from besdrake.mocap.c3d_io import write_c3d
     from besdrake.mocap.qualisys import read_tsv, write_tsv
-    from besdrake.mocap.synthetic import generate_dataset
+    from besdrake.tasks.throwing.demonstrator import generate_dataset
     from besdrake.sim.scenario import DIAGRAMS_DIR
-    from besdrake.sim.throws import default_throw
+    from besdrake.tasks.throwing.throws import default_throw
 
     s = Seeds(root)
     generate_dataset(root / "syn", n_subjects=1, n_experiments=1, n_throws=2, seed=0)
@@ -170,7 +170,7 @@ def make_seeds(root: Path) -> Seeds:
     default_throw().save(root / "plan.json")
     shutil.copy(DIAGRAMS_DIR / "nominal.yaml", root / "scenario.yaml")
     shutil.copy(DIAGRAMS_DIR / "labs" / "default_lab.yaml", root / "lab.yaml")
-    (root / "config.yaml").write_text((REPO / "besdrake" / "pipeline" / "default_learn.yaml").read_text())
+    (root / "config.yaml").write_text((REPO / "besdrake" / "tasks" / "throwing" / "learn.yaml").read_text().split("\nquick:")[0] + "\n")
     (root / "plugin.py").write_text(PLUGIN)
     s.files = {p.stem if p.suffix != ".c3d" else "c3d": p for p in root.iterdir() if p.is_file()}
     del np

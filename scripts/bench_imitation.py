@@ -30,8 +30,8 @@ def main() -> None:
     args = parser.parse_args()
 
     from besdrake.embodiment import EmbodimentMapping, hand_trajectory
-    from besdrake.mocap.synthetic import SyntheticDemonstrator
-    from besdrake.pipeline.imitation import prepare
+    from besdrake.tasks.throwing.demonstrator import SyntheticDemonstrator
+    from besdrake.tasks.throwing.imitation import prepare
 
     from besdrake.sim.scenario import load_scenario
 

@@ -31,10 +31,10 @@ def main() -> None:
     args = parser.parse_args()
 
     from besdrake.sim.rollout import Rollout
-    from besdrake.sim.throws import default_throw
+    from besdrake.tasks.throwing.throws import default_throw
     from besdrake.transfer.lab import SafetyGate
     from besdrake.transfer.log import LabLog
-    from besdrake.transfer.virtual_lab import VirtualLab, load_lab_config
+    from besdrake.tasks.throwing.lab import VirtualLab, load_lab_config
 
     cfg = load_lab_config(args.lab).with_seed(args.seed)
     vlab = VirtualLab(cfg)

@@ -20,7 +20,7 @@ import time
 import numpy as np
 
 from besdrake.mocap.labeling import MarkerLabeler, labeling_accuracy
-from besdrake.mocap.synthetic import SyntheticDemonstrator, make_unlabeled
+from besdrake.tasks.throwing.demonstrator import SyntheticDemonstrator, make_unlabeled
 
 PAPER_SECONDS_PER_EXPERIMENT = 4 * 60 + 58
 

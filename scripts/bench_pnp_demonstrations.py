@@ -76,7 +76,7 @@ def unnamed(files: list[Path], classifier, tolerance_s: float) -> dict:
 
     from besdrake.mocap.labeling import MarkerLabeler
     from besdrake.mocap.qualisys import read_tsv, write_tsv
-    from besdrake.mocap.synthetic import make_unlabeled
+    from besdrake.tasks.throwing.demonstrator import make_unlabeled
 
     labeler = MarkerLabeler().fit(read_tsv(files[0]))
     with tempfile.TemporaryDirectory() as tmp:

@@ -24,7 +24,7 @@ if str(REPO) not in sys.path:
 def _plans(n: int):
     import numpy as np
 
-    from besdrake.sim.throws import default_throw
+    from besdrake.tasks.throwing.throws import default_throw
 
     return [default_throw(amplitude=a, yaw=y) for a, y in zip(np.linspace(0.25, 0.45, n), np.linspace(-0.2, 0.2, n))]
 

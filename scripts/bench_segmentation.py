@@ -322,7 +322,7 @@ def main() -> None:
         if args.synthetic:
             report["synthetic"] = synthetic_figures(args.synthetic)
         else:
-            from besdrake.mocap.synthetic import generate_dataset
+            from besdrake.tasks.throwing.demonstrator import generate_dataset
 
             with tempfile.TemporaryDirectory() as tmp:
                 generate_dataset(tmp, n_subjects=10, n_experiments=3, n_throws=8, seed=0, unlabeled=False)

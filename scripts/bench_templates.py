@@ -37,8 +37,9 @@ def main(argv: list[str] | None = None) -> int:
     from besdrake.imitation import load_dmp
     from besdrake.search.templates import (
         PAPER_MEAN_CM, TEST_CONTEXTS, BehaviorTemplate, MetaDMP, default_meta_bounds, evaluate_template,
-        default_template_base, fitted_default_throw, touchdowns, train_template,
+        touchdowns, train_template,
     )
+    from besdrake.tasks.throwing.template_base import default_template_base, fitted_default_throw
     from besdrake.sim import make_executor
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])

@@ -60,7 +60,7 @@ def refined_scenario(out: Path, lab_path: str, throws: int = 25, repeats: int = 
     from besdrake.sim import make_executor
     from besdrake.transfer.lab import SafetyGate
     from besdrake.transfer.log import LabLog, run_plans
-    from besdrake.transfer.virtual_lab import VirtualLab, load_lab_config
+    from besdrake.tasks.throwing.lab import VirtualLab, load_lab_config
 
     folder = out / "diagnosis"
     done = folder / "summary.json"
@@ -126,7 +126,7 @@ def run_subject(
     from besdrake.transfer.lab import SafetyGate
     from besdrake.transfer.log import LabLog
     from besdrake.transfer.transferability import TransferabilityApproach, TransferabilityConfig
-    from besdrake.transfer.virtual_lab import VirtualLab, load_lab_config
+    from besdrake.tasks.throwing.lab import VirtualLab, load_lab_config
 
     done = out / tag / "result.json"
     if done.is_file():

@@ -166,7 +166,7 @@ def test_cli_eval_classification_and_segment_labels(shared_data, tmp_path, capsy
 def test_synthetic_throws_new_subjects(tmp_path):
     """Train on synthetic subjects 1-5, test on 6-10 (measured: 100%, every throw found)."""
     from besdrake.mocap.preprocess import preprocess
-    from besdrake.mocap.synthetic import generate_dataset
+    from besdrake.tasks.throwing.demonstrator import generate_dataset
     from besdrake.segmentation import VMCI, extract_segment
     from besdrake.segmentation.evaluation import evaluate_classifier, labelled_recordings
 

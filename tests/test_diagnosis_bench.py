@@ -13,7 +13,7 @@ from besdrake.diagnosis.observables import N_FEATURES, group_slices
 
 def test_signature_is_the_effect_on_minus_off_without_noise(script):
     from besdrake.sim import Rollout
-    from besdrake.transfer.virtual_lab import VirtualLab
+    from besdrake.tasks.throwing.lab import VirtualLab
 
     bench = script("bench_diagnosis")
     plans = diagnosis_plans(3, 0, seed=3)

@@ -18,7 +18,7 @@ from besdrake.diagnosis.design import DEFAULT_PROBES
 from besdrake.sim.effects import Effect, Param, register_effect, unregister_effect
 from besdrake.sim.scenario import load_scenario
 from besdrake.transfer.log import LabLog, read_log
-from besdrake.transfer.virtual_lab import VirtualLab
+from besdrake.tasks.throwing.lab import VirtualLab
 
 #: Realistic magnitudes (low, high) of the effects the tests hide (|value|, random sign where it makes sense).
 MAGNITUDES = {

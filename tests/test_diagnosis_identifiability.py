@@ -92,7 +92,7 @@ def test_the_registry_has_base_yaw_and_joint1_offset_as_its_structural_class(tmp
 @pytest.mark.slow
 def test_a_hidden_joint1_offset_is_stated_as_structurally_identical_to_a_base_yaw():
     from besdrake.diagnosis import diagnose, diagnosis_plans
-    from besdrake.transfer.virtual_lab import VirtualLab
+    from besdrake.tasks.throwing.lab import VirtualLab
 
     lab = VirtualLab({"name": "test_lab", "effects": {"joint_offset": {"joint1": 0.05}}, "seed": 4})
     ms = [lab.execute(p) for p in diagnosis_plans(16, 5, seed=4, probes=0, sideways=3, limits=COMPI.limits)]

@@ -6,8 +6,8 @@ import numpy as np
 
 from besdrake.diagnosis import observables
 from besdrake.sim import Rollout
-from besdrake.sim.throws import default_throw
-from besdrake.transfer.virtual_lab import VirtualLab
+from besdrake.tasks.throwing.throws import default_throw
+from besdrake.tasks.throwing.lab import VirtualLab
 
 QUIET = {"touchdown_sd": 0.0, "mocap_noise_sd": 0.0, "encoder_noise_sd": 0.0, "ball_placement_sd": 0.0}
 

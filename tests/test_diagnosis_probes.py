@@ -6,7 +6,7 @@ import numpy as np
 
 from besdrake.diagnosis.design import PROBES, tilt_probe
 from besdrake.sim import Rollout
-from besdrake.sim.throws import default_throw
+from besdrake.tasks.throwing.throws import default_throw
 
 
 def _release(roll: Rollout, plan, mu: float | None = None, placement=None):

@@ -9,7 +9,7 @@ import numpy as np
 from besdrake.diagnosis import fitting, observables
 from besdrake.diagnosis.observables import group_slices
 from besdrake.diagnosis.residual import LABEL, residual_report
-from besdrake.sim.throws import default_throw
+from besdrake.tasks.throwing.throws import default_throw
 
 
 def _fake_log(n: int = 24, seed: int = 0, slope: float = 0.3):

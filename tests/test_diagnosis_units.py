@@ -124,7 +124,7 @@ def test_diagnosis_plans_repeat_and_spread():
 
 def test_diagnose_rejects_bad_input():
     from besdrake.diagnosis import DiagnosisError, diagnose
-    from besdrake.transfer.measurement import Measurement
+    from besdrake.tasks.throwing.measurement import ThrowMeasurement as Measurement
 
     plans = diagnosis_plans(4, 0)
     ms = [Measurement(trial=i, plan=p, touchdown=np.array([1.5, 0.0])) for i, p in enumerate(plans)]
@@ -356,7 +356,7 @@ def test_expected_features_average_over_the_placement_scatter():
 
 def test_diagnose_rejects_a_placement_scatter_outside_the_scoop():
     from besdrake.diagnosis import DiagnosisError, diagnose
-    from besdrake.transfer.measurement import Measurement
+    from besdrake.tasks.throwing.measurement import ThrowMeasurement as Measurement
 
     ms = [Measurement(trial=i, plan=p, touchdown=np.array([1.5, 0.0])) for i, p in enumerate(diagnosis_plans(8, 0))]
     for bad in (-0.001, 0.05, float("nan")):

@@ -7,8 +7,8 @@ import pytest
 
 from besdrake.imitation import (
     DMP,
-    MIN_THROW_EXECUTION_TIME,
-    THROW_WEIGHTS_PER_JOINT,
+    MIN_IMITATED_EXECUTION_TIME,
+    WEIGHTS_PER_JOINT,
     DMPParameterError,
     DMPParameterization,
 )
@@ -19,7 +19,7 @@ from test_dmp_helpers import throw_demo
 @pytest.fixture()
 def param() -> DMPParameterization:
     t, q = throw_demo()
-    return DMPParameterization(DMP(6, THROW_WEIGHTS_PER_JOINT).fit(t, q))
+    return DMPParameterization(DMP(6, WEIGHTS_PER_JOINT).fit(t, q))
 
 
 def test_compi_throw_has_49_named_parameters(param: DMPParameterization) -> None:
@@ -29,7 +29,7 @@ def test_compi_throw_has_49_named_parameters(param: DMPParameterization) -> None
     assert param.names[6] == "goal.joint1"
     assert param.names[12] == "weight.joint1.0" and param.names[18] == "weight.joint2.0"
     assert param.names[-1] == "execution_time"
-    assert MIN_THROW_EXECUTION_TIME == 0.95
+    assert MIN_IMITATED_EXECUTION_TIME == 0.95
 
 
 def test_vector_roundtrip_and_template_untouched(param: DMPParameterization) -> None:
@@ -84,7 +84,7 @@ def test_interpolated_plan_has_the_dmps_accelerations() -> None:
     t = np.linspace(0.0, 1.2, 241)
     s = t / t[-1]
     q = np.column_stack([0.3 * s**2, 0.2 * np.sin(np.pi * s / 2), -0.3 * s**3, 0 * s, 0.4 * s**2, 0 * s])
-    param = DMPParameterization(DMP(6, THROW_WEIGHTS_PER_JOINT).fit(t, q))
+    param = DMPParameterization(DMP(6, WEIGHTS_PER_JOINT).fit(t, q))
     plan = param.motion_plan(param.to_vector(), dt=0.002)
     fine_dmp = param.from_vector(param.to_vector())
     fine_dmp.int_dt = 1e-4

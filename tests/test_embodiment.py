@@ -35,7 +35,7 @@ def mounted():
 def throw_hand():
     """The first throw of synthetic subject 0, experiment 0, as hand poses in the back frame."""
     from besdrake.mocap.preprocess import preprocess
-    from besdrake.mocap.synthetic import SyntheticDemonstrator
+    from besdrake.tasks.throwing.demonstrator import SyntheticDemonstrator
 
     exp = SyntheticDemonstrator(0).subject(0).experiment(0)
     pre = preprocess(exp.recording, max_gap_s=3.0)
@@ -82,7 +82,7 @@ def test_record_mapping_rejects_short_and_nan_segments():
 
 def test_hand_trajectory_rejects_frames_outside_the_recording(throw_hand):
     from besdrake.mocap.preprocess import preprocess
-    from besdrake.mocap.synthetic import SyntheticDemonstrator
+    from besdrake.tasks.throwing.demonstrator import SyntheticDemonstrator
 
     pre = preprocess(SyntheticDemonstrator(0).subject(0).experiment(0).recording, max_gap_s=3.0)
     with pytest.raises(RecordMappingError, match="outside"):

@@ -18,8 +18,8 @@ def data(tmp_path_factory) -> Path:
     """A 300-frame synthetic recording (labelled rec.tsv, unlabelled unl.tsv, rec.c3d) and the default throw."""
     from besdrake.mocap.c3d_io import write_c3d
     from besdrake.mocap.qualisys import read_tsv, write_tsv
-    from besdrake.mocap.synthetic import generate_dataset
-    from besdrake.sim.throws import default_throw
+    from besdrake.tasks.throwing.demonstrator import generate_dataset
+    from besdrake.tasks.throwing.throws import default_throw
 
     root = tmp_path_factory.mktemp("hardening")
     generate_dataset(root / "syn", n_subjects=1, n_experiments=1, n_throws=2, seed=0)
@@ -87,7 +87,7 @@ def test_meshcat_listens_on_localhost_by_default(monkeypatch, tmp_path):
 
     from besdrake.sim.cliutil import add_common_arguments
     from besdrake.sim.record import record_html
-    from besdrake.sim.throws import default_throw
+    from besdrake.tasks.throwing.throws import default_throw
 
     hosts = []
     real = geometry.Meshcat
@@ -112,7 +112,7 @@ def test_meshcat_listens_on_localhost_by_default(monkeypatch, tmp_path):
 
 def _plan_variants():
     from besdrake.plan import MotionPlan
-    from besdrake.sim.throws import default_throw
+    from besdrake.tasks.throwing.throws import default_throw
 
     p = default_throw()
     long = MotionPlan(t=np.append(p.t, 3600.0), q=np.vstack([p.q, p.q[-1:]]))
@@ -121,9 +121,9 @@ def _plan_variants():
 
 
 def test_gate_refuses_long_plans_close_knots_and_a_far_start():
-    from besdrake.sim.throws import START_POSE
+    from besdrake.tasks.throwing.throws import START_POSE
     from besdrake.transfer.lab import SafetyGate, SafetyLimits
-    from besdrake.transfer.virtual_lab import VirtualLab, load_lab_config
+    from besdrake.tasks.throwing.lab import VirtualLab, load_lab_config
 
     p, long, close = _plan_variants()
     gate = SafetyGate(VirtualLab(load_lab_config("ideal_lab")))
@@ -364,7 +364,8 @@ def test_corrupt_optimizer_state_on_resume_says_how_to_recover(tmp_path):
 
 def test_copied_run_folder_uses_its_own_refined_scenario(tmp_path):
     from besdrake.pipeline.config import load_config
-    from besdrake.pipeline.learn import Context, _refined_scenario
+    from besdrake.pipeline.learn import Context
+    from besdrake.tasks.throwing.learn import _refined_scenario
     from besdrake.pipeline.run import RunFolder
 
     config = load_config(None, quick=True)

@@ -15,10 +15,13 @@ import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "besdrake"
 STAGES = ("mocap", "segmentation", "imitation", "embodiment", "sim", "search", "transfer", "diagnosis", "pipeline")
-#: Stage modules that import a task module: only backwards-compatible re-exports of the throwing task's outcome,
-#: default throws and reward (old import paths that code elsewhere, e.g. besdrake/diagnosis, still uses); they define
-#: nothing (test_task_imports_are_pure_reexports). Drop them once nothing imports the old paths.
-KNOWN_TASK_IMPORTS = {"sim/outcome.py", "sim/throws.py", "search/refinement/__init__.py"}
+#: Stage modules that import a task module: only backwards-compatible re-exports of a task's names, defining nothing
+#: (test_task_imports_are_pure_reexports). Empty: the old import paths (sim/outcome.py, sim/throws.py, the
+#: ThrowReward of search/refinement) are gone; code imports from besdrake.tasks.throwing.* instead.
+KNOWN_TASK_IMPORTS: set[str] = set()
+#: Diagnosis modules that import the throwing task directly since its names left the stage folders (issue 23): the
+#: diagnosis reaches them through Task hooks once it is task-neutral (its own part of the issue). May only shrink.
+DIAGNOSIS_TASK_IMPORTS_PENDING = {"diagnosis/design.py", "diagnosis/identifiability.py", "diagnosis/simulate.py"}
 #: Stage files that still name the throwing task's objects (issue 23: to become task-neutral).
 NOT_YET_TASK_NEUTRAL = {
     "diagnosis/core.py", "diagnosis/design.py",
@@ -26,15 +29,7 @@ NOT_YET_TASK_NEUTRAL = {
     "diagnosis/advice.py", "diagnosis/allowed.py", "diagnosis/heldout.py", "diagnosis/identifiability.py",
     "diagnosis/replay.py", "diagnosis/residual.py", "diagnosis/results.py", "diagnosis/selection.py",
     "diagnosis/settings.py", "diagnosis/simulate.py", "diagnosis/stats.py", "diagnosis/verdict.py", "diagnosis/fitting.py", "diagnosis/noise.py", "diagnosis/observables.py",
-    "diagnosis/report.py", "embodiment/__init__.py", "embodiment/mapping.py",
-    "embodiment/record_mapping.py", "embodiment/scaling.py", "embodiment/sync_frame.py", "imitation/__init__.py",
-    "imitation/policy.py", "mocap/__init__.py", "mocap/arm_model.py", "mocap/synthetic.py", "pipeline/config.py",
-    "pipeline/default_learn.yaml", "pipeline/imitation.py", "pipeline/learn.py",
-    "search/refinement/__init__.py", "search/templates.py", "segmentation/classification.py", "segmentation/vmci.py",
-    "sim/cliutil.py", "sim/diagram.py", "sim/effects.py",
-    "sim/outcome.py", "sim/scenario.py", "sim/throws.py", "transfer/LOG_FORMAT.md",
-    "transfer/log.py", "transfer/measurement.py", "transfer/transferability.py",
-    "transfer/virtual_lab.py",
+    "diagnosis/report.py",
 }
 
 
@@ -74,7 +69,8 @@ def test_data_flows_one_way_and_stages_import_no_task():
             if parts[1] == "tasks":
                 task_imports.add(str(path.relative_to(PACKAGE)))
     assert backwards == []
-    assert task_imports <= KNOWN_TASK_IMPORTS, f"new task imports in stage modules: {sorted(task_imports - KNOWN_TASK_IMPORTS)}"
+    allowed = KNOWN_TASK_IMPORTS | DIAGNOSIS_TASK_IMPORTS_PENDING
+    assert task_imports <= allowed, f"new task imports in stage modules: {sorted(task_imports - allowed)}"
 
 
 def test_task_words_in_stage_folders_only_shrink():

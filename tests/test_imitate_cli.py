@@ -28,7 +28,7 @@ def test_imitate_reports_a_missing_file_clearly(tmp_path, capsys):
 
 
 def test_a_throw_with_nan_samples_is_reported_and_the_others_still_imitated(tmp_path):
-    from besdrake.pipeline.imitation import imitate_recording, load_demonstration, prepare
+    from besdrake.tasks.throwing.imitation import imitate_recording, load_demonstration, prepare
 
     name, rec, segments = load_demonstration("synthetic:0:0")[0]
     pre = prepare(rec)
@@ -42,7 +42,7 @@ def test_a_throw_with_nan_samples_is_reported_and_the_others_still_imitated(tmp_
 
 def test_too_short_segment_is_a_clear_error():
     from besdrake.embodiment import RecordMappingError, hand_trajectory
-    from besdrake.pipeline.imitation import load_demonstration, prepare
+    from besdrake.tasks.throwing.imitation import load_demonstration, prepare
 
     _, rec, _ = load_demonstration("synthetic:0:0")[0]
     pre = prepare(rec)

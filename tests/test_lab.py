@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 
 from besdrake.plan import MotionPlan
-from besdrake.sim.throws import default_throw
+from besdrake.tasks.throwing.throws import default_throw
 from besdrake.transfer.lab import JointLimits, Lab, SafetyGate
 from besdrake.transfer.log import LabLog, run_plans
-from besdrake.transfer.measurement import Measurement
+from besdrake.tasks.throwing.measurement import ThrowMeasurement as Measurement
 from besdrake.plugins import PluginError, load_plugin
 from besdrake.transfer.recorded_lab import PlanNotRecordedError, RecordedLab
-from besdrake.transfer.virtual_lab import LabConfigError, VirtualLab, load_lab_config, parse_lab_config
+from besdrake.tasks.throwing.lab import LabConfigError, VirtualLab, load_lab_config, parse_lab_config
 
 
 from besdrake.robot import load_robot
@@ -54,6 +54,7 @@ class SpyLab:
     name = "spy"
 
     robot = COMPI
+    measurement_type = Measurement  # a throwing lab's (the gate's refusals are of this class)
 
     def __init__(self) -> None:
         self.calls: list[int] = []

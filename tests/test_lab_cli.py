@@ -11,7 +11,7 @@ import yaml
 
 from besdrake.cli import main
 from besdrake.sim.effects import unregister_effect
-from besdrake.sim.throws import default_throw
+from besdrake.tasks.throwing.throws import default_throw
 from besdrake.transfer.log import LabLog, read_log
 
 

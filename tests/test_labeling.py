@@ -12,7 +12,7 @@ from besdrake.mocap.gaps import fill_gaps, find_gaps
 from besdrake.mocap.labeling import EMPTY, GHOST, LabelingError, MarkerLabeler, labeling_accuracy
 from besdrake.mocap.qualisys import read_tsv, write_tsv
 from besdrake.mocap.recording import MocapRecording
-from besdrake.mocap.synthetic import SyntheticDemonstrator, make_unlabeled
+from besdrake.tasks.throwing.demonstrator import SyntheticDemonstrator, make_unlabeled
 
 
 @pytest.fixture(scope="module")

@@ -81,7 +81,8 @@ def test_a_bad_transfer_or_diagnosis_setting_is_refused_before_any_stage_runs(tm
 
 def test_the_diagnosis_design_has_sideways_throws_within_the_robots_limits():
     """Issue 25: learn's diagnosis experiment moves joints 1, 4 and 6 too (sideways throws), within the joint limits."""
-    from besdrake.pipeline.learn import diagnosis_design, learn_scenario
+    from besdrake.pipeline.learn import learn_scenario
+    from besdrake.tasks.throwing.learn import diagnosis_design
 
     config = load_config()
     limits = learn_scenario(config).robot.limits

@@ -9,11 +9,12 @@ import numpy as np
 import pytest
 
 from besdrake.plan import MotionPlan
-from besdrake.sim.throws import default_throw
+from besdrake.tasks.throwing.throws import default_throw
 from besdrake.transfer.lab import SafetyGate
 from besdrake.transfer.log import LabLog, LogError, read_log, run_plans
+from besdrake.tasks.throwing.measurement import ThrowMeasurement
 from besdrake.transfer.measurement import Measurement, MeasurementError
-from besdrake.transfer.virtual_lab import VirtualLab, parse_lab_config
+from besdrake.tasks.throwing.lab import VirtualLab, parse_lab_config
 
 # Distinctive hidden values, so that a leak cannot hide among ordinary numbers.
 HIDDEN = {"base_offset": {"z": -0.0317}, "actuator_lag": {"delay": 0.0123, "tau": 0.0179}}
@@ -71,7 +72,7 @@ def test_log_round_trips_every_field(tmp_path, lab):
     ms = [gate.execute(p) for p in plans()[:4]]
     assert ms[2].flags.get("refused_by_safety_gate")
     assert any(np.isnan(m.ball_path).any() for m in ms if m.ball_path is not None), "gaps must be exercised"
-    odd = Measurement(  # hand-made: a message with separators and newlines, empty ball path, extra flags, no qd
+    odd = ThrowMeasurement(  # hand-made: a message with separators and newlines, empty ball path, extra flags, no qd
         trial=4,
         plan=MotionPlan(t=[0.0, 0.5, 1.0], q=np.zeros((3, 6)), meta={"name": "still"}),
         touchdown=None,
@@ -102,7 +103,7 @@ def test_log_round_trips_every_field(tmp_path, lab):
     text = (tmp_path / "log" / "trials" / "000000" / "ball.tsv").read_text()
     assert f"{ms[0].ball_path[0, 0] * 1000:.3f}" in text
     # the JSON form of a measurement round-trips too (NaN gaps as null)
-    again = Measurement.from_dict(json.loads(json.dumps(ms[0].to_dict())))
+    again = ThrowMeasurement.from_dict(json.loads(json.dumps(ms[0].to_dict())))
     assert_same(ms[0], again)
 
 

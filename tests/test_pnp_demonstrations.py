@@ -145,7 +145,7 @@ def test_task_frame_does_not_depend_on_where_the_person_stood(pnp_dir, tmp_path)
 
 def test_unnamed_trajectories_are_labelled_first(pnp_dir, tmp_path):
     from besdrake.mocap.labeling import MarkerLabeler
-    from besdrake.mocap.synthetic import make_unlabeled
+    from besdrake.tasks.throwing.demonstrator import make_unlabeled
 
     labeler = MarkerLabeler().fit(read_tsv(pnp_dir / "subject1_run1.tsv"))
     unnamed, _ = make_unlabeled(read_tsv(pnp_dir / "subject1_run4.tsv"), np.random.default_rng(0), 0.3)

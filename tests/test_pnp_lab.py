@@ -175,7 +175,7 @@ def test_plan_hash_covers_the_gripper_command(scripted):
 
 
 def test_labs_open_by_name_for_either_task():
-    from besdrake.transfer.virtual_lab import VirtualLab
+    from besdrake.tasks.throwing.lab import VirtualLab
 
     assert isinstance(open_lab("default_lab"), VirtualLab)
     lab = open_lab("pick_and_place_lab", seed=7)

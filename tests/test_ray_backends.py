@@ -26,7 +26,7 @@ def _shutdown_ray():
 @pytest.fixture(scope="module")
 def dmp_file(tmp_path_factory):
     from besdrake.imitation import save_dmp
-    from besdrake.search.templates import fitted_default_throw
+    from besdrake.tasks.throwing.template_base import fitted_default_throw
 
     base = fitted_default_throw()
     base.execution_time = 2.3

@@ -17,13 +17,13 @@ from besdrake.search.refinement import (
     ParameterScaling,
     RefinementError,
     RefinementProblem,
-    ThrowReward,
     best_start,
     read_details,
     refine,
 )
-from besdrake.search.templates import fitted_default_throw
-from besdrake.sim.outcome import FLAG_NAMES, Outcome
+from besdrake.tasks.throwing.template_base import fitted_default_throw
+from besdrake.tasks.throwing.outcome import FLAG_NAMES, Outcome
+from besdrake.tasks.throwing.reward import ThrowReward
 
 logging.getLogger("drake").setLevel(logging.ERROR)
 

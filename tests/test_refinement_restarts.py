@@ -8,9 +8,10 @@ import pytest
 
 from besdrake.search.base import load_state, save_state
 from besdrake.search.cmaes import StagnationRestartCMAES
-from besdrake.search.refinement import (DEFAULT_SCOUTS, RefinementError, RefinementProblem, ThrowReward, rank_starts, refine,
+from besdrake.search.refinement import (DEFAULT_SCOUTS, RefinementError, RefinementProblem, rank_starts, refine,
                                         restart_points, scout_start_points)
-from besdrake.search.templates import fitted_default_throw
+from besdrake.tasks.throwing.template_base import fitted_default_throw
+from besdrake.tasks.throwing.reward import ThrowReward
 from tests.test_refinement import StandIn
 
 

@@ -8,15 +8,14 @@ import pytest
 from besdrake.search.base import load_state, save_state
 from besdrake.search.cmaes import StagedCMAES
 from besdrake.search.refinement import (
-    DROPPED_PENALTY,
     META_OFFSET_UNIT,
     RefinementError,
     RefinementProblem,
-    ThrowReward,
     meta_basis,
     refine,
 )
-from besdrake.search.templates import fitted_default_throw
+from besdrake.tasks.throwing.template_base import fitted_default_throw
+from besdrake.tasks.throwing.reward import DROPPED_PENALTY, ThrowReward
 from tests.test_refinement import StandIn, outcome
 
 

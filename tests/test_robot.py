@@ -96,7 +96,7 @@ def test_unknown_names_and_files_are_refused():
 def test_a_robot_added_by_a_yaml_file_alone_simulates_and_is_gated(tmp_path):
     """A third party's file (here COMPI's model with slower drives, in a folder of its own) runs
     ``besdrake simulate`` and the safety gate, with no code."""
-    from besdrake.sim.throws import default_throw
+    from besdrake.tasks.throwing.throws import default_throw
     from besdrake.transfer.lab import SafetyGate
     from besdrake.transfer.measurement import Measurement
 

@@ -11,7 +11,7 @@ import pytest
 from besdrake.cli import main
 from besdrake.sim.cliutil import parse_effect_option
 from besdrake.sim.effects import EffectError
-from besdrake.sim.throws import default_throw
+from besdrake.tasks.throwing.throws import default_throw
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -7,7 +7,7 @@ import pytest
 
 from besdrake.sim.effects import Effect, EffectError, Param, get_effect, list_effects, normalize_effects, register_effect, unregister_effect
 from besdrake.sim.rollout import shared_rollout
-from besdrake.sim.throws import default_throw
+from besdrake.tasks.throwing.throws import default_throw
 
 BUILT_IN = ["base_offset", "joint_offset", "actuator_lag", "gain_scale", "air_drag", "ball_placement", "ball", "scoop_friction", "scoop_mount"]
 
@@ -187,9 +187,9 @@ def test_a_tilted_scoop_mount_turns_the_release_and_is_reset(sim, base):
 
 
 def test_scoop_mount_frame_is_the_welds_parent_frame(sim):
-    from besdrake.sim.effects import scoop_mount_frame
+    from besdrake.tasks.throwing.effects import scoop_mount_frame
 
     frame = scoop_mount_frame(sim.handles)
-    assert frame.body().name() != sim.handles.scoop_body.name()
+    assert frame.body().name() != sim.handles.scene.scoop_body.name()
     X = frame.GetPoseInParentFrame(sim.handles.plant.CreateDefaultContext())
     assert np.allclose(X.GetAsMatrix4(), np.eye(4))

@@ -11,7 +11,7 @@ from besdrake.plan import PlanError
 from besdrake.sim import make_executor
 from besdrake.sim.effects import EffectError
 from besdrake.sim.executors import ExecutorError
-from besdrake.sim.throws import default_throw
+from besdrake.tasks.throwing.throws import default_throw
 
 
 def _plans():

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from besdrake.plan import MotionPlan, PlanError
-from besdrake.sim import Outcome
+from besdrake.tasks.throwing.outcome import Outcome
 from besdrake.sim.rollout import PlanLimitError, shared_rollout
-from besdrake.sim.throws import START_POSE, default_throw
+from besdrake.tasks.throwing.throws import START_POSE, default_throw
 
 
 @pytest.fixture(scope="module")
@@ -162,7 +162,7 @@ def test_diverging_state_is_a_flagged_outcome(sim, monkeypatch):
 
     def kicked(self, *args):  # an absurd ball speed stands in for a numerical blow-up
         place(self, *args)
-        self.handles.plant.SetVelocities(self.plant_context, self.handles.ball_instance, [0, 0, 0, 0, 0, 80.0])
+        self.handles.plant.SetVelocities(self.plant_context, self.handles.scene.ball_instance, [0, 0, 0, 0, 0, 80.0])
 
     monkeypatch.setattr(type(sim), "_place_ball", kicked)
     o = sim.rollout(default_throw())

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from besdrake.cli import main
-from besdrake.mocap import arm_model as am
+from besdrake.tasks.throwing import arm_model as am
 from besdrake.mocap.qualisys import Segment, read_segmentation, read_tsv, segmentation_path
-from besdrake.mocap.synthetic import (
+from besdrake.tasks.throwing.demonstrator import (
     MARKER_NAMES,
     ExperimentTruth,
     SyntheticDemonstrator,

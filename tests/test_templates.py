@@ -18,13 +18,12 @@ from besdrake.search.templates import (
     TemplateError,
     TemplatePool,
     default_meta_bounds,
-    default_template_base,
     evaluate_template,
-    fitted_default_throw,
     touchdowns,
     train_template,
 )
-from besdrake.sim.outcome import FLAG_NAMES, Outcome
+from besdrake.tasks.throwing.outcome import FLAG_NAMES, Outcome
+from besdrake.tasks.throwing.template_base import default_template_base, fitted_default_throw
 
 logging.getLogger("drake").setLevel(logging.ERROR)
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from besdrake.sim import Rollout, make_executor
-from besdrake.sim.throws import default_throw
+from besdrake.tasks.throwing.throws import default_throw
 from besdrake.tasks.throwing.descriptor import DESCRIPTOR_NAMES, behaviour_descriptor
 from besdrake.transfer.lab import SafetyGate
 from besdrake.transfer.log import LabLog
@@ -20,7 +20,7 @@ from besdrake.transfer.transferability import (
     crowding_distance,
     nondominated_ranks,
 )
-from besdrake.transfer.virtual_lab import VirtualLab
+from besdrake.tasks.throwing.lab import VirtualLab
 
 
 from besdrake.robot import load_robot
@@ -191,7 +191,7 @@ def test_likely_choice_stops_retrying_a_plan_that_hits_only_now_and_then():
 
 
 def test_placement_quadrature_has_the_scatter_s_moments():
-    from besdrake.transfer.transferability import placement_quadrature
+    from besdrake.tasks.throwing.effects import placement_quadrature
 
     offsets, weights = placement_quadrature(0.002)
     assert offsets.shape == (9, 2) and np.allclose(offsets[0], 0.0) and weights.sum() == pytest.approx(1.0)
@@ -212,8 +212,8 @@ def test_bad_placement_or_mutation_settings_are_refused(field, value):
 def test_plans_are_judged_over_the_ball_placements(seed_theta):
     """Every plan is simulated at the 9 placements: the objective is the expected target distance, the shifts are
     each placement's touchdown minus the nominal one, and all rollouts count as simulated episodes."""
-    from besdrake.sim.effects import ball_placed
-    from besdrake.transfer.transferability import placement_quadrature
+    from besdrake.tasks.throwing.effects import ball_placed
+    from besdrake.tasks.throwing.effects import placement_quadrature
 
     thetas = np.vstack([seed_theta, seed_theta + [0.03, 0.02, 0.0]])
     with make_executor("serial", scenario="nominal") as executor:
@@ -282,7 +282,7 @@ def test_a_search_saved_before_placements_resumes_with_its_own_settings(tmp_path
 def test_transfer_command_refuses_a_placement_scatter_beyond_the_scoop(tmp_path, capsys):
     from besdrake.cli import main
     from besdrake.imitation import save_dmp
-    from besdrake.search.templates import fitted_default_throw
+    from besdrake.tasks.throwing.template_base import fitted_default_throw
 
     save_dmp(fitted_default_throw(), tmp_path / "seed.dmp.json")
     code = main(["transfer", "--lab", "diagrams/labs/default_lab.yaml", "--seeds", str(tmp_path / "seed.dmp.json"),

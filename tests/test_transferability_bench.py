@@ -12,7 +12,7 @@ import pytest
 @pytest.mark.slow
 def test_run_subject_records_and_resumes_after_a_kill(tmp_path, monkeypatch, script):
     from besdrake.commands.refine import collect_imitated
-    from besdrake.transfer.virtual_lab import VirtualLab
+    from besdrake.tasks.throwing.lab import VirtualLab
 
     bench = script("bench_transferability")
     imitated = tmp_path / "imitated"

@@ -37,7 +37,7 @@ def run(args: argparse.Namespace) -> int:
     from besdrake.embodiment import EmbodimentMapping
     from besdrake.mocap.preprocess import PreprocessError
     from besdrake.mocap.recording import MocapFormatError
-    from besdrake.pipeline.imitation import find_throws, imitate_recording, load_demonstration, prepare, reports_to_json
+    from besdrake.tasks.throwing.imitation import find_throws, imitate_recording, load_demonstration, prepare, reports_to_json
     from besdrake._io import write_json
 
     t_start = time.perf_counter()
@@ -76,7 +76,7 @@ def run(args: argparse.Namespace) -> int:
         if args.segments == "given" and segments is None:
             raise UserError(f"{name}: --segments given but no segmentation file lies beside the recording")
         if args.segments == "auto" and classifier is None:
-            from besdrake.pipeline.imitation import default_classifier
+            from besdrake.tasks.throwing.imitation import default_classifier
 
             classifier = default_classifier()
         throws = find_throws(pre, classifier, segments if args.segments == "given" else None)

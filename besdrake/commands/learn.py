@@ -17,7 +17,7 @@ _WEIGHTS = {"label": 1, "segment": 2, "imitate": 4, "refine": 10, "transfer": 20
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, default=Path("runs/learn"), help="run folder (rerun the same command to resume)")
-    parser.add_argument("--config", type=Path, default=None, help="YAML with any of the settings of besdrake/pipeline/default_learn.yaml")
+    parser.add_argument("--config", type=Path, default=None, help="YAML with any of the settings of the task's learn configuration (default task: besdrake/tasks/throwing/learn.yaml)")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="override one setting, e.g. --set refinement.evaluations=500 (repeatable)")
     parser.add_argument("--quick", action="store_true", help="smoke profile: every stage on a small budget (about a minute or two)")
@@ -47,7 +47,7 @@ def _input_errors() -> tuple[type[Exception], ...]:
     from besdrake.sim.scenario import ScenarioError
     from besdrake.transfer.log import LogError
     from besdrake.plugins import PluginError
-    from besdrake.transfer.virtual_lab import LabConfigError
+    from besdrake.tasks.throwing.lab import LabConfigError
 
     return (MocapFormatError, PreprocessError, LabelingError, SegmentationError, PlanError, ScenarioError, EffectError,
             LogError, PluginError, LabConfigError, ResumeError, RunError, FileNotFoundError)
@@ -56,7 +56,8 @@ def _input_errors() -> tuple[type[Exception], ...]:
 def run(args: argparse.Namespace) -> int:
     from besdrake.cli import UserError
     from besdrake.pipeline.config import ConfigError, load_config
-    from besdrake.pipeline.learn import diagnosis_design, learn, learn_scenario, stages_of, transfer_config
+    from besdrake.pipeline.learn import learn, learn_scenario, stages_of
+    from besdrake.task import get_task
     from besdrake.pipeline.run import RunError, RunFolder
 
     overrides = list(args.set)
@@ -75,10 +76,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         config = load_config(args.config, quick=args.quick, overrides=overrides)
         learn_scenario(config)  # an unknown task, or a robot without what the task needs: refused now
-        if "transfer" in config:  # the default (throwing) stages: a bad value is refused now, not after the refinement
-            transfer_config(config)
-        if "diagnosis" in config and config["diagnosis"].get("enabled", True):
-            diagnosis_design(config)  # an unknown task, or a robot without what the task needs: refused now
+        get_task(config["task"]).check_learn_config(config)  # a bad value is refused now, not after the refinement
         run_folder = RunFolder(args.out, config)
     except (ConfigError, RunError) as err:
         raise UserError(str(err)) from None

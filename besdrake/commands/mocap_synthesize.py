@@ -23,7 +23,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from besdrake.mocap.synthetic import generate_dataset
+    from besdrake.tasks.throwing.demonstrator import generate_dataset
 
     for name in ("subjects", "experiments", "throws"):
         if getattr(args, name) < 1:

@@ -102,7 +102,7 @@ def collect_imitated(sources: list[str], out: Path) -> list[Path]:
 
 def _imitate_synthetic(source: str, folder: Path) -> list[Path]:
     from besdrake.cli import UserError
-    from besdrake.pipeline.imitation import find_throws, imitate_recording, load_demonstration, prepare
+    from besdrake.tasks.throwing.imitation import find_throws, imitate_recording, load_demonstration, prepare
 
     tag = source.replace(":", "_")
     done = folder / f"{tag}.done"

@@ -2,7 +2,7 @@
 
 * ``train BASE --pool DIR --name NAME``: learn a template from a base DMP (a refined throw, e.g.
   ``OUT/run0/refined.dmp.json`` of ``besdrake refine``; ``default`` = the built-in default throw
-  fitted as a DMP, :func:`~besdrake.search.templates.default_template_base`) with BO-CPS (``--method es|ucb``) or ACES, evaluate it on the paper's 16 test
+  fitted as a DMP, :func:`~besdrake.tasks.throwing.template_base.default_template_base`) with BO-CPS (``--method es|ucb``) or ACES, evaluate it on the paper's 16 test
   contexts and add it to the pool. The search is resumable: it lives in ``DIR/runs/NAME``.
 * ``eval NAME --pool DIR``: mean distance over the 16 test contexts (simulated).
 * ``instantiate NAME --pool DIR --target X Y [--plan-out FILE]``: the motion plan for a target.
@@ -109,7 +109,8 @@ def _train(args, pool) -> int:
     from besdrake.cli import UserError
     from besdrake.imitation import DMPParameterError, load_dmp
     from besdrake.search.loop import ResumeError
-    from besdrake.search.templates import PAPER_MEAN_CM, TEMPLATE_BASE_WEIGHTS, default_template_base, evaluate_template, train_template
+    from besdrake.search.templates import PAPER_MEAN_CM, evaluate_template, train_template
+    from besdrake.tasks.throwing.template_base import TEMPLATE_BASE_WEIGHTS, default_template_base
 
     if args.episodes < 1:
         raise UserError(f"--episodes must be >= 1, got {args.episodes}")

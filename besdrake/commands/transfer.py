@@ -59,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
     from besdrake.plugins import PluginError, load_plugins
     from besdrake.transfer.transferability import TransferabilityApproach, TransferabilityConfig
     from besdrake.sim.scenario import load_scenario
-    from besdrake.transfer.virtual_lab import LabConfigError, VirtualLab, load_lab_config
+    from besdrake.tasks.throwing.lab import LabConfigError, VirtualLab, load_lab_config
 
     files = _dmp_files(args.seeds)
     if not files:

@@ -29,7 +29,7 @@ import numpy as np
 
 from besdrake.plan import MotionPlan
 from besdrake.robot import JointLimits
-from besdrake.sim.throws import START_POSE, default_throw, min_jerk_plan, side_throw
+from besdrake.tasks.throwing.throws import START_POSE, default_throw, min_jerk_plan, side_throw
 
 #: Ranges of the default-throw parameters used for diagnosis plans.
 AMPLITUDE_RANGE = (0.25, 0.53)

@@ -106,7 +106,7 @@ def sample_plans(limits, n_planar: int = 4, n_side: int = 4, seed: int = 0) -> l
     """Plans within the robot's ``limits`` (what the safety gate allows) that together move every joint: planar default
     throws over the amplitude range, sideways throws (joints 1, 4, 6 too) and the two tilt probes."""
     from besdrake.diagnosis import design
-    from besdrake.sim.throws import default_throw
+    from besdrake.tasks.throwing.throws import default_throw
 
     rng = np.random.default_rng(seed)
     lo, hi = design.AMPLITUDE_RANGE

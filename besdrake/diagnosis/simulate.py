@@ -11,7 +11,7 @@ import numpy as np
 
 from besdrake.diagnosis import observables, settings
 from besdrake.diagnosis.observables import group_slices
-from besdrake.sim.effects import ball_placed, placement_quadrature
+from besdrake.tasks.throwing.effects import ball_placed, placement_quadrature
 from besdrake.sim.scenario import Scenario
 
 

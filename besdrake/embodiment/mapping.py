@@ -5,9 +5,9 @@ Steps (paper sections 2.3.2 and 3.1.4), each in its own module:
 1. synchronization frame (:mod:`~besdrake.embodiment.sync_frame`), one joint program;
 2. inverse kinematics at the recording's rate in the robot's base frame (:mod:`~besdrake.embodiment.ik`);
    in both, the robot file's tool axis is kept within ``hold_cone_deg`` of vertical (the palm's axis is
-   turned into that cone): the paper notes that imitation "does not consider suitability for
-   holding and throwing the ball", and with the palm's axis alone every imitated throw of the
-   default subjects starts with the scoop tilted 75-119 degrees and drops the ball within 0.15 s;
+   turned into that cone): the paper notes that imitation does not consider whether the tool can hold
+   what it carries, and with the palm's axis alone every imitated movement of the default subjects starts
+   with the tool tilted 75-119 degrees and loses its load within 0.15 s;
 3. temporal scaling to the joint limits and the 0.95 s minimum (:mod:`~besdrake.embodiment.scaling`);
 4. a joint-space DMP (:class:`besdrake.imitation.DMP`, 6 weights per joint) imitating the scaled
    trajectory; its rollout is checked against the limits and, if it still exceeds them, refitted
@@ -34,7 +34,7 @@ from besdrake.embodiment.kinematics import KinematicModel, mount_to_transform, m
 from besdrake.embodiment.record_mapping import HandTrajectory
 from besdrake.embodiment.scaling import TemporalScaling, ease_in, temporal_scaling, toppra_duration
 from besdrake.embodiment.sync_frame import SyncFrameOptions, SyncFrameResult, solve_sync_frame
-from besdrake.imitation import DMP, THROW_WEIGHTS_PER_JOINT, DMPParameterization
+from besdrake.imitation import DMP, WEIGHTS_PER_JOINT, DMPParameterization
 from besdrake.plan import LimitReport, MotionPlan
 from besdrake.robot import Robot
 
@@ -65,20 +65,20 @@ class ImitationOptions:
     sync: SyncFrameOptions = field(default_factory=SyncFrameOptions)
     smooth_window_s: float = 0.07  # low-pass of the hand poses before IK (0: off)
     ease_in_s: float = 0.05  # run-up from rest prepended at the demonstrated speed (0: off)
-    n_weights_per_dim: int = THROW_WEIGHTS_PER_JOINT
+    n_weights_per_dim: int = WEIGHTS_PER_JOINT
     plan_dt: float = 0.002  # s between motion-plan samples
     velocity_safety: float = 0.9  # fraction of the limits the scaled trajectory may use
     max_refits: int = 8
     joint_margins: tuple[float, ...] = (0.1, 0.25)  # rad kept from the position limits, tried in turn
     refit_stretch: float = 1.1
-    #: Task constraint of throwing: the scoop's opening stays within this angle (deg) of the base's vertical,
-    #: in the synchronization frame and the inverse kinematics, so the ball stays in the scoop until the
-    #: swing releases it (None: the palm's demonstrated axis only, as in the paper).
+    #: Holding constraint: the tool axis (e.g. an open tool's opening) stays within this angle (deg) of the base's
+    #: vertical, in the synchronization frame and the inverse kinematics, so a load the tool carries stays in it
+    #: until the movement releases it (None: the palm's demonstrated axis only, as in the paper).
     hold_cone_deg: float | None = 35.0
 
 
 @dataclass
-class ImitatedThrow:
+class ImitatedMovement:
     """One demonstrated segment mapped to the robot."""
 
     robot: Robot
@@ -89,7 +89,7 @@ class ImitatedThrow:
     scaling: TemporalScaling
     limits: LimitReport
     timings: dict[str, float]
-    name: str = "throw"
+    name: str = "movement"
 
     @property
     def parameterization(self) -> DMPParameterization:
@@ -185,7 +185,7 @@ class EmbodimentMapping:
             stretch *= opts.refit_stretch
         return dmp, plan, limits, stretch
 
-    def imitate(self, hand: HandTrajectory, name: str = "throw") -> ImitatedThrow:
+    def imitate(self, hand: HandTrajectory, name: str = "movement") -> ImitatedMovement:
         """Synchronization frame, IK, temporal scaling and DMP imitation of one segment."""
         opts = self.options
         timings: dict[str, float] = {}
@@ -230,4 +230,4 @@ class EmbodimentMapping:
         timings["total"] = time.perf_counter() - t0
         scaling.factor = float(stretch)
         scaling.duration = float(dmp.execution_time)
-        return ImitatedThrow(robot=self.robot, dmp=dmp, plan=plan, sync=sync, ik=ik, scaling=scaling, limits=limits, timings=timings, name=name)
+        return ImitatedMovement(robot=self.robot, dmp=dmp, plan=plan, sync=sync, ik=ik, scaling=scaling, limits=limits, timings=timings, name=name)

@@ -1,15 +1,14 @@
 """Record mapping: a demonstrated movement segment as hand poses in the demonstrator's back frame.
 
 The paper (section 2.3.2) reduces marker positions to end-effector poses in a reference frame on
-the teacher: for throwing, the back. :func:`besdrake.mocap.preprocess.preprocess` builds that
-frame and the hand pose; this module cuts one segment out and fixes the hand axis that maps to
-the scoop's opening.
+the teacher: the back. :func:`besdrake.mocap.preprocess.preprocess` builds that frame and the hand
+pose; this module cuts one segment out and fixes the hand axis that maps to the robot's tool axis.
 
 Hand axis convention: preprocessing builds the hand frame from the three hand markers like the
 back frame (``y`` from ``Hand right`` to ``Hand left``, ``z`` towards ``Hand top``), so with the
 marker plate on the back of the hand its ``x`` axis is the plate normal pointing out of the palm.
-A robot's tool need not be a hand: the robot file's ``mapping.tool_axis`` (the scoop's opening,
-+z of its frame) plays the palm.
+A robot's tool need not be a hand: the robot file's ``mapping.tool_axis`` (e.g. an open tool's
+opening, +z of its frame) plays the palm.
 """
 
 from __future__ import annotations
@@ -39,7 +38,7 @@ class HandTrajectory:
         position: ``(n, 3)`` hand centre in the back frame, m.
         quaternion: ``(n, 4)`` hand orientation ``(w, x, y, z)`` in the back frame.
         palm_axis: ``(n, 3)`` unit vector of the palm normal in the back frame (maps to the
-            scoop's opening axis).
+            robot's tool axis).
         frames: ``(n,)`` the recording's frame numbers (for reports).
     """
 

@@ -1,6 +1,6 @@
 """Spatial and temporal scaling of a joint trajectory to a robot's capabilities.
 
-Temporal scaling (paper sections 2.3.2 and 3.1.4): a human throw is faster than a robot's motors
+Temporal scaling (paper sections 2.3.2 and 3.1.4): a human movement is faster than a robot's motors
 allow, so the movement is slowed down uniformly. Stretching time by ``k`` divides joint velocities
 by ``k`` and accelerations by ``k**2``; the smallest admissible ``k`` is
 
@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from besdrake.robot import JointLimits
-from besdrake.imitation.policy import MIN_THROW_EXECUTION_TIME
+from besdrake.imitation.policy import MIN_IMITATED_EXECUTION_TIME
 
 
 @dataclass
@@ -58,7 +58,7 @@ def temporal_scaling(
     q: np.ndarray,
     limits: JointLimits,
     safety: float = 0.9,
-    min_duration: float = MIN_THROW_EXECUTION_TIME,
+    min_duration: float = MIN_IMITATED_EXECUTION_TIME,
     plant=None,
 ) -> TemporalScaling:
     """Smallest uniform time stretch that keeps ``safety`` x the robot's ``limits`` (see module docstring);
@@ -179,7 +179,7 @@ def ease_in(t: np.ndarray, q: np.ndarray, duration: float) -> tuple[np.ndarray, 
     """Prepend a constant-acceleration run-up so the trajectory starts at rest.
 
     A demonstrated segment starts where the previous sub-movement fades out, so the hand is
-    still moving; a DMP (and the robot, holding a ball) starts at rest, and the velocity jump
+    still moving; a DMP (and the robot, holding its load) starts at rest, and the velocity jump
     would show up as a large acceleration in the first milliseconds. The run-up of ``duration``
     seconds reaches the segment's initial velocity ``v0`` with acceleration ``v0 / duration``
     and starts ``v0 * duration / 2`` behind the first sample. Returns times starting at 0.

@@ -17,9 +17,9 @@ and one joint configuration ``q_i`` (n joints) per sampled pose. Costs:
 * holding (``hold_cone_deg``, off by default here, set by the embodiment mapping): the tool
   axis within a cone around the base's vertical at every sampled pose (Drake
   ``AngleBetweenVectorsConstraint``), a task constraint the demonstration does not carry: a human
-  palm faces forward while it holds the ball, a scoop turned that way drops it;
+  palm faces forward while it holds an object, an open tool turned that way drops it;
 * bounds: joint limits shrunk by a margin; the mount within a box around the nominal placement
-  (the base's z up, its x towards the demonstrator's front, so the demonstrated throw points to
+  (the base's z up, its x towards the demonstrator's front, so the demonstrated movement points to
   the targets in front of the robot).
 
 Pose terms are costs, not constraints, so an unreachable demonstration still gives the best frame

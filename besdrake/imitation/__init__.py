@@ -16,7 +16,7 @@ from besdrake.imitation.cartesian import CartesianDMP, CartesianTrajectory
 from besdrake.imitation.dmp import DMP, DMPTrajectory
 from besdrake.imitation.io import load_dmp, save_dmp
 from besdrake.imitation.orientation import OrientationTrajectory, QuaternionDMP
-from besdrake.imitation.policy import MIN_THROW_EXECUTION_TIME, THROW_WEIGHTS_PER_JOINT, DMPParameterization
+from besdrake.imitation.policy import MIN_IMITATED_EXECUTION_TIME, WEIGHTS_PER_JOINT, DMPParameterization
 
 __all__ = [
     "CartesianDMP",
@@ -25,10 +25,10 @@ __all__ = [
     "DMPParameterError",
     "DMPParameterization",
     "DMPTrajectory",
-    "MIN_THROW_EXECUTION_TIME",
+    "MIN_IMITATED_EXECUTION_TIME",
     "OrientationTrajectory",
     "QuaternionDMP",
-    "THROW_WEIGHTS_PER_JOINT",
+    "WEIGHTS_PER_JOINT",
     "load_dmp",
     "save_dmp",
 ]

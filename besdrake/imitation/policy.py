@@ -13,11 +13,11 @@ import numpy as np
 from besdrake.imitation._validation import DMPParameterError, positive_float
 from besdrake.imitation.dmp import DMP
 
-#: Minimum execution time (s) the paper imposes on imitated throws (applied by the embodiment stage;
+#: Minimum execution time (s) the paper imposes on imitated movements (applied by the embodiment stage;
 #: a DMP itself accepts any positive time).
-MIN_THROW_EXECUTION_TIME = 0.95
-#: Forcing-term weights per joint of the throwing DMP (6 per joint).
-THROW_WEIGHTS_PER_JOINT = 6
+MIN_IMITATED_EXECUTION_TIME = 0.95
+#: Forcing-term weights per joint of an imitated DMP (the paper's 6 per joint).
+WEIGHTS_PER_JOINT = 6
 
 
 class DMPParameterization:

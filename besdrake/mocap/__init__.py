@@ -1,7 +1,7 @@
-"""Motion capture: Qualisys TSV / C3D I/O, the synthetic demonstrator, marker labeling, preprocessing.
+"""Motion capture: Qualisys TSV / C3D I/O, marker labeling, preprocessing (a task may ship a synthetic demonstrator
+of its own: ``besdrake/tasks/<name>/demonstrator.py``).
 
 * :mod:`~besdrake.mocap.qualisys` -- ``read_recording`` / ``write_recording`` (TSV and C3D, metres in memory);
-* :mod:`~besdrake.mocap.synthetic` -- :class:`SyntheticDemonstrator`, overhand throws with ground truth;
 * :mod:`~besdrake.mocap.labeling` -- :class:`MarkerLabeler` (unnamed trajectories -> named markers);
 * :mod:`~besdrake.mocap.gaps` -- gap filling; :mod:`~besdrake.mocap.preprocess` -- back frame, hand pose.
 """

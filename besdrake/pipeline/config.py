@@ -1,8 +1,8 @@
 """Configuration of ``besdrake learn``: the packaged defaults, a user's YAML, profiles and overrides.
 
-Precedence, lowest first: :file:`default_learn.yaml` (beside this module) or, for a task with its own
-pipeline, the task's learn configuration (:attr:`besdrake.task.Task.learn_config`, its ``quick:`` section the
-``--quick`` profile), the ``--quick`` profile, the user's ``--config`` file, then ``--set section.key=value`` flags.
+Precedence, lowest first: the task's learn configuration (:attr:`besdrake.task.Task.learn_config`, e.g.
+``besdrake/tasks/<name>/learn.yaml``; the default task's where the configuration names none), the ``--quick`` profile
+(its ``quick:`` section), the user's ``--config`` file, then ``--set section.key=value`` flags.
 """
 
 from __future__ import annotations
@@ -12,20 +12,6 @@ from pathlib import Path
 from typing import Any
 
 import yaml
-
-DEFAULT_CONFIG = Path(__file__).with_name("default_learn.yaml")
-
-#: The ``--quick`` profile: a smoke run of every stage in about a minute.
-QUICK: dict[str, Any] = {
-    "demonstrations": {"experiments": [0]},
-    "classifier": {"training_subjects": [5, 6]},
-    "imitation": {"max_throws": 2},
-    "refinement": {"plans": 1, "evaluations": 60, "population": 10},
-    "transfer": {"population": 8, "max_transfers": 2, "final_repetitions": 1},
-    "diagnosis": {"throws": 12, "repeats": 4, "sideways": 2, "pairs": False},
-    "templates": {"episodes": 10},
-}
-
 
 class ConfigError(ValueError):
     """A configuration file or override that cannot be used (unknown key, bad YAML, wrong type)."""
@@ -81,15 +67,16 @@ def _user_config(path: str | Path | None) -> dict[str, Any]:
 
 
 def _defaults(task: Any) -> tuple[dict[str, Any], dict[str, Any]]:
-    """The packaged defaults and the ``--quick`` profile of ``task`` (its own learn configuration, if it has one)."""
-    from besdrake.task import TaskError, get_task
+    """The packaged defaults and the ``--quick`` profile of ``task`` (the default task's where ``task`` is None or
+    unknown: an unknown task is refused later, with the list of known ones)."""
+    from besdrake.task import DEFAULT_TASK, TaskError, get_task
 
     try:
         own = get_task(str(task)).learn_config if task else None
     except TaskError:
-        own = None  # an unknown task is refused later, with the list of known ones
+        own = None
     if own is None:
-        return yaml.safe_load(DEFAULT_CONFIG.read_text()), QUICK
+        own = get_task(DEFAULT_TASK).learn_config
     config = yaml.safe_load(Path(own).read_text())
     return config, config.pop("quick", {}) or {}
 

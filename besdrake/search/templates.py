@@ -1,10 +1,11 @@
-"""Behaviour templates: one refined throw generalised over target positions (paper sections 3.2.2 and 4).
+"""Behaviour templates: one refined movement generalised over a context, target positions on the floor (paper
+sections 3.2.2 and 4).
 
-A :class:`BehaviorTemplate` is a base DMP (a refined throw) plus an upper-level policy
+A :class:`BehaviorTemplate` is a base DMP (a refined movement) plus an upper-level policy
 ``theta = pi(s)`` over two meta-parameters:
 
-* ``theta[0]``: execution time (s) of the DMP -- how far the ball flies;
-* ``theta[1]``: goal of joint 1 (rad) -- the direction of the throw.
+* ``theta[0]``: execution time (s) of the DMP -- e.g. how far a released object flies;
+* ``theta[1]``: goal of joint 1 (rad) -- the direction of the movement.
 
 The context ``s = (x, y)`` is the target on the floor in m, the robot at the origin facing +x:
 **x is forward, y is lateral (left positive)**. The paper's test grid lists the lateral coordinate
@@ -12,17 +13,18 @@ first ({-0.7, -0.2, 0.2, 0.7} lateral x {1.3, 1.6, 1.9, 2.2} forward); :data:`TE
 those 16 targets as (x, y) rows.
 
 Joint-1 mode. With the joint-1 *start* fixed, the DMP's moving goal turns joint 1 slowly over the
-whole execution time, while the ball leaves the scoop early in the swing, so the yaw at release
+whole execution time, while an object released by the tool leaves it early in the swing, so the yaw at release
 barely follows the goal (in our simulation a goal change of 0.4 rad moves the touchdown by ~1 cm).
 ``joint1_mode="rotate"`` (default) therefore moves the joint-1 start with the goal
-(``start1 = base_start1 + goal1 - base_goal1``), which rotates the whole throw about the vertical axis
+(``start1 = base_start1 + goal1 - base_goal1``), which rotates the whole movement about the vertical axis
 (the DMP is exactly shift-invariant); ``"goal"`` is the paper-literal variant (start fixed).
 
 :func:`train_template` learns the policy by contextual policy search through the resumable loop
 (:func:`besdrake.search.loop.run_contextual_search`): BO-CPS with entropy search (``"es"``) or upper
 confidence bound (``"ucb"``), ACES (``"aces"``, active context selection), or C-REPS (``"creps"``, linear
 policy, 20 episodes per update; a baseline). Reward: minus the squared
-touchdown distance (m^2), as in the paper; a rollout without touchdown or a failed simulation is a
+touchdown distance (m^2, the ``touchdown`` of the task's outcome: where it reaches the floor), as in the paper; a
+rollout without touchdown or a failed simulation is a
 failed episode. :meth:`BehaviorTemplate.instantiate` returns the :class:`~besdrake.plan.MotionPlan`
 for a target; :class:`TemplatePool` stores templates as JSON + npz with their provenance.
 
@@ -243,7 +245,7 @@ class BehaviorTemplate:
         return np.clip(theta, self.meta_bounds[:, 0], self.meta_bounds[:, 1])
 
     def instantiate(self, context: Any) -> MotionPlan:
-        """The motion plan that throws at target ``context`` = (x forward, y lateral) in m."""
+        """The motion plan aimed at target ``context`` = (x forward, y lateral) in m."""
         s = _check_context(context)
         lo, hi = CONTEXT_BOUNDS[:, 0], CONTEXT_BOUNDS[:, 1]
         outside = (s < lo - 1e-9) | (s > hi + 1e-9)
@@ -367,7 +369,7 @@ class TemplatePool:
 # ---------------------------------------------------------------------------------------------
 @dataclass
 class TemplateEvaluation:
-    """Distances (m) of the template's throws to each test context; NaN where no touchdown."""
+    """Distances (m) of the template's outcomes (their touchdowns) to each test context; NaN where no touchdown."""
 
     contexts: np.ndarray
     touchdowns: np.ndarray
@@ -376,7 +378,7 @@ class TemplateEvaluation:
 
     @property
     def mean_distance(self) -> float:
-        """Mean over the contexts; a throw without touchdown counts as NaN (so the mean is NaN)."""
+        """Mean over the contexts; a rollout without touchdown counts as NaN (so the mean is NaN)."""
         return float(np.mean(self.distances))
 
     def summary(self) -> dict[str, Any]:
@@ -402,7 +404,7 @@ def touchdowns(plans: list[MotionPlan], executor) -> np.ndarray:
 
 
 def evaluate_template(template: BehaviorTemplate, executor, contexts: np.ndarray = TEST_CONTEXTS) -> TemplateEvaluation:
-    """Simulate the template's throw for each context and measure the touchdown distance."""
+    """Simulate the template's plan for each context and measure the touchdown distance."""
     contexts = np.atleast_2d(np.asarray(contexts, dtype=float))
     plans = [template.instantiate(s) for s in contexts]
     td = touchdowns(plans, executor)
@@ -426,7 +428,7 @@ def train_template(
     method: str = "es",
     n_episodes: int = 80,
     seed: int = 0,
-    name: str = "throw",
+    name: str = "template",
     out_dir: str | Path | None = None,
     meta_bounds: np.ndarray | None = None,
     joint1_mode: str = "rotate",
@@ -495,36 +497,8 @@ def train_template(
     return TemplateTraining(template, loop, curve, wall)
 
 
-def fitted_default_throw(amplitude: float = 0.6, n_weights_per_dim: int = 6) -> DMP:
-    """A base DMP fitted to :func:`besdrake.sim.throws.default_throw` (a stand-in for a refined throw,
-    for tests and benchmarks without a refinement run)."""
-    from besdrake.sim.throws import default_throw
-
-    plan = default_throw(amplitude)
-    return DMP(plan.q.shape[1], n_weights_per_dim).fit(plan.t, plan.q)
-
-
-#: Weights per joint of :func:`default_template_base`.
-TEMPLATE_BASE_WEIGHTS = 10
-
-
-def default_template_base() -> DMP:
-    """The base of a template when no refined throw is given: the default throw (amplitude 0.6) fitted
-    with :data:`TEMPLATE_BASE_WEIGHTS` weights per joint.
-
-    The refinement's 49-parameter DMP (6 weights per joint) smooths the swing: its peak joint speed is
-    2.05 rad/s against the throw's 2.28, and within the joint limits it reaches only 2.12 m, short of the
-    farthest test contexts (2.31 m). Ten weights reproduce the swing (2.26 rad/s, RMS path error
-    3.8 mrad); within the limits that base reaches 2.62 m and, at its slowest execution time, 1.26 m,
-    which covers every test context. A template only changes the meta-parameters, so its base need not
-    have the refinement's parameter count.
-    """
-    return fitted_default_throw(0.6, TEMPLATE_BASE_WEIGHTS)
-
-
 __all__ = [
     "CONTEXT_BOUNDS", "TEST_CONTEXTS", "METHODS", "JOINT1_MODES", "META_NAMES", "PAPER_MEAN_CM",
     "TemplateError", "MetaDMP", "BehaviorTemplate", "TemplatePool", "TemplateEvaluation", "TemplateTraining",
-    "default_meta_bounds", "limit_safe_execution_times", "evaluate_template", "train_template", "touchdowns", "fitted_default_throw",
-    "default_template_base", "TEMPLATE_BASE_WEIGHTS",
+    "default_meta_bounds", "limit_safe_execution_times", "evaluate_template", "train_template", "touchdowns",
 ]

@@ -30,9 +30,6 @@ from sklearn.neighbors import KNeighborsClassifier
 from besdrake.mocap.preprocess import HAND_MARKERS, Preprocessed, velocity
 
 PART_SUFFIX = "_part"
-#: Markers of manipulated objects that ``markers="auto"`` adds to the hand (box of the
-#: pick-and-place data, ball of the throwing data) when they are visible throughout.
-OBJECT_MARKERS = ("Box back", "Ball")
 #: Feature settings chosen on the pick-and-place data (hand + object, normalised velocity).
 DEFAULT_VELOCITY_WEIGHT = 0.3
 #: Weight of the log hand path length (separates idle from movements).
@@ -202,8 +199,9 @@ class SegmentClassifier(ClassifierMixin, BaseEstimator):
         self.part_policy = part_policy
 
     def _resolve_markers(self, segments) -> tuple[str, ...]:
-        """``markers="auto"``: the hand plus the object markers (:data:`OBJECT_MARKERS`) seen in
-        every sample of every training segment; without such a marker, the hand and the elbow."""
+        """``markers="auto"``: the hand plus the tasks' object markers (:func:`besdrake.task.object_markers`, e.g. the
+        manipulated box) seen in every sample of every training segment; without such a marker, the hand and the
+        elbow."""
         if self.markers != "auto":
             return tuple(self.markers)
 
@@ -215,7 +213,9 @@ class SegmentClassifier(ClassifierMixin, BaseEstimator):
                     return False
             return True
 
-        objects = [m for m in OBJECT_MARKERS if usable(m)]
+        from besdrake.task import object_markers
+
+        objects = [m for m in object_markers() if usable(m)]
         if objects:
             return ("hand", *objects)
         return ("hand", "Elbow") if usable("Elbow") else ("hand",)

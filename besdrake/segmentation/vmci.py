@@ -139,7 +139,7 @@ class VMCI(SegmenterMixin):
         min_length_s: shortest movement segment (seconds).
         rest_min_length_s: shortest rest segment (seconds); None: ``min_length_s``. A short
             rest at a speed minimum is two borders where an annotator sees one, while a fast
-            movement (a throw) may be much shorter than the pauses worth a segment.
+            movement (e.g. a swing) may be much shorter than the pauses worth a segment.
         max_length_s: longest segment (seconds); particles older than this are dropped.
         boundary_ratio: if > 0, two cubic ramps let a segment start and end at a non-zero
             velocity, with a prior standard deviation of ``boundary_ratio`` times the RMS
@@ -171,7 +171,7 @@ class VMCI(SegmenterMixin):
 
     The defaults (noise_ratio 0.3, nu 10, rest_noise_ratio 0.25, rest_min_length_s 0.4) were
     chosen on subject 1 of the real pick-and-place data; min_length_s 0.15 lets a movement be as
-    short as the fastest synthetic throws (0.15 s; a 0.4 s minimum merged such a throw with its
+    short as the fastest synthetic demonstrations (0.15 s; a 0.4 s minimum merged such a movement with its
     neighbour), and the default rules' dip criterion removes the spurious short splits that
     allows on the slow pick-and-place movements. ``scripts/bench_segmentation.py`` chooses the
     priors and rules on each subject (:func:`~besdrake.segmentation.tuning.tune_vmci`) and

@@ -30,7 +30,6 @@ __all__ = [
     "get_effect",
     "list_effects",
     "register_effect",
-    "Outcome",
     "Scenario",
     "ScenarioError",
     "load_scenario",
@@ -55,8 +54,4 @@ def __getattr__(name):  # lazy: importing pydrake-heavy modules only when used
         from besdrake.sim.executors import make_executor
 
         return make_executor
-    if name == "Outcome":  # backwards-compatible import path (besdrake.sim.outcome re-exports it)
-        from besdrake.sim.outcome import Outcome
-
-        return Outcome
     raise AttributeError(name)

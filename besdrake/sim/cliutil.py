@@ -37,9 +37,10 @@ def effects_from_args(options: list[str] | None) -> dict[str, dict[str, float]]:
 
 
 def add_common_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--plan", help="motion plan JSON (MotionPlan.save); default: the task's default plan (throwing: the default throw)")
-    parser.add_argument("--amplitude", type=float, default=None, help="amplitude of the default throw (no --plan); default 0.35")
-    parser.add_argument("--yaw", type=float, default=0.0, help="joint-1 angle of the default throw (rad)")
+    parser.add_argument("--plan", help="motion plan JSON (MotionPlan.save); default: the task's default plan")
+    parser.add_argument("--amplitude", type=float, default=None,
+                        help="amplitude of the task's default plan (no --plan; tasks that shape their default plan)")
+    parser.add_argument("--yaw", type=float, default=0.0, help="joint-1 angle of the task's default plan (rad)")
     parser.add_argument("--scenario", default="nominal", help="scenario name in besdrake/diagrams/ or a YAML path")
     parser.add_argument("--robot", default=None, help="robot: a built-in name or a robot YAML path (default: the scenario's)")
     parser.add_argument("--effect", action="append", metavar="NAME:key=val,...", help="physical effect, repeatable (see --list-effects)")
@@ -56,18 +57,18 @@ def scenario_from_args(args: argparse.Namespace):
 
 
 def plan_from_args(args: argparse.Namespace, task=None, rollout=None) -> MotionPlan:
-    """``--plan``; else the default throw of ``--amplitude``/``--yaw``; else ``task``'s default plan in ``rollout``."""
-    from besdrake.sim.throws import default_throw
-
+    """``--plan``; else ``task``'s (default: the default task's) default plan in ``rollout``, shaped by
+    ``--amplitude``/``--yaw`` where given (:meth:`besdrake.task.Task.default_plan`)."""
     if args.plan:
         if args.amplitude is not None:
             raise ValueError("give either --plan or --amplitude, not both")
         return MotionPlan.load(args.plan)
-    if task is None or args.amplitude is not None or args.yaw:
-        if task is not None and task.name != "throwing":
-            raise ValueError(f"--amplitude and --yaw shape the default throw; the {task.name} task takes --plan FILE")
-        return default_throw(amplitude=0.35 if args.amplitude is None else args.amplitude, yaw=args.yaw)
-    return task.default_plan(rollout)
+    if task is None:
+        from besdrake.task import DEFAULT_TASK, get_task
+
+        task = get_task(DEFAULT_TASK)
+    shape = {k: v for k, v in (("amplitude", args.amplitude), ("yaw", args.yaw)) if v is not None and (k != "yaw" or v)}
+    return task.default_plan(rollout, **shape)
 
 
 def add_backend_arguments(parser: argparse.ArgumentParser, default: str = "process", workers: int = 2) -> None:

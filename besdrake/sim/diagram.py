@@ -1,11 +1,17 @@
-"""Build the throwing Diagram from a :class:`~besdrake.sim.scenario.Scenario`.
+"""Build the simulation Diagram of a :class:`~besdrake.sim.scenario.Scenario`: the robot and its task's scene.
 
 Wiring (render it with ``scripts/render_diagrams.py``)::
 
     TrajectorySource (motion plan q, qd) --> plant.<robot>_desired_state
     MultibodyPlant <--> SceneGraph
-    plant.state --> VectorLogSink (joint + ball states, every time step)
+    plant.state --> VectorLogSink (the robot's and the scene's states, every time step)
     SceneGraph --> MeshcatVisualizer (optional)
+
+The scene is the task's (:meth:`besdrake.task.Task.scene`): an object with ``add_models(plant, parser, scenario)``,
+called once the robot is welded at its base and before the plant is finalised (the task's objects and fixtures, from
+the scenario's ``models``; :func:`parse_model` and :func:`require_models` help), and ``finish(plant, scene_graph)``,
+called on the built Diagram, whose return value (the bodies, frames and geometry ids the task's rollout needs) becomes
+:attr:`SimHandles.scene`.
 
 Design choices:
 
@@ -44,16 +50,10 @@ class SimHandles:
     plan_source: Any
     state_logger: Any
     arm: Any
-    ball_instance: Any
     base_frame: Any
-    scoop_frame: Any
-    scoop_body: Any
-    ball_body: Any
     actuators: list
-    ball_collision_id: Any
-    ball_geometry_ids: list
-    scoop_collision_ids: list
-    nominal_ball_radius: float
+    #: What the task's scene returned from ``finish`` (None without a scene).
+    scene: Any = None
     visualizer: Any = None
     #: True while the actuators carry scaled gains (effect gain_scale); Rollout restores them on reset.
     gains_scaled: bool = False
@@ -65,7 +65,8 @@ class SimHandles:
         return self.scene_graph.GetMyMutableContextFromRoot(context)
 
 
-def _parse(parser, scenario: Scenario, key: str):
+def parse_model(parser, scenario: Scenario, key: str):
+    """Add the scenario's model ``key`` (its ``models`` entry); :class:`ScenarioError` naming the file otherwise."""
     path = resolve_model_uri(scenario.models[key])
     if not path.is_file():
         raise ScenarioError(f"model file for {key!r} not found: {path}")
@@ -75,7 +76,8 @@ def _parse(parser, scenario: Scenario, key: str):
         raise ScenarioError(f"model file for {key!r} ({path}) could not be parsed: {err}") from err
 
 
-def _require_models(scenario: Scenario, keys: tuple[str, ...]) -> None:
+def require_models(scenario: Scenario, keys: tuple[str, ...]) -> None:
+    """:class:`ScenarioError` naming the first of ``keys`` that the scenario's ``models`` section lacks."""
     missing = [k for k in keys if k not in scenario.models]
     if missing:
         raise ScenarioError(f"scenario {scenario.name!r}: models section is missing {missing[0]!r}")
@@ -88,13 +90,6 @@ def _add_robot(plant, parser, scenario: Scenario):
         raise ScenarioError(f"robot model {scenario.robot.model} could not be parsed: {err}") from err
 
 
-def _require_names(plant, scenario: Scenario, ball) -> None:
-    """:class:`ScenarioError` naming the model file when a body the throwing simulation looks up by name is
-    missing (e.g. an SDF whose ball body is not called ``ball``; the robot file's names are checked when it is read)."""
-    if not plant.HasBodyNamed("ball", ball):
-        raise ScenarioError(f"the ball model {scenario.models.get('ball')} has no body named 'ball' (the simulation looks it up by name)")
-
-
 def base_transform(scenario: Scenario):
     """World pose of the base frame from the scenario's base pose."""
     from pydrake.math import RigidTransform, RollPitchYaw
@@ -104,7 +99,10 @@ def base_transform(scenario: Scenario):
 
 
 def build_diagram(scenario: Scenario | str = "nominal", meshcat=None) -> SimHandles:
-    """Build the Diagram for ``scenario`` (a Scenario or a name/path); optionally visualise in ``meshcat``."""
+    """Build the Diagram for ``scenario`` (a Scenario or a name/path) with its task's scene; optionally visualise in
+    ``meshcat``."""
+    from besdrake.task import get_task
+
     from pydrake.geometry import MeshcatVisualizer, MeshcatVisualizerParams, Role
     from pydrake.multibody.parsing import Parser
     from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
@@ -124,13 +122,12 @@ def build_diagram(scenario: Scenario | str = "nominal", meshcat=None) -> SimHand
     plant.set_name("plant")
     parser = Parser(plant)
     robot = scenario.robot
-    _require_models(scenario, ("ball", "ground"))
+    scene = get_task(scenario.task).scene()
     arm = _add_robot(plant, parser, scenario)
-    ball_instance = _parse(parser, scenario, "ball")[0]
-    _require_names(plant, scenario, ball_instance)
     base_frame = plant.AddFrame(FixedOffsetFrame("robot_base", plant.world_frame(), base_transform(scenario)))
     plant.WeldFrames(base_frame, plant.GetFrameByName(robot.base_link, arm))
-    ground = _parse(parser, scenario, "ground")[0]  # a <static> model: welded to the world by the parser
+    if scene is not None:
+        scene.add_models(plant, parser, scenario)
     _add_pedestal(plant, scenario)
     actuators = _servo_actuators(plant, arm, scenario)
     plant.Finalize()
@@ -149,10 +146,6 @@ def build_diagram(scenario: Scenario | str = "nominal", meshcat=None) -> SimHand
     diagram = builder.Build()
     diagram.set_name(f"besdrake_{scenario.name}")
 
-    _filter_ground(plant, scene_graph, ground)
-    inspector = scene_graph.model_inspector()
-    ball_body, ball_coll, ball_ids = _ball_geometry(plant, inspector, ball_instance)
-    scoop_body = plant.GetBodyByName(robot.end_effector.body, arm)
     return SimHandles(
         scenario=scenario,
         diagram=diagram,
@@ -161,16 +154,9 @@ def build_diagram(scenario: Scenario | str = "nominal", meshcat=None) -> SimHand
         plan_source=source,
         state_logger=logger,
         arm=arm,
-        ball_instance=ball_instance,
         base_frame=base_frame,
-        scoop_frame=scoop_body.body_frame(),
-        scoop_body=scoop_body,
-        ball_body=ball_body,
         actuators=actuators,
-        ball_collision_id=ball_coll[0],
-        ball_geometry_ids=ball_ids,
-        scoop_collision_ids=list(plant.GetCollisionGeometriesForBody(scoop_body)),
-        nominal_ball_radius=float(inspector.GetShape(ball_coll[0]).radius()),
+        scene=None if scene is None else scene.finish(plant, scene_graph, arm),
         visualizer=visualizer,
     )
 
@@ -201,25 +187,3 @@ def _servo_actuators(plant, arm, scenario: Scenario) -> list:
         act.set_controller_gains(PdControllerGains(p=scenario.controller.kp[i], d=scenario.controller.kd[i]))
         actuators.append(act)
     return actuators
-
-
-def _filter_ground(plant, scene_graph, ground) -> None:
-    """The floor is handled by the rollout (it stops when the ball reaches the floor and computes the touchdown
-    analytically), so no contact with it is ever needed: filtering it saves ~15% per step."""
-    from pydrake.geometry import CollisionFilterDeclaration, GeometrySet, Role
-
-    ground_geoms = GeometrySet([g for b in plant.GetBodyIndices(ground) for g in plant.GetCollisionGeometriesForBody(plant.get_body(b))])
-    all_geoms = GeometrySet(list(scene_graph.model_inspector().GetAllGeometryIds(Role.kProximity)))
-    scene_graph.collision_filter_manager().Apply(CollisionFilterDeclaration().ExcludeBetween(ground_geoms, all_geoms))
-
-
-def _ball_geometry(plant, inspector, ball_instance):
-    """The ball's body, its one sphere collision geometry and all its sphere geometries; ScenarioError otherwise."""
-    from pydrake.geometry import Sphere
-
-    ball_body = plant.GetBodyByName("ball", ball_instance)
-    ball_coll = list(plant.GetCollisionGeometriesForBody(ball_body))
-    if len(ball_coll) != 1 or not isinstance(inspector.GetShape(ball_coll[0]), Sphere):
-        raise ScenarioError("the ball model must have exactly one sphere collision geometry")
-    ball_ids = [g for g in inspector.GetGeometries(plant.GetBodyFrameIdOrThrow(ball_body.index())) if isinstance(inspector.GetShape(g), Sphere)]
-    return ball_body, ball_coll, ball_ids

@@ -48,12 +48,13 @@ class ControllerConfig:
 
 @dataclass
 class ReleaseConfig:
-    """How the simulation decides that the ball has left the scoop for good.
+    """How a task's rollout decides that a released object has left the robot's tool for good (tasks that release
+    one read it; the scenario's ``release`` section).
 
-    ``check_interval``: the simulator advances in chunks of this length (s) and checks the ball between
-    chunks; ``margin``: clearance (m) that the ball's predicted free flight must keep from the scoop (moving
-    along the plan) for the ball to count as gone (see ``Rollout``); ``min_speed``: a ball
-    that leaves with less speed (m/s) fell out rather than being thrown (flag ``dropped_early``);
+    ``check_interval``: the simulator advances in chunks of this length (s) and checks the object between
+    chunks; ``margin``: clearance (m) that the object's predicted free flight must keep from the tool (moving
+    along the plan) for the object to count as gone (see the task's rollout); ``min_speed``: an object
+    that leaves with less speed (m/s) fell out rather than being released on purpose (flag ``dropped_early``);
     ``tail``: time (s) simulated after the end of the plan before ``never_released`` is declared.
     """
 
@@ -249,7 +250,7 @@ def _task(data: dict, where: str) -> str:
     from besdrake.task import TaskError, get_task
 
     if "task" not in data:
-        raise ScenarioError(f"scenario{where} is missing 'task' (the skill it simulates, e.g. throwing)")
+        raise ScenarioError(f"scenario{where} is missing 'task' (the skill it simulates, a task name)")
     try:
         return get_task(str(data["task"])).name
     except TaskError as err:

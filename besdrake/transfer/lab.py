@@ -56,6 +56,12 @@ class TrialCounter:
         return int(trial)
 
 
+def _default_measurement_type() -> type[Measurement]:
+    from besdrake.task import DEFAULT_TASK, get_task
+
+    return get_task(DEFAULT_TASK).measurement_type()
+
+
 class SafetyGate(TrialCounter):
     """Wraps any :class:`Lab`: refuses a plan that would exceed a joint position, velocity or acceleration
     limit *before* it reaches the lab.
@@ -79,8 +85,9 @@ class SafetyGate(TrialCounter):
         self.resolution = float(resolution)
         self.name = f"{getattr(lab, 'name', type(lab).__name__)}"
         self.refused = 0
-        #: The Measurement class of the wrapped lab (its ``measurement_type``; a refused plan is logged as one).
-        self.measurement_type = getattr(lab, "measurement_type", Measurement)
+        #: The Measurement class of the wrapped lab (its ``measurement_type``; a refused plan is logged as one); a lab
+        #: that names none is taken for the default task's (what a version-1 log holds).
+        self.measurement_type = getattr(lab, "measurement_type", None) or _default_measurement_type()
 
     def check(self, plan: MotionPlan) -> list[str]:
         """The reasons to refuse ``plan`` (empty when it may run)."""

@@ -8,7 +8,7 @@
       trials/000007/plan.json           the MotionPlan
       trials/000007/measurement.json    touchdown, flags, message, meta, what was recorded
       trials/000007/joints.csv          t, q_cmd_joint1..6, q_meas_joint1..6 (when recorded)
-      trials/000007/ball.tsv            Qualisys TSV of the ball marker, mm (when recorded and seen)
+      trials/000007/...                 the task's own files (its Measurement's write_files, e.g. a marker's TSV)
 
 :meth:`LabLog.append` writes the trial folder first and the CSV row last, each file fsync'ed: a trial
 exists once its row does. A folder without a row (a run killed while writing) is overwritten by the
@@ -47,10 +47,11 @@ def csv_columns(measurement_type: type[Measurement] = Measurement) -> tuple[str,
 
 
 def measurement_type_of(header: dict[str, Any], where: Path | str = "log.json") -> type[Measurement]:
-    """The Measurement class of a log's trials: the touchdown measurement in a version-1 log, else its ``task``'s."""
+    """The Measurement class of a log's trials: the default task's in a version-1 log, else its ``task``'s."""
+    from besdrake.task import DEFAULT_TASK, TaskError, get_task
+
     if header.get("version") == LOG_VERSION:
-        return Measurement
-    from besdrake.task import TaskError, get_task
+        return get_task(DEFAULT_TASK).measurement_type()
 
     task = header.get("task")
     if not isinstance(task, str) or not task:
@@ -65,11 +66,8 @@ def joint_columns(plan: MotionPlan) -> tuple[str, ...]:
     """Header of joints.csv for ``plan``'s joints (named ``joint1``... when the plan carries no names)."""
     names = plan.joint_names or tuple(f"joint{k + 1}" for k in range(plan.q.shape[1]))
     return ("t", *(f"q_cmd_{n}" for n in names), *(f"q_meas_{n}" for n in names))
-BALL_MARKER = "ball"
 #: Per-trial file of SHA-256 checksums of the trial's other files (written last, checked when read).
 CHECKSUMS = "checksums.json"
-#: Frequency written into ball.tsv when a lab records the ball at irregular times (see LOG_FORMAT.md).
-DEFAULT_BALL_RATE_HZ = 100.0
 
 
 #: Writer locks this process holds, by lock-file path (kept until the process ends).
@@ -144,12 +142,17 @@ class LabLog:
     # ------------------------------------------------------------------ open / create
     @classmethod
     def create(cls, logdir: str | Path, lab_description: dict[str, Any] | str, run: dict[str, Any] | None = None,
-               measurement: type[Measurement] = Measurement) -> "LabLog":
+               measurement: type[Measurement] | None = None) -> "LabLog":
         """Start a new log in ``logdir`` (created; must not already hold a log or other files).
 
         ``lab_description``: the lab's public description (name, sensors; never hidden truth);
         ``run``: facts about the run to check on resume (e.g. the seed); ``measurement``: the class of the trials
-        (a task's, e.g. a lab's ``measurement_type``: a version-2 log naming the task)."""
+        (a task's, e.g. a lab's ``measurement_type``: a version-2 log naming the task; None: the default task's, a
+        version-1 log)."""
+        if measurement is None:
+            from besdrake.task import DEFAULT_TASK, get_task
+
+            measurement = get_task(DEFAULT_TASK).measurement_type()
         if not (isinstance(measurement, type) and issubclass(measurement, Measurement)):
             raise LogError(f"measurement must be a Measurement class, got {measurement!r}")
         root = Path(logdir)
@@ -323,34 +326,15 @@ class LabLog:
 
 
 def write_trial_files(folder: Path, m: Measurement) -> None:
-    """Write the files of one trial into ``folder`` (plan.json, measurement.json, joints.csv, ball.tsv)."""
-    from besdrake.mocap.qualisys import write_tsv
-    from besdrake.mocap.recording import MocapRecording
-
+    """Write the files of one trial into ``folder`` (plan.json, measurement.json, joints.csv, the measurement's own)."""
     _fsync_write(folder / "plan.json", json.dumps(m.plan.to_dict()) + "\n")
     info: dict[str, Any] = m.to_dict(arrays=False)
     info["joints_recorded"] = m.joint_t is not None
-    info["ball_recorded"] = m.ball_t is not None
     if m.joint_t is not None:
         data = np.column_stack([m.joint_t, m.q_commanded, m.q_measured])
         lines = [",".join(joint_columns(m.plan))] + [",".join(_fmt(x) for x in row) for row in data]
         _fsync_write(folder / "joints.csv", "\n".join(lines) + "\n")
-    if m.ball_t is not None and len(m.ball_t):
-        rate = float(m.meta.get("mocap_rate_hz") or DEFAULT_BALL_RATE_HZ)
-        frames = np.rint(m.ball_t * rate).astype(int) + 1
-        if np.any(np.diff(frames) <= 0) or np.any(frames < 1):
-            raise LogError(
-                f"trial {m.trial}: ball_t is not on a {rate:g} Hz grid from the plan start (frames must increase); "
-                "set meta['mocap_rate_hz'] to the capture rate"
-            )
-        rec = MocapRecording([BALL_MARKER], m.ball_path[:, None, :], rate, frames=frames, time=m.ball_t,
-                             metadata={"DESCRIPTION": f"besdrake lab log trial {m.trial}: ball marker, time from plan start"})
-        tmp = folder / "ball.tsv"
-        write_tsv(rec, tmp)
-        with open(tmp, "rb+") as f:
-            os.fsync(f.fileno())
-        info["ball_samples"] = int(len(m.ball_t))
-        info["ball_t"] = m.ball_t.tolist()  # exact times (the TSV's Time column has 10 us resolution)
+    m.write_files(folder, info)
     _fsync_write(folder / "measurement.json", json.dumps(info, indent=1) + "\n")
     sums = {f.name: _sha256(f) for f in sorted(folder.iterdir()) if f.is_file() and f.name != CHECKSUMS}
     _fsync_write(folder / CHECKSUMS, json.dumps(sums, indent=1) + "\n")
@@ -396,9 +380,6 @@ def _load_json(path: Path) -> Any:
 def read_trial(root: str | Path, trial: int, expected_hash: str | None = None,
                measurement_type: type[Measurement] | None = None) -> Measurement:
     """Read one committed trial folder of the log at ``root`` (as ``measurement_type``; None: the log's)."""
-    from besdrake.mocap.qualisys import read_tsv
-    from besdrake.mocap.recording import MocapFormatError
-
     if measurement_type is None:
         measurement_type = measurement_type_of(_load_json(Path(root) / "log.json"), Path(root) / "log.json")
     d = _trial_dir(Path(root), trial)
@@ -427,30 +408,11 @@ def read_trial(root: str | Path, trial: int, expected_hash: str | None = None,
         except ValueError as err:
             raise LogError(f"{path}: not numeric or wrong number of columns: {err}") from err
         joint_t, q_cmd, q_meas = data[:, 0], data[:, 1 : 1 + n], data[:, 1 + n : 1 + 2 * n]
-    ball_t = ball_path = None
-    if info.get("ball_recorded"):
-        n = int(info.get("ball_samples", 0))
-        if n == 0:
-            ball_t, ball_path = np.zeros(0), np.zeros((0, 3))
-        else:
-            path = d / "ball.tsv"
-            if not path.is_file():
-                raise LogError(f"log file missing: {path} (measurement.json says {n} ball samples)")
-            try:
-                rec = read_tsv(path, check_units=False)
-            except MocapFormatError as err:
-                raise LogError(f"{path}: {err}") from err
-            if BALL_MARKER not in rec.marker_names or rec.n_frames != n:
-                raise LogError(f"{path}: expected marker {BALL_MARKER!r} with {n} frames, got {rec.marker_names} with {rec.n_frames}")
-            ball_path = rec.marker(BALL_MARKER)
-            ball_t = np.asarray(info["ball_t"], float) if info.get("ball_t") is not None else rec.time
     try:
         m = measurement_type(
             trial=int(info.get("trial", trial)),
             plan=plan,
             touchdown=info.get("touchdown"),
-            ball_t=ball_t,
-            ball_path=ball_path,
             joint_t=joint_t,
             q_commanded=q_cmd,
             q_measured=q_meas,
@@ -458,6 +420,7 @@ def read_trial(root: str | Path, trial: int, expected_hash: str | None = None,
             message=info.get("message", ""),
             meta=dict(info.get("meta") or {}),
             **measurement_type.result_kwargs(info),
+            **measurement_type.read_files(d, info),
         )
     except MeasurementError as err:
         raise LogError(f"{d}: {err}") from err

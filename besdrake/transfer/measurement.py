@@ -2,14 +2,12 @@
 
 A Measurement is the same whether it comes from the real robot, the virtual lab or a replayed log. It
 holds only what a real lab can observe (motion capture, encoders, flags); a virtual lab's hidden effects
-never enter it. Units are SI: m, s, rad; positions in the world frame (floor z = 0, throws go +x).
+never enter it. Units are SI: m, s, rad; positions in the world frame (floor z = 0). A task's lab returns a
+subclass with what it observes besides (e.g. a tracked object's marker path), and its own flags.
 
-Flags (all optional; absent means not raised):
+Flags every lab may raise (all optional; absent means not raised):
 
 * ``refused_by_safety_gate``: the plan exceeded a joint limit and was not run (``message`` lists why);
-* ``ball_not_seen``: the touchdown was not seen by motion capture (outside the capture volume);
-* ``dropped_early``: the ball fell out of the scoop rather than being thrown;
-* ``never_released``: the ball stayed in the scoop;
 * ``joint_limit_exceeded``: a measured joint angle went beyond a position limit;
 * ``aborted``: the run was stopped (robot switched itself off, controller fault, ...).
 """
@@ -24,12 +22,9 @@ import numpy as np
 
 from besdrake.plan import MotionPlan
 
-#: Flags a lab may raise (a lab may add others; readers must accept unknown ones).
+#: Flags any lab may raise (a task's lab adds its own; readers must accept unknown ones).
 FLAG_NAMES: tuple[str, ...] = (
     "refused_by_safety_gate",
-    "ball_not_seen",
-    "dropped_early",
-    "never_released",
     "joint_limit_exceeded",
     "aborted",
 )
@@ -93,27 +88,27 @@ class Measurement:
     """One trial as a lab measured it (see the module docstring for the flags).
 
     * ``trial``: 0, 1, 2, ... in the order executed; ``plan``: the :class:`MotionPlan` executed or refused;
-    * ``touchdown`` (2,): measured (x, y) on the floor in m, or None when not seen;
-    * ``ball_t`` (M,) s since plan start and ``ball_path`` (M, 3) m: the ball marker while inside the capture
-      volume (NaN rows = marker not seen in that frame); None when the lab does not record it;
+    * ``touchdown`` (2,): measured (x, y) on the floor in m where the task's object came down, or None when not seen;
     * ``joint_t`` (K,) s, ``q_commanded``/``q_measured`` (K, n) rad (n: the plan's joints): what the controller was sent and the
       encoder readings; None when not recorded;
     * ``flags``, ``message`` (why a flag was raised), ``meta`` (plan name, wall time, lab name; never hidden truth).
 
     A task's lab may return a subclass with more fields (``TASK`` names the task; ``SUMMARY_COLUMNS``,
-    :meth:`summary_row`, :meth:`result_dict` and :meth:`result_kwargs` say how the log writes and reads them).
+    :meth:`summary_row`, :meth:`result_dict` and :meth:`result_kwargs` say how the log writes and reads them;
+    ``ARRAY_FIELDS`` its arrays in :meth:`to_dict`; :meth:`write_files` and :meth:`read_files` its own files in a
+    log's trial folder).
     """
 
     #: The task whose measurement this is; None: the touchdown measurement of log format version 1.
     TASK: ClassVar[str | None] = None
     #: The columns of trials.csv between ``plan_hash`` and ``flags``.
     SUMMARY_COLUMNS: ClassVar[tuple[str, ...]] = ("touchdown_x", "touchdown_y")
+    #: The array fields :meth:`to_dict` writes (NaN as null) and :meth:`from_dict` reads, in this order.
+    ARRAY_FIELDS: ClassVar[tuple[str, ...]] = ("joint_t", "q_commanded", "q_measured")
 
     trial: int
     plan: MotionPlan
     touchdown: np.ndarray | None = None
-    ball_t: np.ndarray | None = None
-    ball_path: np.ndarray | None = None
     joint_t: np.ndarray | None = None
     q_commanded: np.ndarray | None = None
     q_measured: np.ndarray | None = None
@@ -135,12 +130,6 @@ class Measurement:
         if td is not None and (td.shape != (2,) or not np.all(np.isfinite(td))):
             raise MeasurementError(f"measurement touchdown must be 2 finite numbers (x, y) in m, got {self.touchdown!r}")
         self.touchdown = td
-        self.ball_t = _arr(self.ball_t, "ball_t", None)
-        self.ball_path = _arr(self.ball_path, "ball_path", 3)
-        if (self.ball_t is None) != (self.ball_path is None):
-            raise MeasurementError("measurement ball_t and ball_path must both be given or both be None")
-        if self.ball_t is not None and len(self.ball_t) != len(self.ball_path):
-            raise MeasurementError(f"measurement ball_t has {len(self.ball_t)} samples but ball_path {len(self.ball_path)}")
         self.joint_t = _arr(self.joint_t, "joint_t", None)
         n_joints = self.plan.q.shape[1] if self.plan.q.ndim == 2 else 0
         self.q_commanded = _arr(self.q_commanded, "q_commanded", n_joints)
@@ -153,10 +142,8 @@ class Measurement:
                 f"measurement joint arrays disagree in length: joint_t {len(self.joint_t)}, "
                 f"q_commanded {len(self.q_commanded)}, q_measured {len(self.q_measured)}"
             )
-        for name in ("ball_t", "joint_t"):
-            t = getattr(self, name)
-            if t is not None and not np.all(np.isfinite(t)):
-                raise MeasurementError(f"measurement {name} contains NaN or inf")
+        if self.joint_t is not None and not np.all(np.isfinite(self.joint_t)):
+            raise MeasurementError("measurement joint_t contains NaN or inf")
         if not isinstance(self.flags, dict):
             raise MeasurementError(f"measurement flags must be a dict of booleans, got {type(self.flags).__name__}")
         self.flags = {str(k): bool(v) for k, v in self.flags.items()}
@@ -195,6 +182,16 @@ class Measurement:
         """Constructor arguments of a subclass's own fields from a :meth:`to_dict` mapping (none here)."""
         return {}
 
+    def write_files(self, folder, info: dict[str, Any]) -> None:
+        """Write a subclass's own files into a log's trial ``folder`` and say so in ``info`` (its measurement.json,
+        written after this); none here. Raise ``LogError`` for what cannot be written."""
+
+    @classmethod
+    def read_files(cls, folder, info: dict[str, Any]) -> dict[str, Any]:
+        """Constructor arguments of a subclass's own files in a log's trial ``folder`` (``info``: its
+        measurement.json); none here. Raise ``LogError`` for a missing or corrupt file."""
+        return {}
+
     @property
     def plan_hash(self) -> str:
         """Content hash of the plan (see :func:`plan_hash`)."""
@@ -218,7 +215,7 @@ class Measurement:
         }
         if arrays:
             d["plan"] = self.plan.to_dict()
-            for name in ("ball_t", "ball_path", "joint_t", "q_commanded", "q_measured"):
+            for name in self.ARRAY_FIELDS:
                 a = getattr(self, name)
                 # NaN (marker gaps) is not JSON: write null.
                 d[name] = None if a is None else np.where(np.isnan(a), None, a).tolist()
@@ -251,11 +248,7 @@ class Measurement:
             trial=d["trial"],
             plan=plan,
             touchdown=d.get("touchdown"),
-            ball_t=arr("ball_t"),
-            ball_path=arr("ball_path"),
-            joint_t=arr("joint_t"),
-            q_commanded=arr("q_commanded"),
-            q_measured=arr("q_measured"),
+            **{name: arr(name) for name in cls.ARRAY_FIELDS},
             flags=dict(d.get("flags") or {}),
             message=d.get("message", ""),
             meta=dict(d.get("meta") or {}),

@@ -4,9 +4,9 @@ A multi-objective evolutionary search over motion-plan parameters, seeded with p
 simulation, minimises three objectives at once:
 
 1. the target distance of the touchdown **in simulation** (plus a penalty for joint-limit violations), expected over
-   the lab's throw-to-throw ball placement (``placement_sd``; 9 placements of a Gauss-Hermite rule per plan, see
-   :func:`placement_quadrature`): a plan on a cliff, where a few millimetres in the scoop send the ball elsewhere,
-   scores badly even when its nominal throw hits;
+   the lab's trial-to-trial scatter of the task's setup (``placement_sd``; the task's quadrature over it,
+   :meth:`besdrake.task.Task.scatter_effects`, e.g. 9 placements of the object per plan): a plan on a cliff, where a
+   few millimetres of setup send the object elsewhere, scores badly even when its nominal trial hits;
 2. the simulation-to-reality **disparity predicted by a surrogate** (a Gaussian process over the
    behaviour features the scenario's task describes (:meth:`besdrake.task.Task.behaviour_descriptor`), trained on every plan
    transferred so far: disparity = distance between simulated and measured touchdown);
@@ -18,7 +18,7 @@ step is drawn per child between ``mutation_sd_min`` and ``mutation_sd`` (log-uni
 so the search looks both far from and right next to the refined plans. After every generation (the paper:
 one transfer per 50 simulated episodes, the population size) the update heuristic transfers one
 plan to the lab, chosen by ``transfer_choice`` (default ``"likely"``; measured with
-``scripts/bench_transferability.py`` on the 4 default subjects whose refined throw landed within
+``scripts/bench_transferability.py`` on the 4 default subjects whose refined plan landed within
 0.16 m in simulation: 3/3 success within 10 transfers for 4 of 4 with ``"likely"``, 2 of 4 with
 ``"diverse"``):
 
@@ -29,19 +29,19 @@ plan to the lab, chosen by ``transfer_choice`` (default ``"likely"``; measured w
 * ``"predicted"``: the plan of the population (within every limit) whose touchdown **predicted for
   the lab** is closest to the target. The prediction is the simulated touchdown plus the
   sim-to-lab touchdown offset (a vector, m) that a second Gaussian process (:class:`OffsetSurrogate`,
-  same descriptors) learns from every lab trial, repetitions included; a plan already thrown is
+  same descriptors) learns from every lab trial, repetitions included; a plan already run in the lab is
   predicted from its own measurements, so the best plan in the lab is re-tried when nothing else is
   predicted closer. It spends the transfers on the task instead of on exploration: with a
   faithful-enough simulation the paper's diverse choice sends plans 0.1-0.3 m off target on purpose.
 * ``"likely"``: the plan most likely to pass the success check, P(``success_repetitions`` of them
   within ``success_radius``) for a touchdown scattering isotropically around the predicted one (Rice
-  distribution), averaged over the simulated ball placements (each shifts the touchdown by what it does
-  in simulation). The scatter is the lab's (pooled over the plans thrown more than once, starting
-  from ``lab_sd_prior``), and for a plan thrown before its own measured scatter shrunk towards that: a
-  plan on a cliff (e.g. the ball sometimes rolls out early) that lands on target only now and then
+  distribution), averaged over the simulated setups of the scatter (each shifts the touchdown by what it does
+  in simulation). The scatter is the lab's (pooled over the plans run more than once, starting
+  from ``lab_sd_prior``), and for a plan run before its own measured scatter shrunk towards that: a
+  plan on a cliff (e.g. the object sometimes leaves the tool early) that lands on target only now and then
   is no longer re-tried, and one whose simulated placements show the cliff is not tried at all. A lab
   touchdown far (``outlier_radius``) from the median of its plan's touchdowns is a cliff event: a miss
-  of that plan, but left out of the lab's pooled scatter and of the offset model, which one such throw
+  of that plan, but left out of the lab's pooled scatter and of the offset model, which one such trial
   would otherwise skew for every plan.
 
 Placements, mixed mutation steps and cliff events together, measured with ``scripts/bench_transferability.py``
@@ -75,18 +75,17 @@ import numpy as np
 from besdrake.plan import MotionPlan
 from besdrake.robot import JointLimits
 from besdrake.search.base import load_state, rng_from_state, rng_state, save_state
-from besdrake.sim.effects import ball_placed, placement_quadrature
 from besdrake.transfer.measurement import Measurement, plan_hash
 
-#: Touchdown "distance" given to a throw that never lands (m): worse than any real throw.
+#: Touchdown "distance" given to a trial that never lands (m): worse than any real one.
 NO_TOUCHDOWN_DISTANCE = 5.0
 #: How the update heuristic picks the plan to transfer (see the module docstring).
 TRANSFER_CHOICES = ("diverse", "predicted", "likely")
-#: The lab's ball placement scatter (m per axis) assumed by default: the virtual lab's documented figure (as in
+#: The lab's setup scatter (m per axis) assumed by default: the built-in lab's documented figure (as in
 #: :data:`besdrake.diagnosis.core.PLACEMENT_SD`); a real lab measures its own.
 PLACEMENT_SD = 0.002
 #: Largest placement scatter accepted (m per axis): the virtual lab's largest; the quadrature's outer points
-#: (sqrt(3) of it) are clipped to where a ball can sit in the scoop.
+#: (sqrt(3) of it) are clipped by the task to where its setup allows.
 MAX_PLACEMENT_SD = 0.005
 
 
@@ -110,8 +109,8 @@ class TransferabilityConfig:
     diversity_neighbours: int = 5
     transfer_choice: str = "likely"  # "likely", "predicted" or "diverse" (the paper's; see the module docstring)
     lab_sd_prior: float = 0.05  # m per axis: the lab's touchdown scatter assumed before repeated plans measure it
-    placement_sd: float = PLACEMENT_SD  # m per axis: the lab's throw-to-throw ball placement scatter (0: nominal only)
-    # m: a lab touchdown this far from the median of its plan's (>= 3) touchdowns is a cliff event (the ball rolled out
+    placement_sd: float = PLACEMENT_SD  # m per axis: the lab's trial-to-trial setup scatter (0: nominal only)
+    # m: a lab touchdown this far from the median of its plan's (>= 3) touchdowns is a cliff event (the object left
     # early): a miss of that plan, left out of the lab's scatter and of the offset model (None: every trial counts)
     outlier_radius: float | None = 0.25
 
@@ -392,9 +391,11 @@ class TransferabilityApproach:
         self.generation = 0
         self.success_at: int | None = None
         self.success_plans: int | None = None
-        self.placements, self.placement_weights = placement_quadrature(self.config.placement_sd)
+        from besdrake.task import DEFAULT_TASK, get_task
+
         scenario = getattr(executor, "scenario", None)
-        self._habit = dict(scenario.effects.get("ball_placement", {})) if scenario is not None else {}
+        task = get_task(scenario.task if scenario is not None else DEFAULT_TASK)
+        self.scatter, self.placement_weights = task.scatter_effects(scenario, self.config.placement_sd)
 
     @property
     def limits(self) -> JointLimits:
@@ -420,22 +421,22 @@ class TransferabilityApproach:
 
     # -- simulation ---------------------------------------------------------------------------
     def _evaluate(self, thetas: np.ndarray) -> tuple[np.ndarray, np.ndarray, list, np.ndarray]:
-        """Sim objective, descriptors, outcomes (ball at the habit) and placement shifts of parameter vectors.
+        """Sim objective, descriptors, outcomes (the scenario's own setup) and scatter shifts of parameter vectors.
 
-        The objective is the target distance expected over the ball placements of :func:`placement_quadrature` (a
-        throw that lands nowhere counts :data:`NO_TOUCHDOWN_DISTANCE`) plus the limit penalty. The shifts ``(n, K, 2)``
-        are each placement's touchdown minus the one at the habit (m; NaN where either does not land)."""
+        The objective is the target distance expected over the task's setup scatter (:attr:`scatter`; a
+        trial that lands nowhere counts :data:`NO_TOUCHDOWN_DISTANCE`) plus the limit penalty. The shifts ``(n, K, 2)``
+        are each setup's touchdown minus the one at the habit (m; NaN where either does not land)."""
         plans, penalties = [], np.zeros(len(thetas))
         for i, theta in enumerate(thetas):
             plan = self.to_plan(theta)
             lim = plan.check_limits(self.limits)
             penalties[i] = self.config.limit_penalty * float(lim.position.sum() + lim.velocity.sum() + lim.acceleration.sum())
             plans.append(plan)
-        k = len(self.placements)
+        k = len(self.scatter)
         if k == 1:
             runs = self.executor.evaluate(plans)
         else:
-            effects = [None] + [{"ball_placement": ball_placed(self._habit, d)} for d in self.placements[1:]]
+            effects = list(self.scatter)
             runs = self.executor.evaluate([p for p in plans for _ in range(k)], effects=effects * len(plans))
         self.sim_episodes += len(runs)
         td = np.array([o.touchdown if o.touchdown is not None else [np.nan, np.nan] for o in runs], dtype=float).reshape(len(plans), k, 2)
@@ -564,7 +565,7 @@ class TransferabilityApproach:
             return int(pool[np.argmin(np.where(np.isfinite(dist), dist, NO_TOUCHDOWN_DISTANCE) @ w)])
         return int(pool[np.argmax(self._success_probabilities(P[pool], predicted, sh, w))])
 
-    def _thrown(self) -> dict[str, list[Transfer]]:
+    def _run_in_lab(self) -> dict[str, list[Transfer]]:
         """The lab trials (transfers and repeats) that landed, by plan hash."""
         groups: dict[str, list[Transfer]] = {}
         for t in self.transfers:
@@ -573,21 +574,21 @@ class TransferabilityApproach:
         return groups
 
     def _lab_groups(self, inliers: bool = False) -> dict[str, np.ndarray]:
-        """Measured lab touchdowns ``(k, 2)`` of every plan thrown so far, by plan hash (``inliers``: without the
+        """Measured lab touchdowns ``(k, 2)`` of every plan run so far, by plan hash (``inliers``: without the
         cliff events)."""
         cliffs = self.cliff_trials() if inliers else set()
-        groups = {h: [t.lab_touchdown for t in ts if t.trial not in cliffs] for h, ts in self._thrown().items()}
+        groups = {h: [t.lab_touchdown for t in ts if t.trial not in cliffs] for h, ts in self._run_in_lab().items()}
         return {h: np.asarray(v, dtype=float) for h, v in groups.items() if v}
 
     def cliff_trials(self) -> set[int]:
         """Lab trials (indices) that landed farther than ``outlier_radius`` from the median touchdown of their plan,
-        among plans thrown at least 3 times: the ball rolled out early or the like, a miss that no Gaussian scatter
+        among plans run at least 3 times: the object left the tool early or the like, a miss that no Gaussian scatter
         or offset describes."""
         r = self.config.outlier_radius
         if r is None:
             return set()
         out: set[int] = set()
-        for ts in self._thrown().values():
+        for ts in self._run_in_lab().values():
             if len(ts) >= 3:
                 v = np.array([t.lab_touchdown for t in ts], dtype=float)
                 far = np.linalg.norm(v - np.median(v, axis=0), axis=1) > r
@@ -598,12 +599,12 @@ class TransferabilityApproach:
                                weights: np.ndarray | None = None) -> np.ndarray:
         """P(every repetition of the success check lands within the radius) of each plan (see ``"likely"``).
 
-        ``shifts`` ``(n, K, 2)``: each ball placement's touchdown minus the one at the habit, in simulation, with
-        ``weights`` ``(K,)``: one throw's probability is their weighted mean around the predicted touchdown (a
+        ``shifts`` ``(n, K, 2)``: each scattered setup's touchdown minus the scenario's own, in simulation, with
+        ``weights`` ``(K,)``: one trial's probability is their weighted mean around the predicted touchdown (a
         placement that does not land counts as a miss), so a plan on a cliff, where a few millimetres of placement
-        send the ball elsewhere, is unlikely to pass. A plan thrown before is centred on its measurements minus the
+        send the object elsewhere, is unlikely to pass. A plan run before is centred on its measurements minus the
         mean shift (they already hold the placement scatter). Its cliff events (:meth:`cliff_trials`) are left out of
-        its and the pooled scatter and count as misses: one throw's probability is multiplied by (inliers + 1) /
+        its and the pooled scatter and count as misses: one trial's probability is multiplied by (inliers + 1) /
         (trials + 1)."""
         if shifts is None:
             shifts, weights = np.zeros((len(thetas), 1, 2)), np.ones(1)
@@ -611,7 +612,7 @@ class TransferabilityApproach:
 
         cfg = self.config
         groups = self._lab_groups(inliers=True)
-        thrown = {h: len(ts) for h, ts in self._thrown().items()}
+        run = {h: len(ts) for h, ts in self._run_in_lab().items()}
         ss, dof = 0.0, 0
         for v in groups.values():
             if len(v) > 1:
@@ -625,9 +626,9 @@ class TransferabilityApproach:
             v = groups.get(h)
             centre, var, kept = predicted[j], var0, 1.0
             landed = np.isfinite(shifts[j]).all(axis=1)
-            if h in thrown:
+            if h in run:
                 kept = (0 if v is None else len(v)) + 1.0
-                kept /= thrown[h] + 1.0
+                kept /= run[h] + 1.0
             if v is not None:
                 mean = v.mean(axis=0)  # its own measurements say where it lands
                 if len(v) > 1:
@@ -672,7 +673,7 @@ class TransferabilityApproach:
             return None
         s = load_state(self.out_dir / "transferability_state")
         # fields added since the state was written: their defaults, the paper's transfer choice (the only one then),
-        # the ball at its habit only (placements came later), one mutation step and no cliff events
+        # the setup as the scenario has it only (the scatter came later), one mutation step and no cliff events
         saved = json.loads(json.dumps(asdict(TransferabilityConfig()))) | {"transfer_choice": "diverse", "placement_sd": 0.0,
                                                                        "mutation_sd_min": s["config"].get("mutation_sd"),
                                                                        "outlier_radius": None} | s["config"]

@@ -18,6 +18,7 @@ class PickAndPlaceTask(Task):
     name = "pick_and_place"
     description = "pick a box from a shelf and put it upright on a table with a gripper, held by friction only"
     default_scenario = "pick_and_place"
+    object_markers = ("Box back",)
     effects = ()  # none of the registry's effects acts on this task yet (box friction, mass, offset: rollout arguments)
     default_lab = "pick_and_place_lab"
 
@@ -42,8 +43,9 @@ class PickAndPlaceTask(Task):
             raise RobotError(f"{robot.path or robot.name}: end_effector: pick-and-place needs a gripper, "
                              f"robot {robot.name!r} has a {robot.end_effector.type!r} end effector")
 
-    def default_plan(self, rollout):
+    def default_plan(self, rollout, **shape):
         """The scripted pick-and-place of the scene's box (inverse kinematics at the grasp and place poses)."""
+        self._no_shape(self.name, shape)
         from besdrake.tasks.pick_and_place.scripted import scripted_plan_for
 
         return scripted_plan_for(rollout)

@@ -33,7 +33,7 @@ def record_throw(sim, plan: MotionPlan, outcome, meshcat, fps: float) -> None:
         plant.SetPositions(pctx, h.arm, q)
         if outcome.ball_t.size:
             p = np.array([np.interp(t, outcome.ball_t, outcome.ball_path[:, k]) for k in range(3)])
-            plant.SetFreeBodyPose(pctx, h.ball_body, RigidTransform(p))
+            plant.SetFreeBodyPose(pctx, h.scene.ball_body, RigidTransform(p))
         ctx.SetTime(float(t))
         h.diagram.ForcedPublish(ctx)
     vis.StopRecording()

@@ -31,7 +31,8 @@ from pydrake.math import RigidTransform
 
 from besdrake.plan import MotionPlan, PlanError, PlanLimitError
 from besdrake.sim.diagram import SimHandles, build_diagram
-from besdrake.sim.effects import RolloutSetup, apply_effects, merge_effects, set_gains
+from besdrake.sim.effects import apply_effects, merge_effects, set_gains
+from besdrake.tasks.throwing.effects import ThrowSetup
 from besdrake.sim.scenario import Scenario, load_scenario
 from besdrake.tasks.throwing.flight import fly
 from besdrake.tasks.throwing.outcome import FLAG_NAMES, Outcome
@@ -65,7 +66,7 @@ class ThrowRollout:
         plant = h.plant
         self._arm_q_idx = np.array([plant.GetJointByName(n, h.arm).position_start() for n in self.robot.joint_names])
         self._arm_v_idx = np.array([plant.GetJointByName(n, h.arm).velocity_start() for n in self.robot.joint_names])
-        ball = h.ball_body
+        ball = h.scene.ball_body
         self._ball_q0 = ball.floating_positions_start()  # quaternion (4) then position (3)
         self._ball_v0 = self._nq + ball.floating_velocities_start_in_v()  # angular (3) then linear (3)
         self._gravity = plant.gravity_field().gravity_vector()
@@ -92,7 +93,7 @@ class ThrowRollout:
 
     def _scoop_pose(self):
         h = self.handles
-        return h.plant.CalcRelativeTransform(self.plant_context, h.plant.world_frame(), h.scoop_frame)
+        return h.plant.CalcRelativeTransform(self.plant_context, h.plant.world_frame(), h.scene.scoop_frame)
 
     def _place_ball(self, q0: np.ndarray, v0: np.ndarray, radius: float, offset: np.ndarray | None = None) -> None:
         """Put the arm at the plan's start (sagged under gravity to where its PD servos hold it, when at rest)
@@ -116,8 +117,8 @@ class ThrowRollout:
         lift = (abs(dx) + abs(dy)) * np.tan(self.scoop.wall_angle)
         p_S = np.array([dx, dy, self.scoop.rest_height(radius) + (1e-4 + lift if lift else 0.0)])
         p = X_WS.multiply(p_S)
-        plant.SetFreeBodyPose(self.plant_context, h.ball_body, RigidTransform(X_WS.rotation(), p))
-        plant.SetVelocities(self.plant_context, h.ball_instance, np.zeros(6))
+        plant.SetFreeBodyPose(self.plant_context, h.scene.ball_body, RigidTransform(X_WS.rotation(), p))
+        plant.SetVelocities(self.plant_context, h.scene.ball_instance, np.zeros(6))
 
     def _initial_hold(self, plan: MotionPlan, qd: np.ndarray) -> float:
         """Seconds of the plan's initial hold (still at its first sample) that need not be simulated;
@@ -138,7 +139,7 @@ class ThrowRollout:
         h = self.handles
         plant = h.plant
         contacts = plant.get_contact_results_output_port().Eval(self.plant_context)
-        ball = h.ball_body.index()
+        ball = h.scene.ball_body.index()
         touching = False
         for i in range(contacts.num_point_pair_contacts()):
             info = contacts.point_pair_contact_info(i)
@@ -172,7 +173,7 @@ class ThrowRollout:
         local = np.empty_like(balls)
         for i, q in enumerate(qs):
             plant.SetPositions(self._scratch, h.arm, q)
-            local[i] = plant.CalcRelativeTransform(self._scratch, h.scoop_frame, plant.world_frame()).multiply(balls[i])
+            local[i] = plant.CalcRelativeTransform(self._scratch, h.scene.scoop_frame, plant.world_frame()).multiply(balls[i])
         return bool(np.all(self.scoop.distance(local) >= radius + self.scenario.release.margin))
 
     # ------------------------------------------------------------------ main
@@ -205,21 +206,21 @@ class ThrowRollout:
         out.flags = flags
         return out
 
-    def _prepare(self, plan: MotionPlan, effects_done: dict) -> tuple[RolloutSetup, MotionPlan, float]:
+    def _prepare(self, plan: MotionPlan, effects_done: dict) -> tuple[ThrowSetup, MotionPlan, float]:
         """Reset the Context, apply the effects, swap the plan in and place the arm and the ball; returns the effects'
         setup, the commanded plan (with knot velocities) and the seconds of the initial hold not simulated."""
         h = self.handles
         self.context.SetTimeStateAndParametersFrom(self.default_context)
         if h.gains_scaled:
             set_gains(h)
-        setup = RolloutSetup(
+        setup = ThrowSetup(
             plan=plan,
             handles=h,
             context=self.context,
             plant_context=self.plant_context,
             scene_graph_context=self.scene_graph_context,
-            ball_radius=h.nominal_ball_radius,
-            ball_mass=float(h.ball_body.get_mass(self.plant_context)),
+            ball_radius=h.scene.nominal_ball_radius,
+            ball_mass=float(h.scene.ball_body.get_mass(self.plant_context)),
         )
         apply_effects(setup, effects_done)
         cmd = setup.plan
@@ -287,7 +288,7 @@ class ThrowRollout:
         ts, xs = ts[finite], xs[finite]
         return ts, xs[:, self._arm_q_idx], xs[:, self._ball_q0 + 4 : self._ball_q0 + 7], xs[:, self._ball_v0 + 3 : self._ball_v0 + 6]
 
-    def _release_and_flight(self, out: Outcome, ts: np.ndarray, ball_p: np.ndarray, ball_v: np.ndarray, setup: RolloutSetup) -> None:
+    def _release_and_flight(self, out: Outcome, ts: np.ndarray, ball_p: np.ndarray, ball_v: np.ndarray, setup: ThrowSetup) -> None:
         """Release: the last sample whose velocity change is not gravity alone, before any floor contact; then the
         free flight from there to the touchdown."""
         airborne = ball_p[:, 2] > setup.ball_radius + 2e-3

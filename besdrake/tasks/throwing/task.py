@@ -8,6 +8,8 @@ features for Transferability: :mod:`besdrake.tasks.throwing.descriptor`.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from besdrake.task import Task, register_task
 
 
@@ -16,20 +18,43 @@ class ThrowingTask(Task):
     name = "throwing"
     description = "throw a ball from a scoop onto a target on the floor (BesMan's COMPI experiments)"
     default_scenario = "nominal"
+    object_markers = ("Ball",)
     effects = ("base_offset", "joint_offset", "actuator_lag", "gain_scale", "air_drag", "ball_placement", "ball",
                "scoop_friction")
     default_lab = "default_lab"
+    learn_config = Path(__file__).resolve().parent / "learn.yaml"
+
+    def scene(self):
+        """The ball in the scoop and the floor (:class:`~besdrake.tasks.throwing.scene.ThrowScene`)."""
+        from besdrake.tasks.throwing.scene import ThrowScene
+
+        return ThrowScene()
+
+    def learn_stages(self):
+        """Label, segment, imitate, refine, transfer, diagnose, transfer_refined, template, pool, report
+        (:mod:`besdrake.tasks.throwing.learn`)."""
+        from besdrake.tasks.throwing.learn import STAGES
+
+        return list(STAGES)
+
+    def check_learn_config(self, config) -> None:
+        """The Transferability settings and the diagnosis experiment's design, checked before any stage runs."""
+        from besdrake.tasks.throwing.learn import diagnosis_design, transfer_config
+
+        transfer_config(config)
+        if config["diagnosis"].get("enabled", True):
+            diagnosis_design(config)
 
     def make_rollout(self, scenario, meshcat=None):
         from besdrake.tasks.throwing.rollout import ThrowRollout
 
         return ThrowRollout(scenario, meshcat=meshcat)
 
-    def default_plan(self, rollout):
-        """The default overhand throw (amplitude 0.35)."""
+    def default_plan(self, rollout, amplitude: float | None = None, yaw: float = 0.0):
+        """The default overhand throw (amplitude 0.35 unless given; ``yaw``: joint 1's angle, rad)."""
         from besdrake.tasks.throwing.throws import default_throw
 
-        return default_throw(0.35)
+        return default_throw(amplitude=0.35 if amplitude is None else amplitude, yaw=yaw)
 
     def record_replay(self, rollout, plan, outcome, meshcat, fps):
         """The arm as measured (then as commanded), the ball along its path and a marker at the touchdown."""
@@ -55,9 +80,24 @@ class ThrowingTask(Task):
 
         return behaviour_descriptor(plan, outcome)
 
+    def measurement_type(self) -> type:
+        """:class:`~besdrake.tasks.throwing.measurement.ThrowMeasurement`: touchdown, ball marker, encoders."""
+        from besdrake.tasks.throwing.measurement import ThrowMeasurement
+
+        return ThrowMeasurement
+
+    def scatter_effects(self, scenario, sd: float):
+        """The ball's placement in the scoop, N(0, sd^2) per axis around the scenario's habit: the 9 placements of a
+        3 x 3 Gauss-Hermite rule (:func:`~besdrake.tasks.throwing.effects.placement_quadrature`)."""
+        from besdrake.tasks.throwing.effects import ball_placed, placement_quadrature
+
+        placements, weights = placement_quadrature(sd)
+        habit = dict(scenario.effects.get("ball_placement", {})) if scenario is not None else {}
+        return [None] + [{"ball_placement": ball_placed(habit, d)} for d in placements[1:]], weights
+
     def make_lab(self, config, seed: int | None = None):
-        """The throwing lab (:class:`~besdrake.transfer.virtual_lab.VirtualLab`) from a lab YAML path, name or mapping."""
-        from besdrake.transfer.virtual_lab import VirtualLab, load_lab_config, parse_lab_config
+        """The throwing lab (:class:`~besdrake.tasks.throwing.lab.VirtualLab`) from a lab YAML path, name or mapping."""
+        from besdrake.tasks.throwing.lab import VirtualLab, load_lab_config, parse_lab_config
 
         cfg = parse_lab_config(config) if isinstance(config, dict) else load_lab_config(config)
         return VirtualLab(cfg if seed is None else cfg.with_seed(seed))

@@ -32,7 +32,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from besdrake._io import save_npz as _save_npz, write_text as _atomic_write_text
-from besdrake.mocap import arm_model as am
+from besdrake.tasks.throwing import arm_model as am
 from besdrake.mocap.qualisys import write_tsv
 from besdrake.mocap.recording import MocapRecording
 from besdrake.mocap.segments_io import Segment, segmentation_path, write_segmentation
@@ -114,9 +114,9 @@ class ExperimentTruth:
     """Noise-free ground truth of one synthetic experiment (SI units, quaternions w, x, y, z).
 
     ``hand_*`` is the hand frame (origin at the hand centre, x to the fingers, z dorsal; the
-    hand plate's marker coordinates in it are :data:`besdrake.mocap.arm_model.HAND_PLATE`),
+    hand plate's marker coordinates in it are :data:`besdrake.tasks.throwing.arm_model.HAND_PLATE`),
     ``back_*`` the trunk frame at the back plate origin (x forward, y left, z up;
-    :data:`~besdrake.mocap.arm_model.BACK_PLATE`), ``hand_*_in_back`` the hand pose in the back frame.
+    :data:`~besdrake.tasks.throwing.arm_model.BACK_PLATE`), ``hand_*_in_back`` the hand pose in the back frame.
     ``segment_*`` are the exact borders (hand-speed minima and sub-movement onsets/ends); the
     ``_manually_segmented.json`` files hold them with annotator jitter (:data:`ANNOTATOR_JITTER_S`).
     """

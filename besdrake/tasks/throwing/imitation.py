@@ -49,7 +49,7 @@ def load_demonstration(source: str) -> list[tuple[str, MocapRecording, list[Segm
     (subject S, experiment E of the built-in synthetic demonstrator, seed 0). Synthetic
     recordings come with their ground-truth segmentation (used only when asked for)."""
     if source.startswith("synthetic:"):
-        from besdrake.mocap.synthetic import SyntheticDemonstrator
+        from besdrake.tasks.throwing.demonstrator import SyntheticDemonstrator
 
         parts = source.split(":")[1:]
         try:
@@ -90,7 +90,7 @@ def prepare(rec: MocapRecording) -> Preprocessed:
 
 def default_classifier():
     """1-NN classifier trained on the first experiment of synthetic subjects 0-4 (40 throws)."""
-    from besdrake.mocap.synthetic import SyntheticDemonstrator
+    from besdrake.tasks.throwing.demonstrator import SyntheticDemonstrator
     from besdrake.segmentation.classification import SegmentClassifier, extract_segment
     from besdrake.segmentation.evaluation import pre_index
 

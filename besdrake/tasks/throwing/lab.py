@@ -60,10 +60,10 @@ import numpy as np
 import yaml
 
 from besdrake.plan import MotionPlan, PlanError
-from besdrake.sim.effects import ball_placed
+from besdrake.tasks.throwing.effects import ball_placed
 from besdrake.transfer.lab import TrialCounter
 from besdrake.transfer.lab_config import LabConfigError, _bool, _number, _seed, resolve_lab_path, scenario_path
-from besdrake.transfer.measurement import Measurement
+from besdrake.tasks.throwing.measurement import ThrowMeasurement
 from besdrake.plugins import load_plugins
 
 #: Largest |dx| + |dy| (m) of the ball placement: keeps the ball well below the scoop's lip.
@@ -285,6 +285,9 @@ class VirtualLab(TrialCounter):
     ``VirtualLab(config)`` with a :class:`LabConfig`, a config mapping or the path of a lab YAML file. The Drake diagram is
     built on the first :meth:`execute` (about 1 s) and reused."""
 
+    #: The Measurement class of its trials (the safety gate's refusals and the log use it).
+    measurement_type = ThrowMeasurement
+
     def __init__(self, config: LabConfig | dict | str | Path) -> None:
         if isinstance(config, dict):
             config = parse_lab_config(config)
@@ -331,7 +334,7 @@ class VirtualLab(TrialCounter):
             self._rollout = Rollout(self.config.scenario)
         return self._rollout
 
-    def execute(self, plan: MotionPlan, trial: int | None = None) -> Measurement:
+    def execute(self, plan: MotionPlan, trial: int | None = None) -> ThrowMeasurement:
         """Run ``plan`` as trial ``trial`` (default: the next one) and measure it."""
         if not isinstance(plan, MotionPlan):
             raise TypeError(f"VirtualLab.execute needs a MotionPlan, got {type(plan).__name__}")
@@ -353,9 +356,9 @@ class VirtualLab(TrialCounter):
         try:
             over = plan.check_limits(self.robot.limits).violations()
         except PlanError as err:
-            return Measurement(trial=trial, plan=plan, flags={"aborted": True}, message=f"aborted: malformed plan: {err}", meta=meta)
+            return ThrowMeasurement(trial=trial, plan=plan, flags={"aborted": True}, message=f"aborted: malformed plan: {err}", meta=meta)
         if over:  # no safety gate in front: the robot's drives stop it, as in the paper
-            return Measurement(
+            return ThrowMeasurement(
                 trial=trial,
                 plan=plan,
                 flags={"joint_limit_exceeded": True, "aborted": True},
@@ -369,7 +372,7 @@ class VirtualLab(TrialCounter):
         try:
             out = self.rollout.rollout(plan, effects=effects, limits="flag")
         except PlanError as err:
-            return Measurement(trial=trial, plan=plan, flags={"aborted": True}, message=f"aborted: malformed plan: {err}", meta=meta)
+            return ThrowMeasurement(trial=trial, plan=plan, flags={"aborted": True}, message=f"aborted: malformed plan: {err}", meta=meta)
         if self._pose is not None:
             self._pose = np.array(plan.q[-1], dtype=float)  # the robot stays where the plan left it
 
@@ -414,7 +417,7 @@ class VirtualLab(TrialCounter):
         joint_t = q_cmd = q_meas = None
         if c.record_joints and out.joint_t.size:
             joint_t, q_cmd, q_meas = self._encoders(plan, out.joint_t, out.q_measured, rng)
-        return Measurement(
+        return ThrowMeasurement(
             trial=trial,
             plan=plan,
             touchdown=touchdown,

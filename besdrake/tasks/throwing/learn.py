@@ -1,0 +1,618 @@
+"""The throwing task's ``besdrake learn`` stages (:func:`besdrake.pipeline.learn.learn` runs them; configuration:
+``learn.yaml`` beside this module), from demonstrations to a template pool (paper Table 1 and Figure 1):
+
+ 1. ``label``      automatic marker labeling (unnamed trajectories -> named markers), gap filling
+ 2. ``segment``    vMCI segmentation and 1-NN classification: the throw segments
+ 3. ``imitate``    embodiment mapping and DMP imitation: one plan of the robot per throw
+ 4. ``refine``     policy search in simulation (CMA-ES on the 49 DMP parameters)
+ 5. ``transfer``   Transferability Approach with the designed simulation and the lab
+ 6. ``diagnose``   what the simulation gets wrong, its cause, a refined scenario
+ 7. ``transfer_refined``  Transferability Approach again, with the refined simulation
+ 8. ``template``   behaviour template learning (BO-CPS) over the target position
+ 9. ``pool``       the template pool
+10. ``report``     report.md with figures and meshcat replays
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from besdrake._io import save_figure as _save_figure, write_text as _atomic_write_text
+from besdrake._io import write_json
+from besdrake.pipeline.learn import Context, fmt_time as _fmt_time, learn_scenario
+from besdrake.pipeline.learn import stage_executor as _executor
+
+
+#: Paper Table 1, per experiment of 8 throws: (stage, time in s, automated, required knowledge).
+PAPER_TABLE_1: dict[str, tuple[str, float | None, str, str]] = {
+    "label": ("Automatic marker labeling", 4 * 60 + 58, "yes", "Neighboring markers, initial pose"),
+    "segment": ("Behavior segmentation + movement classification", 44 + 2, "yes", "labelled training throws (classification)"),
+    "imitate": ("Imitation learning", 4 * 60 + 20, "yes", "Robot description"),
+    "refine": ("Policy search", 10 * 60, "yes", "Reward function, simulation"),
+    "transfer": ("Transferability approach", 75 * 60, "(yes)", "Reward function, simulation"),
+    "diagnose": ("Simulation refinement (paper: grid search on height and release angle)", None, "yes", "effect registry"),
+    "transfer_refined": ("Transferability approach after refinement", None, "(yes)", "Reward function, refined simulation"),
+    "template": ("Behavior template learning (paper: 80 episodes on the robot)", None, "yes", "Reward function, context space"),
+    "pool": ("Behavior template pool", None, "yes", "-"),
+}
+
+
+# --------------------------------------------------------------------------------------------
+# 1. labeling
+# --------------------------------------------------------------------------------------------
+def _synthetic(cfg: dict[str, Any]):
+    from besdrake.tasks.throwing.demonstrator import SyntheticDemonstrator
+
+    return SyntheticDemonstrator(int(cfg["demonstrations"]["seed"]))
+
+
+def stage_label(ctx: Context, out: Path) -> dict[str, Any]:
+    """Label unnamed marker trajectories (synthetic: the unlabelled variant) and fill gaps."""
+    from besdrake.mocap.labeling import MarkerLabeler, labeling_accuracy
+    from besdrake.mocap.qualisys import read_recording, write_tsv
+
+    demo_cfg = ctx.config["demonstrations"]
+    records = []
+    if demo_cfg["source"] == "synthetic":
+        demo = _synthetic(ctx.config)
+        for s in demo_cfg["subjects"]:
+            subject = demo.subject(int(s))
+            first = subject.experiment(int(demo_cfg["experiments"][0]))
+            ref_path = ctx.config["labeling"]["reference"]
+            if ref_path:
+                reference = read_recording(ref_path)
+            else:  # a person labels the first 5 s once: the paper's "initial pose"
+                reference = first.recording.crop(int(first.recording.frames[0]), int(first.recording.frames[0] + 5 * first.recording.frequency))
+            labeler = MarkerLabeler().fit(reference)
+            for e in demo_cfg["experiments"]:
+                exp = subject.experiment(int(e))
+                name = f"synthetic_s{s}_e{e}"
+                if demo_cfg["unlabeled"]:
+                    unlabeled, truth = subject.unlabeled_experiment(int(e), exp)
+                    t0 = time.process_time()
+                    result = labeler.predict(unlabeled)
+                    cpu = time.process_time() - t0
+                    acc = labeling_accuracy(result.slot_labels, truth)
+                    rec = result.recording
+                    records.append({"name": name, "cpu_s": cpu, "correct_share": acc["correct_share"],
+                                    "gaps_flagged": result.summary()["gaps_flagged"]})
+                else:
+                    rec = exp.recording
+                    records.append({"name": name, "cpu_s": 0.0, "correct_share": None})
+                write_tsv(rec, out / f"{name}.tsv")
+                from besdrake.mocap.segments_io import write_segmentation
+
+                write_segmentation(exp.segments, out / f"{name}_manually_segmented.json")
+    else:
+        folder = Path(demo_cfg["source"])
+        files = sorted([*folder.glob("*.tsv"), *folder.glob("*.c3d")])
+        if not files:
+            raise FileNotFoundError(f"no .tsv or .c3d recording in {folder}")
+        ctx.run.record_inputs({f.name: f for f in files})
+        for f in files:  # user recordings are expected to carry marker names already
+            rec = read_recording(f)
+            write_tsv(rec, out / f"{f.stem}.tsv")
+            seg = f.with_name(f.stem + "_manually_segmented.json")
+            if seg.is_file():
+                _atomic_write_text(out / seg.name, seg.read_text())
+            records.append({"name": f.stem, "cpu_s": 0.0, "correct_share": None})
+    shares = [r["correct_share"] for r in records if r["correct_share"] is not None]
+    return {
+        "recordings": records,
+        "median_cpu_s_per_experiment": float(np.median([r["cpu_s"] for r in records])),
+        "min_correct_share": min(shares) if shares else None,
+    }
+
+
+# --------------------------------------------------------------------------------------------
+# 2. segmentation and classification
+# --------------------------------------------------------------------------------------------
+def _training_classifier(ctx: Context):
+    from besdrake.segmentation.classification import SegmentClassifier, extract_segment
+    from besdrake.segmentation.evaluation import labelled_recordings, labelled_segments, pre_index
+    from besdrake.tasks.throwing.imitation import prepare
+
+    cfg = ctx.config["classifier"]
+    if cfg.get("training_folder"):
+        segments, labels = labelled_segments(labelled_recordings(cfg["training_folder"]))
+        return SegmentClassifier(markers=("hand",)).fit(segments, labels), len(labels)
+    demo = _synthetic(ctx.config)
+    segments, labels = [], []
+    for s in cfg["training_subjects"]:
+        for e in cfg["training_experiments"]:
+            exp = demo.subject(int(s)).experiment(int(e))
+            pre = prepare(exp.recording)
+            for seg in exp.segments:
+                try:
+                    a, b = pre_index(pre.frames, seg.start_frame), pre_index(pre.frames, seg.end_frame)
+                except IndexError:
+                    continue  # a segment in a cropped-away edge
+                segments.append(extract_segment(pre, a, b, seg.label))
+                labels.append(seg.label)
+    return SegmentClassifier(markers=("hand",)).fit(segments, labels), len(labels)
+
+
+def stage_segment(ctx: Context, out: Path) -> dict[str, Any]:
+    """vMCI borders and 1-NN labels; throws written as segmentations; scored against manual borders."""
+    from besdrake.mocap.qualisys import read_recording
+    from besdrake.mocap.segments_io import Segment, read_segmentation, write_segmentation
+    from besdrake.tasks.throwing.imitation import prepare
+    from besdrake.segmentation import VMCI, ZeroVelocitySegmenter
+    from besdrake.segmentation.classification import extract_segment
+    from besdrake.segmentation.evaluation import manual_borders, score_borders
+
+    label_dir = ctx.run.root / "01_label"
+    t0 = time.perf_counter()
+    classifier, n_train = _training_classifier(ctx)
+    train_s = time.perf_counter() - t0
+    method = ctx.config["segmentation"]["method"]
+    results = []
+    for tsv in sorted(label_dir.glob("*.tsv")):
+        pre = prepare(read_recording(tsv))
+        t1 = time.process_time()
+        seg = (VMCI() if method == "vmci" else ZeroVelocitySegmenter()).fit(pre)
+        seg_cpu = time.process_time() - t1
+        t2 = time.process_time()
+        found = []
+        for a, b in seg.segments_:
+            label = str(classifier.predict([extract_segment(pre, a, b)])[0])
+            found.append(Segment(int(pre.frames[a]), int(pre.frames[b]), label))
+        cls_cpu = time.process_time() - t2
+        write_segmentation(found, out / f"{tsv.stem}_segments.json")
+        if not results:  # one figure: the first recording's hand speed with the borders
+            _plot_segmentation(pre, found, read_segmentation(tsv.with_name(tsv.stem + "_manually_segmented.json"))
+                               if tsv.with_name(tsv.stem + "_manually_segmented.json").is_file() else None, out / f"{tsv.stem}_segments.png")
+        entry = {"name": tsv.stem, "segments": len(found), "throws": sum(s.label == "throw" for s in found),
+                 "segmentation_cpu_s": seg_cpu, "classification_cpu_s": cls_cpu, "duration_s": float(pre.time[-1] - pre.time[0])}
+        manual = tsv.with_name(tsv.stem + "_manually_segmented.json")
+        if manual.is_file():
+            truth = read_segmentation(manual)
+            true_b = manual_borders(truth, int(pre.frames[0]), int(pre.frames[-1]), pre.frequency)
+            pred_b = np.array([s.start_frame for s in found[1:]])
+            entry["border_f1_0.2s"] = score_borders(pred_b, true_b, pre.frequency, 0.2).f1
+            true_throws = [s for s in truth if s.label == "throw"]
+            hit = sum(any(abs(f.start_frame - t.start_frame) <= 0.2 * pre.frequency and f.label == "throw" for f in found) for t in true_throws)
+            entry["throws_demonstrated"] = len(true_throws)
+            entry["throws_found"] = hit
+        results.append(entry)
+    return {
+        "classifier_training_segments": n_train,
+        "classifier_training_s": train_s,
+        "method": method,
+        "recordings": results,
+        "throws": sum(r["throws"] for r in results),
+        "real_time_factor": sum(r["duration_s"] for r in results) / max(sum(r["segmentation_cpu_s"] for r in results), 1e-9),
+    }
+
+
+def _plot_segmentation(pre, found, manual, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    speed = np.linalg.norm(pre.hand_velocity_back, axis=1)
+    fig, ax = plt.subplots(figsize=(12, 3.5))
+    ax.plot(pre.time, speed, "k-", lw=0.8, label="hand speed")
+    t_of = dict(zip(pre.frames.tolist(), pre.time.tolist()))
+    colors = {"throw": "tab:red", "strike_out": "tab:orange", "swing_out": "tab:blue", "idle": "tab:grey"}
+    for seg in found:
+        t0, t1 = t_of.get(seg.start_frame), t_of.get(seg.end_frame)
+        if t0 is not None and t1 is not None:
+            ax.axvspan(t0, t1, color=colors.get(seg.label, "tab:green"), alpha=0.25, lw=0)
+            ax.axvline(t0, color="tab:red", lw=0.6)
+    for seg in manual or []:
+        t0 = t_of.get(seg.start_frame)
+        if t0 is not None:
+            ax.axvline(t0, color="k", ls=":", lw=0.8)
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("m/s")
+    ax.set_title("vMCI borders (red lines), 1-NN labels (shading: throw red, strike_out orange, swing_out blue, idle grey), manual borders (dotted)")
+    fig.tight_layout()
+    _save_figure(fig, path, dpi=80)
+    plt.close(fig)
+
+
+# --------------------------------------------------------------------------------------------
+# 3. imitation
+# --------------------------------------------------------------------------------------------
+def stage_imitate(ctx: Context, out: Path) -> dict[str, Any]:
+    """Embodiment mapping and DMP imitation of every throw found; simulated in the designed scenario."""
+    from besdrake.mocap.qualisys import read_recording
+    from besdrake.mocap.segments_io import read_segmentation
+    from besdrake.tasks.throwing.imitation import imitate_recording, prepare, reports_to_json
+    from besdrake.sim import Rollout
+
+    max_throws = ctx.config["imitation"]["max_throws"]
+    rollout = Rollout(ctx.config["scenario"])
+    throws_out = []
+    for seg_file in sorted((ctx.run.root / "02_segment").glob("*_segments.json")):
+        name = seg_file.name[: -len("_segments.json")]
+        pre = prepare(read_recording(ctx.run.root / "01_label" / f"{name}.tsv"))
+        throws = [(s.start_frame, s.end_frame) for s in read_segmentation(seg_file) if s.label == "throw"]
+        if max_throws is not None:
+            throws = throws[: max(0, int(max_throws) - len(throws_out))]
+        reports = imitate_recording(name, pre, throws, out_dir=out, mapping=ctx.mapping(), rollout=rollout)
+        throws_out += reports_to_json(reports)
+        if max_throws is not None and len(throws_out) >= int(max_throws):
+            break
+    target = np.asarray(ctx.config["refinement"]["target"], dtype=float)
+    for t in throws_out:
+        sim = t.get("simulation") or {}
+        td = sim.get("touchdown_m")
+        t["target_distance_m"] = float(np.linalg.norm(np.asarray(td) - target)) if td else None
+    write_json(out / "throws.json", throws_out)
+    cpu = [t["timings_s"]["total"] for t in throws_out if "timings_s" in t]
+    dists = [t["target_distance_m"] for t in throws_out if t["target_distance_m"] is not None]
+    return {
+        "throws": len(throws_out),
+        "executable": sum(bool(t["executable"]) for t in throws_out),
+        "median_time_per_throw_s": float(np.median(cpu)) if cpu else None,
+        "median_target_distance_m": float(np.median(dists)) if dists else None,
+        "min_target_distance_m": float(min(dists)) if dists else None,
+    }
+
+
+# --------------------------------------------------------------------------------------------
+# 4. refinement in simulation
+# --------------------------------------------------------------------------------------------
+def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int, tag: str, scouting: bool = True) -> dict[str, Any]:
+    """CMA-ES from the best of ``dmps`` (the paper uses all available plans) in ``scenario``. The default search's scouts
+    (short first attempts from the best throws) run only with ``scouting`` and where they take at most half of
+    ``budget``: a re-refinement from throws refined already goes straight to CMA-ES from the best of them."""
+    from besdrake.imitation import DMPParameterization
+    from besdrake.search.refinement import (DEFAULT_SCOUTS, RefinementProblem, plot_learning_curves, rank_starts, refine,
+                                            scout_start_points, scouting_episodes)
+    from besdrake.task import DEFAULT_TASK, get_task
+
+    cfg = ctx.config["refinement"]
+    task = str(ctx.config.get("task") or DEFAULT_TASK)
+    reward = get_task(task).reward(target=tuple(cfg["target"]))
+    robot = ctx.robot(scenario)
+    problems = [RefinementProblem(robot, d, reward, task=task) for d in dmps]
+    runs, results = [], []
+    with _executor(ctx, scenario) as executor:
+        ranking = rank_starts(problems, executor)
+        index, start = ranking[0]
+        problem = problems[index]
+        starts = scout_start_points(problems, ranking)  # None unless the default search scouts from several throws
+        scouts = DEFAULT_SCOUTS if scouting and 2 * scouting_episodes(int(cfg["population"])) <= int(budget) else 0
+        for k in range(int(cfg["plans"])):
+            ctx.progress(f"{tag}: CMA-ES run {k + 1}/{cfg['plans']} from throw {index} ({start.distance:.2f} m from the target)")
+            result = refine(problem, executor, n_episodes=int(budget), seed=int(cfg["seed"]) + k,
+                            out_dir=out / f"run{k}", popsize=int(cfg["population"]),
+                            stop_on_success=bool(cfg.get("stop_on_success", True)), starts=starts, scouts=scouts)
+            dmp = problem.parameterization.from_vector(result.best_theta)
+            dmp.save(out / f"refined{k}.dmp.json")
+            DMPParameterization(dmp, robot.joint_names).motion_plan(DMPParameterization(dmp).to_vector(), dt=0.01).save(out / f"refined{k}.plan.json")
+            runs.append(result.summary() | {"dmp": f"refined{k}.dmp.json"})
+            results.append(result)
+    plot_learning_curves(results, out / "learning_curve.png")
+    # The best run is judged by throws within every joint limit: a closer throw that breaks a limit is no plan.
+    best = min(runs, key=lambda r: r["best_distance_within_limits_m"] if r["best_distance_within_limits_m"] is not None else np.inf)
+    return {
+        "start_throw": int(index),
+        "start_distance_m": start.distance,
+        "runs": runs,
+        "success_runs": sum(bool(r["success"]) for r in runs),
+        "median_episodes_to_success": float(np.median([r["episodes_to_success"] for r in runs if r["episodes_to_success"]])) if any(r["episodes_to_success"] for r in runs) else None,
+        "best_distance_within_limits_m": best["best_distance_within_limits_m"],
+        "best_dmp": best["dmp"],
+    }
+
+
+def stage_refine(ctx: Context, out: Path) -> dict[str, Any]:
+    from besdrake.imitation import load_dmp
+
+    files = sorted((ctx.run.root / "03_imitate").glob("*.dmp.json"))
+    if not files:
+        raise RuntimeError("no imitated throw to refine (the imitation stage produced no plan)")
+    dmps = [load_dmp(f) for f in files]
+    return _refine_from(ctx, dmps, ctx.config["scenario"], out, int(ctx.config["refinement"]["evaluations"]), "refine")
+
+
+# --------------------------------------------------------------------------------------------
+# 5. and 7. the Transferability Approach
+# --------------------------------------------------------------------------------------------
+def _lab(ctx: Context):
+    from besdrake.transfer.lab import SafetyGate
+    from besdrake.transfer.lab_config import open_lab, resolve_lab_path
+
+    if "lab" not in ctx.cache:
+        ctx.run.record_inputs({"lab": resolve_lab_path(ctx.config["lab"])})
+        ctx.cache["lab"] = SafetyGate(open_lab(ctx.config["lab"]))
+    return ctx.cache["lab"]
+
+
+def _open_log(folder: Path, lab):
+    from besdrake.transfer.log import LabLog
+
+    return LabLog.open(folder) if (folder / "log.json").is_file() else LabLog.create(folder, lab.description())
+
+
+def transfer_config(config: dict[str, Any]):
+    """The Transferability Approach's settings of a learn configuration (checked before any stage runs);
+    :class:`~besdrake.pipeline.config.ConfigError` names a bad value."""
+    from besdrake.pipeline.config import ConfigError
+    from besdrake.transfer.transferability import PLACEMENT_SD, TransferabilityConfig
+
+    cfg = config["transfer"]
+    try:
+        return TransferabilityConfig(
+            target=tuple(config["refinement"]["target"]), population=int(cfg["population"]),
+            max_transfers=int(cfg["max_transfers"]), final_repetitions=int(cfg["final_repetitions"]),
+            transfer_choice=str(cfg.get("transfer_choice", "likely")), placement_sd=float(cfg.get("placement_sd", PLACEMENT_SD)),
+        )
+    except (TypeError, ValueError) as err:
+        raise ConfigError(f"transfer: {err}") from None
+
+
+def diagnosis_design(config: dict[str, Any], limits=None) -> list:
+    """The diagnosis experiment's plans of a learn configuration (checked before any stage runs): ``throws`` plans
+    with ``repeats``, ``probes`` tilt probes and ``sideways`` sideways throws (joints 1, 4 and 6 moved, within the
+    robot's joint ``limits``; default: those of :func:`learn_scenario`'s robot). :class:`~besdrake.pipeline.config.ConfigError`
+    names a bad value."""
+    from besdrake.diagnosis import diagnosis_plans
+    from besdrake.pipeline.config import ConfigError
+
+    cfg = config["diagnosis"]
+    try:
+        sideways = int(cfg.get("sideways", 0))
+        if sideways and limits is None:
+            limits = learn_scenario(config).robot.limits
+        return diagnosis_plans(n=int(cfg["throws"]), repeats=int(cfg["repeats"]), seed=int(config["transfer"]["seed"]), probes=int(cfg.get("probes", 0)),
+                               sideways=sideways, limits=limits)
+    except (TypeError, ValueError) as err:
+        if isinstance(err, ConfigError):
+            raise
+        raise ConfigError(f"diagnosis: {err}") from None
+
+
+def _transfer(ctx: Context, seed_files: list[Path], scenario: str, out: Path) -> dict[str, Any]:
+    from besdrake.imitation import DMPParameterization, load_dmp
+    from besdrake.search.refinement import ParameterScaling
+    from besdrake.transfer.transferability import TransferabilityApproach
+
+    cfg = ctx.config["transfer"]
+    dmps = [load_dmp(f) for f in seed_files]
+    robot = ctx.robot(scenario)
+    param = DMPParameterization(dmps[0], robot.joint_names)
+    scaling = ParameterScaling.for_dmp(dmps[0], robot.position_limits)
+    lab = _lab(ctx)
+    log = _open_log(out / "lab_log", lab)
+    config = transfer_config(ctx.config)
+    with _executor(ctx, scenario) as executor:
+        search = TransferabilityApproach(
+            lambda theta: param.motion_plan(theta, dt=0.01), np.array([param.to_vector(d) for d in dmps]),
+            scaling.scale, scaling.bounds, executor, lab, np.random.default_rng(int(cfg["seed"])), config,
+            log=log, out_dir=out, progress=ctx.progress,
+        )
+        result = search.run()
+    summary = result.summary() | {"scenario": scenario}
+    if result.best_theta is not None:
+        best = param.from_vector(result.best_theta)
+        best.save(out / "best.dmp.json")
+        param.motion_plan(result.best_theta, dt=0.01).save(out / "best.plan.json")
+    write_json(out / "transfers.json", [t.__dict__ for t in result.transfers])
+    return summary
+
+
+def stage_transfer(ctx: Context, out: Path) -> dict[str, Any]:
+    refine_dir = ctx.run.root / "04_refine"
+    return _transfer(ctx, sorted(refine_dir.glob("refined*.dmp.json")), ctx.config["scenario"], out)
+
+
+# --------------------------------------------------------------------------------------------
+# 6. diagnosis
+# --------------------------------------------------------------------------------------------
+def stage_diagnose(ctx: Context, out: Path) -> dict[str, Any]:
+    """Run the diagnosis experiment in the lab, diagnose its log, write the refined scenario."""
+    from besdrake.diagnosis import diagnose
+    from besdrake.diagnosis.report import write_report
+    from besdrake.transfer.log import run_plans
+
+    lab = _lab(ctx)
+    log = _open_log(out / "lab_log", lab)
+    cfg = ctx.config["diagnosis"]
+    plans = diagnosis_design(ctx.config, limits=ctx.robot().limits)
+    run_plans(lab, plans, log)
+    t0 = time.perf_counter()
+    with _executor(ctx, ctx.config["scenario"]) as executor:
+        diag = diagnose(log.measurements(), scenario=ctx.config["scenario"], pairs=bool(cfg["pairs"]), executor=executor)
+    seconds = time.perf_counter() - t0
+    paths = write_report(diag, out / "report")
+    summary = diag.summary()
+    rel = {k: (None if paths[k] is None else str(Path(paths[k]).relative_to(ctx.run.root))) for k in ("scenario", "report")}
+    return summary | {"diagnosis_s": seconds, "lab_trials": len(log), "refined_scenario": rel["scenario"], "report": rel["report"]}
+
+
+def _refined_scenario(ctx: Context) -> str:
+    """The diagnosis's refined scenario (stored relative to the run folder, so a copied or moved run folder
+    resumes with its own file), or the configured scenario."""
+    done = ctx.run.done(6, "diagnose")
+    if not ctx.config["diagnosis"]["enabled"] or done is None or not done["summary"].get("refined_scenario"):
+        return ctx.config["scenario"]
+    path = Path(done["summary"]["refined_scenario"])
+    return str(path if path.is_absolute() else ctx.run.root / path)
+
+
+def stage_transfer_refined(ctx: Context, out: Path) -> dict[str, Any]:
+    """Re-refine the throws in the refined simulation, then the Transferability Approach again."""
+    from besdrake.imitation import load_dmp
+
+    scenario = _refined_scenario(ctx)
+    seeds = [load_dmp(f) for f in sorted((ctx.run.root / "04_refine").glob("refined*.dmp.json"))]
+    budget = max(int(ctx.config["refinement"]["evaluations"]) // 2, 20)
+    refined = _refine_from(ctx, seeds, scenario, out / "refine", budget, "re-refine", scouting=False)
+    summary = _transfer(ctx, sorted((out / "refine").glob("refined*.dmp.json")), scenario, out)
+    return summary | {"re_refinement": refined}
+
+
+# --------------------------------------------------------------------------------------------
+# 8. behaviour template, 9. pool
+# --------------------------------------------------------------------------------------------
+def _best_throw(ctx: Context) -> Path:
+    for candidate in (ctx.run.root / "07_transfer_refined" / "best.dmp.json", ctx.run.root / "05_transfer" / "best.dmp.json"):
+        if candidate.is_file():
+            return candidate
+    return ctx.run.root / "04_refine" / ctx.run.done(4, "refine")["summary"]["best_dmp"]
+
+
+def stage_template(ctx: Context, out: Path) -> dict[str, Any]:
+    """BO-CPS over (execution time, joint-1 goal) in the refined simulation; tested in simulation and in the lab."""
+    from besdrake.imitation import load_dmp
+    from besdrake.search.templates import TEST_CONTEXTS, evaluate_template, train_template
+
+    cfg = ctx.config["templates"]
+    method = {"entropy_search": "es", "ucb": "ucb"}.get(cfg["acquisition"], cfg["acquisition"])
+    base_file = _best_throw(ctx)
+    scenario = _refined_scenario(ctx)
+    with _executor(ctx, scenario) as executor:
+        training = train_template(
+            load_dmp(base_file), executor, method=method, n_episodes=int(cfg["episodes"]), seed=int(cfg["seed"]),
+            name="throw", out_dir=out / "training",
+            provenance={"base": str(base_file), "scenario": scenario, "lab": ctx.config["lab"], "demonstrations": ctx.config["demonstrations"]},
+        )
+        sim_eval = evaluate_template(training.template, executor)
+    training.template.save(out)
+    lab = _lab(ctx)
+    log = _open_log(out / "lab_log", lab)
+    from besdrake.transfer.log import run_plans
+
+    run_plans(lab, [training.template.instantiate(s) for s in TEST_CONTEXTS], log)
+    lab_td = np.array([m.touchdown if m.touchdown is not None else [np.nan, np.nan] for m in log.measurements()])
+    lab_dist = np.linalg.norm(lab_td - TEST_CONTEXTS, axis=1)
+    _plot_template(TEST_CONTEXTS, sim_eval.touchdowns, lab_td, out / "template_accuracy.png")
+    return {
+        "method": method,
+        "episodes": int(cfg["episodes"]),
+        "base": str(base_file),
+        "scenario": scenario,
+        "sim_mean_distance_m": float(sim_eval.mean_distance),
+        "lab_mean_distance_m": float(np.nanmean(lab_dist)),
+        "lab_not_measured": int(np.isnan(lab_dist).sum()),
+        "training_wall_time_s": training.wall_time,
+    }
+
+
+def _plot_template(contexts: np.ndarray, sim_td: np.ndarray, lab_td: np.ndarray, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 6))
+    ax.plot(contexts[:, 1], contexts[:, 0], "k+", ms=12, label="test targets")
+    ax.plot(sim_td[:, 1], sim_td[:, 0], "o", mfc="none", label="simulation (refined)")
+    ax.plot(lab_td[:, 1], lab_td[:, 0], "x", label="lab")
+    for c, t in zip(contexts, lab_td):
+        ax.plot([c[1], t[1]], [c[0], t[0]], "-", lw=0.5, color="grey")
+    ax.set_xlabel("y (lateral, m)")
+    ax.set_ylabel("x (forward, m)")
+    ax.set_aspect("equal")
+    ax.legend(fontsize=8)
+    ax.set_title("behaviour template on the 16 test contexts")
+    fig.tight_layout()
+    _save_figure(fig, path, dpi=90)
+    plt.close(fig)
+
+
+def stage_pool(ctx: Context, out: Path) -> dict[str, Any]:
+    from besdrake.search.templates import BehaviorTemplate, TemplatePool
+
+    template = BehaviorTemplate.load(next((ctx.run.root / "08_template").glob("*.template.json")))
+    pool = TemplatePool(out)
+    pool.add(template, overwrite=True)
+    return {"pool": str(out), "templates": pool.names(), "instantiate": f"besdrake template instantiate --pool {out} --name {template.name} --context X Y"}
+
+
+# --------------------------------------------------------------------------------------------
+# 10. report
+# --------------------------------------------------------------------------------------------
+def stage_report(ctx: Context, out: Path) -> dict[str, Any]:
+    """report.md: the paper's Table 1 with this run's times, every stage's figures, replays."""
+    from besdrake.plan import MotionPlan
+    from besdrake.sim.record import record_html
+
+    root = ctx.run.root
+    done = {name: ctx.run.done(i, name) for i, (name, _) in enumerate(STAGES[:-1], 1)}
+    n_exp = max(1, len(done["label"]["summary"]["recordings"])) if done.get("label") else 1
+    replays = []
+    for stage, folder in (("transfer_refined", "07_transfer_refined"), ("transfer", "05_transfer")):
+        plan_file = root / folder / "best.plan.json"
+        if plan_file.is_file():
+            scenario = _refined_scenario(ctx) if stage == "transfer_refined" else ctx.config["scenario"]
+            html, _ = record_html(MotionPlan.load(plan_file), out / f"best_throw_{stage}.html", scenario=scenario, limits="flag", host=ctx.meshcat_host)
+            replays.append(html.name)
+    lines = [
+        "# besdrake learn: report",
+        "",
+        f"Run folder `{root}`; configuration in `config.yaml`. Times are wall-clock on this machine; the paper's are per "
+        f"experiment of 8 throws (this run: {n_exp} experiment(s)).",
+        "",
+        "## Table 1: each stage, its time, whether it ran without a person, what it needed",
+        "",
+        "| stage | this run | per experiment | paper (per experiment) | automated | required knowledge |",
+        "|---|---|---|---|---|---|",
+    ]
+    per_experiment = {"label", "segment", "imitate"}
+    for name, _ in STAGES[:-1]:
+        rec = done.get(name)
+        title, paper_s, automated, knowledge = PAPER_TABLE_1[name]
+        seconds = rec["seconds"] if rec else None
+        per = _fmt_time(seconds / n_exp) if (rec and name in per_experiment) else "-"
+        lines.append(f"| {title} | {_fmt_time(seconds) if rec else 'not run'} | {per} | {_fmt_time(paper_s)} | {automated} | {knowledge} |")
+    lines += ["", "Manual steps of the paper that a virtual lab needs no person for: attaching markers (0:55 min), motion capture "
+              "(1:08 min), manual marker labeling (9:19 min), labelling the classifier's training set (50 min, done once).", ""]
+    sections = {
+        "label": ("Automatic marker labeling", "01_label"),
+        "segment": ("Segmentation and classification", "02_segment"),
+        "imitate": ("Imitation (embodiment mapping, DMP)", "03_imitate"),
+        "refine": ("Policy search in simulation", "04_refine"),
+        "transfer": ("Transferability Approach, designed simulation", "05_transfer"),
+        "diagnose": ("Diagnosis: what the simulation gets wrong", "06_diagnose"),
+        "transfer_refined": ("Transferability Approach, refined simulation", "07_transfer_refined"),
+        "template": ("Behaviour template", "08_template"),
+        "pool": ("Template pool", "09_pool"),
+    }
+    for name, (title, folder) in sections.items():
+        rec = done.get(name)
+        lines += [f"## {title}", ""]
+        if rec is None:
+            lines += ["Not run.", ""]
+            continue
+        summary = {k: v for k, v in rec["summary"].items() if not isinstance(v, (list, dict)) or k in ("gain",)}
+        lines += ["| key | value |", "|---|---|"] + [f"| {k} | {_short(v)} |" for k, v in summary.items()] + [""]
+        for png in sorted((root / folder).glob("*.png"))[:2] + sorted((root / folder).glob("*/*.png"))[:3]:
+            lines.append(f"![{png.stem}]({png.relative_to(root).as_posix()})")
+        lines.append("")
+    if replays:
+        lines += ["## Replays", ""] + [f"- [{r}](10_report/{r}) (meshcat, self-contained HTML)" for r in replays] + [""]
+    _atomic_write_text(root / "report.md", "\n".join(lines))
+    return {"report": str(root / "report.md"), "replays": replays}
+
+
+def _short(value: Any) -> str:
+    if isinstance(value, float):
+        return f"{value:.4g}"
+    if isinstance(value, dict):
+        return ", ".join(f"{k}: {_short(v)}" for k, v in value.items())
+    return str(value)
+
+
+STAGES: list[tuple[str, Callable[[Context, Path], dict[str, Any]]]] = [
+    ("label", stage_label),
+    ("segment", stage_segment),
+    ("imitate", stage_imitate),
+    ("refine", stage_refine),
+    ("transfer", stage_transfer),
+    ("diagnose", stage_diagnose),
+    ("transfer_refined", stage_transfer_refined),
+    ("template", stage_template),
+    ("pool", stage_pool),
+    ("report", stage_report),
+]
