@@ -51,7 +51,7 @@ def test_identical_causes_need_every_differing_parameter_in_a_shared_class():
 
 
 def test_the_plan_sample_moves_every_joint_within_the_gate():
-    from besdrake.diagnosis.design import plan_limits_exceeded
+    from besdrake.tasks.throwing.diagnosis.design import plan_limits_exceeded
 
     plans = idf.sample_plans(COMPI.limits)
     assert len(plans) >= 8 and not any(plan_limits_exceeded(p, COMPI.limits) for p in plans)
@@ -71,7 +71,7 @@ def test_results_are_cached_as_json(tmp_path, monkeypatch):
         return keys, J
 
     monkeypatch.setattr(idf, "scaled_sensitivities", fake)
-    monkeypatch.setattr(idf, "sample_plans", lambda limits: [])
+    monkeypatch.setattr(idf, "sample_plans", lambda limits, model=None: [])
     r1 = idf.structural_classes(["air_drag"], executor=object())
     r2 = idf.structural_classes(["air_drag"], executor=object())
     assert len(calls) == 1 and r1.to_dict() == r2.to_dict()
@@ -108,7 +108,7 @@ def test_a_hidden_joint1_offset_is_stated_as_structurally_identical_to_a_base_ya
 
 def test_sideways_design_moves_joints_1_4_and_6_within_the_gate_and_keeps_the_planar_draws():
     from besdrake.diagnosis import diagnosis_plans
-    from besdrake.diagnosis.design import plan_limits_exceeded
+    from besdrake.tasks.throwing.diagnosis.design import plan_limits_exceeded
 
     for seed in range(4):
         plans = diagnosis_plans(25, 8, seed=seed, probes=2, sideways=5, limits=COMPI.limits)

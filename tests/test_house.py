@@ -21,12 +21,7 @@ STAGES = ("mocap", "segmentation", "imitation", "embodiment", "sim", "search", "
 KNOWN_TASK_IMPORTS = {"sim/outcome.py", "sim/throws.py", "search/refinement/__init__.py"}
 #: Stage files that still name the throwing task's objects (issue 23: to become task-neutral).
 NOT_YET_TASK_NEUTRAL = {
-    "diagnosis/core.py", "diagnosis/design.py",
-    # core.py split into modules with one job each (issue 25): the same code, still about throws
-    "diagnosis/advice.py", "diagnosis/allowed.py", "diagnosis/heldout.py", "diagnosis/identifiability.py",
-    "diagnosis/replay.py", "diagnosis/residual.py", "diagnosis/results.py", "diagnosis/selection.py",
-    "diagnosis/settings.py", "diagnosis/simulate.py", "diagnosis/stats.py", "diagnosis/verdict.py", "diagnosis/fitting.py", "diagnosis/noise.py", "diagnosis/observables.py",
-    "diagnosis/report.py", "embodiment/__init__.py", "embodiment/mapping.py",
+    "embodiment/__init__.py", "embodiment/mapping.py",
     "embodiment/record_mapping.py", "embodiment/scaling.py", "embodiment/sync_frame.py", "imitation/__init__.py",
     "imitation/policy.py", "mocap/__init__.py", "mocap/arm_model.py", "mocap/synthetic.py", "pipeline/config.py",
     "pipeline/default_learn.yaml", "pipeline/imitation.py", "pipeline/learn.py",

@@ -62,6 +62,13 @@ class ThrowingTask(Task):
         cfg = parse_lab_config(config) if isinstance(config, dict) else load_lab_config(config)
         return VirtualLab(cfg if seed is None else cfg.with_seed(seed))
 
+    def diagnosis_model(self):
+        """:class:`~besdrake.tasks.throwing.diagnosis.model.ThrowDiagnosis`: touchdown, ball flight and rest, joint
+        tracking; diagnosis throws with repeats, sideways throws and tilt probes; the ball's placement scatter."""
+        from besdrake.tasks.throwing.diagnosis.model import MODEL
+
+        return MODEL
+
     def check_robot(self, robot) -> None:
         """Throwing needs a scoop: a fixed end effector with the scoop's geometry in its params."""
         from besdrake.tasks.throwing.scoop import Scoop
