@@ -16,6 +16,7 @@ from besdrake.diagnosis import identifiability as idf
 
 
 from besdrake.robot import load_robot
+from besdrake.tasks.throwing.diagnosis.model import MODEL
 
 COMPI = load_robot("compi")
 
@@ -65,7 +66,7 @@ def test_results_are_cached_as_json(tmp_path, monkeypatch):
     monkeypatch.setenv("BESDRAKE_CACHE", str(tmp_path))
     calls = []
 
-    def fake(ex, effects, plans):
+    def fake(ex, effects, plans, model=None):
         calls.append(1)
         keys, J = _toy()
         return keys, J
@@ -151,7 +152,7 @@ def test_a_named_cause_with_a_structural_twin_says_so_without_a_rival():
     none.effects, none.p_value = (), 0.0
     fit = SimpleNamespace(name="joint_offset", refined=True, effects=("joint_offset",))
     nfit = SimpleNamespace(name="none", refined=True, effects=())
-    ev = SimpleNamespace(measured_groups=["touchdown", "joints"])
+    ev = SimpleNamespace(measured_groups=["touchdown", "joints"], model=MODEL)
     v = verdict.judge(None, None, [fit, nfit], [best, none], ev, ["base_offset", "joint_offset"], ident)
     assert v.text.startswith("explained by joint_offset") and "structurally identical" in v.text and v.confidence == "high"
     v = verdict.judge(None, None, [fit, nfit], [best, none], ev, ["joint_offset"], ident)  # the twin is no candidate
