@@ -214,16 +214,11 @@ def default_model() -> TrialModel:
 
 
 def model_for(scenario) -> TrialModel:
-    """The diagnosis model of ``scenario``'s task; :class:`ValueError` when the task has none."""
-    from besdrake.task import get_task
+    """The diagnosis model of ``scenario``'s task (a :class:`~besdrake.task.TaskError`, a ValueError, when the task
+    has none)."""
+    from besdrake.task import DEFAULT_TASK, get_task
 
-    return get_task(getattr(scenario, "task", None) or _default_task()).diagnosis_model()
-
-
-def _default_task() -> str:
-    from besdrake.task import DEFAULT_TASK
-
-    return DEFAULT_TASK
+    return get_task(getattr(scenario, "task", None) or DEFAULT_TASK).diagnosis_model()
 
 
 __all__ = ["Observable", "SignalNoise", "PlacementScatter", "TrialModel", "default_model", "model_for"]
