@@ -127,6 +127,12 @@ class Task(ABC):
 
         return [None], np.ones(1)
 
+    def diagnosis_model(self) -> Any:
+        """The task's trials as the diagnosis reads them (:class:`~besdrake.diagnosis.trials.TrialModel`: the observables
+        of a trial, how a measurement and a simulated outcome are read alike, the designed diagnosis experiments), what
+        ``besdrake diagnose`` needs; :class:`TaskError` when the task has none."""
+        raise TaskError(f"the task {self.name!r} has no diagnosis (Task.diagnosis_model)")
+
     def check_robot(self, robot) -> None:
         """Raise :class:`~besdrake.robot.RobotError` when ``robot`` lacks what the task needs (e.g. a scoop)."""
 

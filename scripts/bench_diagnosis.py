@@ -241,7 +241,7 @@ def _signature(hidden: dict, lab_seed: int, ms, plans, truth_roll) -> np.ndarray
     """How far the hidden effect moves the logged signals, without noise: features (N, F) of the same plans in two
     noise-free labs with the same seed (so the same per-trial ball placement draws), the effect on minus off, read
     at the windows the diagnosis uses (layout from the logged trial and the nominal rollout). NaN where not logged."""
-    from besdrake.diagnosis import observables
+    from besdrake.tasks.throwing.diagnosis import observables
     from besdrake.tasks.throwing.lab import VirtualLab
 
     quiet = {"touchdown_sd": 0.0, "mocap_noise_sd": 0.0, "mocap_dropout": 0.0, "encoder_noise_sd": 0.0}
@@ -263,7 +263,7 @@ def _expected_signature(hidden: dict, ms, plans, truth_roll, sd: float, n_draws:
     off), noise-free, read at the diagnosis' windows. The per-throw placement is unknown to any diagnosis, so only
     this part of :func:`_signature` can show in a fit (a placement habit moves single throws a lot through the
     funnel's kink, their mean much less)."""
-    from besdrake.diagnosis import observables
+    from besdrake.tasks.throwing.diagnosis import observables
     from besdrake.sim.effects import get_effect
 
     b = get_effect("ball_placement").params
@@ -292,7 +292,7 @@ def _signature_size(sig: np.ndarray, d, k: int) -> dict:
     nominal simulation to be named (INDISTINGUISHABLE_DBIC + k ln n, n the fitted residual entries); >= 1:
     detectable with this log in principle. Also per group."""
     from besdrake.diagnosis.core import INDISTINGUISHABLE_DBIC
-    from besdrake.diagnosis.observables import group_slices
+    from besdrake.tasks.throwing.diagnosis.observables import group_slices
 
     # The diagnosis' own SD per throw and feature (placement scatter per throw); its group SDs when some trials
     # were not used (the rows would not line up).
@@ -313,12 +313,12 @@ def _fresh_residual_check(d, fresh_ms: list, ex, cache: dict, dkw: dict) -> dict
     """The residual model on throws no part of the diagnosis saw: ``fresh_ms``, new plans thrown in the same lab (fresh
     noise and placements), replayed as the diagnosis replays a log, their touchdown disparity to the refined model before and
     after adding the residual model's prediction (median over the throws, m). None when no model was fitted."""
-    from besdrake.diagnosis.observables import group_slices
+    from besdrake.tasks.throwing.diagnosis.observables import group_slices
     from besdrake.diagnosis.replay import replay
     from besdrake.diagnosis.residual import behaviour_features
     from besdrake.diagnosis.residual_model import ResidualModel
-    from besdrake.diagnosis.settings import PLACEMENT_SD
-    from besdrake.diagnosis import observables
+    from besdrake.tasks.throwing.diagnosis.model import PLACEMENT_SD
+    from besdrake.tasks.throwing.diagnosis import observables
     from besdrake.transfer.measurement import plan_hash
 
     fit = (d.residual or {}).get("model", {}).get("fit")
@@ -511,7 +511,7 @@ def main(argv=None) -> int:
         return 0
 
     from besdrake.diagnosis import diagnose, diagnosis_plans
-    from besdrake.diagnosis.design import DEFAULT_PROBES, DEFAULT_SIDEWAYS
+    from besdrake.tasks.throwing.diagnosis.design import DEFAULT_PROBES, DEFAULT_SIDEWAYS
     from besdrake.sim import Rollout
     from besdrake.sim.scenario import load_scenario
     from besdrake.sim.effects import list_effects

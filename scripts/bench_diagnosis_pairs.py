@@ -35,7 +35,7 @@ def main(argv: list[str] | None = None) -> int:
     import bench_diagnosis as single
 
     from besdrake.diagnosis import diagnose, diagnosis_plans, settings
-    from besdrake.diagnosis.design import DEFAULT_PROBES
+    from besdrake.tasks.throwing.diagnosis.design import DEFAULT_PROBES
     from besdrake.sim.effects import list_effects
     from besdrake.sim.executors import make_executor
     from besdrake.tasks.throwing.lab import VirtualLab

@@ -55,7 +55,7 @@ def _log(msg: str) -> None:
 def refined_scenario(out: Path, lab_path: str, throws: int = 25, repeats: int = 8, seed: int = 0) -> dict[str, Any]:
     """Step 1: diagnosis plans in the default lab, diagnosis, refined scenario; cached in ``out/diagnosis``."""
     from besdrake.diagnosis import diagnose, diagnosis_plans
-    from besdrake.diagnosis.design import DEFAULT_PROBES
+    from besdrake.tasks.throwing.diagnosis.design import DEFAULT_PROBES
     from besdrake.diagnosis.report import write_report
     from besdrake.sim import make_executor
     from besdrake.transfer.lab import SafetyGate

@@ -9,7 +9,7 @@ import pytest
 
 from besdrake.diagnosis.core import INDISTINGUISHABLE_DBIC
 from besdrake.diagnosis.design import diagnosis_plans
-from besdrake.diagnosis.observables import N_FEATURES, group_slices
+from besdrake.tasks.throwing.diagnosis.observables import N_FEATURES, group_slices
 
 def test_signature_is_the_effect_on_minus_off_without_noise(script):
     from besdrake.sim import Rollout

@@ -14,7 +14,7 @@ import pytest
 
 from besdrake.cli import main
 from besdrake.diagnosis import diagnose, diagnosis_plans
-from besdrake.diagnosis.design import DEFAULT_PROBES
+from besdrake.tasks.throwing.diagnosis.design import DEFAULT_PROBES
 from besdrake.sim.effects import Effect, Param, register_effect, unregister_effect
 from besdrake.sim.scenario import load_scenario
 from besdrake.transfer.log import LabLog, read_log
@@ -248,7 +248,7 @@ def test_a_slippery_scoop_is_named_from_a_log_with_tilt_probes():
 def test_a_tilted_scoop_mount_is_named_from_a_full_log():
     """The paper's "ball-release angle": the scoop sits on the flange tilted by 0.04 rad about its x axis. The full
     registry with pairs, a full log with sideways throws: the cause named is the scoop mount with its roll."""
-    from besdrake.diagnosis.design import DEFAULT_SIDEWAYS
+    from besdrake.tasks.throwing.diagnosis.design import DEFAULT_SIDEWAYS
 
     lab = VirtualLab({"name": "test_lab", "effects": {"scoop_mount": {"roll": 0.04}}, "seed": 11})
     ms = [lab.execute(p) for p in diagnosis_plans(25, 8, seed=11, probes=DEFAULT_PROBES, sideways=DEFAULT_SIDEWAYS)]

@@ -16,6 +16,7 @@ from besdrake.diagnosis import identifiability as idf
 
 
 from besdrake.robot import load_robot
+from besdrake.tasks.throwing.diagnosis.model import MODEL
 
 COMPI = load_robot("compi")
 
@@ -51,7 +52,7 @@ def test_identical_causes_need_every_differing_parameter_in_a_shared_class():
 
 
 def test_the_plan_sample_moves_every_joint_within_the_gate():
-    from besdrake.diagnosis.design import plan_limits_exceeded
+    from besdrake.tasks.throwing.diagnosis.design import plan_limits_exceeded
 
     plans = idf.sample_plans(COMPI.limits)
     assert len(plans) >= 8 and not any(plan_limits_exceeded(p, COMPI.limits) for p in plans)
@@ -65,13 +66,13 @@ def test_results_are_cached_as_json(tmp_path, monkeypatch):
     monkeypatch.setenv("BESDRAKE_CACHE", str(tmp_path))
     calls = []
 
-    def fake(ex, effects, plans):
+    def fake(ex, effects, plans, model=None):
         calls.append(1)
         keys, J = _toy()
         return keys, J
 
     monkeypatch.setattr(idf, "scaled_sensitivities", fake)
-    monkeypatch.setattr(idf, "sample_plans", lambda limits: [])
+    monkeypatch.setattr(idf, "sample_plans", lambda limits, model=None: [])
     r1 = idf.structural_classes(["air_drag"], executor=object())
     r2 = idf.structural_classes(["air_drag"], executor=object())
     assert len(calls) == 1 and r1.to_dict() == r2.to_dict()
@@ -108,7 +109,7 @@ def test_a_hidden_joint1_offset_is_stated_as_structurally_identical_to_a_base_ya
 
 def test_sideways_design_moves_joints_1_4_and_6_within_the_gate_and_keeps_the_planar_draws():
     from besdrake.diagnosis import diagnosis_plans
-    from besdrake.diagnosis.design import plan_limits_exceeded
+    from besdrake.tasks.throwing.diagnosis.design import plan_limits_exceeded
 
     for seed in range(4):
         plans = diagnosis_plans(25, 8, seed=seed, probes=2, sideways=5, limits=COMPI.limits)
@@ -151,7 +152,7 @@ def test_a_named_cause_with_a_structural_twin_says_so_without_a_rival():
     none.effects, none.p_value = (), 0.0
     fit = SimpleNamespace(name="joint_offset", refined=True, effects=("joint_offset",))
     nfit = SimpleNamespace(name="none", refined=True, effects=())
-    ev = SimpleNamespace(measured_groups=["touchdown", "joints"])
+    ev = SimpleNamespace(measured_groups=["touchdown", "joints"], model=MODEL)
     v = verdict.judge(None, None, [fit, nfit], [best, none], ev, ["base_offset", "joint_offset"], ident)
     assert v.text.startswith("explained by joint_offset") and "structurally identical" in v.text and v.confidence == "high"
     v = verdict.judge(None, None, [fit, nfit], [best, none], ev, ["joint_offset"], ident)  # the twin is no candidate

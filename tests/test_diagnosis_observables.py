@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from besdrake.diagnosis import observables
+from besdrake.tasks.throwing.diagnosis import observables
 from besdrake.sim import Rollout
 from besdrake.tasks.throwing.throws import default_throw
 from besdrake.tasks.throwing.lab import VirtualLab
@@ -45,9 +45,7 @@ def test_a_log_without_the_ball_path_has_no_rest_position():
 
 
 def test_marker_noise_of_the_rest_position_shrinks_with_its_samples():
-    from besdrake.diagnosis import noise
-
     t = np.linspace(0.5, 0.8, 40)
-    sd = noise.ball_fit_sd([t, t], [0.65, 0.65], 0.001, [np.arange(7) * 0.005, np.arange(7) * 0.005])
+    sd = observables.ball_fit_sd([t, t], [0.65, 0.65], 0.001, [np.arange(7) * 0.005, np.arange(7) * 0.005])
     assert abs(sd["ball_rest"] - 0.001 / np.sqrt(7)) < 1e-12
-    assert sd["ball_pos"] > 0 and "ball_rest" not in noise.ball_fit_sd([t], [0.65], 0.001)
+    assert sd["ball_pos"] > 0 and "ball_rest" not in observables.ball_fit_sd([t], [0.65], 0.001)

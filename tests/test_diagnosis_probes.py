@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from besdrake.diagnosis.design import PROBES, tilt_probe
+from besdrake.tasks.throwing.diagnosis.design import PROBES, tilt_probe
 from besdrake.sim import Rollout
 from besdrake.tasks.throwing.throws import default_throw
 

@@ -6,8 +6,10 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from besdrake.diagnosis import fitting, observables
-from besdrake.diagnosis.observables import group_slices
+from besdrake.diagnosis import fitting
+from besdrake.tasks.throwing.diagnosis import observables
+from besdrake.tasks.throwing.diagnosis.model import MODEL
+from besdrake.tasks.throwing.diagnosis.observables import group_slices
 from besdrake.diagnosis.residual import LABEL, residual_report
 from besdrake.tasks.throwing.throws import default_throw
 
@@ -28,7 +30,7 @@ def _fake_log(n: int = 24, seed: int = 0, slope: float = 0.3):
     plans = [default_throw(amplitude=0.25 + 0.01 * i) for i in range(n)]
     sim = SimpleNamespace(full_cache={"{}": y0}, key=lambda e: "{}")
     ev = SimpleNamespace(used=[SimpleNamespace(trial=i) for i in range(n)], plans=plans, keys=[f"p{i}" for i in range(n)], sim=sim,
-                         y0=y0, y_meas=y_meas, measured_groups=["touchdown", "ball_vel"])
+                         y0=y0, y_meas=y_meas, measured_groups=["touchdown", "ball_vel"], model=MODEL)
     sd = np.full((n, F), np.nan)
     sd[:, sl["touchdown"]] = 0.02
     sd[:, sl["ball_vel"]] = 1e-3

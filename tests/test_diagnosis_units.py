@@ -5,9 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from besdrake.diagnosis import fitting, noise, observables
+from besdrake.diagnosis import fitting, noise
+from besdrake.tasks.throwing.diagnosis import observables
+from besdrake.tasks.throwing.diagnosis.model import MODEL
 from besdrake.diagnosis.design import diagnosis_plans
-from besdrake.diagnosis.observables import N_FEATURES, group_slices
+from besdrake.tasks.throwing.diagnosis.observables import N_FEATURES, group_slices
 
 
 from besdrake.robot import load_robot
@@ -42,8 +44,8 @@ def test_pure_error_from_repeated_plans_matches_the_noise():
     assert dof == n_plans * (reps - 1) * 2
     assert abs(est - sd) < 0.15 * sd
     # No repeats: the touchdown noise is the paper's prior and says so.
-    nm = noise.estimate_noise(feats[::reps], keys[::reps], None, None)
-    assert nm.sd["touchdown"] == noise.PRIOR_TOUCHDOWN_SD and nm.dof["touchdown"] == 0
+    nm = noise.estimate_noise(feats[::reps], keys[::reps])
+    assert nm.sd["touchdown"] == MODEL.prior_outcome_sd and nm.dof["touchdown"] == 0
     assert "assumed" in nm.source["touchdown"]
 
 
@@ -235,7 +237,7 @@ def test_allowed_effects_excludes_what_the_data_would_show_and_lists_what_they_c
     # Friction does not move any signal: every value in its realistic range stays allowed, no number of throws helps.
     assert not fric.excluded
     assert fric.allowed["mu_static"] == pytest.approx((0.05, 1.5))
-    assert fric.throws_needed is None and fric.recommendation
+    assert fric.trials_needed is None and fric.recommendation
     # ... so the log does not constrain friction at all, while it bounds the base height (a larger offset would show).
     assert fric.unconstrained and not base.unconstrained
     assert fric.to_dict()["unconstrained"] is True
@@ -289,7 +291,7 @@ def test_allowed_intervals_are_checked_where_the_throws_respond_nonlinearly():
 
 
 def test_placement_points_stand_for_the_scatter():
-    from besdrake.diagnosis.core import placement_points
+    placement_points = MODEL.scatter.points
 
     sd = 0.002
     pts = placement_points(sd)
@@ -329,7 +331,9 @@ def _funnel_sim(executor_cls):
 
 
 def test_expected_features_average_over_the_placement_scatter():
-    from besdrake.diagnosis.core import _placement_correction, placement_points
+    from besdrake.diagnosis.core import _placement_correction
+
+    placement_points = MODEL.scatter.points
     from besdrake.sim.scenario import load_scenario
 
     sim = _funnel_sim(_FunnelExecutor)
@@ -525,7 +529,7 @@ def test_forward_pairs_does_nothing_when_the_lead_fits():
 
 
 def test_tilt_probes_join_the_diagnosis_plans():
-    from besdrake.diagnosis.design import PROBES, tilt_probe
+    from besdrake.tasks.throwing.diagnosis.design import PROBES, tilt_probe
     from besdrake.transfer.measurement import plan_hash
 
     plans = diagnosis_plans(25, 8, seed=3, probes=2)
@@ -569,7 +573,7 @@ def test_noise_model_weighs_each_throw_by_its_placement_scatter_and_axis():
         f[i, pos] = [j + rng.normal(0, 0.03), rng.normal(0, 0.03), 1.0 + rng.normal(0, np.sqrt(0.003**2 + 1.5 * pv))]
         place_var[i, pos.start + 2] = pv
     f[:, sl["touchdown"]] = rng.normal(0, 0.05, (n, 2))
-    nm = noise.estimate_noise(f, keys, mocap_sd=0.0005, encoder_sd=None, place_var=place_var)
+    nm = noise.estimate_noise(f, keys, place_var=place_var)
     h, v = nm.feature_sd[pos.start], nm.feature_sd[pos.start + 2]
     assert 0.022 < h < 0.04 and nm.feature_sd[pos.start + 1] == h
     assert 0.002 <= v < 0.0045
@@ -583,7 +587,7 @@ def test_noise_model_weighs_each_throw_by_its_placement_scatter_and_axis():
     assert axis["vertical"] == v and axis["vertical_placement_scale"] == scale
     # Groups without a per-axis estimate (joints here) keep their group SD; no repeats: the group SDs only.
     assert np.all(m[:, sl["joints"]] == nm.sd["joints"])
-    nm0 = noise.estimate_noise(f, [f"q{i}" for i in range(n)], mocap_sd=0.0005, encoder_sd=None, place_var=place_var)
+    nm0 = noise.estimate_noise(f, [f"q{i}" for i in range(n)], place_var=place_var)
     assert nm0.feature_sd is None and np.allclose(nm0.matrix(n), nm0.vector()[None, :])
     nm.scale_group("ball_pos", 2.0)
     assert nm.feature_sd[pos.start + 2] == pytest.approx(2 * v) and nm.place_scale[pos.start + 2] == pytest.approx(4 * scale)

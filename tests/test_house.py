@@ -19,18 +19,9 @@ STAGES = ("mocap", "segmentation", "imitation", "embodiment", "sim", "search", "
 #: (test_task_imports_are_pure_reexports). Empty: the old import paths (sim/outcome.py, sim/throws.py, the
 #: ThrowReward of search/refinement) are gone; code imports from besdrake.tasks.throwing.* instead.
 KNOWN_TASK_IMPORTS: set[str] = set()
-#: Diagnosis modules that import the throwing task directly since its names left the stage folders (issue 23): the
-#: diagnosis reaches them through Task hooks once it is task-neutral (its own part of the issue). May only shrink.
-DIAGNOSIS_TASK_IMPORTS_PENDING = {"diagnosis/design.py", "diagnosis/identifiability.py", "diagnosis/simulate.py"}
-#: Stage files that still name the throwing task's objects (issue 23: to become task-neutral).
-NOT_YET_TASK_NEUTRAL = {
-    "diagnosis/core.py", "diagnosis/design.py",
-    # core.py split into modules with one job each (issue 25): the same code, still about throws
-    "diagnosis/advice.py", "diagnosis/allowed.py", "diagnosis/heldout.py", "diagnosis/identifiability.py",
-    "diagnosis/replay.py", "diagnosis/residual.py", "diagnosis/results.py", "diagnosis/selection.py",
-    "diagnosis/settings.py", "diagnosis/simulate.py", "diagnosis/stats.py", "diagnosis/verdict.py", "diagnosis/fitting.py", "diagnosis/noise.py", "diagnosis/observables.py",
-    "diagnosis/report.py",
-}
+#: Stage files that still name the throwing task's objects (issue 23: to become task-neutral). Empty since the
+#: throwing task's code moved into besdrake/tasks/throwing/; a stage file that names them again fails.
+NOT_YET_TASK_NEUTRAL: set[str] = set()
 
 
 def _stage_files(suffixes=(".py",)):
@@ -69,7 +60,7 @@ def test_data_flows_one_way_and_stages_import_no_task():
             if parts[1] == "tasks":
                 task_imports.add(str(path.relative_to(PACKAGE)))
     assert backwards == []
-    allowed = KNOWN_TASK_IMPORTS | DIAGNOSIS_TASK_IMPORTS_PENDING
+    allowed = KNOWN_TASK_IMPORTS
     assert task_imports <= allowed, f"new task imports in stage modules: {sorted(task_imports - allowed)}"
 
 

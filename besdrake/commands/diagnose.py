@@ -48,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
 
     if args.design is not None:
         from besdrake.diagnosis import diagnosis_plans
-        from besdrake.diagnosis.design import DEFAULT_PROBES, DEFAULT_SIDEWAYS
+        from besdrake.tasks.throwing.diagnosis.design import DEFAULT_PROBES, DEFAULT_SIDEWAYS
 
         probes = DEFAULT_PROBES if args.probes is None else args.probes
         sideways = DEFAULT_SIDEWAYS if args.sideways is None else args.sideways

@@ -7,11 +7,9 @@ from typing import NamedTuple, Sequence
 import numpy as np
 from scipy import stats
 
-from besdrake.diagnosis import fitting, noise
-from besdrake.diagnosis.advice import _RECORD
-from besdrake.diagnosis.observables import group_slices
+from besdrake.diagnosis import fitting
 from besdrake.diagnosis.results import AllowedEffect
-from besdrake.diagnosis.settings import ALPHA, EXCLUDE_FRACTION, MAX_THROWS_ADVICE, UNCONSTRAINED_COVER, VERIFY_ROUNDS
+from besdrake.diagnosis.settings import ALPHA, EXCLUDE_FRACTION, MAX_TRIALS_ADVICE, UNCONSTRAINED_COVER, VERIFY_ROUNDS
 from besdrake.diagnosis.simulate import _Sim
 
 
@@ -92,7 +90,7 @@ def _verify_interval_ends(prob: fitting.Problem, sim: _Sim, lin: dict[str, _Line
 
 
 def _allowed_effects(prob: fitting.Problem, sens: fitting.Sensitivity, effects: Sequence[str], sim: _Sim, measured: list[str],
-                     n_throws: int) -> list[AllowedEffect]:
+                     n_trials: int) -> list[AllowedEffect]:
     """For a log in which no candidate improves on the nominal simulation: per candidate effect, the parameter
     intervals the data still allow (each parameter on its own with the effect's others at nominal, linearised
     likelihood-ratio interval at level ALPHA with the fit's weak prior, its ends checked by rollouts, within the
@@ -102,14 +100,14 @@ def _allowed_effects(prob: fitting.Problem, sens: fitting.Sensitivity, effects: 
     r0 = prob.weighted(sens.y0)
     lin = _linear_intervals(prob, sens, effects, r0, q)
     # ... then every end that the data (not a realistic bound) set is checked with rollouts and widened where the
-    # linear model overstated how far the throws respond (e.g. the gains: benchmark seed 0, touchdown-only trials 21
+    # linear model overstated how far the trials respond (e.g. the gains: benchmark seed 0, outcome-only trials 21
     # and 30 stated "kp_scale 0.73..1.19, larger deviations would have been seen" of a lab with kp_scale 0.68).
     checked = _verify_interval_ends(prob, sim, lin, float(r0 @ r0), q)
     out = []
     for e in effects:
         specs = [ln.spec for ln in lin.values() if ln.spec.effect == e]
         if specs:
-            out.append(_allowed_effect(e, specs, lin, checked, sim, measured, n_throws, q))
+            out.append(_allowed_effect(e, specs, lin, checked, sim, measured, n_trials, q))
     return out
 
 
@@ -136,7 +134,7 @@ def _linear_intervals(prob: fitting.Problem, sens: fitting.Sensitivity, effects:
 
 
 def _allowed_effect(e: str, specs: list[fitting.ParamSpec], lin: dict[str, _Line], checked: dict[str, tuple[float, float]], sim: _Sim,
-                    measured: list[str], n_throws: int, q: float) -> AllowedEffect:
+                    measured: list[str], n_trials: int, q: float) -> AllowedEffect:
     """One effect's allowed values (from the checked intervals), whether it is excluded, and what would show it."""
     allowed, nominal, units, fracs, needed = {}, {}, {}, [], []
     for s_ in specs:
@@ -147,20 +145,22 @@ def _allowed_effect(e: str, specs: list[fitting.ParamSpec], lin: dict[str, _Line
         rng_ = s_.high - s_.low
         fracs.append(max(abs(lo - s_.nominal), abs(hi - s_.nominal)) / rng_)
         allowed[s_.name], nominal[s_.name], units[s_.name] = (float(lo), float(hi)), float(s_.nominal), s_.unit
-        if fracs[-1] >= EXCLUDE_FRACTION:  # throws to exclude this parameter: the half-width shrinks as 1/sqrt(throws)
-            needed.append(n_throws * q / info / (EXCLUDE_FRACTION * rng_) ** 2 if info > 0 else np.inf)
+        if fracs[-1] >= EXCLUDE_FRACTION:  # trials to exclude this parameter: the half-width shrinks as 1/sqrt(trials)
+            needed.append(n_trials * q / info / (EXCLUDE_FRACTION * rng_) ** 2 if info > 0 else np.inf)
     max_frac = float(max(fracs))
     excluded = max_frac < EXCLUDE_FRACTION
     n_need = float(max(needed)) if needed else np.inf
-    throws_needed = int(np.ceil(n_need)) if np.isfinite(n_need) and n_need <= MAX_THROWS_ADVICE else None
-    rec = "" if excluded else _recommendation(e, specs, sim, measured, throws_needed)
+    trials_needed = int(np.ceil(n_need)) if np.isfinite(n_need) and n_need <= MAX_TRIALS_ADVICE else None
+    rec = "" if excluded else _recommendation(e, specs, sim, measured, trials_needed)
     unconstrained = all(hi_ - lo_ >= UNCONSTRAINED_COVER * (s_.high - s_.low) for s_, (lo_, hi_) in zip(specs, allowed.values()))
-    return AllowedEffect(e, allowed, nominal, units, max_frac, excluded, throws_needed, rec, unconstrained)
+    return AllowedEffect(e, allowed, nominal, units, max_frac, excluded, trials_needed, rec, unconstrained)
 
 
-def _recommendation(e: str, specs: list[fitting.ParamSpec], sim: _Sim, measured: list[str], throws_needed: int | None) -> str:
+def _recommendation(e: str, specs: list[fitting.ParamSpec], sim: _Sim, measured: list[str], trials_needed: int | None) -> str:
     """Which signal would show a deviation of EXCLUDE_FRACTION of the range (finite-difference rollouts of the
-    sensitivity, evaluated for every signal), else how many throws would, else that none would."""
+    sensitivity, evaluated for every signal), else how many trials would, else that none would."""
+    model = sim.model
+    typical, noun = model.typical(), model.noun
     y_nom_full = sim.full_cache.get(sim.key({}))
     shows = []
     for s_ in specs:
@@ -168,18 +168,18 @@ def _recommendation(e: str, specs: list[fitting.ParamSpec], sim: _Sim, measured:
         if y_step is None or y_nom_full is None:
             continue
         d = (y_step - y_nom_full) * (EXCLUDE_FRACTION * (s_.high - s_.low) / abs(s_.step))
-        for g, sl_ in group_slices().items():
+        for g, sl_ in model.slices().items():
             rms = np.sqrt(np.nanmean(d[:, sl_] ** 2, axis=1))
             rms = rms[np.isfinite(rms)]
             if rms.size:
-                shows.append((float(np.median(rms) / noise.TYPICAL[g]), g, s_.key))
+                shows.append((float(np.median(rms) / typical[g]), g, s_.key))
     shows.sort(reverse=True)
     unmeasured = [x for x in shows if x[1] not in measured and x[0] > 1.0]
     if unmeasured:
         sc, g, key = unmeasured[0]
-        return f"{_RECORD[g]}: {key} at {EXCLUDE_FRACTION:.0%} of its range would show there as ~{sc:.1f} x typical noise per throw"
-    if throws_needed is not None:
-        return (f"about {throws_needed} throws like the logged ones (with repeats) would exclude {e} beyond {EXCLUDE_FRACTION:.0%} of its range; "
-                "plans that spread release speed and height more widely need fewer")
-    return ("no practical number of throws like these would show it in the logged signals (they hardly respond to it); "
-            "record other signals or throw differently")
+        return f"{model.group(g).record}: {key} at {EXCLUDE_FRACTION:.0%} of its range would show there as ~{sc:.1f} x typical noise per {noun}"
+    if trials_needed is not None:
+        return (f"about {trials_needed} {noun}s like the logged ones (with repeats) would exclude {e} beyond {EXCLUDE_FRACTION:.0%} of its range; "
+                f"{model.wider_plans_hint()}")
+    return (f"no practical number of {noun}s like these would show it in the logged signals (they hardly respond to it); "
+            f"record other signals or {model.other_plans_hint()}")

@@ -1,6 +1,6 @@
 """Fit candidate effects to the measured features: sensitivities, bounded Gauss-Newton, BIC.
 
-The per-throw features (:mod:`besdrake.diagnosis.observables`) are smooth functions of the effect
+The per-trial features (the task's :class:`~besdrake.diagnosis.trials.TrialModel`) are smooth functions of the effect
 parameters. One finite-difference Jacobian at nominal, built from one batch of rollouts per parameter,
 serves every candidate (single effects and pairs): each candidate is first fitted on that linear model
 (bounded least squares, :func:`scipy.optimize.lsq_linear`), then the best few are refined with real rollouts
@@ -11,9 +11,9 @@ BIC = chi2 + k ln n + 2 ln C(m, k) per effect (Chen & Chen 2008): a realistic de
 an effect's m parameters (one joint's encoder zero, the base's height), so each candidate fits only the parameters a
 forward selection on the linear model activates (the others stay nominal), and choosing k of m parameters is charged
 2 ln C(m, k). It is off by default: on the hidden-effect benchmark it named one-joint offsets right where BIC lost
-them to a catch-all, but lost as many other trials to "effect + ball" pairs (seed 0: 17/27 right vs 19/27; seed 1,
-with the 2-parameter effects fitted whole: 3/7 vs 4/7). Those pairs were mostly the ball's placement scatter, which
-:func:`besdrake.diagnosis.core.diagnose` now models (expected throw over the scatter); with it, ``diagnose`` turns the
+them to a catch-all, but lost as many other trials to "effect + object" pairs (seed 0: 17/27 right vs 19/27; seed 1,
+with the 2-parameter effects fitted whole: 3/7 vs 4/7). Those pairs were mostly the object's placement scatter, which
+:func:`besdrake.diagnosis.core.diagnose` now models (expected trial over the scatter); with it, ``diagnose`` turns the
 selection on (``core.SELECT_PARAMETERS``): the two one-joint-offset trials that BIC lost to a catch-all were named
 right and eight previously right trials stayed right (seed 0, full logs). Effects of at most :data:`DENSE_PARAMS`
 parameters are fitted whole (a deviation may well move both, and a cheaper small effect would become a catch-all). A six-parameter effect of which one parameter
@@ -24,7 +24,7 @@ Parameter standard errors come from the Gauss-Newton covariance sigma^2 (J^T W J
 from __future__ import annotations
 
 import itertools
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable, Sequence
 
 import numpy as np
@@ -45,7 +45,8 @@ DENSE_PARAMS = 2
 
 @dataclass(frozen=True)
 class ParamSpec:
-    """One fitted parameter: effect, name, nominal value, bounds, finite-difference step (signed), unit."""
+    """One fitted parameter: effect, name, nominal value, bounds, finite-difference step (signed), unit; ``order``: the
+    effect's ordered parameter pairs ``(lower, upper)`` (e.g. dynamic friction below static friction)."""
 
     effect: str
     name: str
@@ -54,26 +55,40 @@ class ParamSpec:
     high: float
     step: float
     unit: str
+    order: tuple[tuple[str, str], ...] = ()
 
     @property
     def key(self) -> str:
         return f"{self.effect}.{self.name}"
 
+    @property
+    def stays_below(self) -> bool:
+        """The parameter is bounded above by another of its effect (it is stepped down, never across)."""
+        return any(low == self.name for low, _ in self.order)
 
-def param_specs(effect_names: Sequence[str]) -> tuple[list[ParamSpec], list[str]]:
-    """Parameter specs of the effects and notes on parameters left out."""
+
+def param_specs(effect_names: Sequence[str], ordered: dict[tuple[str, str], str] | None = None) -> tuple[list[ParamSpec], list[str]]:
+    """Parameter specs of the effects and notes on parameters left out. ``ordered``: ``{(effect, param): other}``, a
+    parameter that must stay at or below another of its effect (the task's
+    :attr:`~besdrake.diagnosis.trials.TrialModel.ordered_params`; default: the default task's)."""
+    if ordered is None:
+        from besdrake.diagnosis.trials import default_model
+
+        ordered = default_model().ordered_params
     specs, notes = [], []
     for e in effect_names:
         eff = get_effect(e)
+        order = tuple((name, up) for (eff_name, name), up in ordered.items() if eff_name == e)
         for name, p in eff.params.items():
             if (e, name) in DEGENERATE:
                 notes.append(f"{e}.{name}: {DEGENERATE[(e, name)]}")
                 continue
             h = STEP_FRACTION * (p.high - p.low)
             step = h if p.nominal + h <= p.high else -h
-            if e == "scoop_friction" and name == "mu_dynamic":
-                step = -abs(h)  # keep mu_dynamic <= mu_static
-            specs.append(ParamSpec(e, name, p.nominal, p.low, p.high, step, p.unit))
+            spec = ParamSpec(e, name, p.nominal, p.low, p.high, step, p.unit, order)
+            if spec.stays_below:
+                spec = replace(spec, step=-abs(h))  # keep it below the parameter that bounds it
+            specs.append(spec)
     return specs, notes
 
 
@@ -82,14 +97,15 @@ def effects_from(specs: Sequence[ParamSpec], theta: np.ndarray) -> dict[str, dic
     out: dict[str, dict[str, float]] = {}
     for s, v in zip(specs, theta):
         out.setdefault(s.effect, {})[s.name] = float(np.clip(v, s.low, s.high))
+    orders = {s.effect: s.order for s in specs if s.order}
     for e, vals in out.items():
         try:
             get_effect(e).complete(vals)
         except EffectError:
-            if e == "scoop_friction":  # dynamic above static friction: static follows
-                vals["mu_static"] = max(vals.get("mu_static", get_effect(e).params["mu_static"].nominal), vals.get("mu_dynamic", 0.0))
-            else:
+            if e not in orders:
                 raise
+            for low, up in orders[e]:  # a lower parameter above its upper one: the upper follows
+                vals[up] = max(vals.get(up, get_effect(e).params[up].nominal), vals.get(low, 0.0))
     return out
 
 
@@ -106,7 +122,7 @@ class Sensitivity:
 
 
 def compute_sensitivity(specs: list[ParamSpec], y0: np.ndarray, simulate: Callable[[list[dict]], np.ndarray]) -> Sensitivity:
-    """One batch of rollouts per parameter (all throws), stepped by ``spec.step``; ``simulate`` maps a list of
+    """One batch of rollouts per parameter (all trials), stepped by ``spec.step``; ``simulate`` maps a list of
     effects dicts (one per parameter) to features (P, N, F)."""
     effs = []
     for s in specs:
@@ -183,7 +199,7 @@ class Problem:
         self.y_meas = y_meas
         self.y0 = y0
         sd = np.asarray(sd, float)
-        # SD per entry (N, F): a per-feature vector is the same for every throw.
+        # SD per entry (N, F): a per-feature vector is the same for every trial.
         self.sd = np.broadcast_to(sd if sd.ndim == 2 else sd[None, :], y_meas.shape)
         self.rows = np.arange(len(y_meas)) if rows is None else np.asarray(rows)
         mask = np.isfinite(y_meas) & np.isfinite(y0)
@@ -384,7 +400,7 @@ def jacobian_at(prob: Problem, fit: CandidateFit, simulate: Callable[[list[dict]
         th = fit.theta.copy()
         h = 0.5 * abs(s.step)
         h = h if th[j] + h <= s.high else -h
-        if s.effect == "scoop_friction" and s.name == "mu_dynamic":
+        if s.stays_below:
             h = -abs(h)
         th[j] += h
         effs.append(effects_from(fit.specs, th))

@@ -1,4 +1,4 @@
-"""The gain of a refined model on throws held out from its fit, and the per-throw table of a diagnosis."""
+"""The gain of a refined model on trials held out from its fit, and the per-trial table of a diagnosis."""
 
 from __future__ import annotations
 
@@ -6,19 +6,18 @@ from typing import Any
 
 import numpy as np
 
-from besdrake.diagnosis import fitting, observables, settings
-from besdrake.diagnosis.observables import group_slices
+from besdrake.diagnosis import fitting, settings
 from besdrake.diagnosis.results import Gain
 from besdrake.diagnosis.stats import _bootstrap_median_ci
 
 
 def heldout_gain(ev: Any, sens: fitting.Sensitivity, best_fit: fitting.CandidateFit, best_shift, folds: int, iterations: int,
                  rng: np.random.Generator) -> tuple[Gain | None, np.ndarray]:
-    """Touchdown disparity before/after on throws held out from the fit (K-fold by plan: repeats of a plan stay together,
-    so a held-out plan was never seen by the fit), and the per-throw held-out disparity after (NaN where none)."""
-    td = group_slices()["touchdown"]
+    """Outcome disparity before/after on trials held out from the fit (K-fold by plan: repeats of a plan stay together,
+    so a held-out plan was never seen by the fit), and the per-trial held-out disparity after (NaN where none)."""
+    td = ev.model.slices()[ev.model.outcome]
     y_meas, y0 = ev.y_meas, ev.y0
-    per_throw_after = np.full(len(ev.used), np.nan)
+    per_trial_after = np.full(len(ev.used), np.nan)
     have_td = np.isfinite(y_meas[:, td]).all(axis=1) & np.isfinite(y0[:, td]).all(axis=1)
     gain = None
     if best_fit.effects and have_td.sum() >= folds >= 2:
@@ -30,10 +29,10 @@ def heldout_gain(ev: Any, sens: fitting.Sensitivity, best_fit: fitting.Candidate
             test = [i for i in idx if fold_of[ev.keys[i]] == k]
             train = [i for i in range(len(ev.used)) if fold_of.get(ev.keys[i], -1) != k]
             if test and len(train) >= 3:
-                per_throw_after[test] = _fold_disparity(ev, sens, best_fit, best_shift, train, test, iterations)
+                per_trial_after[test] = _fold_disparity(ev, sens, best_fit, best_shift, train, test, iterations)
         before = np.linalg.norm(y_meas[:, td] - y0[:, td], axis=1)
-        ok = np.isfinite(per_throw_after) & have_td
-        b, a = before[ok], per_throw_after[ok]
+        ok = np.isfinite(per_trial_after) & have_td
+        b, a = before[ok], per_trial_after[ok]
         if len(a):
             gain = Gain(float(np.median(b)), float(np.median(a)), _bootstrap_median_ci(b, rng), _bootstrap_median_ci(a, rng),
                         float(np.median(a) / max(np.median(b), 1e-12)), int(len(a)), folds, b.tolist(), a.tolist())
@@ -42,14 +41,14 @@ def heldout_gain(ev: Any, sens: fitting.Sensitivity, best_fit: fitting.Candidate
         b = np.linalg.norm(y_meas[have_td][:, td] - y0[have_td][:, td], axis=1)
         ci = _bootstrap_median_ci(b, rng)
         gain = Gain(float(np.median(b)), float(np.median(b)), ci, ci, 1.0, int(len(b)), 0, b.tolist(), b.tolist())
-    return gain, per_throw_after
+    return gain, per_trial_after
 
 
 def _fold_disparity(ev: Any, sens: fitting.Sensitivity, best_fit: fitting.CandidateFit, best_shift, train: list[int], test: list[int],
                     iterations: int) -> np.ndarray:
-    """Touchdown disparity (m) of the ``test`` throws under the best cause refitted on the ``train`` throws only: warm
-    start at the all-data optimum (its simulated features of the training throws are known), then Gauss-Newton."""
-    td = group_slices()["touchdown"]
+    """Outcome disparity of the ``test`` trials under the best cause refitted on the ``train`` trials only: warm
+    start at the all-data optimum (its simulated features of the training trials are known), then Gauss-Newton."""
+    td = ev.model.slices()[ev.model.outcome]
     sim = ev.sim
     prob_k = fitting.Problem(ev.y_meas, ev.y0, ev.nm.matrix(len(ev.y_meas)), rows=train)
     fit_k = fitting.linear_fit(prob_k, sens, best_fit.effects, select=settings.SELECT_PARAMETERS)
@@ -60,11 +59,13 @@ def _fold_disparity(ev: Any, sens: fitting.Sensitivity, best_fit: fitting.Candid
     return np.linalg.norm(ev.y_meas[test][:, td] - y_test[test][:, td], axis=1)
 
 
-def per_throw_table(ev: Any, y_best: np.ndarray, per_throw_after: np.ndarray) -> list[dict[str, Any]]:
-    """One row per used throw: errors per group before and after the fit, touchdowns, held-out disparity, and the
-    release state and tracking lag of the lab, the nominal and the refined simulation."""
-    sl = group_slices()
-    td = sl["touchdown"]
+def per_trial_table(ev: Any, y_best: np.ndarray, per_trial_after: np.ndarray) -> list[dict[str, Any]]:
+    """One row per used trial: errors per group before and after the fit, outcomes, held-out disparity, and the task's
+    details (:meth:`~besdrake.diagnosis.trials.TrialModel.trial_details`) of the lab, the nominal and the refined
+    simulation."""
+    model = ev.model
+    sl, out = model.slices(), model.outcome
+    td = sl[out]
     y_meas, y0 = ev.y_meas, ev.y0
     rows = []
     for i, m in enumerate(ev.used):
@@ -73,19 +74,12 @@ def per_throw_table(ev: Any, y_best: np.ndarray, per_throw_after: np.ndarray) ->
             if np.isfinite(y_meas[i, s]).all():
                 row[f"{g}_error_before"] = float(np.linalg.norm(y_meas[i, s] - y0[i, s]))
                 row[f"{g}_error_after_fit"] = float(np.linalg.norm(y_meas[i, s] - y_best[i, s]))
-        row["touchdown_measured"] = None if not np.isfinite(y_meas[i, td]).all() else y_meas[i, td].tolist()
-        row["touchdown_nominal"] = y0[i, td].tolist()
-        row["touchdown_refined"] = y_best[i, td].tolist()
-        row["touchdown_heldout_disparity_after"] = None if not np.isfinite(per_throw_after[i]) else float(per_throw_after[i])
-        lay = ev.layouts[i]
+        row[f"{out}_measured"] = None if not np.isfinite(y_meas[i, td]).all() else y_meas[i, td].tolist()
+        row[f"{out}_nominal"] = y0[i, td].tolist()
+        row[f"{out}_refined"] = y_best[i, td].tolist()
+        row[f"{out}_heldout_disparity_after"] = None if not np.isfinite(per_trial_after[i]) else float(per_trial_after[i])
         for label, y in (("lab", y_meas[i]), ("nominal", y0[i]), ("refined", y_best[i])):
-            rel = observables.release_state(y, lay)
-            if rel is not None:
-                row[f"release_speed_{label}"] = float(np.linalg.norm(rel[1]))
-                row[f"release_elevation_deg_{label}"] = float(np.degrees(np.arctan2(rel[1][2], np.hypot(rel[1][0], rel[1][1]))))
-                row[f"release_height_{label}"] = float(rel[0][2])
-            lag = observables.tracking_lag(y, lay, ev.plans[i])
-            if lag is not None:
-                row[f"tracking_lag_s_{label}"] = lag
+            for k, v in model.trial_details(y, ev.layouts[i], ev.plans[i]).items():
+                row[f"{k}_{label}"] = v
         rows.append(row)
     return rows

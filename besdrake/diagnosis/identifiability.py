@@ -6,10 +6,10 @@ same axis, so either fix gives the same robot. That is a property of the robot a
 and it must be reported differently from "these logs cannot tell; this experiment would" (no experiment would).
 
 How it is found: the sensitivities (central finite differences, :data:`STEP_FRACTION` of each parameter's range
-either side of nominal) of every observable of :mod:`~besdrake.diagnosis.observables` (the full layout: touchdown,
-ball path in flight, the ball at rest, joint tracking), each scaled by its typical noise, over a sample of plans the
-safety gate allows (:func:`sample_plans`: planar throws over the amplitude range, sideways throws that move joints
-1, 4 and 6, tilt probes). A parameter pair whose columns are collinear over all those plans (the part of one column
+either side of nominal) of every observable of the task's trials (:class:`~besdrake.diagnosis.trials.TrialModel`, read
+with the full layout: every group, e.g. outcome, object path, joint tracking), each scaled by its typical noise, over
+a sample of plans the safety gate allows (:func:`sample_plans`: the task's
+:meth:`~besdrake.diagnosis.trials.TrialModel.sample_plans`, which together move every joint). A parameter pair whose columns are collinear over all those plans (the part of one column
 not explained by the other below :data:`COLLINEAR_TOL` of its length) is one class; so is a parameter whose column
 lies in the span of another effect's parameters (:data:`SPAN_TOL`). Parameters that no observable responds to in
 any plan are listed apart (``unobservable``). The result depends only on the registry, the scenario and the plan
@@ -27,7 +27,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from besdrake.diagnosis import noise, observables
+from besdrake.diagnosis.trials import TrialModel, default_model, model_for
 from besdrake.sim.effects import get_effect
 
 #: Central-difference step, as a fraction of each parameter's realistic range, on either side of nominal.
@@ -102,48 +102,34 @@ class Identifiability:
         return found
 
 
-def sample_plans(limits, n_planar: int = 4, n_side: int = 4, seed: int = 0) -> list:
-    """Plans within the robot's ``limits`` (what the safety gate allows) that together move every joint: planar default
-    throws over the amplitude range, sideways throws (joints 1, 4, 6 too) and the two tilt probes."""
-    from besdrake.diagnosis import design
-    from besdrake.tasks.throwing.throws import default_throw
-
-    rng = np.random.default_rng(seed)
-    lo, hi = design.AMPLITUDE_RANGE
-    plans = [default_throw(amplitude=float(a), yaw=float(rng.uniform(*design.YAW_RANGE))) for a in np.linspace(lo, hi, n_planar)]
-    plans += [design.side_plan(float(a), float(rng.uniform(*design.YAW_RANGE)), 19.0, rng, limits) for a in np.linspace(design.SIDE_MIN_AMPLITUDE, hi, n_side)]
-    plans += [design.tilt_probe(*p[:3], tilt_time=p[3]) for p in design.PROBES]
-    return [p for p in plans if not design.plan_limits_exceeded(p, limits)]
+def sample_plans(limits, model: TrialModel | None = None) -> list:
+    """Plans within the robot's ``limits`` (what the safety gate allows) that together move every joint: the task's
+    sample (default: the default task's)."""
+    return (model or default_model()).sample_plans(limits)
 
 
-def scaled_sensitivities(executor, effects: Sequence[str], plans: Sequence) -> tuple[list[str], np.ndarray]:
+def scaled_sensitivities(executor, effects: Sequence[str], plans: Sequence, model: TrialModel | None = None) -> tuple[list[str], np.ndarray]:
     """Parameter keys and their sensitivities (P, N x F): d feature / d parameter x the parameter's range, each feature
-    divided by its group's typical noise (:data:`besdrake.diagnosis.noise.TYPICAL`); NaN where a plan did not release."""
+    divided by its group's typical noise (:attr:`~besdrake.diagnosis.trials.Observable.typical`); NaN where a rollout
+    failed."""
     from besdrake.diagnosis.fitting import param_specs
 
-    specs, _ = param_specs(list(effects))
+    model = model or default_model()
+    specs, _ = param_specs(list(effects), model.ordered_params)
     nominal = executor.evaluate(list(plans), [{}] * len(plans))
-    layouts = [_layout(o) for o in nominal]
-    scale = np.concatenate([np.full(s.stop - s.start, noise.TYPICAL[g]) for g, s in observables.group_slices().items()])
+    layouts = [model.full_layout(model.nominal_layout(o)) for o in nominal]
+    scale = np.concatenate([np.full(o.size, o.typical) for o in model.observables])
     keys, cols = [], []
     for s_ in specs:
         h = STEP_FRACTION * (s_.high - s_.low)
         lo, hi = max(s_.low, s_.nominal - h), min(s_.high, s_.nominal + h)
         effs = [{s_.effect: {s_.name: v}} for v in (lo, hi)]
         outs = executor.evaluate([p for p in plans for _ in effs], [e for _ in plans for e in effs])
-        f = np.array([[observables.simulated_features(outs[2 * i + j], layouts[i]) for j in range(2)] for i in range(len(plans))])
+        f = np.array([[model.simulated_features(outs[2 * i + j], layouts[i]) for j in range(2)] for i in range(len(plans))])
         d = (f[:, 1] - f[:, 0]) / (hi - lo) * (s_.high - s_.low) / scale
         keys.append(s_.key)
         cols.append(d.ravel())
     return keys, np.array(cols)
-
-
-def _layout(nominal) -> observables.ThrowLayout:
-    """Every observable of a plan, read where its nominal throw puts them (no measurement needed)."""
-    from besdrake.diagnosis.simulate import _full_layout as full_layout
-
-    lay = observables.ThrowLayout(release_time_nominal=nominal.release_time, touchdown_time_nominal=nominal.touchdown_time)
-    return full_layout(lay)
 
 
 def classes_from(keys: list[str], J: np.ndarray) -> tuple[list[StructuralClass], list[str]]:
@@ -225,9 +211,11 @@ def cache_dir() -> Path:
     return Path(base) / "identifiability"
 
 
-def structural_classes(effects: Sequence[str], scenario="nominal", executor=None, use_cache: bool = True) -> Identifiability:
+def structural_classes(effects: Sequence[str], scenario="nominal", executor=None, use_cache: bool = True,
+                       model: TrialModel | None = None) -> Identifiability:
     """The structural classes of ``effects`` on ``scenario`` (see the module docstring), from the JSON cache when it
-    holds them (about 25 parameters x 2 x 10 plans rollouts otherwise; a cache that cannot be written is skipped)."""
+    holds them (about 25 parameters x 2 x 10 plans rollouts otherwise; a cache that cannot be written is skipped).
+    ``model``: the task's trials (default: the scenario's task's)."""
     from besdrake.sim.executors import make_executor
     from besdrake.sim.scenario import Scenario, load_scenario
 
@@ -242,8 +230,9 @@ def structural_classes(effects: Sequence[str], scenario="nominal", executor=None
     own = executor is None
     ex = executor or make_executor("serial", scenario=scen, limits="flag")
     try:
-        plans = sample_plans(scen.robot.limits)
-        keys, J = scaled_sensitivities(ex, effects, plans)
+        model = model or model_for(scen)
+        plans = sample_plans(scen.robot.limits, model)
+        keys, J = scaled_sensitivities(ex, effects, plans, model)
     finally:
         if own:
             ex.close()

@@ -1,19 +1,19 @@
-"""Measurement noise per observable group, estimated from the log itself (never from the lab's config).
+"""The measurement noise a diagnosis compares against, estimated from the log itself (never from the lab's config).
 
-Preferred source: *pure error* from repeated plans (trials of the same plan, matched by content hash):
-the pooled within-plan variance of every feature of a group. It contains everything that varies from
-throw to throw (ball placement in the scoop, marker noise, encoder noise) and nothing systematic, so it is
-the noise floor the simulation can at best reach. Without repeats the touchdown noise falls back to the
-paper's figure (good throws repeat with 4.5-7 cm SD) and the other groups to what the signals themselves
-show (marker noise from the ballistic-fit residuals, encoder noise from second differences); the result
-says so (``source``).
+Preferred source: *pure error* from repeated plans (trials of the same plan, matched by content hash): the pooled
+within-plan variance of every feature of a group. It contains everything that varies from trial to trial (where an
+object is placed, marker noise, encoder noise) and nothing systematic, so it is the noise floor the simulation can
+at best reach. Without repeats the outcome noise falls back to the task's prior figure
+(:attr:`~besdrake.diagnosis.trials.TrialModel.prior_outcome_sd`) and the other groups to what the signals themselves
+show (:meth:`~besdrake.diagnosis.trials.TrialModel.signal_noise`, e.g. marker noise from path-fit residuals, encoder
+noise from second differences) or their typical figure; the result says so (``source``).
 
-The fit weighs every entry by its own SD (:meth:`NoiseModel.matrix`): a throw's features scatter by what its
-ball placement does to that throw (``place_var``, predicted per throw and feature by simulating the plan at
-several placements: a fast throw through the funnel's kink scatters by centimetres, a slow roll-out that lets
-the ball settle first not at all) times a scale, plus a base SD; base and scale are fitted to the repeats'
-within-plan variances per axis class (:data:`AXIS_CLASSES`: the horizontal and the vertical components of the
-ball path apart). The per-group SDs (``sd``) stay the plain pooled figures the report prints.
+The fit weighs every entry by its own SD (:meth:`NoiseModel.matrix`): a trial's features scatter by what the
+placement scatter does to that trial (``place_var``, predicted per trial and feature by simulating the plan at
+several placements: a fast motion through a kink of the placement scatters by centimetres, a slow one that lets the
+object settle first not at all) times a scale, plus a base SD; base and scale are fitted to the repeats' within-plan
+variances per axis class (:attr:`~besdrake.diagnosis.trials.Observable.axis_classes`, e.g. the horizontal and the
+vertical components of a path apart). The per-group SDs (``sd``) stay the plain pooled figures the report prints.
 """
 
 from __future__ import annotations
@@ -23,27 +23,18 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import minimize
 
-from besdrake.diagnosis.observables import N_JOINT_TIMES, group_names, group_slices
+from besdrake.diagnosis.trials import SignalNoise, TrialModel, default_model
 
-#: Touchdown SD per axis (m) assumed when the log has no repeated plans (paper: 4.5-7 cm for good throws).
-PRIOR_TOUCHDOWN_SD = 0.05
-#: Smallest SD per group: what a simulation can be trusted to reproduce (2.5 ms step, linearisation; joint tracking
-#: of a simulated servo is not accurate to better than ~1 mrad even when the encoders are finer).
-FLOORS = {"touchdown": 0.003, "ball_pos": 0.002, "ball_vel": 0.01, "ball_acc": 0.05, "ball_rest": 0.001, "joints": 1e-3}
-#: Typical noise of a group that the log does not contain (used only to judge what *would* separate causes).
-TYPICAL = {"touchdown": 0.05, "ball_pos": 0.01, "ball_vel": 0.05, "ball_acc": 0.3, "ball_rest": 0.003, "joints": 1e-3}
 #: Minimum degrees of freedom of the pure error before it is trusted.
 MIN_DOF = 4
 #: Largest factor on the simulated placement variance (the lab's scatter measured from repeats / the simulation's).
 MAX_PLACEMENT_SCALE = 10.0
-#: Feature indices within a group that share a base SD: horizontal (x, y) and vertical (z) parts of the ball path.
-AXIS_CLASSES = {"touchdown": ((0, 1),), "ball_pos": ((0, 1), (2,)), "ball_vel": ((0, 1), (2,)), "ball_acc": ((0, 1), (2,)), "ball_rest": ((0, 1), (2,))}
 
 
 @dataclass
 class NoiseModel:
     """SD per group (in the group's unit), the degrees of freedom of each estimate (0: assumed/derived)
-    and where it came from."""
+    and where it came from; ``model``: the task's trials (its groups; default: the default task's)."""
 
     sd: dict[str, float]
     dof: dict[str, int]
@@ -52,22 +43,27 @@ class NoiseModel:
     notes: list[str] = field(default_factory=list)
     #: Base SD per feature where the repeats measured it per axis class (NaN: use the group's ``sd``).
     feature_sd: np.ndarray | None = None
-    #: Predicted placement variance per throw and feature (N, F), counted only where ``feature_sd`` is set.
+    #: Predicted placement variance per trial and feature (N, F), counted only where ``feature_sd`` is set.
     place_var: np.ndarray | None = None
     #: Factor on ``place_var`` per feature (the lab's placement scatter against the simulated one), from the repeats.
     place_scale: np.ndarray | None = None
+    model: TrialModel | None = field(default=None, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        if self.model is None:
+            self.model = default_model()
 
     def vector(self) -> np.ndarray:
         """SD per feature (length of a feature vector): the group SDs."""
-        sl = group_slices()
-        out = np.empty(sl[group_names()[-1]].stop)
+        sl = self.model.slices()
+        out = np.empty(self.model.n_features)
         for g, s in sl.items():
             out[s] = self.sd[g]
         return out
 
     def matrix(self, n: int) -> np.ndarray:
-        """SD per throw and feature (n, F): sqrt(base^2 + scale * placement variance) where the repeats measured the
-        base per axis class (the base alone when no placement variance is known for n throws), the group SD elsewhere."""
+        """SD per trial and feature (n, F): sqrt(base^2 + scale * placement variance) where the repeats measured the
+        base per axis class (the base alone when no placement variance is known for n trials), the group SD elsewhere."""
         v = self.vector()
         out = np.tile(v, (n, 1))
         if self.feature_sd is None:
@@ -83,17 +79,17 @@ class NoiseModel:
         """Scale group ``g``'s SDs (group and per-feature) by ``factor``."""
         self.sd[g] *= factor
         if self.feature_sd is not None:
-            self.feature_sd[group_slices()[g]] *= factor
+            self.feature_sd[self.model.slices()[g]] *= factor
         if self.place_scale is not None:
-            self.place_scale[group_slices()[g]] *= factor**2
+            self.place_scale[self.model.slices()[g]] *= factor**2
 
     def axis_sd(self) -> dict[str, dict[str, float]]:
         """The per-axis-class base SDs the fit weighs with and the factors on the simulated placement variance
         (``{group: {"horizontal": .., "horizontal_placement_scale": .., "vertical": .., ...}}``)."""
         if self.feature_sd is None:
             return {}
-        sl, out = group_slices(), {}
-        for g, classes in AXIS_CLASSES.items():
+        sl, out = self.model.slices(), {}
+        for g, classes in ((o.name, o.axis_classes) for o in self.model.observables if o.axis_classes):
             for name, cls in zip(("horizontal", "vertical"), classes):
                 j = sl[g].start + cls[0]
                 if np.isfinite(self.feature_sd[j]):
@@ -108,16 +104,16 @@ class NoiseModel:
 
 
 def repeat_groups(keys: list[str]) -> list[list[int]]:
-    """Row indices of the plans thrown more than once (rows sharing a key), in order of first appearance."""
+    """Row indices of the plans run more than once (rows sharing a key), in order of first appearance."""
     by_key: dict[str, list[int]] = {}
     for i, k in enumerate(keys):
         by_key.setdefault(k, []).append(i)
     return [idx for idx in by_key.values() if len(idx) > 1]
 
 
-def pure_error(features: np.ndarray, keys: list[str]) -> dict[str, tuple[float, int]]:
+def pure_error(features: np.ndarray, keys: list[str], model: TrialModel | None = None) -> dict[str, tuple[float, int]]:
     """Pooled within-plan SD and its dof per group, from rows of ``features`` sharing a key."""
-    sl = group_slices()
+    sl = (model or default_model()).slices()
     out: dict[str, tuple[float, int]] = {}
     groups = repeat_groups(keys)
     for g, s in sl.items():
@@ -139,7 +135,7 @@ def _class_fit(features: np.ndarray, keys: list[str], place_var: np.ndarray | No
     """Base SD and placement scale of the feature columns ``cols``: the repeats' within-plan variance of each plan and
     feature is modelled as ``base^2 + scale * place_var`` (the simulated placement scatter is only approximately
     the lab's), fitted by maximum likelihood (a within-plan variance with d dof is a scaled chi-square). A repeated
-    probe, which the placement hardly moves, pins the base; the throws, the scale. Returns (base SD, scale, dof)
+    plan the placement hardly moves pins the base; the others, the scale. Returns (base SD, scale, dof)
     or None without enough repeats."""
     v, pv, d = [], [], []
     for idx in repeat_groups(keys):
@@ -180,68 +176,58 @@ def _class_fit(features: np.ndarray, keys: list[str], place_var: np.ndarray | No
     return float(np.sqrt(theta[0])), float(theta[1]), dof
 
 
-def estimate_noise(features: np.ndarray, keys: list[str], mocap_sd: float | None, encoder_sd: float | None, ball_sd_from_fit: dict[str, float] | None = None,
-                   place_var: np.ndarray | None = None) -> NoiseModel:
-    """Noise per group from repeated plans where possible, else priors and signal-derived values; with repeats, also
-    the per-axis-class base SDs beyond the predicted placement variance ``place_var`` (N, F) of each throw."""
-    pe = pure_error(features, keys)
+def estimate_noise(features: np.ndarray, keys: list[str], signal: SignalNoise | None = None, place_var: np.ndarray | None = None,
+                   model: TrialModel | None = None) -> NoiseModel:
+    """Noise per group from repeated plans where possible, else the outcome's prior, what the log's ``signal`` shows,
+    or the group's typical figure; with repeats, also the per-axis-class base SDs beyond the predicted placement
+    variance ``place_var`` (N, F) of each trial."""
+    model = model or default_model()
+    signal = signal or SignalNoise()
+    pe = pure_error(features, keys, model)
     n_rep = len(repeat_groups(keys))
     sd, dof, source, notes = {}, {}, {}, []
-    for g in group_names():
+    for o in model.observables:
+        g = o.name
         if g in pe and pe[g][1] >= MIN_DOF:
             sd[g], dof[g], source[g] = pe[g][0], pe[g][1], f"repeated plans ({pe[g][1]} dof)"
-        elif g == "touchdown":
-            sd[g], dof[g], source[g] = PRIOR_TOUCHDOWN_SD, 0, "assumed (paper: 4.5-7 cm SD; the log repeats no plan)"
-            notes.append("no repeated plans: touchdown noise assumed 5 cm; repeat some plans to measure it")
-        elif g == "joints" and encoder_sd is not None:
-            sd[g], dof[g], source[g] = encoder_sd, 0, "encoder noise from second differences"
-        elif g.startswith("ball") and ball_sd_from_fit and g in ball_sd_from_fit:
-            sd[g], dof[g], source[g] = ball_sd_from_fit[g], 0, "marker noise propagated through the flight fit"
+        elif g == model.outcome:
+            sd[g], dof[g], source[g] = model.prior_outcome_sd, 0, model.prior_outcome_source
+            notes.append(model.prior_outcome_note)
+        elif g in signal.sd:
+            sd[g], dof[g], source[g] = signal.sd[g], 0, signal.source[g]
         else:
-            sd[g], dof[g], source[g] = TYPICAL[g], 0, "typical value (not measured)"
-        if sd[g] < FLOORS[g]:
-            sd[g] = FLOORS[g]
-            source[g] += f"; raised to the simulation floor {FLOORS[g]:g}"
+            sd[g], dof[g], source[g] = o.typical, 0, "typical value (not measured)"
+        if sd[g] < o.floor:
+            sd[g] = o.floor
+            source[g] += f"; raised to the simulation floor {o.floor:g}"
     feature_sd = place_scale = None
     if n_rep:
-        sl = group_slices()
-        feature_sd = np.full(features.shape[1], np.nan)
-        place_scale = np.zeros(features.shape[1])
-        for g, classes in AXIS_CLASSES.items():
-            if not str(source.get(g, "")).startswith("repeated plans"):
-                continue
-            for cls in classes:
-                cols = [sl[g].start + j for j in cls]
-                est = _class_fit(features, keys, place_var, cols)
-                if est is None:
-                    continue
-                lo = max(FLOORS[g], (ball_sd_from_fit or {}).get(g, 0.0))
-                feature_sd[cols] = max(est[0], lo)
-                place_scale[cols] = est[1]
-        if not np.isfinite(feature_sd).any():
-            feature_sd = place_scale = None
-    return NoiseModel(sd=sd, dof=dof, source=source, n_repeat_groups=n_rep, notes=notes, feature_sd=feature_sd, place_var=place_var, place_scale=place_scale)
+        feature_sd, place_scale = _axis_fits(features, keys, place_var, model, source, signal)
+    return NoiseModel(sd=sd, dof=dof, source=source, n_repeat_groups=n_rep, notes=notes, feature_sd=feature_sd, place_var=place_var,
+                      place_scale=place_scale, model=model)
 
 
-def ball_fit_sd(layout_times: list[np.ndarray], centers: list[float], mocap_sd: float | None,
-                rest_times: list[np.ndarray | None] | None = None) -> dict[str, float]:
-    """SD of the flight-fit coefficients (position, velocity, acceleration) for marker noise ``mocap_sd``, and of the
-    mean ball position at rest (``ball_rest``, from the rest samples per throw)."""
-    if mocap_sd is None:
-        return {}
-    rest = [len(t) for t in (rest_times or []) if t is not None and len(t)]
-    out_rest = {"ball_rest": float(mocap_sd / np.sqrt(np.median(rest)))} if rest else {}
-    vals = []
-    for t, tc in zip(layout_times, centers):
-        if t is None:
+def _axis_fits(features: np.ndarray, keys: list[str], place_var: np.ndarray | None, model: TrialModel, source: dict[str, str],
+               signal: SignalNoise) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """Base SD and placement scale per feature of the groups measured from repeats, per axis class (NaN / 0 elsewhere;
+    None when no class could be fitted)."""
+    sl = model.slices()
+    feature_sd = np.full(features.shape[1], np.nan)
+    place_scale = np.zeros(features.shape[1])
+    for o in model.observables:
+        if not o.axis_classes or not str(source.get(o.name, "")).startswith("repeated plans"):
             continue
-        s = t - tc
-        A = np.column_stack([np.ones_like(s), s, 0.5 * s * s])
-        vals.append(np.sqrt(np.diag(np.linalg.inv(A.T @ A))) * mocap_sd)
-    if not vals:
-        return out_rest
-    v = np.median(np.array(vals), axis=0)
-    return {"ball_pos": float(v[0]), "ball_vel": float(v[1]), "ball_acc": float(v[2]), **out_rest}
+        for cls in o.axis_classes:
+            cols = [sl[o.name].start + j for j in cls]
+            est = _class_fit(features, keys, place_var, cols)
+            if est is None:
+                continue
+            lo = max(o.floor, signal.sd.get(o.name, 0.0) if o.name in signal.bounds else 0.0)
+            feature_sd[cols] = max(est[0], lo)
+            place_scale[cols] = est[1]
+    if not np.isfinite(feature_sd).any():
+        return None, None
+    return feature_sd, place_scale
 
 
-__all__ = ["NoiseModel", "estimate_noise", "pure_error", "repeat_groups", "ball_fit_sd", "PRIOR_TOUCHDOWN_SD", "N_JOINT_TIMES"]
+__all__ = ["NoiseModel", "estimate_noise", "pure_error", "repeat_groups"]

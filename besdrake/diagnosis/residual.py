@@ -3,11 +3,12 @@
 The verdict stays "not explained". Beside it, :func:`residual_report` says
 
 * **which observable** carries the residual (each measured group's share of the chi-square left by the chosen model),
-* **which throws** (the largest standardised residuals, with their plans),
-* **which plan features it follows**: Pearson correlation, over the throws, of each residual component of the
-  touchdown with each behaviour feature (:func:`behaviour_features`: the nominal throw's landing, release velocity and
-  height, and the plan's joint-1 sweep, joint-4 and joint-6 twists); those significant after Bonferroni,
-* and a **data-driven residual model, labelled as such** (not a physical cause): a ridge regression of the touchdown
+* **which trials** (the largest standardised residuals, with their plans),
+* **which plan features it follows**: Pearson correlation, over the trials, of each residual component of the
+  outcome with each behaviour feature (:func:`behaviour_features`, the task's
+  :meth:`~besdrake.diagnosis.trials.TrialModel.behaviour_features`, e.g. where the nominal trial ends and how the plan
+  moves); those significant after Bonferroni,
+* and a **data-driven residual model, labelled as such** (not a physical cause): a ridge regression of the outcome
   residual on the behaviour features whose features and penalty are chosen by leave-one-plan-out cross-validation
   (:class:`~besdrake.diagnosis.residual_model.ResidualModel`), with its own held-out gain against the model it
   corrects: nested K-fold by plan (:data:`HELDOUT_FOLDS`, :data:`HELDOUT_REPEATS` random splits), the whole choice
@@ -24,14 +25,13 @@ import numpy as np
 from scipy import stats
 
 from besdrake.diagnosis import fitting
-from besdrake.diagnosis.observables import group_slices
 from besdrake.diagnosis.residual_model import ResidualModel, nested_heldout
 
 #: Outer folds (by plan) of the residual model's held-out gain (at least the diagnosis' own K).
 HELDOUT_FOLDS = 5
 #: ... repeated with this many random splits (the gain of one split of about 17 plans is itself noisy).
 HELDOUT_REPEATS = 3
-#: Correlations reported at this family-wise level (Bonferroni over features x touchdown axes).
+#: Correlations reported at this family-wise level (Bonferroni over features x outcome axes).
 FOLLOW_ALPHA = 0.01
 LABEL = "data-driven residual model (ridge regression on cross-validated behaviour features): not a physical cause"
 
@@ -41,12 +41,15 @@ class ResidualReport:
     """Where the residual of the chosen model lives, and the data-driven model of it (JSON via :meth:`to_dict`)."""
 
     group_share: dict[str, float]
-    worst_throws: list[dict]
+    worst_trials: list[dict]
     follows: list[dict]
     model: dict[str, Any] = field(default_factory=dict)
+    outcome: str = "outcome"
 
     def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
+        d = asdict(self)
+        del d["outcome"]
+        return d
 
     def describe(self) -> str:
         """One sentence for a verdict."""
@@ -54,34 +57,30 @@ class ResidualReport:
         parts = [f"the residual lives mostly in {g} ({self.group_share.get(g, 0):.0%} of the chi-square)"]
         if self.follows:
             f = self.follows[0]
-            parts.append(f"the touchdown {f['axis']} residual follows {f['feature']} (r = {f['r']:.2f})")
+            parts.append(f"the {self.outcome} {f['axis']} residual follows {f['feature']} (r = {f['r']:.2f})")
         m = self.model
         if m.get("heldout_after_m") is not None:
             figs = f"{m['heldout_before_m'] * 100:.1f} -> {m['heldout_after_m'] * 100:.1f} cm, median over plans held out from it"
             if m["offered"]:
                 on = ", ".join(m["fit"]["features"]) or "a constant offset"
-                parts.append(f"a {LABEL} on {on} lowers the held-out touchdown disparity ({figs})")
+                parts.append(f"a {LABEL} on {on} lowers the held-out {self.outcome} disparity ({figs})")
             else:
                 parts.append(f"no gain from a data-driven residual model on held-out plans ({figs}): none offered")
         return "; ".join(parts)
 
 
 def behaviour_features(ev: Any) -> tuple[list[str], np.ndarray]:
-    """Per used throw: the nominal landing (x, y), release velocity (the flight window's, 3) and height, and the plan's
-    joint-1, joint-4 and joint-6 travel (last minus first sample, rad). NaN where the nominal flight is unknown."""
-    sl = group_slices()
+    """Per used trial, the task's behaviour features (names, (N, k)) from the plans and the nominal features of every
+    group (NaN where the nominal rollout is unknown)."""
     full = ev.sim.full_cache.get(ev.sim.key({}))
     full = np.full_like(ev.y0, np.nan) if full is None else full
-    names = ["touchdown_x", "touchdown_y", "vel_x", "vel_y", "vel_z", "height", "sweep_j1", "twist_j4", "twist_j6"]
-    X = np.column_stack([full[:, sl["touchdown"]], full[:, sl["ball_vel"]], full[:, sl["ball_pos"]][:, 2],
-                         np.array([p.q[-1, [0, 3, 5]] - p.q[0, [0, 3, 5]] for p in ev.plans])])
-    return names, X
+    return ev.model.behaviour_features(ev.plans, full)
 
 
 def residual_report(ev: Any, prob: fitting.Problem, y_model: np.ndarray, folds: int, rng: np.random.Generator) -> ResidualReport:
     """Where the residual of ``y_model`` (the chosen model's features, N x F) lives and the held-out gain of the
-    data-driven residual model on the touchdowns (see the module docstring)."""
-    sl = group_slices()
+    data-driven residual model on the outcomes (see the module docstring)."""
+    sl = ev.model.slices()
     c2 = fitting.chi2_by_group(prob, y_model, sl)
     total = sum(c2.get(g, 0.0) for g in ev.measured_groups) or 1.0
     share = {g: float(c2.get(g, 0.0) / total) for g in ev.measured_groups}
@@ -91,14 +90,14 @@ def residual_report(ev: Any, prob: fitting.Problem, y_model: np.ndarray, folds: 
     worst = [{"trial": ev.used[i].trial, "plan": ev.plans[i].meta.get("name") or ev.plans[i].meta.get("generator", ""), "chi2": float(per[i])}
              for i in np.argsort(-per)[:3]]
     names, X = behaviour_features(ev)
-    td = sl["touchdown"]
+    td = sl[ev.model.outcome]
     R = ev.y_meas[:, td] - y_model[:, td]
     ok = np.all(np.isfinite(X), axis=1) & np.all(np.isfinite(R), axis=1)
-    return ResidualReport(share, worst, _follows(names, X[ok], R[ok]), _heldout(ev, names, X, R, ok, folds, rng))
+    return ResidualReport(share, worst, _follows(names, X[ok], R[ok]), _heldout(ev, names, X, R, ok, folds, rng), ev.model.outcome)
 
 
 def _follows(names: list[str], X: np.ndarray, R: np.ndarray) -> list[dict]:
-    """Behaviour features the touchdown residual correlates with (Bonferroni over features x axes), strongest first."""
+    """Behaviour features the outcome residual correlates with (Bonferroni over features x axes), strongest first."""
     out = []
     if len(X) < 5:
         return out
@@ -114,8 +113,8 @@ def _follows(names: list[str], X: np.ndarray, R: np.ndarray) -> list[dict]:
 
 
 def _heldout(ev: Any, names: list[str], X: np.ndarray, R: np.ndarray, ok: np.ndarray, folds: int, rng: np.random.Generator) -> dict[str, Any]:
-    """The cross-validated residual model on every usable throw, and its nested held-out gain (module docstring):
-    offered only when the held-out touchdown disparity, median and RMS over the held-out throws, is lower with it."""
+    """The cross-validated residual model on every usable trial, and its nested held-out gain (module docstring):
+    offered only when the held-out outcome disparity, median and RMS over the held-out trials, is lower with it."""
     idx = np.nonzero(ok)[0]
     groups = np.array([ev.keys[i] for i in idx])
     n_plans = len(set(groups.tolist()))

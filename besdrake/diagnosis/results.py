@@ -11,17 +11,17 @@ from besdrake.sim.scenario import Scenario
 
 
 class DiagnosisError(ValueError):
-    """The log cannot be diagnosed (too few usable throws, unknown candidate effect, ...)."""
+    """The log cannot be diagnosed (too few usable trials, unknown candidate effect, ...)."""
 
 
 # ---------------------------------------------------------------------------------------------- results
 @dataclass
 class GroupComparison:
-    """Sim-vs-lab residuals of one feature group over all throws: mean, its standard error, systematic?"""
+    """Sim-vs-lab residuals of one feature group over all trials: mean, its standard error, systematic?"""
 
     group: str
     unit: str
-    n_throws: int
+    n_trials: int
     mean: list[float]
     stderr: list[float]
     rms: float
@@ -76,11 +76,11 @@ class AllowedEffect:
 
     ``allowed``: per parameter the interval (in its unit) not ruled out at level :data:`ALPHA` when that parameter
     alone deviates (likelihood ratio on the linearised model, each end the data set checked with rollouts and widened
-    where the throws respond less than linearly, :func:`_verify_interval_ends`; clipped to the realistic bounds); ``max_fraction``: the largest allowed deviation from
+    where the trials respond less than linearly, :func:`_verify_interval_ends`; clipped to the realistic bounds); ``max_fraction``: the largest allowed deviation from
     nominal as a fraction of the parameter's realistic range; ``excluded``: every deviation of at least
     :data:`EXCLUDE_FRACTION` of the range is ruled out; ``unconstrained``: the log allows every parameter (nearly, :data:`UNCONSTRAINED_COVER`)
     anywhere in its realistic range (the logged signals say nothing about this effect; otherwise they bound at least one of its
-    parameters and a larger deviation would have been seen); ``throws_needed``: about how many throws like the logged ones
+    parameters and a larger deviation would have been seen); ``trials_needed``: about how many trials like the logged ones
     would exclude it (None: the logged signals do not respond to it at all); ``recommendation``: the recording or
     experiment that would show it.
     """
@@ -91,14 +91,14 @@ class AllowedEffect:
     units: dict[str, str]
     max_fraction: float
     excluded: bool
-    throws_needed: int | None
+    trials_needed: int | None
     recommendation: str
     unconstrained: bool = False
 
     def to_dict(self) -> dict[str, Any]:
         return {"effect": self.effect, "allowed": {k: [float(a), float(b)] for k, (a, b) in self.allowed.items()}, "nominal": dict(self.nominal),
                 "units": dict(self.units), "max_allowed_fraction_of_range": self.max_fraction, "excluded": self.excluded,
-                "unconstrained": self.unconstrained, "throws_needed": self.throws_needed, "recommendation": self.recommendation}
+                "unconstrained": self.unconstrained, "trials_needed": self.trials_needed, "recommendation": self.recommendation}
 
     def describe(self) -> str:
         """``effect (p in [lo, hi] unit, ...)`` for the allowed parameters that reach the exclusion threshold."""
@@ -110,7 +110,7 @@ class AllowedEffect:
 
 @dataclass
 class Gain:
-    """Held-out touchdown disparity (m) before/after refinement: medians with bootstrap 95% CIs."""
+    """Held-out outcome disparity (e.g. of the touchdowns, m) before/after refinement: medians with bootstrap 95% CIs."""
 
     median_disparity_before_m: float
     median_disparity_after_m: float
@@ -138,7 +138,7 @@ class Diagnosis:
     cannot exclude (with the magnitudes it still allows and what would show them) and ``excluded`` those it rules
     out; ``confidence`` is "high" only if every candidate is excluded. Both lists are empty when a cause was named.
     A named cause has ``confidence`` "high" when it passes the lack-of-fit test at :data:`CONFIDENT_P`, no rival fits
-    about as well, and the log records more than the touchdowns (on touchdowns alone an unknown effect can pass).
+    about as well, and the log records more than the trials' outcome (on outcomes alone an unknown effect can pass).
     """
 
     explained: bool
@@ -154,7 +154,7 @@ class Diagnosis:
     n_trials: int
     n_used: int
     skipped: list[dict]
-    per_throw: list[dict]
+    per_trial: list[dict]
     scenario: Scenario
     timings: dict[str, float]
     n_rollouts: int

@@ -3,11 +3,12 @@ placement correction at a candidate's own parameters, and parsimony (effects the
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from besdrake.diagnosis import fitting, noise, settings
-from besdrake.diagnosis.settings import (ALPHA, FORWARD_TOP, INDISTINGUISHABLE_DBIC, LOCAL_CHI2_FACTOR, LOCAL_TOP, MATERIAL, PLACEMENT_STARTS,
-                                         STRONG_DBIC)
+from besdrake.diagnosis.settings import ALPHA, FORWARD_TOP, INDISTINGUISHABLE_DBIC, LOCAL_CHI2_FACTOR, LOCAL_TOP, MATERIAL, STRONG_DBIC
 from besdrake.diagnosis.simulate import _Sim
 from besdrake.diagnosis.stats import _extra_effect_significant, _lack_of_fit_p, _material_change
 
@@ -22,7 +23,7 @@ def _forward_pairs(prob: fitting.Problem, fits: list[fitting.CandidateFit], sens
     effect's sensitivities from nominal: no rollouts) and refine the FORWARD_TOP most promising pairs with rollouts
     from the lead's optimum. Why: a pair's linear fit at nominal misjudges a pair whose lead effect is far from
     linear (a lag near its bound), so the right pair was never refined (default lab: base 3 cm lower + 10 ms lag,
-    named lag + ball). Replaces those pairs' entries in ``fits`` (in place); returns the pairs refined."""
+    named lag + the object's size). Replaces those pairs' entries in ``fits`` (in place); returns the pairs refined."""
     lead = min(refined_singles.values(), key=lambda f: f.bic)
     if lead.y_fit is None or lead.jac is None:
         return []
@@ -44,7 +45,7 @@ def _forward_pairs(prob: fitting.Problem, fits: list[fitting.CandidateFit], sens
             j = [x.key for x in lead.specs].index(s_.key)
             d = np.zeros_like(prob.y_meas)
             d[prob.mask] = lead.jac[:, j] * sd_full
-            s_ = fitting.ParamSpec(s_.effect, s_.name, lead_theta[s_.key], s_.low, s_.high, s_.step, s_.unit)
+            s_ = replace(s_, nominal=lead_theta[s_.key])
         local.append(s_)
         dy.append(d)
     sens_lead = fitting.Sensitivity(specs=local, y0=lead.y_fit, dy=np.array(dy))
@@ -71,24 +72,29 @@ def _forward_pairs(prob: fitting.Problem, fits: list[fitting.CandidateFit], sens
 
 def placement_starts(prob: fitting.Problem, fits: list[fitting.CandidateFit], sim: _Sim, top: list[fitting.CandidateFit],
                      singles_needed: set) -> dict[tuple[str, ...], list]:
-    """Warm starts of the ball_placement single (adds it to ``singles_needed`` when it is worth refining).
+    """Warm starts of the placement effect's single (adds it to ``singles_needed`` when it is worth refining).
 
-    The expected throw is kinked in the ball's placement (the funnel lifts it by |x| + |y|), so the linear model
-    at the centre misjudges a placement habit of a few mm: simulate the ball_placement single at PLACEMENT_STARTS
-    and refine it from the best of them when that is as good as the third-best linear candidate."""
+    The expected trial may be kinked in the placement (e.g. a funnel lifts an object by |x| + |y|), so the linear model
+    at the centre misjudges a placement habit of a few mm: simulate the placement single at the task's
+    :attr:`~besdrake.diagnosis.trials.PlacementScatter.starts` and refine it from the best of them when that is as good
+    as the third-best linear candidate."""
     extra_starts: dict[tuple[str, ...], list] = {}
-    pl_fit = next((f for f in fits if f.effects == ("ball_placement",)), None)
+    scatter = sim.model.scatter
+    if scatter is None:
+        return extra_starts
+    single = (scatter.effect,)
+    pl_fit = next((f for f in fits if f.effects == single), None)
     if top and pl_fit is not None and pl_fit.specs and sim.placement_draws is not None:
         pts = []
-        for dx, dy in PLACEMENT_STARTS:
-            th = np.array([{"x": dx, "y": dy}.get(s_.name, s_.nominal) for s_ in pl_fit.specs])
+        for start in scatter.starts:
+            th = np.array([start.get(s_.name, s_.nominal) for s_ in pl_fit.specs])
             y_s = sim.one(fitting.effects_from(pl_fit.specs, th))
             r_s = prob.weighted(y_s)
             pts.append((float(r_s @ r_s), th, y_s))
         c2_best, th_best, y_best_start = min(pts, key=lambda p_: p_[0])
-        if ("ball_placement",) in singles_needed or c2_best + pl_fit.k * np.log(max(prob.n, 1)) <= top[-1].bic:
-            singles_needed.add(("ball_placement",))
-            extra_starts[("ball_placement",)] = [(th_best, y_best_start)]
+        if single in singles_needed or c2_best + pl_fit.k * np.log(max(prob.n, 1)) <= top[-1].bic:
+            singles_needed.add(single)
+            extra_starts[single] = [(th_best, y_best_start)]
     return extra_starts
 
 
@@ -129,9 +135,9 @@ def refine_leaders(prob: fitting.Problem, fits: list[fitting.CandidateFit], sens
 def relocalise_placement(prob: fitting.Problem, fits: list[fitting.CandidateFit], sim: _Sim, iterations: int, local_shift: dict) -> None:
     """Re-judge the leading candidates with the placement correction at their own parameters and refine them on it
     (stored in ``local_shift``). The nominal placement correction (sim.shift) is a linearisation at the nominal
-    simulation; under an effect that changes how the scoop moves (a lag, other gains) the scatter shifts the mean
-    throw differently, and a small extra effect (a joint offset) absorbs the difference. One rollout per placement
-    draw and throw each."""
+    simulation; under an effect that changes how the robot moves (a lag, other gains) the scatter shifts the mean
+    trial differently, and a small extra effect (a joint offset) absorbs the difference. One rollout per placement
+    draw and trial each."""
     ranked = sorted([f for f in fits if f.refined and f.effects], key=lambda f: f.bic)
     if not ranked:
         return
@@ -155,8 +161,8 @@ def parsimony(prob: fitting.Problem, fits: list[fitting.CandidateFit], nm: noise
 
     An effect of the best candidate is dropped when the model without it is still adequate (passes the lack-of-fit
     test) and the effect changes neither the predicted touchdowns nor the joint tracking materially (less than
-    MATERIAL x the noise SD, median over throws; the ball path at 4x that): it then only absorbs small systematic
-    differences that no throw outcome depends on. A nested pair's extra effect is also dropped when it is not
+    MATERIAL x the noise SD, median over trials; other groups at their material factor times that): it then only
+    absorbs small systematic differences that no trial's outcome depends on. A nested pair's extra effect is also dropped when it is not
     significant with the plans as the independent units (ROBUST_NESTED_TEST, :func:`_extra_effect_significant`).
     When several effects could go, the model kept is the best (BIC) of them. A single effect is not dropped for the
     nominal model when it is STRONG_DBIC better and significant per plan."""
@@ -191,11 +197,11 @@ def _drop(prob: fitting.Problem, best_fit: fitting.CandidateFit, by_effects: dic
     strong = not sub and sub_fit.bic - best_fit.bic >= STRONG_DBIC
     if immaterial and strong:
         # The nominal model is not kept against very strong evidence: a single effect the log shows
-        # consistently (throws as the independent units) is named even if it hardly moves an outcome.
+        # consistently (trials as the independent units) is named even if it hardly moves an outcome.
         sig, p_w = _extra_effect_significant(prob, best_fit, e, keys, alpha_extra)
         if sig:
             notes.append(f"{size_txt}, but fits {sub_fit.bic - best_fit.bic:.1f} BIC better than the nominal simulation, "
-                         f"consistently over the plans (p = {p_w:.2g}): named, although it hardly matters for the throws' outcomes")
+                         f"consistently over the plans (p = {p_w:.2g}): named, although it hardly matters for the {nm.model.noun}s' outcomes")
             return None
     if immaterial:
         return (sub_fit.bic, e, sub_fit, f"{best_fit.name} fits better by BIC ({sub_fit.bic - best_fit.bic:.1f}) but {size_txt}: "
@@ -204,7 +210,7 @@ def _drop(prob: fitting.Problem, best_fit: fitting.CandidateFit, by_effects: dic
         sig, p_w = _extra_effect_significant(prob, best_fit, e, keys, alpha_extra)
         if not sig:
             return (sub_fit.bic, e, sub_fit, f"{best_fit.name} fits better by BIC ({sub_fit.bic - best_fit.bic:.1f}) but {e} is not significant "
-                    f"with the throws' plans as the independent units (cluster-robust Wald test p = {p_w:.2g} >= {alpha_extra:.2g}): not claimed")
+                    f"with the {nm.model.noun}s' plans as the independent units (cluster-robust Wald test p = {p_w:.2g} >= {alpha_extra:.2g}): not claimed")
     return None
 
 
@@ -215,10 +221,10 @@ def refine_rivals(prob: fitting.Problem, fits: list[fitting.CandidateFit], best_
     rivals = [f for f in fits if not f.refined and f.effects and not set(best_fit.effects) <= set(f.effects)
               and f.chi2 < best_fit.chi2 + INDISTINGUISHABLE_DBIC]
     rivals = sorted(rivals, key=lambda f: f.chi2)[:3]
-    if (set(groups) <= {"touchdown"} or settings.VERIFY_SINGLES) and best_fit.effects:
-        # Two numbers per throw: many effects move the touchdowns alike, and a linear fit at nominal is a poor guide
-        # to which (drag, the ball's mass). Refine every single effect, so that "cannot tell it from" lists each
-        # one that fits about as well (benchmark seed 0: a hidden drag, joint offset or ball mass was otherwise
+    if (set(groups) <= {sim.model.outcome} or settings.VERIFY_SINGLES) and best_fit.effects:
+        # A few numbers per trial: many effects move the outcomes alike, and a linear fit at nominal is a poor guide
+        # to which (drag, the object's mass). Refine every single effect, so that "cannot tell it from" lists each
+        # one that fits about as well (benchmark seed 0: a hidden drag, joint offset or object mass was otherwise
         # missing from the list in 3 of 40 touchdown-only logs). On full logs too (VERIFY_SINGLES): a confident
         # answer needs every single effect fitted with rollouts.
         rivals += [f for f in fits if not f.refined and len(f.effects) == 1 and f.effects != best_fit.effects and f not in rivals]

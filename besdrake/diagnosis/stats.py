@@ -7,9 +7,8 @@ from typing import Sequence
 import numpy as np
 from scipy import stats
 
-from besdrake.diagnosis import fitting, noise, observables
-from besdrake.diagnosis.observables import group_slices
-from besdrake.diagnosis.settings import ALPHA, MATERIAL_BALL_FACTOR, NESTED_TEST_MIN_PLANS
+from besdrake.diagnosis import fitting, noise
+from besdrake.diagnosis.settings import ALPHA, NESTED_TEST_MIN_PLANS
 
 
 def _bootstrap_median_ci(x: np.ndarray, rng: np.random.Generator, n_boot: int = 2000) -> tuple[float, float]:
@@ -21,21 +20,21 @@ def _bootstrap_median_ci(x: np.ndarray, rng: np.random.Generator, n_boot: int = 
 
 
 def _material_change(y_a: np.ndarray, y_b: np.ndarray, nm: noise.NoiseModel, groups: list[str]) -> dict[str, float]:
-    """Median over throws of the RMS prediction difference of two fits, in units of the materiality scale: noise
-    SDs for the touchdown (always: it is what a refined model is for) and joint tracking, 4 noise SDs for the
-    ball groups (path and rest position, when measured)."""
-    sl = group_slices()
+    """Median over trials of the RMS prediction difference of two fits, in units of the materiality scale: noise
+    SDs for the outcome (always: it is what a refined model is for), each other measured group's
+    :attr:`~besdrake.diagnosis.trials.Observable.material_factor` noise SDs (e.g. more for a path that hardly moves
+    the outcome)."""
+    model = nm.model
+    sl = model.slices()
     out = {}
-    for g in observables.group_names():
-        if g != "touchdown" and g not in groups:
+    for o in model.observables:
+        g = o.name
+        if g != model.outcome and g not in groups:
             continue
         d = y_a[:, sl[g]] - y_b[:, sl[g]]
         rms = np.sqrt(np.nanmean(d * d, axis=1))
         rms = rms[np.isfinite(rms)]
-        # The ball path counts at 1/MATERIAL_BALL_FACTOR the weight: small systematic path differences (e.g. from
-        # how the ball is placed) that hardly move the touchdown are not worth an extra cause.
-        scale = MATERIAL_BALL_FACTOR if g.startswith("ball") else 1.0
-        out[g] = float(np.median(rms) / (nm.sd[g] * scale)) if rms.size else 0.0
+        out[g] = float(np.median(rms) / (nm.sd[g] * o.material_factor)) if rms.size else 0.0
     return out
 
 
@@ -46,8 +45,8 @@ def _lack_of_fit_p(prob: fitting.Problem, y_fit: np.ndarray, k: int, noise_model
     measured from repeated plans (dof of both), a chi-square when the noise is assumed. The k fitted
     parameters are charged to the groups in proportion to their sizes.
     """
-    c2 = fitting.chi2_by_group(prob, y_fit, group_slices())
-    sl = group_slices()
+    sl = noise_model.model.slices()
+    c2 = fitting.chi2_by_group(prob, y_fit, sl)
     ps = {}
     for g in groups:
         n_g = int(prob.mask[:, sl[g]].sum())
@@ -75,10 +74,10 @@ def _lack_of_fit_p(prob: fitting.Problem, y_fit: np.ndarray, k: int, noise_model
 def _extra_effect_significant(prob: fitting.Problem, big: fitting.CandidateFit, effect: str, keys: Sequence[str], alpha: float = ALPHA) -> tuple[bool, float]:
     """Whether ``effect``'s parameters in the refined candidate ``big`` differ from nominal significantly when the
     plans, not the residual entries, are the independent units: Wald test with the cluster-robust (sandwich)
-    covariance H^-1 (sum_u g_u g_u^T) H^-1 U/(U-1), g_u the score of plan u's throws (weighted Jacobian^T residual),
+    covariance H^-1 (sum_u g_u g_u^T) H^-1 U/(U-1), g_u the score of plan u's trials (weighted Jacobian^T residual),
     H the Gauss-Newton information with the fit's weak prior; F(q, U-1) reference at level ``alpha``. The
-    residuals within a throw are strongly correlated (the touchdown scatter also moves the ball path and its speed),
-    so a chi-square over entries counts one throw's noise several times and lets a small effect (a joint offset)
+    residuals within a trial are strongly correlated (an outcome's scatter also moves the path that led to it),
+    so a chi-square over entries counts one trial's noise several times and lets a small effect (a joint offset)
     absorb it; the plan-level scatter of the scores does not. Returns (significant, p-value)."""
     idx = [j for j, s_ in enumerate(big.specs) if s_.effect == effect]
     A = big.jac

@@ -116,10 +116,10 @@ def judge(prob: fitting.Problem, sens: fitting.Sensitivity, fits: list[fitting.C
     none_c = next(c for c in causes if not c.effects)
     indist = indistinguishable(fits, causes, ev, ident)
     separable = [a for a in indist if not a.get("structural")]
-    outcome_only = set(ev.measured_groups) <= {"touchdown"}
+    outcome_only = set(ev.measured_groups) <= {ev.model.outcome}
     explained = bool(best.effects) and best.p_value >= ALPHA
-    # A touchdown-only log cannot vouch for the cause: the lack-of-fit test, the only guard against an effect the
-    # registry does not know, has no power on two numbers per throw (benchmark seed 0: all 5 unknown effects passed
+    # An outcome-only log cannot vouch for the cause: the lack-of-fit test, the only guard against an effect the
+    # registry does not know, has no power on a few numbers per trial (benchmark seed 0: all 5 unknown effects passed
     # it; a cross wind was taken for a base offset, 8.6 BIC ahead of the next candidate).
     confidence = ("high" if explained and not separable and best.p_value >= CONFIDENT_P and not outcome_only and _clear_margin(fits, causes, indist)
                   else "low")
@@ -142,8 +142,7 @@ def judge(prob: fitting.Problem, sens: fitting.Sensitivity, fits: list[fitting.C
         if twins:
             v.text += "; " + "; ".join(dict.fromkeys(twins))
     if v.explained and v.best.effects and outcome_only:
-        v.text += ("; the log records only touchdowns, so an effect outside the registry that moves them alike cannot be "
-                   "excluded (record the ball path and the joints to confirm the cause)")
+        v.text += "; " + ev.model.outcome_only_note()
     if not v.explained and separable:
         v.text += "; candidates that fit about equally: " + ", ".join(a["b"] for a in separable)
     return v

@@ -20,7 +20,7 @@ class ThrowingTask(Task):
     default_scenario = "nominal"
     object_markers = ("Ball",)
     effects = ("base_offset", "joint_offset", "actuator_lag", "gain_scale", "air_drag", "ball_placement", "ball",
-               "scoop_friction")
+               "scoop_friction", "scoop_mount")
     default_lab = "default_lab"
     learn_config = Path(__file__).resolve().parent / "learn.yaml"
 
@@ -101,6 +101,13 @@ class ThrowingTask(Task):
 
         cfg = parse_lab_config(config) if isinstance(config, dict) else load_lab_config(config)
         return VirtualLab(cfg if seed is None else cfg.with_seed(seed))
+
+    def diagnosis_model(self):
+        """:class:`~besdrake.tasks.throwing.diagnosis.model.ThrowDiagnosis`: touchdown, ball flight and rest, joint
+        tracking; diagnosis throws with repeats, sideways throws and tilt probes; the ball's placement scatter."""
+        from besdrake.tasks.throwing.diagnosis.model import MODEL
+
+        return MODEL
 
     def check_robot(self, robot) -> None:
         """Throwing needs a scoop: a fixed end effector with the scoop's geometry in its params."""

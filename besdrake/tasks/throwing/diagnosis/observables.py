@@ -1,4 +1,4 @@
-"""Per-throw observables compared between the lab and the simulation.
+"""Per-throw observables compared between the lab and the simulation (the throwing task's diagnosis features).
 
 The same feature extraction is applied to a measured trial and to a simulated :class:`~besdrake.sim.Outcome`
 of the same plan, so that sim and lab are compared like for like:
@@ -17,7 +17,8 @@ of the same plan, so that sim and lab are compared like for like:
   fixed times spread over the nominal swing up to the nominal release. Lag, delay and servo gains show here.
 
 A :class:`ThrowLayout` (windows and times per throw) is built once from the nominal simulation and reused for
-every simulated variant, so the features are smooth functions of the effect parameters.
+every simulated variant, so the features are smooth functions of the effect parameters. The diagnosis engine
+(:mod:`besdrake.diagnosis`) reads them through :class:`besdrake.tasks.throwing.diagnosis.model.ThrowDiagnosis`.
 """
 
 from __future__ import annotations
@@ -120,6 +121,24 @@ def make_layout(measurement, nominal) -> ThrowLayout:
     return lay
 
 
+def full_layout(layout: ThrowLayout) -> ThrowLayout:
+    """A layout with every group (100 Hz flight window, joint grid) for predictions of unmeasured signals."""
+    full = ThrowLayout(ball_times=layout.ball_times, ball_center=layout.ball_center, rest_times=layout.rest_times, joint_times=layout.joint_times,
+                       release_time_nominal=layout.release_time_nominal, touchdown_time_nominal=layout.touchdown_time_nominal)
+    if layout.release_time_nominal is None:
+        return full
+    if full.ball_times is None:
+        t = np.arange(layout.release_time_nominal + WINDOW_AFTER_RELEASE, layout.touchdown_time_nominal - WINDOW_BEFORE_TOUCHDOWN, 0.01)
+        if len(t) >= MIN_BALL_SAMPLES:
+            full.ball_times, full.ball_center = t, float(t.mean())
+    if full.rest_times is None:
+        full.rest_times = np.arange(0.0, REST_TIME + 1e-9, 0.005)
+    if full.joint_times is None:
+        t_end = layout.release_time_nominal
+        full.joint_times = np.linspace(t_end / N_JOINT_TIMES, t_end, N_JOINT_TIMES)
+    return full
+
+
 def _interp_rows(tq: np.ndarray, t: np.ndarray, y: np.ndarray) -> np.ndarray:
     return np.column_stack([np.interp(tq, t, y[:, j]) for j in range(y.shape[1])])
 
@@ -219,3 +238,24 @@ def encoder_noise(measurements) -> float | None:
         if d2.size:
             vals.append(1.4826 * np.median(np.abs(d2 - np.median(d2))) / np.sqrt(6.0))
     return float(np.median(vals)) if vals else None
+
+
+def ball_fit_sd(layout_times: list[np.ndarray], centers: list[float], mocap_sd: float | None,
+                rest_times: list[np.ndarray | None] | None = None) -> dict[str, float]:
+    """SD of the flight-fit coefficients (position, velocity, acceleration) for marker noise ``mocap_sd``, and of the
+    mean ball position at rest (``ball_rest``, from the rest samples per throw)."""
+    if mocap_sd is None:
+        return {}
+    rest = [len(t) for t in (rest_times or []) if t is not None and len(t)]
+    out_rest = {"ball_rest": float(mocap_sd / np.sqrt(np.median(rest)))} if rest else {}
+    vals = []
+    for t, tc in zip(layout_times, centers):
+        if t is None:
+            continue
+        s = t - tc
+        A = np.column_stack([np.ones_like(s), s, 0.5 * s * s])
+        vals.append(np.sqrt(np.diag(np.linalg.inv(A.T @ A))) * mocap_sd)
+    if not vals:
+        return out_rest
+    v = np.median(np.array(vals), axis=0)
+    return {"ball_pos": float(v[0]), "ball_vel": float(v[1]), "ball_acc": float(v[2]), **out_rest}
