@@ -306,13 +306,18 @@ def _executor_stats(ctx: Context) -> dict[str, Any] | None:
     """The stage's rollouts, wall and busy seconds summed over its executors (None if it simulated nothing)."""
     from besdrake.sim.executors import ExecutorStats
 
-    executors = ctx.cache.pop("stage_executors", [])
-    total = ExecutorStats(workers=max([1] + [e.stats.workers for e in executors]))
-    for e in executors:
-        total.rollouts += e.stats.rollouts
-        total.wall_s += e.stats.wall_s
-        total.busy_s += e.stats.busy_s
+    total = ExecutorStats()
+    for e in ctx.cache.pop("stage_executors", []):
+        total.add(e.stats)
     return total.to_dict() if total.rollouts else None
+
+
+def _busy_line(stats: dict[str, Any]) -> str:
+    """The stage's executor figures in one parenthesis: rollouts, their rate, the workers' busy share while simulating
+    and over the whole stage, and the batches' width (rollouts a pool of any size could run at once)."""
+    return (f" ({stats['rollouts']} rollouts, {stats['rollouts_per_s']}/s, workers busy {stats['busy_share']:.0%} while simulating, "
+            f"{stats['stage_busy_share']:.0%} of the stage; {stats['batches']} batches, width {stats['width_mean']:.1f} mean, "
+            f"{stats['width_max']} max: a 16-worker pool {stats['fill_16_workers']:.0%} busy at best, 64 workers {stats['fill_64_workers']:.0%})")
 
 
 def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int, tag: str, scouting: bool = True) -> dict[str, Any]:
@@ -322,6 +327,7 @@ def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int
     from besdrake.imitation import DMPParameterization
     from besdrake.search.refinement import (DEFAULT_SCOUTS, RefinementProblem, plot_learning_curves, rank_starts, refine,
                                             scout_start_points, scouting_episodes)
+    from besdrake.sim.scheduler import run_concurrently
     from besdrake.task import DEFAULT_TASK, get_task
 
     cfg = ctx.config["refinement"]
@@ -329,23 +335,30 @@ def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int
     reward = get_task(task).reward(target=tuple(cfg["target"]))
     robot = ctx.robot(scenario)
     problems = [RefinementProblem(robot, d, reward, task=task) for d in dmps]
-    runs, results = [], []
+    runs = []
     with _executor(ctx, scenario) as executor:
         ranking = rank_starts(problems, executor)
         index, start = ranking[0]
         problem = problems[index]
         starts = scout_start_points(problems, ranking)  # None unless the default search scouts from several throws
         scouts = DEFAULT_SCOUTS if scouting and 2 * scouting_episodes(int(cfg["population"])) <= int(budget) else 0
-        for k in range(int(cfg["plans"])):
-            ctx.progress(f"{tag}: CMA-ES run {k + 1}/{cfg['plans']} from throw {index} ({start.distance:.2f} m from the target)")
-            result = refine(problem, executor, n_episodes=int(budget), seed=int(cfg["seed"]) + k,
-                            out_dir=out / f"run{k}", popsize=int(cfg["population"]),
-                            stop_on_success=bool(cfg.get("stop_on_success", True)), starts=starts, scouts=scouts)
-            dmp = problem.parameterization.from_vector(result.best_theta)
-            dmp.save(out / f"refined{k}.dmp.json")
-            DMPParameterization(dmp, robot.joint_names).motion_plan(DMPParameterization(dmp).to_vector(), dt=0.01).save(out / f"refined{k}.plan.json")
-            runs.append(result.summary() | {"dmp": f"refined{k}.dmp.json"})
-            results.append(result)
+
+        def run_job(k: int):
+            """CMA-ES run ``k`` (its own seed and resumable folder) on the shared executor ``ex``."""
+            def job(ex):
+                ctx.progress(f"{tag}: CMA-ES run {k + 1}/{cfg['plans']} from throw {index} ({start.distance:.2f} m from the target)")
+                return refine(problem, ex, n_episodes=int(budget), seed=int(cfg["seed"]) + k, out_dir=out / f"run{k}",
+                              popsize=int(cfg["population"]), stop_on_success=bool(cfg.get("stop_on_success", True)),
+                              starts=starts, scouts=scouts)
+            return job
+
+        # The runs are independent: their generations share the pool, one wider batch per round (same results).
+        results = run_concurrently(executor, [run_job(k) for k in range(int(cfg["plans"]))])
+    for k, result in enumerate(results):
+        dmp = problem.parameterization.from_vector(result.best_theta)
+        dmp.save(out / f"refined{k}.dmp.json")
+        DMPParameterization(dmp, robot.joint_names).motion_plan(DMPParameterization(dmp).to_vector(), dt=0.01).save(out / f"refined{k}.plan.json")
+        runs.append(result.summary() | {"dmp": f"refined{k}.dmp.json"})
     plot_learning_curves(results, out / "learning_curve.png")
     # The best run is judged by throws within every joint limit: a closer throw that breaks a limit is no plan.
     best = min(runs, key=lambda r: r["best_distance_within_limits_m"] if r["best_distance_within_limits_m"] is not None else np.inf)
@@ -760,10 +773,12 @@ def learn(
             t0 = time.perf_counter()
             summary = fn(ctx, run.stage_dir(i, name))
             stats = _executor_stats(ctx)
+            seconds = time.perf_counter() - t0
             if stats is not None:
+                stats["stage_busy_share"] = round(min(1.0, stats["busy_s"] / (seconds * stats["workers"])), 3)
                 summary = summary | {"executor": stats}
-            rec = run.mark_done(i, name, summary, time.perf_counter() - t0)
-            busy = "" if stats is None else f" ({stats['rollouts']} rollouts, {stats['rollouts_per_s']}/s, workers busy {stats['busy_share']:.0%})"
+            rec = run.mark_done(i, name, summary, seconds)
+            busy = "" if stats is None else _busy_line(stats)
             progress(f"[{i}/{len(all_stages)}] {name} done in {_fmt_time(rec['seconds'])}{busy}")
         else:
             progress(f"[{i}/{len(all_stages)}] {name}: done earlier, skipped")
