@@ -332,11 +332,21 @@ def test_internal_error_is_one_line_and_a_report_file(monkeypatch, capsys):
     report.unlink()
 
 
+def test_simulate_refuses_a_robot_that_cannot_do_the_task(capsys):
+    """A gripper arm on the throwing scenario: one error line naming the missing scoop (was an internal error,
+    the Diagram's plan source and the arm's desired-state port of different sizes)."""
+    from besdrake.sim.scenario import MODELS_DIR
+
+    assert main(["simulate", "--robot", str(MODELS_DIR / "iiwa14" / "robot.yaml"), "--json"]) == 2
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("besdrake: error:")]
+    assert len(err) == 1 and "a scoop needs" in err[0] and "internal error" not in err[0]
+
+
 # ---------------------------------------------------------------------------------------- fuzzer
 
 
 def test_fuzzer_fast_subset():
-    """40 seeded mutations per format (320 cases, in-process): no traceback, no modified input."""
+    """40 seeded mutations per format (360 cases, robot files included, in-process): no traceback, no modified input."""
     import importlib.util
     import sys
 

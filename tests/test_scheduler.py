@@ -147,3 +147,28 @@ def test_concurrent_refinement_runs_equal_serial_ones_and_resume(problem, tmp_pa
         assert resumed[k].resumed and resumed[k].best_reward == alone[k].best_reward
     assert max(shared_widths) == 2 * max(alone_widths) == 12
     assert sum(shared_widths) == sum(alone_widths)
+
+
+def test_rank_starts_simulates_every_imitated_movement_in_one_batch():
+    from besdrake.search.refinement import RefinementProblem, rank_starts
+    from besdrake.search.templates import fitted_default_throw
+    from tests.test_refinement import COMPI, StandIn
+
+    bases = [fitted_default_throw() for _ in range(3)]
+    for b, dx in zip(bases, (0.5, 0.0, 0.8)):
+        b.goal = b.goal.copy()
+        b.goal[1] += dx
+    problems = [RefinementProblem(COMPI, b, retime=False) for b in bases]
+
+    class Counting(StandIn):
+        widths: list[int] = []
+
+        def evaluate(self, plans):
+            self.widths.append(len(plans))
+            return super().evaluate(plans)
+
+    ex = Counting()
+    ranked = rank_starts(problems, ex)
+    one_by_one = sorted(((i, p.evaluate(np.zeros((1, p.n_params)), StandIn())[0]) for i, p in enumerate(problems)), key=lambda ir: -ir[1].reward)
+    assert ex.widths == [3]
+    assert [i for i, _ in ranked] == [i for i, _ in one_by_one] and [r.reward for _, r in ranked] == [r.reward for _, r in one_by_one]

@@ -111,17 +111,24 @@ def _merged_effects(requests: list[tuple[list, Any]]) -> list | None:
     return out
 
 
+def _call(executor, plans: list, effects) -> list[Any]:
+    """``executor.evaluate``, without ``effects`` where there are none (an evaluator may take plans only)."""
+    return executor.evaluate(plans) if effects is None else executor.evaluate(plans, effects)
+
+
 def _evaluate_round(executor, batch: list[tuple[int, tuple[list, Any]]]) -> dict[int, tuple[bool, Any]]:
     """Every request of the round in one ``evaluate`` call; where the executor refuses the merged batch, each
     request alone (so that an error reaches only the job whose plans caused it)."""
     requests = [req for _, req in batch]
     try:
-        outcomes = executor.evaluate([p for plans, _ in requests for p in plans], _merged_effects(requests))
+        outcomes = _call(executor, [p for plans, _ in requests for p in plans], _merged_effects(requests))
+        if len(outcomes) != sum(len(plans) for plans, _ in requests):
+            raise RuntimeError(f"executor returned {len(outcomes)} outcomes for {sum(len(plans) for plans, _ in requests)} plans")
     except Exception:  # noqa: BLE001 - split the round: each job gets its own result or error
         replies = {}
         for index, (plans, effects) in batch:
             try:
-                replies[index] = (True, executor.evaluate(plans, effects))
+                replies[index] = (True, _call(executor, plans, effects))
             except Exception as err:  # noqa: BLE001 - handed to the job that asked
                 replies[index] = (False, err)
         return replies
