@@ -172,3 +172,14 @@ def test_rank_starts_simulates_every_imitated_movement_in_one_batch():
     one_by_one = sorted(((i, p.evaluate(np.zeros((1, p.n_params)), StandIn())[0]) for i, p in enumerate(problems)), key=lambda ir: -ir[1].reward)
     assert ex.widths == [3]
     assert [i for i, _ in ranked] == [i for i, _ in one_by_one] and [r.reward for _, r in ranked] == [r.reward for _, r in one_by_one]
+
+
+def test_learn_prints_and_reports_the_workers_figures():
+    from besdrake.pipeline.learn import _busy_line, _workers_table
+
+    stats = ExecutorStats(rollouts=40, wall_s=10.0, busy_s=16.0, workers=2, widths=[20, 20]).to_dict() | {"stage_busy_share": 0.5}
+    line = _busy_line(stats)
+    assert "80% while simulating, 50% of the stage" in line and "width 20.0 mean, 20 max" in line and "16-worker pool 62% busy" in line
+    table = _workers_table({"refine": {"summary": {"executor": stats}}, "pool": {"summary": {}}, "label": None})
+    assert table[0] == "## Rollouts and workers" and len([ln for ln in table if ln.startswith("| refine |")]) == 1
+    assert not any(ln.startswith("| pool") for ln in table)

@@ -666,10 +666,28 @@ def stage_report(ctx: Context, out: Path) -> dict[str, Any]:
         for png in sorted((root / folder).glob("*.png"))[:2] + sorted((root / folder).glob("*/*.png"))[:3]:
             lines.append(f"![{png.stem}]({png.relative_to(root).as_posix()})")
         lines.append("")
+    lines += _workers_table(done)
     if replays:
         lines += ["## Replays", ""] + [f"- [{r}](10_report/{r}) (meshcat, self-contained HTML)" for r in replays] + [""]
     _atomic_write_text(root / "report.md", "\n".join(lines))
     return {"report": str(root / "report.md"), "replays": replays}
+
+
+def _workers_table(done: dict[str, Any]) -> list[str]:
+    """report.md's table of each simulating stage's rollouts, the workers' busy share and the batches' width."""
+    rows = [(name, rec["summary"]["executor"]) for name, rec in done.items() if rec and rec["summary"].get("executor")]
+    if not rows:
+        return []
+    lines = ["## Rollouts and workers", "",
+             "Busy share: of the workers' time while simulating and over the whole stage. Width: rollouts per batch (what a "
+             "larger pool could run at once); fill: the share of a 16- or 64-worker pool those batches could keep busy at best.", "",
+             "| stage | workers | rollouts | rollouts/s | busy (simulating / stage) | batches | width mean / max | fill 16 / 64 |",
+             "|---|---|---|---|---|---|---|---|"]
+    for name, ex in rows:
+        lines.append(f"| {name} | {ex['workers']} | {ex['rollouts']} | {ex['rollouts_per_s']} | {_short(ex['busy_share'])} / "
+                     f"{_short(ex.get('stage_busy_share'))} | {ex.get('batches', '-')} | {ex.get('width_mean', '-')} / {ex.get('width_max', '-')} | "
+                     f"{ex.get('fill_16_workers', '-')} / {ex.get('fill_64_workers', '-')} |")
+    return lines + [""]
 
 
 def _short(value: Any) -> str:
