@@ -342,6 +342,24 @@ def test_simulate_refuses_a_robot_that_cannot_do_the_task(capsys):
     assert len(err) == 1 and "a scoop needs" in err[0] and "internal error" not in err[0]
 
 
+def test_an_actuator_that_is_not_a_name_is_one_error_line(tmp_path, capsys):
+    """Found by the fuzzer: a number or list as a joint's or the gripper's actuator reached Drake (internal error)."""
+    import yaml
+
+    from besdrake.sim.scenario import MODELS_DIR
+
+    for robot, edit, field in (("compi", lambda d: d["joints"][3].update(actuator=[1, 2]), "joints[3].actuator"),
+                               ("iiwa14", lambda d: d["end_effector"].update(actuators=[7]), "end_effector.actuators")):
+        data = yaml.safe_load((MODELS_DIR / robot / "robot.yaml").read_text())
+        data["model"]["file"] = str(MODELS_DIR / robot / data["model"]["file"])
+        edit(data)
+        path = tmp_path / f"{robot}.yaml"
+        path.write_text(yaml.safe_dump(data))
+        assert main(["simulate", "--robot", str(path), "--json"]) == 2
+        err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("besdrake: error:")]
+        assert len(err) == 1 and field in err[0] and "internal error" not in err[0], err
+
+
 # ---------------------------------------------------------------------------------------- fuzzer
 
 
