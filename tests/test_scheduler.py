@@ -59,12 +59,14 @@ def test_rounds_merge_the_jobs_batches_and_keep_each_jobs_results():
     assert shared.threads == {threading.current_thread().name}  # the executor runs in the calling thread only
 
 
-def test_an_error_reaches_only_its_job_and_is_raised_after_the_others_end():
+def test_an_error_reaches_only_its_job():
     done = []
 
     def bad(ex):
         ex.evaluate([1.0])
-        ex.evaluate([-1.0])
+        with pytest.raises(PlanError, match="negative"):
+            ex.evaluate([0.5, -1.0])
+        return "refused"
 
     def good(ex):
         out = [ex.evaluate([0.1 * k, 0.2]) for k in range(4)]
@@ -72,9 +74,25 @@ def test_an_error_reaches_only_its_job_and_is_raised_after_the_others_end():
         return out
 
     ex = FakeExecutor()
-    with pytest.raises(PlanError, match="negative"):
-        run_concurrently(ex, [good, bad, good])
-    assert len(done) == 2 and done[0] == done[1]
+    assert run_concurrently(ex, [good, bad, good])[1] == "refused"
+    assert len(done) == 2 and done[0] == done[1] == [[np.sin(0.1 * k), np.sin(0.2)] for k in range(4)]
+
+
+def test_a_job_that_raises_stops_the_others_at_their_next_batch():
+    calls = []
+
+    def failing(ex):
+        ex.evaluate([1.0])
+        raise ValueError("job failed")
+
+    def long(ex):
+        for k in range(50):
+            ex.evaluate([0.1])
+            calls.append(k)
+
+    with pytest.raises(ValueError, match="job failed"):
+        run_concurrently(FakeExecutor(), [long, failing, long])
+    assert len(calls) <= 4  # stopped after a round or two, not after 50
 
 
 def test_one_job_runs_directly_and_no_job_is_nothing():

@@ -79,7 +79,7 @@ class _Rounds:
             with self.cond:
                 while self.running > 0:
                     self.cond.wait()
-                if not self.pending:
+                if not self.pending or self.stopped:
                     return
                 batch = sorted(self.pending.items())
                 self.pending.clear()
@@ -141,8 +141,9 @@ def _evaluate_round(executor, batch: list[tuple[int, tuple[list, Any]]]) -> dict
 
 def run_concurrently(executor, jobs: Sequence[Callable[[Any], T]]) -> list[T]:
     """Run every ``job(executor_handle)`` at the same time, their rollout batches merged round by round into one
-    call of ``executor.evaluate``; their results in job order. An exception of a job is raised here after every
-    other job has ended (the first in job order). One job runs in this thread, directly on ``executor``."""
+    call of ``executor.evaluate``; their results in job order. A job that raises stops the others at their next batch
+    (what they wrote stays on disk, as after an interrupt) and its exception is raised here (the first in job order).
+    One job runs in this thread, directly on ``executor``."""
     jobs = list(jobs)
     if len(jobs) <= 1:
         return [job(executor) for job in jobs]
@@ -155,6 +156,7 @@ def run_concurrently(executor, jobs: Sequence[Callable[[Any], T]]) -> list[T]:
             results[i] = jobs[i](_Handle(rounds, i))
         except BaseException as err:  # noqa: BLE001 - re-raised in the calling thread
             errors[i] = err
+            rounds.stop()  # fail fast, as one job after the other would
         finally:
             rounds.finished()
 
