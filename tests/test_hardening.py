@@ -342,14 +342,16 @@ def test_simulate_refuses_a_robot_that_cannot_do_the_task(capsys):
     assert len(err) == 1 and "a scoop needs" in err[0] and "internal error" not in err[0]
 
 
-def test_an_actuator_that_is_not_a_name_is_one_error_line(tmp_path, capsys):
-    """Found by the fuzzer: a number or list as a joint's or the gripper's actuator reached Drake (internal error)."""
+def test_an_actuator_or_scoop_value_of_the_wrong_type_is_one_error_line(tmp_path, capsys):
+    """Found by the fuzzer: a number or list as a joint's or the gripper's actuator reached Drake, a list as a scoop
+    dimension float() (internal errors)."""
     import yaml
 
     from besdrake.sim.scenario import MODELS_DIR
 
     for robot, edit, field in (("compi", lambda d: d["joints"][3].update(actuator=[1, 2]), "joints[3].actuator"),
-                               ("iiwa14", lambda d: d["end_effector"].update(actuators=[7]), "end_effector.actuators")):
+                               ("iiwa14", lambda d: d["end_effector"].update(actuators=[7]), "end_effector.actuators"),
+                               ("compi", lambda d: d["end_effector"]["params"].update(lip_height=[0.04]), "end_effector.params.lip_height")):
         data = yaml.safe_load((MODELS_DIR / robot / "robot.yaml").read_text())
         data["model"]["file"] = str(MODELS_DIR / robot / data["model"]["file"])
         edit(data)
