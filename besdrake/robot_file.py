@@ -143,7 +143,10 @@ def _joints(r: _Reader, data: dict) -> tuple[JointLimits, tuple[str | None, ...]
         vel.append(r.number(j.get("velocity"), f"{where}.velocity", positive=True))
         acc.append(r.number(j.get("acceleration"), f"{where}.acceleration", positive=True))
         eff.append(r.number(j.get("effort", float("inf")), f"{where}.effort", positive=True) if "effort" in j else np.inf)
-        acts.append(j.get("actuator", f"{names[-1]}_motor"))
+        act = j.get("actuator", f"{names[-1]}_motor")
+        if act is not None and not isinstance(act, str):
+            raise r.fail(f"{where}.actuator", f"must be an actuator name (null: add one), got {act!r}")
+        acts.append(act)
     if len(set(names)) != len(names):
         raise r.fail("joints", f"joint names repeat: {names}")
     return JointLimits(tuple(names), np.array(pos), np.array(vel), np.array(acc)), tuple(acts), np.array(eff)
@@ -167,7 +170,7 @@ def _gripper(r: _Reader, sec: dict) -> Gripper:
         raise r.fail("end_effector.joints", f"a gripper needs a list of joint names, got {joints!r}")
     n = len(joints)
     acts = sec.get("actuators", [f"{j}_motor" for j in joints])
-    if not isinstance(acts, list) or len(acts) != n:
+    if not isinstance(acts, list) or len(acts) != n or not all(a is None or isinstance(a, str) for a in acts):
         raise r.fail("end_effector.actuators", f"must list {n} actuator names (null: add one), got {acts!r}")
     coupled = sec.get("coupled_joints", [])
     if not isinstance(coupled, list) or not all(isinstance(j, str) for j in coupled):

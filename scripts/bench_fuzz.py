@@ -1,17 +1,16 @@
 """Fuzz every input format the CLI reads: seeded mutations, run in-process through ``besdrake.cli.main``.
 
 Each case writes one mutated input file (TSV, C3D, plan JSON, scenario YAML, lab YAML, learn config YAML,
-effect plugin, a recording in a ``learn --demonstrations`` folder) into a fresh folder, runs the command that reads it and checks:
+effect plugin, a recording in a ``learn --demonstrations`` folder, a robot YAML of ``besdrake/models``) into a fresh folder, runs the command that reads it and checks:
 
 * the run ends with exit 0 (or 1: ``simulate``'s flagged failed simulation) or exit 2 with exactly one
   ``besdrake: error:`` line -- never an exception escaping ``main`` and never the last-resort
   ``internal error`` (both count as ``tracebacks``);
 * every input file is byte-identical afterwards (``modified_inputs``).
 
-    python scripts/bench_fuzz.py                 # 2,400 cases (300 per format), JSON counts
+    python scripts/bench_fuzz.py                 # 2,700 cases (300 per format), JSON counts
     python scripts/bench_fuzz.py --per-format 20 --json
-
-The robot YAML is not fuzzed yet: it is being written elsewhere (see ``FORMATS`` and ``robot_seed``).
+    python scripts/bench_fuzz.py --formats robot_yaml --per-format 300
 """
 
 from __future__ import annotations
@@ -172,6 +171,7 @@ def make_seeds(root: Path) -> Seeds:
     shutil.copy(DIAGRAMS_DIR / "labs" / "default_lab.yaml", root / "lab.yaml")
     (root / "config.yaml").write_text((REPO / "besdrake" / "tasks" / "throwing" / "learn.yaml").read_text().split("\nquick:")[0] + "\n")
     (root / "plugin.py").write_text(PLUGIN)
+    robot_seeds(root)
     s.files = {p.stem if p.suffix != ".c3d" else "c3d": p for p in root.iterdir() if p.is_file()}
     del np
     return s
@@ -203,10 +203,24 @@ PLUGIN_EDITS = [
 ]
 
 
-def robot_seed(root: Path) -> Path | None:  # pragma: no cover - hook
-    """HOOK: the robot YAML (robots as data) is being written in another branch; return its seed file
-    here and add a ``robot`` entry to FORMATS once ``besdrake`` reads it."""
-    return None
+ROBOTS = ("compi", "compi", "compi", "iiwa14", "panda")  # the throwing robot most often: its mutants reach the simulation
+
+
+def robot_seeds(root: Path) -> dict[str, Path]:
+    """The packaged robot files (``besdrake/models/*/robot.yaml``), comments kept, their model file made absolute
+    (so that a mutant written elsewhere still finds its URDF)."""
+    import re
+
+    from besdrake.sim.scenario import MODELS_DIR
+
+    out = {}
+    for name in sorted(set(ROBOTS)):
+        src = MODELS_DIR / name / "robot.yaml"
+        text = re.sub(r"^(\s+file:\s*)([^\s#]+)", lambda m: m.group(1) + (m.group(2) if "://" in m.group(2) else str(src.parent / m.group(2))),
+                      src.read_text(), count=1, flags=re.M)
+        out[name] = root / f"robot_{name}.yaml"
+        out[name].write_text(text)
+    return out
 
 
 # ---------------------------------------------------------------------------------------- cases
@@ -303,6 +317,19 @@ def case_plugin(s: Seeds, d: Path, rng: random.Random) -> tuple[list[str], list[
     return ["lab", "run", "--lab", str(lab), "--plans", str(plan), "--out", str(d / "log"), "--quiet"], [plugin, lab, plan]
 
 
+def case_robot(s: Seeds, d: Path, rng: random.Random) -> tuple[list[str], list[Path]]:
+    """A mutated robot file: ``simulate --robot`` (mostly) or ``learn --robot``'s configuration check."""
+    from besdrake.sim.scenario import MODELS_DIR
+
+    name = rng.choice(ROBOTS)
+    f = d / "robot.yaml"
+    f.write_text(_yaml_mutant(s.files[f"robot_{name}"], rng))
+    models = [p for p in (MODELS_DIR / name).glob("*.urdf")]
+    if rng.random() < 0.75:
+        return ["simulate", "--robot", str(f), "--json"], [f, *models]
+    return ["learn", "--quick", "--robot", str(f), "--out", str(d / "run"), "--stage", "no_such_stage", "--json"], [f, *models]
+
+
 FORMATS: dict[str, Callable[[Seeds, Path, random.Random], tuple[list[str], list[Path]]]] = {
     "tsv": case_tsv,
     "c3d": case_c3d,
@@ -312,7 +339,7 @@ FORMATS: dict[str, Callable[[Seeds, Path, random.Random], tuple[list[str], list[
     "config_yaml": case_config,
     "plugin": case_plugin,
     "demonstrations": case_demonstrations,
-    # "robot_yaml": HOOK, see robot_seed()
+    "robot_yaml": case_robot,
 }
 
 
@@ -414,7 +441,7 @@ def fuzz(per_format: int, formats: list[str] | None = None, seed0: int = 0, keep
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--per-format", type=int, default=300, help="cases per format (default 300: 2,400 in all)")
+    parser.add_argument("--per-format", type=int, default=300, help="cases per format (default 300: 2,700 in all)")
     parser.add_argument("--formats", nargs="+", choices=list(FORMATS), default=None)
     parser.add_argument("--seed", type=int, default=0, help="first case seed")
     parser.add_argument("--keep", type=Path, default=None, help="copy the folders of failing cases here")

@@ -332,11 +332,41 @@ def test_internal_error_is_one_line_and_a_report_file(monkeypatch, capsys):
     report.unlink()
 
 
+def test_simulate_refuses_a_robot_that_cannot_do_the_task(capsys):
+    """A gripper arm on the throwing scenario: one error line naming the missing scoop (was an internal error,
+    the Diagram's plan source and the arm's desired-state port of different sizes)."""
+    from besdrake.sim.scenario import MODELS_DIR
+
+    assert main(["simulate", "--robot", str(MODELS_DIR / "iiwa14" / "robot.yaml"), "--json"]) == 2
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("besdrake: error:")]
+    assert len(err) == 1 and "a scoop needs" in err[0] and "internal error" not in err[0]
+
+
+def test_an_actuator_or_scoop_value_of_the_wrong_type_is_one_error_line(tmp_path, capsys):
+    """Found by the fuzzer: a number or list as a joint's or the gripper's actuator reached Drake, a list as a scoop
+    dimension float() (internal errors)."""
+    import yaml
+
+    from besdrake.sim.scenario import MODELS_DIR
+
+    for robot, edit, field in (("compi", lambda d: d["joints"][3].update(actuator=[1, 2]), "joints[3].actuator"),
+                               ("iiwa14", lambda d: d["end_effector"].update(actuators=[7]), "end_effector.actuators"),
+                               ("compi", lambda d: d["end_effector"]["params"].update(lip_height=[0.04]), "end_effector.params.lip_height")):
+        data = yaml.safe_load((MODELS_DIR / robot / "robot.yaml").read_text())
+        data["model"]["file"] = str(MODELS_DIR / robot / data["model"]["file"])
+        edit(data)
+        path = tmp_path / f"{robot}.yaml"
+        path.write_text(yaml.safe_dump(data))
+        assert main(["simulate", "--robot", str(path), "--json"]) == 2
+        err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("besdrake: error:")]
+        assert len(err) == 1 and field in err[0] and "internal error" not in err[0], err
+
+
 # ---------------------------------------------------------------------------------------- fuzzer
 
 
 def test_fuzzer_fast_subset():
-    """40 seeded mutations per format (320 cases, in-process): no traceback, no modified input."""
+    """40 seeded mutations per format (360 cases, robot files included, in-process): no traceback, no modified input."""
     import importlib.util
     import sys
 

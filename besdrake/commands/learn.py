@@ -92,7 +92,9 @@ def run(args: argparse.Namespace) -> int:
         bar = tqdm(total=sum(_WEIGHTS.values()), desc="besdrake learn", unit="", bar_format="{l_bar}{bar}| {elapsed}<{remaining}", file=sys.stderr)
 
     def progress(message: str) -> None:
-        if bar is not None:
+        if bar is not None and " done in " in message:
+            bar.write(message)  # a stage's time, rollouts and the workers' busy share stay on screen
+        elif bar is not None:
             bar.set_postfix_str(message[:60])
         elif not args.json:
             print(message, file=sys.stderr)

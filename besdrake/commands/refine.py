@@ -15,6 +15,7 @@ import argparse
 import json
 import sys
 import time
+from functools import partial
 from pathlib import Path
 from besdrake._io import write_text as _atomic_write_text
 
@@ -221,7 +222,7 @@ def _start(args: argparse.Namespace, files: list[Path], problems: list, executor
     return start
 
 
-def _refine_run(k: int, args: argparse.Namespace, problem, executor, search: dict, starts, show: bool):
+def _refine_run(k: int, args: argparse.Namespace, problem, executor, *, search: dict, starts, show: bool):
     """Run ``k`` of the refinement into ``OUT/run{k}`` (resumable), its refined DMP saved beside it."""
     from besdrake.cli import UserError
     from besdrake.imitation import save_dmp
@@ -283,6 +284,7 @@ def run(args: argparse.Namespace) -> int:
     from besdrake.sim.cliutil import executor_from_args
     from besdrake.sim.executors import ExecutorError
     from besdrake.sim.scenario import ScenarioError
+    from besdrake.sim.scheduler import run_concurrently
 
     logging.getLogger("drake").setLevel(logging.ERROR)
     _check_args(args)
@@ -302,7 +304,9 @@ def run(args: argparse.Namespace) -> int:
         start = _start(args, files, problems, executor, scout_starts)
         problem = problems[int(start["index"])]
         starts = scout_points(problems, start.get("ranking", []), scout_starts)  # None with one start point
-        runs = [_refine_run(k, args, problem, executor, search, starts, show) for k in range(args.runs)]
+        # The runs are independent: run_concurrently merges their generations into one batch per round (same results).
+        runs = run_concurrently(executor, [partial(_refine_run, k, args, problem, search=search, starts=starts, show=show)
+                                           for k in range(args.runs)])
     summary = _summary(args, files, start, runs, t_start)
     if args.json:
         print(json.dumps(summary, default=float))

@@ -65,13 +65,18 @@ def executor_stats(ctx: Context) -> dict[str, Any] | None:
     """The stage's rollouts, wall and busy seconds summed over its executors (None if it simulated nothing)."""
     from besdrake.sim.executors import ExecutorStats
 
-    executors = ctx.cache.pop("stage_executors", [])
-    total = ExecutorStats(workers=max([1] + [e.stats.workers for e in executors]))
-    for e in executors:
-        total.rollouts += e.stats.rollouts
-        total.wall_s += e.stats.wall_s
-        total.busy_s += e.stats.busy_s
+    total = ExecutorStats()
+    for e in ctx.cache.pop("stage_executors", []):
+        total.add(e.stats)
     return total.to_dict() if total.rollouts else None
+
+
+def busy_line(stats: dict[str, Any]) -> str:
+    """The stage's executor figures in one parenthesis: rollouts, their rate, the workers' busy share while simulating
+    and over the whole stage, and the batches' width (rollouts a pool of any size could run at once)."""
+    return (f" ({stats['rollouts']} rollouts, {stats['rollouts_per_s']}/s, workers busy {stats['busy_share']:.0%} while simulating, "
+            f"{stats['stage_busy_share']:.0%} of the stage; {stats['batches']} batches, width {stats['width_mean']:.1f} mean, "
+            f"{stats['width_max']} max: a 16-worker pool {stats['fill_16_workers']:.0%} busy at best, 64 workers {stats['fill_64_workers']:.0%})")
 
 
 def fmt_time(seconds: float | None) -> str:
@@ -160,10 +165,12 @@ def learn(
             t0 = time.perf_counter()
             summary = fn(ctx, run.stage_dir(i, name))
             stats = executor_stats(ctx)
+            seconds = time.perf_counter() - t0
             if stats is not None:
+                stats["stage_busy_share"] = round(min(1.0, stats["busy_s"] / (seconds * stats["workers"])), 3)
                 summary = summary | {"executor": stats}
-            rec = run.mark_done(i, name, summary, time.perf_counter() - t0)
-            busy = "" if stats is None else f" ({stats['rollouts']} rollouts, {stats['rollouts_per_s']}/s, workers busy {stats['busy_share']:.0%})"
+            rec = run.mark_done(i, name, summary, seconds)
+            busy = "" if stats is None else busy_line(stats)
             progress(f"[{i}/{len(all_stages)}] {name} done in {fmt_time(rec['seconds'])}{busy}")
         else:
             progress(f"[{i}/{len(all_stages)}] {name}: done earlier, skipped")

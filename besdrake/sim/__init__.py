@@ -13,6 +13,7 @@ Quick start::
 Modules: :mod:`~besdrake.sim.scenario` (YAML scenarios in ``diagrams/``), :mod:`~besdrake.sim.diagram`
 (the Diagram), :mod:`~besdrake.sim.rollout` (the task's black box, see :mod:`besdrake.task`),
 :mod:`~besdrake.sim.effects` (registry of physical effects), :mod:`~besdrake.sim.executors`,
+:mod:`~besdrake.sim.scheduler` (independent jobs sharing one executor, their batches merged),
 :mod:`~besdrake.sim.record` (HTML replay). What a task simulates and measures lives in its folder
 (``besdrake/tasks/<name>/``).
 

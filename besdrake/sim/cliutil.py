@@ -49,11 +49,17 @@ def add_common_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def scenario_from_args(args: argparse.Namespace):
-    """The ``--scenario``, on the ``--robot`` when one is given (:class:`ScenarioError` otherwise)."""
+    """The ``--scenario``, on the ``--robot`` when one is given (:class:`ScenarioError` otherwise; a
+    :class:`~besdrake.robot.RobotError` when that robot cannot do the scenario's task, e.g. a gripper arm throwing)."""
     from besdrake.sim.scenario import load_scenario
+    from besdrake.task import get_task
 
     scenario = load_scenario(args.scenario)
-    return scenario.with_robot(args.robot) if getattr(args, "robot", None) else scenario
+    if not getattr(args, "robot", None):
+        return scenario
+    scenario = scenario.with_robot(args.robot)
+    get_task(scenario.task).check_robot(scenario.robot)
+    return scenario
 
 
 def plan_from_args(args: argparse.Namespace, task=None, rollout=None) -> MotionPlan:

@@ -25,7 +25,7 @@ import gc
 import math
 import os
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Sequence
 
 from besdrake.plan import MotionPlan, PlanError
@@ -35,25 +35,49 @@ from besdrake.sim.scenario import Scenario, load_scenario
 BACKENDS = ("serial", "process", "ray")
 
 
+#: Pool sizes for which :meth:`ExecutorStats.to_dict` reports the share the batches could keep busy.
+POOL_SIZES = (16, 64)
+
+
 @dataclass
 class ExecutorStats:
-    """What an executor did: rollouts, wall time inside ``evaluate`` and the workers' busy time (s)."""
+    """What an executor did: rollouts, wall time inside ``evaluate``, the workers' busy time (s) and the width
+    (rollouts) of every batch it was given."""
 
     rollouts: int = 0
     wall_s: float = 0.0
     busy_s: float = 0.0
     workers: int = 1
+    widths: list[int] = field(default_factory=list, repr=False)
 
     @property
     def busy_share(self) -> float | None:
         """Share of the workers' capacity spent simulating while ``evaluate`` ran (None before any call)."""
         return None if self.wall_s <= 0 else min(1.0, self.busy_s / (self.wall_s * max(1, self.workers)))
 
+    def fill(self, workers: int) -> float | None:
+        """Share of a pool of ``workers`` that the batches could keep busy at best (equal rollout times): a batch of
+        ``n`` rollouts occupies ``ceil(n / workers)`` rounds of the whole pool. None before any batch."""
+        slots = sum(math.ceil(n / workers) * workers for n in self.widths)
+        return None if not slots else sum(self.widths) / slots
+
+    def add(self, other: "ExecutorStats") -> None:
+        """Add ``other``'s rollouts, times and batches (the larger pool's worker count is kept)."""
+        self.rollouts += other.rollouts
+        self.wall_s += other.wall_s
+        self.busy_s += other.busy_s
+        self.workers = max(self.workers, other.workers)
+        self.widths += other.widths
+
     def to_dict(self) -> dict[str, Any]:
         share = self.busy_share
-        return {"rollouts": self.rollouts, "wall_s": round(self.wall_s, 3), "busy_s": round(self.busy_s, 3), "workers": self.workers,
-                "busy_share": None if share is None else round(share, 3),
-                "rollouts_per_s": None if self.wall_s <= 0 else round(self.rollouts / self.wall_s, 2)}
+        out = {"rollouts": self.rollouts, "wall_s": round(self.wall_s, 3), "busy_s": round(self.busy_s, 3), "workers": self.workers,
+               "busy_share": None if share is None else round(share, 3),
+               "rollouts_per_s": None if self.wall_s <= 0 else round(self.rollouts / self.wall_s, 2)}
+        if self.widths:
+            out |= {"batches": len(self.widths), "width_mean": round(sum(self.widths) / len(self.widths), 2), "width_max": max(self.widths)}
+            out |= {f"fill_{w}_workers": round(self.fill(w), 3) for w in POOL_SIZES}
+        return out
 
 
 class ExecutorError(RuntimeError):
@@ -130,6 +154,7 @@ class Executor:
         t0 = time.perf_counter()
         out, busy = self._evaluate(items)
         self.stats.rollouts += len(items)
+        self.stats.widths.append(len(items))
         self.stats.wall_s += time.perf_counter() - t0
         self.stats.busy_s += busy
         self.stats.workers = int(getattr(self, "workers", 1))

@@ -18,8 +18,12 @@ def best_start(problems: Sequence[RefinementProblem], executor) -> tuple[int, Re
 
 
 def rank_starts(problems: Sequence[RefinementProblem], executor) -> list[tuple[int, RewardBreakdown]]:
-    """Every imitated movement (x = 0 of each problem) with its record, best reward first (failed ones last)."""
-    results = [(i, p.evaluate(np.zeros((1, p.n_params)), executor)[0]) for i, p in enumerate(problems)]
+    """Every imitated movement (x = 0 of each problem) with its record, best reward first (failed ones last). The
+    movements are simulated in one batch (:func:`~besdrake.sim.scheduler.run_concurrently`: one rollout each)."""
+    from besdrake.sim.scheduler import run_concurrently
+
+    records = run_concurrently(executor, [lambda ex, p=p: p.evaluate(np.zeros((1, p.n_params)), ex)[0] for p in problems])
+    results = list(enumerate(records))
     if not any(np.isfinite(r.reward) for _, r in results):
         raise RefinementError("none of the imitated movements could be simulated")
     return sorted(results, key=lambda ir: -ir[1].reward if np.isfinite(ir[1].reward) else np.inf)

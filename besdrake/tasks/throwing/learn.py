@@ -267,6 +267,7 @@ def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int
     from besdrake.imitation import DMPParameterization
     from besdrake.search.refinement import (DEFAULT_SCOUTS, RefinementProblem, plot_learning_curves, rank_starts, refine,
                                             scout_start_points, scouting_episodes)
+    from besdrake.sim.scheduler import run_concurrently
     from besdrake.task import DEFAULT_TASK, get_task
 
     cfg = ctx.config["refinement"]
@@ -274,23 +275,30 @@ def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int
     reward = get_task(task).reward(target=tuple(cfg["target"]))
     robot = ctx.robot(scenario)
     problems = [RefinementProblem(robot, d, reward, task=task) for d in dmps]
-    runs, results = [], []
+    runs = []
     with _executor(ctx, scenario) as executor:
         ranking = rank_starts(problems, executor)
         index, start = ranking[0]
         problem = problems[index]
         starts = scout_start_points(problems, ranking)  # None unless the default search scouts from several throws
         scouts = DEFAULT_SCOUTS if scouting and 2 * scouting_episodes(int(cfg["population"])) <= int(budget) else 0
-        for k in range(int(cfg["plans"])):
-            ctx.progress(f"{tag}: CMA-ES run {k + 1}/{cfg['plans']} from throw {index} ({start.distance:.2f} m from the target)")
-            result = refine(problem, executor, n_episodes=int(budget), seed=int(cfg["seed"]) + k,
-                            out_dir=out / f"run{k}", popsize=int(cfg["population"]),
-                            stop_on_success=bool(cfg.get("stop_on_success", True)), starts=starts, scouts=scouts)
-            dmp = problem.parameterization.from_vector(result.best_theta)
-            dmp.save(out / f"refined{k}.dmp.json")
-            DMPParameterization(dmp, robot.joint_names).motion_plan(DMPParameterization(dmp).to_vector(), dt=0.01).save(out / f"refined{k}.plan.json")
-            runs.append(result.summary() | {"dmp": f"refined{k}.dmp.json"})
-            results.append(result)
+
+        def run_job(k: int):
+            """CMA-ES run ``k`` (its own seed and resumable folder) on the shared executor ``ex``."""
+            def job(ex):
+                ctx.progress(f"{tag}: CMA-ES run {k + 1}/{cfg['plans']} from throw {index} ({start.distance:.2f} m from the target)")
+                return refine(problem, ex, n_episodes=int(budget), seed=int(cfg["seed"]) + k, out_dir=out / f"run{k}",
+                              popsize=int(cfg["population"]), stop_on_success=bool(cfg.get("stop_on_success", True)),
+                              starts=starts, scouts=scouts)
+            return job
+
+        # The runs are independent: their generations share the pool, one wider batch per round (same results).
+        results = run_concurrently(executor, [run_job(k) for k in range(int(cfg["plans"]))])
+    for k, result in enumerate(results):
+        dmp = problem.parameterization.from_vector(result.best_theta)
+        dmp.save(out / f"refined{k}.dmp.json")
+        DMPParameterization(dmp, robot.joint_names).motion_plan(DMPParameterization(dmp).to_vector(), dt=0.01).save(out / f"refined{k}.plan.json")
+        runs.append(result.summary() | {"dmp": f"refined{k}.dmp.json"})
     plot_learning_curves(results, out / "learning_curve.png")
     # The best run is judged by throws within every joint limit: a closer throw that breaks a limit is no plan.
     best = min(runs, key=lambda r: r["best_distance_within_limits_m"] if r["best_distance_within_limits_m"] is not None else np.inf)
@@ -590,10 +598,28 @@ def stage_report(ctx: Context, out: Path) -> dict[str, Any]:
         for png in sorted((root / folder).glob("*.png"))[:2] + sorted((root / folder).glob("*/*.png"))[:3]:
             lines.append(f"![{png.stem}]({png.relative_to(root).as_posix()})")
         lines.append("")
+    lines += _workers_table(done)
     if replays:
         lines += ["## Replays", ""] + [f"- [{r}](10_report/{r}) (meshcat, self-contained HTML)" for r in replays] + [""]
     _atomic_write_text(root / "report.md", "\n".join(lines))
     return {"report": str(root / "report.md"), "replays": replays}
+
+
+def _workers_table(done: dict[str, Any]) -> list[str]:
+    """report.md's table of each simulating stage's rollouts, the workers' busy share and the batches' width."""
+    rows = [(name, rec["summary"]["executor"]) for name, rec in done.items() if rec and rec["summary"].get("executor")]
+    if not rows:
+        return []
+    lines = ["## Rollouts and workers", "",
+             "Busy share: of the workers' time while simulating and over the whole stage. Width: rollouts per batch (what a "
+             "larger pool could run at once); fill: the share of a 16- or 64-worker pool those batches could keep busy at best.", "",
+             "| stage | workers | rollouts | rollouts/s | busy (simulating / stage) | batches | width mean / max | fill 16 / 64 |",
+             "|---|---|---|---|---|---|---|---|"]
+    for name, ex in rows:
+        lines.append(f"| {name} | {ex['workers']} | {ex['rollouts']} | {ex['rollouts_per_s']} | {_short(ex['busy_share'])} / "
+                     f"{_short(ex.get('stage_busy_share'))} | {ex.get('batches', '-')} | {ex.get('width_mean', '-')} / {ex.get('width_max', '-')} | "
+                     f"{ex.get('fill_16_workers', '-')} / {ex.get('fill_64_workers', '-')} |")
+    return lines + [""]
 
 
 def _short(value: Any) -> str:

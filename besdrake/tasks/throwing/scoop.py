@@ -34,6 +34,9 @@ class Scoop:
         missing = [k for k in _PARAMS if k not in params]
         if missing:
             raise RobotError(f"{robot.path}: end_effector.params: a scoop needs {missing}")
+        bad = [k for k in _PARAMS if isinstance(params[k], bool) or not isinstance(params[k], (int, float)) or not np.isfinite(params[k])]
+        if bad:
+            raise RobotError(f"{robot.path}: end_effector.params.{bad[0]}: must be a finite number, got {params[bad[0]]!r}")
         return cls(**{k: float(params[k]) for k in _PARAMS})
 
     @property
