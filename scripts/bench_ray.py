@@ -52,7 +52,7 @@ def measure(backend: str, workers: int, plans, repeats: int = 2) -> dict:
 def _refine_jobs(runs: int, episodes: int, popsize: int, out: Path) -> list:
     """``runs`` independent CMA-ES refinements of the default throw (seeds 0..runs-1), each a job for the scheduler."""
     from besdrake.search.refinement import RefinementProblem, refine
-    from besdrake.search.templates import fitted_default_throw
+    from besdrake.tasks.throwing.template_base import fitted_default_throw
     from besdrake.sim.scenario import load_scenario
 
     base = fitted_default_throw()
@@ -69,7 +69,7 @@ def measure_scheduler(backend: str, workers: int, runs: int, episodes: int, pops
 
     from besdrake.sim import make_executor
     from besdrake.sim.scheduler import run_concurrently
-    from besdrake.sim.throws import default_throw
+    from besdrake.tasks.throwing.throws import default_throw
 
     with tempfile.TemporaryDirectory() as tmp, make_executor(backend, workers=workers) as ex:
         ex.evaluate([default_throw()] * ex.stats.workers)  # warm-up

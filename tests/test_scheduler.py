@@ -115,7 +115,7 @@ def test_stats_widths_and_pool_fill():
 @pytest.fixture(scope="module")
 def problem():
     from besdrake.search.refinement import RefinementProblem
-    from besdrake.search.templates import fitted_default_throw
+    from besdrake.tasks.throwing.template_base import fitted_default_throw
     from besdrake.sim.scenario import load_scenario
 
     base = fitted_default_throw()
@@ -169,7 +169,7 @@ def test_concurrent_refinement_runs_equal_serial_ones_and_resume(problem, tmp_pa
 
 def test_rank_starts_simulates_every_imitated_movement_in_one_batch():
     from besdrake.search.refinement import RefinementProblem, rank_starts
-    from besdrake.search.templates import fitted_default_throw
+    from besdrake.tasks.throwing.template_base import fitted_default_throw
     from tests.test_refinement import COMPI, StandIn
 
     bases = [fitted_default_throw() for _ in range(3)]

@@ -50,7 +50,7 @@ def add_common_arguments(parser: argparse.ArgumentParser) -> None:
 
 def scenario_from_args(args: argparse.Namespace):
     """The ``--scenario``, on the ``--robot`` when one is given (:class:`ScenarioError` otherwise; a
-    :class:`~besdrake.robot.RobotError` when that robot cannot do the scenario's task, e.g. a gripper arm throwing)."""
+    :class:`~besdrake.robot.RobotError` when that robot cannot do the scenario's task, e.g. an arm without the end effector the task needs)."""
     from besdrake.sim.scenario import load_scenario
     from besdrake.task import get_task
 

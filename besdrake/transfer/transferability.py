@@ -81,8 +81,8 @@ from besdrake.transfer.measurement import Measurement, plan_hash
 NO_TOUCHDOWN_DISTANCE = 5.0
 #: How the update heuristic picks the plan to transfer (see the module docstring).
 TRANSFER_CHOICES = ("diverse", "predicted", "likely")
-#: The lab's setup scatter (m per axis) assumed by default: the built-in lab's documented figure (as in
-#: :data:`besdrake.tasks.throwing.diagnosis.model.PLACEMENT_SD`); a real lab measures its own.
+#: The lab's setup scatter (m per axis) assumed by default: the built-in lab's documented figure (the diagnosis
+#: assumes the same); a real lab measures its own.
 PLACEMENT_SD = 0.002
 #: Largest placement scatter accepted (m per axis): the virtual lab's largest; the quadrature's outer points
 #: (sqrt(3) of it) are clipped by the task to where its setup allows.
