@@ -4,7 +4,8 @@ simulation until a rollout succeeds (issue 24's target: within 100 generations).
 demonstration, then a summary: successes, median episodes to success, the initial plans' outcomes, wall time.
 
 Usage: python3 scripts/bench_pnp_refine.py [--data DIR] [--robot NAME_OR_YAML] [--max-generations 100]
-[--workers 2] [--out DIR] [--only subject1_run2,...]. A rerun with the same --out resumes every search.
+[--workers 2] [--out DIR] [--only subject1_run2,...] [--box-jitter 0.015]. A rerun with the same --out resumes every
+search. Then ``bench_pnp_lab.py --skills OUT`` runs every refined grasp in the virtual lab.
 """
 
 from __future__ import annotations
@@ -36,6 +37,8 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--out", type=Path, default=None)
     ap.add_argument("--only", default=None, help="comma-separated recording names")
+    ap.add_argument("--box-jitter", type=float, default=0.015,
+                    help="m: a success must also work with the box this far off along x and y (learn.yaml's default)")
     args = ap.parse_args()
     out = args.out or Path(tempfile.mkdtemp(prefix="bench_pnp_refine_"))
     scenario = load_scenario("pick_and_place")
@@ -49,7 +52,7 @@ def main() -> None:
     else:
         scenario_arg = "pick_and_place"
     planner = SkillPlanner.for_rollout(PickPlaceRollout(scenario))
-    settings = RefineSettings(max_generations=args.max_generations, workers=args.workers)
+    settings = RefineSettings(max_generations=args.max_generations, workers=args.workers, box_jitter=args.box_jitter)
     rows, t_all = [], time.perf_counter()
     files = sorted(args.data.glob("*.tsv"))
     if args.only:

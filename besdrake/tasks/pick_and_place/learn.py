@@ -77,7 +77,8 @@ def stage_refine(ctx, out: Path) -> dict[str, Any]:
     planner = SkillPlanner.for_rollout(PickPlaceRollout(ctx.config["scenario"]))
     settings = RefineSettings(max_generations=int(cfg["max_generations"]), popsize=cfg.get("popsize"),
                               sigma0=float(cfg["sigma0"]), workers=int(ctx.config.get("workers", 1)),
-                              seed=int(cfg["seed"]), weights=bool(cfg.get("weights", False)))
+                              seed=int(cfg["seed"]), weights=bool(cfg.get("weights", False)),
+                              box_jitter=float(cfg.get("box_jitter", 0.0)))
     rows = []
     for f in files:
         try:

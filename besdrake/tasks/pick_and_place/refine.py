@@ -47,6 +47,7 @@ class RefineSettings:
     popsize: int | None = None  # cma's default 4 + 3 ln n
     sigma0: float = 1.0
     weights: bool = False
+    box_jitter: float = 0.0  # m: a nominal success must also succeed with the box this far off along x and y
     workers: int = 1
     seed: int = 0
     stop_on_success: bool = True
@@ -77,7 +78,8 @@ class RefineResult:
 class GraspEpisode:
     """Candidate (normalised parameters) -> skill -> plan -> rollout -> details; built once per process."""
 
-    def __init__(self, skill: dict[str, Any], scenario: str, weights: bool, box_offset=None) -> None:
+    def __init__(self, skill: dict[str, Any], scenario: str, weights: bool, box_offset=None,
+                 box_jitter: float = 0.0) -> None:
         from besdrake.sim.scenario import load_scenario
         from besdrake.tasks.pick_and_place.rollout import PickPlaceRollout
         from besdrake.tasks.pick_and_place.skill_plan import SkillPlanner
@@ -85,6 +87,7 @@ class GraspEpisode:
         self.rollout = PickPlaceRollout(load_scenario(scenario))
         self.box_offset = None if box_offset is None else np.array([box_offset[0], box_offset[1], 0.0])
         self.planner = SkillPlanner.for_rollout(self.rollout, box_offset=self.box_offset)
+        self.box_jitter = float(box_jitter)
         self.param = GraspParameterization(GraspSkill.from_dict(skill), weights=weights)
         self.scaling = ParameterScaling(*self.param.scaling())
         self.max_duration = min(MAX_PLAN_DURATION, self.rollout.robot.safety.max_plan_duration)
@@ -99,7 +102,22 @@ class GraspEpisode:
             return _row(t0, -(2.0 + sp.plan.duration / 100.0),
                         f"plan too slow: {sp.plan.duration:.1f} s > {self.max_duration:.1f} s", sp)
         out = self.rollout.rollout(sp.plan, box_offset=self.box_offset)
+        if out.success and self.box_jitter > 0:
+            out = self._robust(sp, out)
         return _row(t0, out.reward, out.message, sp, bool(out.success), out.place_error)
+
+
+    def _robust(self, sp, nominal):
+        """``nominal`` if the plan also succeeds with the box ``box_jitter`` off along +-x and +-y (where perception
+        may put it), else the first such rollout that failed, its message saying so."""
+        base = np.zeros(3) if self.box_offset is None else self.box_offset
+        for d in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+            shift = base + self.box_jitter * np.array([d[0], d[1], 0.0])
+            out = self.rollout.rollout(sp.plan, box_offset=shift)
+            if not out.success:
+                out.message = f"fragile: with the box {self.box_jitter * 100:.1f} cm off along {d}: {out.message}"
+                return out
+        return nominal
 
 
 def _row(t0: float, reward: float, message: str, sp=None, success: bool = False,
@@ -114,12 +132,14 @@ def _row(t0: float, reward: float, message: str, sp=None, success: bool = False,
 _EPISODES: dict[str, GraspEpisode] = {}
 
 
-def _episode(skill: dict[str, Any], scenario: str, weights: bool, x: np.ndarray, box_offset=None) -> dict[str, Any]:
-    """Evaluate ``x`` with this process's cached :class:`GraspEpisode` (built on first use)."""
-    key = json.dumps([skill, scenario, weights, box_offset], sort_keys=True, default=float)
+def _episode(skill: dict[str, Any], scenario: str, weights: bool, x: np.ndarray, scene=None) -> dict[str, Any]:
+    """Evaluate ``x`` with this process's cached :class:`GraspEpisode` (built on first use); ``scene``: (box offset or
+    None, box jitter)."""
+    key = json.dumps([skill, scenario, weights, scene], sort_keys=True, default=float)
     if key not in _EPISODES:
         _EPISODES.clear()
-        _EPISODES[key] = GraspEpisode(skill, scenario, weights, box_offset)
+        box_offset, jitter = scene or (None, 0.0)
+        _EPISODES[key] = GraspEpisode(skill, scenario, weights, box_offset, jitter)
     return _EPISODES[key](x)
 
 
@@ -170,7 +190,7 @@ def refine_grasp(skill: GraspSkill, scenario: str = "pick_and_place", out_dir: s
                       bounds=scaling.x_bounds)
     details = _Details(None if out is None else out / DETAILS_FILE)
     pool = cf.ProcessPoolExecutor(s.workers) if s.workers > 1 else None
-    episode = (skill_d, scenario, s.weights, box_offset)
+    episode = (skill_d, scenario, s.weights, (box_offset, float(s.box_jitter)))
     initial = _evaluate([np.zeros(param.n_params)], episode, details, pool)[0]
     if s.stop_on_success and initial.get("success"):  # the imitated grasp works as it is: nothing to search
         if pool is not None:
@@ -194,14 +214,14 @@ def refine_grasp(skill: GraspSkill, scenario: str = "pick_and_place", out_dir: s
 
 def _evaluate(X, episode: tuple, details: _Details, pool) -> list[dict[str, Any]]:
     """Details of every candidate (from ``details.csv`` when already simulated), new ones recorded; ``episode``:
-    (skill dict, scenario, weights, box offset) as :func:`_episode` takes them."""
+    (skill dict, scenario, weights, scene) as :func:`_episode` takes them."""
     keys = [_key(x) for x in X]
     todo = [i for i, k in enumerate(keys) if k not in details.rows]
-    skill_d, scenario, weights, box_offset = episode
+    skill_d, scenario, weights, scene = episode
     if pool is None:
-        results = [_episode(skill_d, scenario, weights, np.asarray(X[i]), box_offset) for i in todo]
+        results = [_episode(skill_d, scenario, weights, np.asarray(X[i]), scene) for i in todo]
     else:
-        results = list(pool.map(_episode, *zip(*[(skill_d, scenario, weights, np.asarray(X[i]), box_offset)
+        results = list(pool.map(_episode, *zip(*[(skill_d, scenario, weights, np.asarray(X[i]), scene)
                                                   for i in todo])))
     for i, r in zip(todo, results):
         details.append(keys[i], r)
