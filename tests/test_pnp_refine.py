@@ -198,3 +198,18 @@ def _shipped_skill():
     from besdrake.tasks.pick_and_place.imitation import GraspSkill
 
     return GraspSkill.from_demonstration(extract_demonstrations(sorted(DATA_DIR.glob("*.tsv"))[0]).demonstrations[0])
+
+
+def test_a_grasp_that_fails_with_the_box_shifted_is_fragile_not_a_success():
+    from besdrake.tasks.pick_and_place.refine import FRAGILE_PENALTY, GraspEpisode
+    from besdrake.tasks.pick_and_place.rollout import PickPlaceRollout
+    from besdrake.tasks.pick_and_place.skill_plan import SkillPlanner
+
+    skill = SkillPlanner.for_rollout(PickPlaceRollout("pick_and_place")).adapt(_shipped_skill()).to_dict()
+    x = np.zeros(9)
+    nominal = GraspEpisode(skill, "pick_and_place", False)(x)
+    assert nominal["success"]  # the shipped demonstration's grasp works as imitated
+    shaky = GraspEpisode(skill, "pick_and_place", False, box_jitter=0.06)(x)  # 6 cm: more than the pads' margin
+    k = shaky["message"].count("failed")
+    assert not shaky["success"] and shaky["message"].startswith("fragile") and k >= 1
+    assert shaky["reward"] == pytest.approx(nominal["reward"] - FRAGILE_PENALTY * k)
