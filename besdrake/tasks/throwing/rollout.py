@@ -71,6 +71,8 @@ class ThrowRollout:
         self._ball_v0 = self._nq + ball.floating_velocities_start_in_v()  # angular (3) then linear (3)
         self._gravity = plant.gravity_field().gravity_vector()
         self._scratch = h.plant.CreateDefaultContext()  # FK for the re-catch check, never simulated
+        self._contact_port = plant.get_contact_results_output_port()  # looked up once: read after every chunk
+        self._ball_index = ball.index()
         #: Time (s) after a tentative release over which the scoop's planned path is checked for a re-catch.
         self.recatch_horizon = 0.3
         #: Time (s) of a plan's initial hold that is still simulated (ball and contact settle).
@@ -138,8 +140,8 @@ class ThrowRollout:
         """
         h = self.handles
         plant = h.plant
-        contacts = plant.get_contact_results_output_port().Eval(self.plant_context)
-        ball = h.scene.ball_body.index()
+        contacts = self._contact_port.Eval(self.plant_context)
+        ball = self._ball_index
         touching = False
         for i in range(contacts.num_point_pair_contacts()):
             info = contacts.point_pair_contact_info(i)
