@@ -138,26 +138,26 @@ class ThrowRollout:
         ``recatch_horizon`` s keeps at least ``release.margin`` from every scoop surface while the scoop
         follows the commanded plan (so a slow lob that falls back onto the scoop is simulated on).
         """
-        h = self.handles
-        plant = h.plant
-        contacts = self._contact_port.Eval(self.plant_context)
-        ball = self._ball_index
-        touching = False
-        for i in range(contacts.num_point_pair_contacts()):
-            info = contacts.point_pair_contact_info(i)
-            if ball in (info.bodyA_index(), info.bodyB_index()):
-                touching = True
-                break
-        x = plant.GetPositionsAndVelocities(self.plant_context)
+        x = self.handles.plant.GetPositionsAndVelocities(self.plant_context)
         p = x[self._ball_q0 + 4 : self._ball_q0 + 7]
         v = x[self._ball_v0 + 3 : self._ball_v0 + 6]
         speed = float(np.sqrt(v @ v))
         if not (speed <= DIVERGENCE_SPEED) or not np.isfinite(x).all():  # NaN fails the comparison too
             return False, False, True
         on_floor = bool(p[2] <= radius + 1e-3)
-        if touching:
+        if self._ball_touching():
             return False, on_floor, False
         return self._no_recatch(p, v, radius), on_floor, False
+
+    def _ball_touching(self) -> bool:
+        """True when the ball is in contact with anything now (the plant's contact results)."""
+        contacts = self._contact_port.Eval(self.plant_context)
+        ball = self._ball_index
+        for i in range(contacts.num_point_pair_contacts()):
+            info = contacts.point_pair_contact_info(i)
+            if info.bodyA_index() == ball or info.bodyB_index() == ball:
+                return True
+        return False
 
     def _no_recatch(self, p: np.ndarray, v: np.ndarray, radius: float) -> bool:
         """True when the ball, flying freely from (p, v), keeps ``release.margin`` from every scoop surface while
