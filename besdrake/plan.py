@@ -181,16 +181,30 @@ class MotionPlan:
             raise PlanError(f"plan joints {list(self.joint_names)} differ from the robot's {list(limits.names)}")
         return limits
 
+    def _peaks(self, resolution: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Per joint: lowest and highest position, largest |velocity| and |acceleration| of the interpolated plan,
+        sampled as :meth:`_sampled` does. Kept on the plan (a few numbers per joint) for the next limit check of
+        the same arrays: a candidate's plan is checked when it is retimed, simulated and rewarded."""
+        key = (float(resolution),) + tuple(None if a is None else hash(a.tobytes()) for a in (self.t, self.q, self.qd))
+        cached = self.__dict__.get("_peaks_cache")
+        if cached is not None and cached[0] == key:
+            return cached[1]
+        q, qd, qdd = self._sampled(resolution)
+        peaks = (np.min(q, axis=0), np.max(q, axis=0), np.max(np.abs(qd), axis=0), np.max(np.abs(qdd), axis=0))
+        self.__dict__["_peaks_cache"] = (key, peaks)
+        return peaks
+
     def check_limits(self, limits: JointLimits, resolution: float = 0.002) -> LimitReport:
         """Largest violation per joint of the interpolated plan against a robot's ``limits`` (sampled at the
         knots and at least every ``resolution`` s). Never raises for limit violations (it raises
         :class:`PlanError` for a malformed plan or one for other joints)."""
         limits = self._limits_for(limits)
         pos, vel, acc = limits.position, limits.velocity, limits.acceleration
-        q, qd, qdd = self._sampled(resolution)
-        p_viol = np.maximum(np.max(pos[:, 0] - q, axis=0), np.max(q - pos[:, 1], axis=0))
-        v_viol = np.max(np.abs(qd) - vel, axis=0)
-        a_viol = np.max(np.abs(qdd) - acc, axis=0)
+        q_min, q_max, qd_peak, qdd_peak = self._peaks(resolution)
+        # max_i(lo - q_i) == lo - min_i q_i exactly (rounding is monotonic), and so on: the per-sample form's figures
+        p_viol = np.maximum(pos[:, 0] - q_min, q_max - pos[:, 1])
+        v_viol = qd_peak - vel
+        a_viol = qdd_peak - acc
         return LimitReport(
             position=np.maximum(p_viol, 0.0),
             velocity=np.maximum(v_viol, 0.0),
@@ -203,8 +217,8 @@ class MotionPlan:
         dimensionless; > 1 where :meth:`check_limits` reports a violation), sampled as :meth:`check_limits` does.
         Stretching a plan's time uniformly by ``k`` divides them by ``k`` and ``k**2``."""
         limits = self._limits_for(limits)
-        _, qd, qdd = self._sampled(resolution)
-        return np.max(np.abs(qd), axis=0) / limits.velocity, np.max(np.abs(qdd), axis=0) / limits.acceleration
+        _, _, qd_peak, qdd_peak = self._peaks(resolution)
+        return qd_peak / limits.velocity, qdd_peak / limits.acceleration
 
     # ------------------------------------------------------------------ I/O
     def to_dict(self) -> dict[str, Any]:

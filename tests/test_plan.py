@@ -116,3 +116,24 @@ def test_load_errors(tmp_path):
         MotionPlan.from_dict({"t": [0, 1], "q": [[0] * 6, [float("nan")] * 6]})
     with pytest.raises(PlanError, match="numeric or ragged"):
         MotionPlan.from_dict({"t": [0, 1], "q": [[0] * 6, [0] * 5]})
+
+
+def test_limit_checks_keep_the_per_sample_figures_and_follow_a_changed_plan():
+    """The peaks kept on a plan give the figures of the per-sample form, and a plan changed in place is sampled anew."""
+    p = _plan(T=1.0, amp=2.5)
+    lim = COMPI.limits
+    rep = p.check_limits(lim)
+    q, qd, qdd = p._sampled(0.002)
+    pos = lim.position
+    assert np.array_equal(rep.position, np.maximum(np.maximum(np.max(pos[:, 0] - q, axis=0), np.max(q - pos[:, 1], axis=0)), 0.0))
+    assert np.array_equal(rep.velocity, np.maximum(np.max(np.abs(qd) - lim.velocity, axis=0), 0.0))
+    assert np.array_equal(rep.acceleration, np.maximum(np.max(np.abs(qdd) - lim.acceleration, axis=0), 0.0))
+    vel, acc = p.peak_limit_ratios(lim)
+    assert np.array_equal(vel, np.max(np.abs(qd), axis=0) / lim.velocity)
+    assert np.array_equal(acc, np.max(np.abs(qdd), axis=0) / lim.acceleration)
+    p.q *= 0.01  # in place: the kept peaks no longer apply
+    p.qd *= 0.01
+    fresh = MotionPlan(t=p.t.copy(), q=p.q.copy(), qd=p.qd.copy())
+    assert p.check_limits(lim).ok
+    assert np.array_equal(p.peak_limit_ratios(lim)[1], fresh.peak_limit_ratios(lim)[1])
+    assert np.array_equal(p.peak_limit_ratios(lim, resolution=0.01)[0], fresh.peak_limit_ratios(lim, resolution=0.01)[0])

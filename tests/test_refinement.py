@@ -250,3 +250,35 @@ def test_retiming_stretches_a_plan_beyond_the_speed_limits_and_leaves_others_alo
     assert tight.theta(np.full(tight.n_params, 0.0))[-1] <= MIN_EXECUTION_TIME + 0.01
     assert RefinementProblem.from_description(json.loads(json.dumps(problem.describe()))).retime
     assert "retime" not in plain.describe() and not RefinementProblem.from_description(plain.describe()).retime
+
+
+def test_a_candidates_plan_is_the_rollout_of_its_retimed_parameters(base):
+    """plan(x) reuses the retiming's last rollout: the same arrays as rolling theta(x) out afresh."""
+    problem = RefinementProblem(COMPI, base, retime=True)
+    x_fast = np.zeros(problem.n_params)
+    x_fast[-1] = problem.scaling.x_bounds[-1, 0]  # stretched by the retiming
+    rng = np.random.default_rng(3)
+    for x in (np.zeros(problem.n_params), x_fast, rng.normal(size=problem.n_params)):
+        plan = problem.plan(x)
+        fresh = problem.parameterization.motion_plan(problem.theta(x), dt=problem.dt)
+        assert np.array_equal(plan.t, fresh.t) and np.array_equal(plan.q, fresh.q) and np.array_equal(plan.qd, fresh.qd)
+        assert plan.meta == fresh.meta
+        assert np.array_equal(plan.check_limits(COMPI.limits).acceleration, fresh.check_limits(COMPI.limits).acceleration)
+
+
+def test_episode_bench_splits_the_episodes_time(base):
+    from besdrake.tasks.throwing.episode_bench import PARTS, run_episode_bench
+
+    slow = base.copy()
+    slow.execution_time = 2.3
+    problem = RefinementProblem(COMPI, slow)
+    res = run_episode_bench(problem, n_episodes=10, seed=0)  # one generation
+    assert res.n_episodes == 10 and set(res.ms_per_episode) == set(PARTS)
+    parts = sum(v for k, v in res.ms_per_episode.items() if k != "release_checks")
+    assert parts == pytest.approx(res.episode_cpu_ms, abs=0.01)  # the parts are rounded to 1 us
+    assert res.ms_per_episode["simulation"] > res.ms_per_episode["release_checks"] > 0 and res.ms_per_episode["dmp_rollout"] > 0
+    assert res.rollout_cpu_ms > 0 and res.ratio_to_rollout == pytest.approx(res.episode_cpu_ms / res.rollout_cpu_ms)
+    assert res.sim_s_per_episode > 0 and res.default_throw_sim_s > 0 and "episode / rollout" in res.table()
+    # the instrumentation is gone afterwards
+    assert "plan" not in vars(problem) and "motion_plan" not in vars(problem.parameterization)
+    assert isinstance(problem.reward, ThrowReward)

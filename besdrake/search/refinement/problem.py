@@ -72,8 +72,7 @@ class RefinementProblem:
 
     def theta(self, x: np.ndarray) -> np.ndarray:
         """DMP parameters of normalised candidate ``x`` (retimed when the problem retimes, see :meth:`retimed`)."""
-        theta = self.scaling.to_theta(x)
-        return self.retimed(theta) if self.retime else theta
+        return self._theta_and_plan(x)[0]
 
     def retimed(self, theta: np.ndarray) -> np.ndarray:
         """``theta`` with its execution time stretched just enough that the plan keeps every joint's velocity and
@@ -83,25 +82,40 @@ class RefinementProblem:
         mend (the acceleration of the DMP's final approach to its goal velocity, which a stretch does not lower) is
         left to the reward's penalty, on the plan as it was. A ``theta`` without a valid rollout is returned unchanged
         (its evaluation fails as before)."""
+        return self._retime(theta)[0]
+
+    def _retime(self, theta: np.ndarray) -> tuple[np.ndarray, MotionPlan | None]:
+        """:meth:`retimed`, and the motion plan of the returned parameters where it was rolled out on the way (None
+        where not: a ``theta`` without a valid rollout), so that a candidate's DMP is rolled out once more at most."""
         theta = np.array(theta, dtype=float)
         upper = self.scaling.bounds[-1, 1]
         stretched = theta.copy()
+        first: MotionPlan | None = None  # the plan of theta itself (round 0)
         for round_ in range(RETIME_ROUNDS + 1):
             try:
-                vel, acc = self.parameterization.motion_plan(stretched, dt=self.dt).peak_limit_ratios(self.robot.limits)
+                plan = self.parameterization.motion_plan(stretched, dt=self.dt)
+                vel, acc = plan.peak_limit_ratios(self.robot.limits)
             except (DMPParameterError, PlanError, ValueError):
-                return theta
+                return theta, None
+            first = plan if round_ == 0 else first
             k = max(float(vel.max()), float(np.sqrt(acc.max())))
             if k <= 1.0:
-                return stretched
+                return stretched, plan
             if not np.isfinite(k) or round_ == RETIME_ROUNDS or stretched[-1] >= upper:
-                return theta
+                return theta, first
             stretched[-1] = min(upper, stretched[-1] * k * (1.0 + RETIME_MARGIN))
-        return theta
+        return theta, first
+
+    def _theta_and_plan(self, x: np.ndarray) -> tuple[np.ndarray, MotionPlan | None]:
+        """DMP parameters of ``x`` and their motion plan where retiming rolled it out already (else None)."""
+        theta = self.scaling.to_theta(x)
+        return self._retime(theta) if self.retime else (theta, None)
 
     def plan(self, x: np.ndarray) -> MotionPlan:
         """Motion plan of normalised candidate ``x`` (raises DMPParameterError/PlanError for a bad one)."""
-        plan = self.parameterization.motion_plan(self.theta(x), dt=self.dt)
+        theta, plan = self._theta_and_plan(x)
+        if plan is None:
+            plan = self.parameterization.motion_plan(theta, dt=self.dt)
         return plan.validate()
 
     def evaluate(self, X: np.ndarray, executor) -> list[RewardBreakdown]:

@@ -71,6 +71,8 @@ class ThrowRollout:
         self._ball_v0 = self._nq + ball.floating_velocities_start_in_v()  # angular (3) then linear (3)
         self._gravity = plant.gravity_field().gravity_vector()
         self._scratch = h.plant.CreateDefaultContext()  # FK for the re-catch check, never simulated
+        self._contact_port = plant.get_contact_results_output_port()  # looked up once: read after every chunk
+        self._ball_index = ball.index()
         #: Time (s) after a tentative release over which the scoop's planned path is checked for a re-catch.
         self.recatch_horizon = 0.3
         #: Time (s) of a plan's initial hold that is still simulated (ball and contact settle).
@@ -136,26 +138,26 @@ class ThrowRollout:
         ``recatch_horizon`` s keeps at least ``release.margin`` from every scoop surface while the scoop
         follows the commanded plan (so a slow lob that falls back onto the scoop is simulated on).
         """
-        h = self.handles
-        plant = h.plant
-        contacts = plant.get_contact_results_output_port().Eval(self.plant_context)
-        ball = h.scene.ball_body.index()
-        touching = False
-        for i in range(contacts.num_point_pair_contacts()):
-            info = contacts.point_pair_contact_info(i)
-            if ball in (info.bodyA_index(), info.bodyB_index()):
-                touching = True
-                break
-        x = plant.GetPositionsAndVelocities(self.plant_context)
+        x = self.handles.plant.GetPositionsAndVelocities(self.plant_context)
         p = x[self._ball_q0 + 4 : self._ball_q0 + 7]
         v = x[self._ball_v0 + 3 : self._ball_v0 + 6]
         speed = float(np.sqrt(v @ v))
         if not (speed <= DIVERGENCE_SPEED) or not np.isfinite(x).all():  # NaN fails the comparison too
             return False, False, True
         on_floor = bool(p[2] <= radius + 1e-3)
-        if touching:
+        if self._ball_touching():
             return False, on_floor, False
         return self._no_recatch(p, v, radius), on_floor, False
+
+    def _ball_touching(self) -> bool:
+        """True when the ball is in contact with anything now (the plant's contact results)."""
+        contacts = self._contact_port.Eval(self.plant_context)
+        ball = self._ball_index
+        for i in range(contacts.num_point_pair_contacts()):
+            info = contacts.point_pair_contact_info(i)
+            if info.bodyA_index() == ball or info.bodyB_index() == ball:
+                return True
+        return False
 
     def _no_recatch(self, p: np.ndarray, v: np.ndarray, radius: float) -> bool:
         """True when the ball, flying freely from (p, v), keeps ``release.margin`` from every scoop surface while
