@@ -137,7 +137,7 @@ def toppra_retime(
     vel[arm], acc[arm] = safety * limits.velocity, safety * limits.acceleration
     top.AddJointVelocityLimit(-vel, vel)
     top.AddJointAccelerationLimit(-acc, acc)
-    s_of_t = top.SolvePathParameterization()
+    s_of_t = _quietly(top.SolvePathParameterization)
     if s_of_t is None:
         return None
     t0, T = s_of_t.start_time(), float(s_of_t.end_time() - s_of_t.start_time())
@@ -165,6 +165,20 @@ def local_retime(t: np.ndarray, q: np.ndarray, limits: JointLimits, safety: floa
     padded = np.concatenate([np.full(window, k[0]), k, np.full(window, k[-1])])
     k = np.array([padded[i : i + 2 * window + 1].max() for i in range(len(k))])
     return np.concatenate([[0.0], np.cumsum(k * dt)]), t
+
+
+def _quietly(solve):
+    """``solve()`` with Drake's log held back below CRITICAL: Toppra logs an ERROR line for a path it cannot retime,
+    which the caller handles (it returns None here and the planner falls back); the user need not see it."""
+    import logging
+
+    log = logging.getLogger("drake")
+    level = log.level
+    log.setLevel(logging.CRITICAL)
+    try:
+        return solve()
+    finally:
+        log.setLevel(level)
 
 
 def _GridOptions(n: int):
