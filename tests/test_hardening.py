@@ -409,3 +409,10 @@ def test_copied_run_folder_uses_its_own_refined_scenario(tmp_path):
     copy = RunFolder(tmp_path / "b", config)
     got = Path(_refined_scenario(Context(copy, config)))
     assert got == tmp_path / "b" / "06_diagnose" / "report" / "refined_scenario.yaml" and got.is_file()
+
+
+@pytest.mark.parametrize("setting", ["transfer.population=-3", "transfer.max_transfers=0", "transfer.final_repetitions=0"])
+def test_learn_refuses_a_transfer_count_below_its_least_before_running(tmp_path, capsys, setting):
+    err = _error(capsys, ["learn", "--quick", "--set", setting, "--out", str(tmp_path / "run")])
+    assert err.startswith("besdrake: error: transfer:") and "whole number" in err
+    assert not (tmp_path / "run").exists()  # refused before any stage ran

@@ -115,6 +115,12 @@ class TransferabilityConfig:
     outlier_radius: float | None = 0.25
 
     def __post_init__(self) -> None:
+        counts = {"population": 1, "max_transfers": 1, "success_repetitions": 1, "final_repetitions": 1,
+                  "final_best_in_lab": 0, "final_pareto": 0, "diversity_neighbours": 1}
+        for name, least in counts.items():
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < least:
+                raise ValueError(f"{name} must be a whole number >= {least}, got {value!r}")
         if self.transfer_choice not in TRANSFER_CHOICES:
             raise ValueError(f"transfer_choice must be one of {TRANSFER_CHOICES}, got {self.transfer_choice!r}")
         if not (np.isfinite(self.mutation_sd_min) and 0.0 < self.mutation_sd_min <= self.mutation_sd):
