@@ -115,6 +115,47 @@ class _LengthTables:
         return np.array([np.pad(c, (0, self.degree + 1 - len(c))) for c in rows])
 
 
+@dataclass(frozen=True)
+class _Lengths:
+    """Segment length limits in samples: a movement's and a rest's shortest, the shortest of any model, the length
+    from which a particle may be pruned, and the longest."""
+
+    move: int
+    rest: int
+    shortest: int
+    mature: int
+    longest: int
+
+
+def _check_series(V: np.ndarray, frequency: float, lmin: int, min_length_s: float) -> None:
+    """:class:`SegmentationError` for a recording too short for two segments, or with NaN/inf samples."""
+    n, dt = V.shape[0], 1.0 / frequency
+    if n < 2 * lmin:
+        raise SegmentationError(
+            f"a recording of {n} samples ({n * dt:.3g} s) is too short to segment: "
+            f"at least {2 * lmin} samples (two segments of {lmin} samples, min_length_s={min_length_s} s) are needed"
+        )
+    if not np.isfinite(V).all():
+        bad = np.flatnonzero(~np.isfinite(V).all(axis=1))
+        raise SegmentationError(
+            f"the input has NaN/inf at {len(bad)} samples (first index {bad[0]}); "
+            "fill gaps first (besdrake.mocap.gaps.fill_gaps) or crop the recording"
+        )
+
+
+def _backtrack(back: np.ndarray, kind: np.ndarray, n: int) -> tuple[np.ndarray, list[str]]:
+    """The best segmentation's borders (sorted) and its segments' models, from the filter's back pointers."""
+    borders, models = [], []
+    t = n
+    while t > 0:
+        s = back[t]
+        models.append("rest" if kind[t] else "movement")
+        if s > 0:
+            borders.append(s)
+        t = s
+    return np.array(sorted(borders), dtype=int), models[::-1]
+
+
 @dataclass
 class VMCIResult(SegmentationResult):
     """A segmentation by :class:`VMCI` plus its inference statistics."""
@@ -258,66 +299,49 @@ class VMCI(SegmenterMixin):
         V = np.asarray(V, dtype=float)
         if V.ndim == 1:
             V = V[:, None]
-        n, d = V.shape
-        dt = 1.0 / frequency
-        rest = self.rest_log_prior is not None
-        lmin_move = max(2, int(round(self.min_length_s * frequency)))
-        lmin_rest = lmin_move if self.rest_min_length_s is None else max(2, int(round(self.rest_min_length_s * frequency)))
-        lmin = min(lmin_move, lmin_rest) if rest else lmin_move  # shortest segment of any model
-        lmature = max(lmin_move, lmin_rest) if rest else lmin_move  # pruned only once every model may end
-        lmax = int(round(self.max_length_s * frequency))
-        if n < 2 * lmin:
-            raise SegmentationError(
-                f"a recording of {n} samples ({n * dt:.3g} s) is too short to segment: "
-                f"at least {2 * lmin} samples (two segments of {lmin} samples, min_length_s={self.min_length_s} s) are needed"
-            )
-        if not np.isfinite(V).all():
-            bad = np.flatnonzero(~np.isfinite(V).all(axis=1))
-            raise SegmentationError(
-                f"the input has NaN/inf at {len(bad)} samples (first index {bad[0]}); "
-                "fill gaps first (besdrake.mocap.gaps.fill_gaps) or crop the recording"
-            )
+        n = V.shape[0]
+        lengths = self._lengths(frequency)
+        _check_series(V, frequency, lengths.shortest, self.min_length_s)
         scale = float(np.sqrt(np.mean(np.sum(V**2, axis=1))))
         if scale <= 0:
             # no motion at all: one segment
             return VMCIResult(borders=np.array([], dtype=int), n_samples=n, log_posterior=0.0,
                               mean_particles=1.0, max_particles_used=1)
         V = V / scale  # unit RMS speed: the priors below are relative to the data
-        nu = float(self.nu)
-        gamma = nu * self.noise_ratio**2  # prior mean of sigma^2 ~ gamma / nu (relative units)
-        bell_var = (self.weight_ratio / self.noise_ratio) ** 2
-        tables = _LengthTables(
-            int(self.n_basis),
-            bell_var,
-            (self.boundary_ratio / self.noise_ratio) ** 2,
-            bell_var if self.open_ends else (self.boundary_ratio / self.noise_ratio) ** 2,
-            dt,
-            min(lmax, n) + 1,
+        Vbest, back, kind, n_used = self._forward(V, 1.0 / frequency, lengths, frequency)
+        if not np.isfinite(Vbest[n]):
+            raise SegmentationError("no segmentation satisfies the length limits; lower min_length_s")
+        borders, models = _backtrack(back, kind, n)
+        return VMCIResult(
+            borders=borders,
+            n_samples=n,
+            segment_models=models,
+            log_posterior=float(Vbest[n]),
+            mean_particles=float(np.mean(n_used)) if n_used else 1.0,
+            max_particles_used=int(max(n_used)) if n_used else 1,
         )
-        deg = tables.degree
-        post, coef, logdet = tables.post, tables.coef, tables.logdet
-        p = 1.0 / max(self.mean_length_s * frequency, 1.0 + 1e-9)
-        log_pen = np.log(p) - np.log1p(-p)  # per-segment log prior (geometric, up to a constant)
+
+    def _lengths(self, frequency: float) -> "_Lengths":
+        """The segment length limits in samples."""
+        rest = self.rest_log_prior is not None
+        move = max(2, int(round(self.min_length_s * frequency)))
+        rest_min = move if self.rest_min_length_s is None else max(2, int(round(self.rest_min_length_s * frequency)))
+        return _Lengths(move=move, rest=rest_min,
+                        shortest=min(move, rest_min) if rest else move,  # shortest segment of any model
+                        mature=max(move, rest_min) if rest else move,  # pruned only once every model may end
+                        longest=int(round(self.max_length_s * frequency)))
+
+    def _marginal(self):
+        """The log marginal likelihood of a segment from its residual sum of squares: ``f(rss, N, logdet, rest)``."""
+        nu, s2 = float(self.nu), self.noise_ratio**2
+        gamma = nu * s2  # prior mean of sigma^2 ~ gamma / nu (relative units)
         lg_nu = gammaln(nu / 2) - 0.5 * nu * np.log(gamma)
-        shared_noise = self.noise_model == "shared"
-        s2 = self.noise_ratio**2
-        log_2pi_s2 = np.log(2 * np.pi * s2)
-
-        sq = np.sum(V**2, axis=1)
-        csq = np.r_[0.0, np.cumsum(sq)]
-
-        Vbest = np.full(n + 1, -np.inf)
-        Vbest[0] = 0.0
-        back = np.zeros(n + 1, dtype=int)
-        kind = np.zeros(n + 1, dtype=bool)  # True: the segment ending at t is a rest segment
-        log_rest = float(self.rest_log_prior) if rest else 0.0
-
         rest_ratio = self.rest_noise_ratio if self.rest_noise_ratio else self.noise_ratio
         gamma_rest = nu * rest_ratio**2
         lg_nu_rest = gammaln(nu / 2) - 0.5 * nu * np.log(gamma_rest)
+        shared_noise = self.noise_model == "shared"
 
         def marginal(rss, N, logdet_term, rest_model=False):
-            """Log marginal likelihood of a segment from its residual sum of squares."""
             if shared_noise:
                 var = rest_ratio**2 if rest_model else s2
                 return -0.5 * N * np.log(2 * np.pi * var) - 0.5 * rss / var + logdet_term
@@ -329,73 +353,72 @@ class VMCI(SegmenterMixin):
                 + gammaln(0.5 * (N + nu))
                 + logdet_term
             )
+        return marginal
+
+    def _forward(self, V: np.ndarray, dt: float, lengths: "_Lengths", frequency: float):
+        """The particle filter over segment starts: the best log posterior of a segmentation ending at each sample,
+        the start of its last segment, whether that is a rest segment, and the particles in use per step."""
+        n, d = V.shape
+        rest = self.rest_log_prior is not None
+        bell_var = (self.weight_ratio / self.noise_ratio) ** 2
+        boundary_var = (self.boundary_ratio / self.noise_ratio) ** 2
+        tables = _LengthTables(int(self.n_basis), bell_var, boundary_var, bell_var if self.open_ends else boundary_var,
+                               dt, min(lengths.longest, n) + 1)
+        deg, post, coef, logdet = tables.degree, tables.post, tables.coef, tables.logdet
+        p = 1.0 / max(self.mean_length_s * frequency, 1.0 + 1e-9)
+        log_pen = np.log(p) - np.log1p(-p)  # per-segment log prior (geometric, up to a constant)
+        log_rest = float(self.rest_log_prior) if rest else 0.0
+        marginal = self._marginal()
+        csq = np.r_[0.0, np.cumsum(np.sum(V**2, axis=1))]
+        Vbest = np.full(n + 1, -np.inf)
+        Vbest[0] = 0.0
+        back = np.zeros(n + 1, dtype=int)
+        kind = np.zeros(n + 1, dtype=bool)  # True: the segment ending at t is a rest segment
         # particle state: start index, moments (P, deg+1, d)
-        starts = np.array([0], dtype=int)
-        mom = np.zeros((1, deg + 1, d))
-        powers = np.arange(deg + 1)
-        n_used = []
+        starts, mom, powers, n_used = np.array([0], dtype=int), np.zeros((1, deg + 1, d)), np.arange(deg + 1), []
         for t in range(1, n + 1):
-            v = V[t - 1]
             u = (t - 1 - starts + 0.5) * dt  # time of sample t-1 since each particle's start
-            mom += (u[:, None] ** powers)[:, :, None] * v[None, None, :]
+            mom += (u[:, None] ** powers)[:, :, None] * V[t - 1][None, None, :]
             L = t - starts
             variant = (starts == 0) + (2 if t == n else 0)
             b = np.einsum("pkm,pmd->pkd", coef[variant, L], mom)  # Phi^T v  (P, K, d)
             quad = np.einsum("pkd,pkj,pjd->p", b, post[variant, L], b)
             rss = np.maximum(csq[t] - csq[starts] - quad, 0.0)
-            N = L * d
-            score = Vbest[starts] + marginal(rss, N, d * logdet[variant, L]) + log_pen
-            score = np.where(L >= lmin_move, score, -np.inf)
+            score = Vbest[starts] + marginal(rss, L * d, d * logdet[variant, L]) + log_pen
+            score = np.where(L >= lengths.move, score, -np.inf)
             is_rest = np.zeros(len(starts), dtype=bool)
             if rest:
-                score_rest = Vbest[starts] + marginal(csq[t] - csq[starts], N, 0.0, rest_model=True) + log_pen + log_rest
-                score_rest = np.where(L >= lmin_rest, score_rest, -np.inf)
+                score_rest = Vbest[starts] + marginal(csq[t] - csq[starts], L * d, 0.0, rest_model=True) + log_pen + log_rest
+                score_rest = np.where(L >= lengths.rest, score_rest, -np.inf)
                 is_rest = score_rest > score
                 score = np.where(is_rest, score_rest, score)
-            can_end = np.isfinite(score)
-            if can_end.any():
-                cand = score
-                j = int(np.argmax(cand))
-                Vbest[t] = cand[j]
-                back[t] = starts[j]
-                kind[t] = is_rest[j]
-            # prune: keep young particles, the best by score, within the ratio
+            if np.isfinite(score).any():
+                j = int(np.argmax(score))
+                Vbest[t], back[t], kind[t] = score[j], starts[j], is_rest[j]
             if t < n:
-                ok = L >= lmature
-                keep = L < lmax
-                mature = keep & ok
-                if mature.sum() > 0:
-                    best = score[mature].max()
-                    keep &= ~ok | (score >= best - self.prune_log_ratio)
-                    if (keep & ok).sum() > self.max_particles:
-                        thr = np.sort(score[keep & ok])[-self.max_particles]
-                        keep &= ~ok | (score >= thr)
-                starts = starts[keep]
-                mom = mom[keep]
+                keep = self._survivors(score, L, lengths)
+                starts, mom = starts[keep], mom[keep]
                 if np.isfinite(Vbest[t]):
                     starts = np.r_[starts, t]
                     mom = np.concatenate([mom, np.zeros((1, deg + 1, d))], axis=0)
                 if len(starts) == 0:
                     raise SegmentationError("all particles were pruned; raise max_particles or max_length_s")
                 n_used.append(len(starts))
-        if not np.isfinite(Vbest[n]):
-            raise SegmentationError("no segmentation satisfies the length limits; lower min_length_s")
-        borders, models = [], []
-        t = n
-        while t > 0:
-            s = back[t]
-            models.append("rest" if kind[t] else "movement")
-            if s > 0:
-                borders.append(s)
-            t = s
-        return VMCIResult(
-            borders=np.array(sorted(borders), dtype=int),
-            n_samples=n,
-            segment_models=models[::-1],
-            log_posterior=float(Vbest[n]),
-            mean_particles=float(np.mean(n_used)) if n_used else 1.0,
-            max_particles_used=int(max(n_used)) if n_used else 1,
-        )
+        return Vbest, back, kind, n_used
+
+    def _survivors(self, score: np.ndarray, L: np.ndarray, lengths: "_Lengths") -> np.ndarray:
+        """Pruning: keep the young particles, and of the mature ones the best by score, within the ratio, at most
+        ``max_particles``; none longer than the longest segment."""
+        ok = L >= lengths.mature
+        keep = L < lengths.longest
+        mature = keep & ok
+        if mature.sum() > 0:
+            best = score[mature].max()
+            keep &= ~ok | (score >= best - self.prune_log_ratio)
+            if (keep & ok).sum() > self.max_particles:
+                thr = np.sort(score[keep & ok])[-self.max_particles]
+                keep &= ~ok | (score >= thr)
+        return keep
 
     def _segment(self, V: np.ndarray, frequency: float) -> VMCIResult:
         result = self.segment_velocity(V, frequency)

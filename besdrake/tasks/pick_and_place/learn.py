@@ -131,30 +131,26 @@ def stage_template(ctx, out: Path) -> dict[str, Any]:
     """Stage 4: a behaviour template over the box's place on the shelf, from the best refined grasp: trained at
     ``template.train_contexts`` places of ``template.region`` (corners and centre first), tested at
     ``template.test_contexts`` other, seeded places in simulation."""
-    from besdrake.tasks.pick_and_place.imitation import GraspSkill
     from besdrake.tasks.pick_and_place.refine import RefineSettings
-    from besdrake.tasks.pick_and_place.template import context_grid, evaluate_grasp_template, learn_grasp_template
+    from besdrake.tasks.pick_and_place.template import (context_grid, evaluate_grasp_template, learn_grasp_template,
+                                                        random_contexts)
 
     cfg = ctx.config["template"]
-    refine_dir = ctx.run.stage_dir(2, "refine")
-    hits = [r for r in _read_json(refine_dir / "refinement.json") if r.get("success")]
-    if not hits:
+    best = _best_refined(ctx)
+    if best is None:
         return {"template_success_rate_sim": None, "note": "no grasp succeeded in simulation"}
-    best = max(hits, key=lambda r: r["best_reward"])
-    base = GraspSkill.from_dict(_read_json(refine_dir / best["demonstration"] / "skill.json"))
-    rng = np.random.default_rng(int(cfg["seed"]))
+    name, base = best
     train = context_grid(cfg["region"], int(cfg["train_contexts"]))
-    test = np.column_stack([rng.uniform(*cfg["region"]["dx"], int(cfg["test_contexts"])),
-                            rng.uniform(*cfg["region"]["dy"], int(cfg["test_contexts"]))])
+    test = random_contexts(cfg["region"], int(cfg["test_contexts"]), np.random.default_rng(int(cfg["seed"])))
     settings = RefineSettings(max_generations=int(cfg["max_generations"]), workers=int(ctx.config.get("workers", 1)),
                               seed=int(cfg["seed"]))
     template = learn_grasp_template(base, ctx.config["scenario"], train, out, settings)
     ev = evaluate_grasp_template(template, ctx.config["scenario"], test)
     write_json(out / "evaluation.json", ev.summary())
     training = _read_json(out / "training.json")
-    ctx.progress(f"  template from {best['demonstration']}: {sum(r['initial_success'] for r in training)} of "
+    ctx.progress(f"  template from {name}: {sum(r['initial_success'] for r in training)} of "
                  f"{len(training)} training places succeeded as carried over; test {ev.success_rate:.0%}")
-    return {"template_base": best["demonstration"], "template_train_contexts": len(training),
+    return {"template_base": name, "template_train_contexts": len(training),
             "template_train_initial_successes": sum(r["initial_success"] for r in training),
             "template_success_rate_sim": ev.success_rate, "template_place_error_m": ev.summary()["median_place_error_m"]}
 
@@ -202,21 +198,28 @@ def stage_report(ctx, out: Path) -> dict[str, Any]:
 def _replays(ctx, out: Path) -> list[str]:
     """A meshcat HTML replay of the best refined grasp in simulation (path relative to the run folder), if any."""
     from besdrake.sim.record import record_html
-    from besdrake.tasks.pick_and_place.imitation import GraspSkill
     from besdrake.tasks.pick_and_place.rollout import PickPlaceRollout
     from besdrake.tasks.pick_and_place.skill_plan import SkillPlanner
 
-    refine_dir = ctx.run.stage_dir(2, "refine")
-    hits = [r for r in _read_json(refine_dir / "refinement.json") if r.get("success")] \
-        if (refine_dir / "refinement.json").is_file() else []
-    if not hits:
+    best = _best_refined(ctx)
+    if best is None:
         return []
-    best = max(hits, key=lambda r: r["best_reward"])
-    skill = GraspSkill.from_dict(_read_json(refine_dir / best["demonstration"] / "skill.json"))
+    name, skill = best
     plan = SkillPlanner.for_rollout(PickPlaceRollout(ctx.config["scenario"])).plan(skill).plan
-    path, _ = record_html(plan, out / f"replay_{best['demonstration']}.html", ctx.config["scenario"], fps=30.0,
-                          limits="flag")
+    path, _ = record_html(plan, out / f"replay_{name}.html", ctx.config["scenario"], fps=30.0, limits="flag")
     return [str(path.relative_to(ctx.run.root))]
+
+
+def _best_refined(ctx):
+    """``(demonstration, skill)`` of the refine stage's grasp that succeeded with the highest reward, or None."""
+    from besdrake.tasks.pick_and_place.imitation import GraspSkill
+
+    table = ctx.run.stage_dir(2, "refine") / "refinement.json"
+    hits = [r for r in _read_json(table) if r.get("success")] if table.is_file() else []
+    if not hits:
+        return None
+    best = max(hits, key=lambda r: r["best_reward"])
+    return best["demonstration"], GraspSkill.from_dict(_read_json(table.parent / best["demonstration"] / "skill.json"))
 
 
 def _report_text(summary: dict[str, Any], rec: dict[str, Any]) -> str:

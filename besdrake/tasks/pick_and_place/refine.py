@@ -246,10 +246,7 @@ def _initial_result(initial: dict, skill: GraspSkill, out: Path | None) -> Refin
                           best_place_error_m=float(initial.get("place_error_m", "nan") or "nan"), episodes=0,
                           generations=0, episodes_to_success=0, stop_reason="initial_success", initial_success=True,
                           initial_reward=float(initial["reward"]), best_skill=skill.to_dict())
-    if out is not None:
-        write_json(out / "result.json", result.summary())
-        write_json(out / "skill.json", result.best_skill)
-    return result
+    return _written(result, out)
 
 
 def _result(loop, details: _Details, initial: dict, skill_of, out: Path | None) -> RefineResult:
@@ -267,6 +264,11 @@ def _result(loop, details: _Details, initial: dict, skill_of, out: Path | None) 
         episodes_to_success=hits[0] + 1 if hits else None, stop_reason=loop.stop_reason,
         initial_success=bool(initial.get("success", False)), initial_reward=float(initial["reward"]),
         best_skill=skill.to_dict())
+    return _written(result, out)
+
+
+def _written(result: RefineResult, out: Path | None) -> RefineResult:
+    """``result`` after writing ``result.json`` and ``skill.json`` (the best skill) into ``out`` (if any)."""
     if out is not None:
         write_json(out / "result.json", result.summary())
         write_json(out / "skill.json", result.best_skill)

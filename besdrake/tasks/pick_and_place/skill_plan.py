@@ -8,8 +8,7 @@ into a :class:`~besdrake.plan.MotionPlan` in four steps:
    middle on the shelf, the transport with the box's middle over the table place, plus the demonstrated release
    offset) and its approach starts at the tool pose of the robot's home position (where the arm stands): the
    demonstrated reach from the person's resting hand is cropped and the rest warped onto that start
-   (:meth:`~besdrake.tasks.pick_and_place.imitation.GraspSkill.reaching_from`; ``crop_approach=False``: the
-   DMP's start is moved instead);
+   (:meth:`~besdrake.tasks.pick_and_place.imitation.GraspSkill.reaching_from`);
 2. the skill's rollout, as tool poses in the base frame (``mapping.hand_to_tool_rpy`` of the robot file);
 3. resolved-rate path IK from the home position (:class:`~besdrake.embodiment.path_ik.PathIK`: continuous joints,
    the tool lagging where a pose is out of reach);
@@ -70,9 +69,8 @@ class SkillPlanner:
     def __init__(self, robot: Robot, X_world_base, box_start: np.ndarray, place_target: np.ndarray,
                  box_height: float, safety: float = DEFAULT_SAFETY, ik_dt: float = 0.02,
                  ik_options: PathIKOptions | None = None, model: KinematicModel | None = None,
-                 crop_approach: bool = True, box_rotation: RotationMatrix | None = None) -> None:
+                 box_rotation: RotationMatrix | None = None) -> None:
         self.robot, self.safety, self.ik_dt = robot, float(safety), float(ik_dt)
-        self.crop_approach = bool(crop_approach)
         self.model = model or welded_plant(robot)
         self.path_ik = PathIK(self.model, ik_options)
         X_world_task, self.table_place = scene_task_frame(np.asarray(box_start, float), np.asarray(place_target, float))
@@ -97,11 +95,7 @@ class SkillPlanner:
     def adapt(self, skill: GraspSkill) -> GraspSkill:
         """``skill`` with the scene's goals and its approach starting at the home tool pose (step 1)."""
         turned = self._nearer_closing_sign(self._across_faces(skill.copy()))
-        adapted = turned.adapted(self.table_place + self.grasp_offset, self.grasp_offset)
-        if self.crop_approach:
-            home = (self.X_base_task.inverse() @ self.model.tcp_pose(self.robot.home)).translation()
-            adapted = adapted.reaching_from(home)
-        return start_from_home(adapted, self.model, self.X_base_task, self.hand_to_tool(adapted))
+        return self._from_home(turned.adapted(self.table_place + self.grasp_offset, self.grasp_offset))
 
     def carry_over(self, skill: GraspSkill) -> GraspSkill:
         """A skill adapted (and perhaps refined) in a scene with the box elsewhere on the shelf, moved into this one:
@@ -111,10 +105,14 @@ class SkillPlanner:
         new = skill.copy()
         new.transport.position.goal = table + (skill.transport.position.goal - skill.table_place)
         new.table_place = table
-        if self.crop_approach:
-            home = (self.X_base_task.inverse() @ self.model.tcp_pose(self.robot.home)).translation()
-            new = new.reaching_from(home)
-        return start_from_home(new, self.model, self.X_base_task, self.hand_to_tool(new))
+        return self._from_home(new)
+
+    def _from_home(self, skill: GraspSkill) -> GraspSkill:
+        """``skill`` with its approach reaching from the home tool pose (cropped and warped onto it) and starting there
+        in the home orientation."""
+        home = (self.X_base_task.inverse() @ self.model.tcp_pose(self.robot.home)).translation()
+        skill = skill.reaching_from(home)
+        return start_from_home(skill, self.model, self.X_base_task, self.hand_to_tool(skill))
 
     def _across_faces(self, skill: GraspSkill) -> GraspSkill:
         """The demonstrated closing line turned onto the nearest normal of the box's side faces: a hand closes on a box

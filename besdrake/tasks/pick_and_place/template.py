@@ -98,15 +98,18 @@ class TemplateEvaluation:
 
 
 def context_grid(region: dict[str, list[float]], n: int, rng: np.random.Generator | None = None) -> np.ndarray:
-    """``n`` contexts in ``region`` ({"dx": [lo, hi], "dy": [lo, hi]}, m): its corners and centre first (n <= 5), or
-    a seeded uniform sample (``rng``) after them."""
+    """``n`` contexts in ``region`` ({"dx": [lo, hi], "dy": [lo, hi]}, m): its centre and corners first, then
+    :func:`random_contexts` (``rng``)."""
     (x0, x1), (y0, y1) = region["dx"], region["dy"]
     fixed = np.array([[0.5 * (x0 + x1), 0.5 * (y0 + y1)], [x0, y0], [x1, y1], [x0, y1], [x1, y0]])
     if n <= len(fixed):
         return fixed[:n]
-    rng = rng or np.random.default_rng(0)
-    extra = np.column_stack([rng.uniform(x0, x1, n - len(fixed)), rng.uniform(y0, y1, n - len(fixed))])
-    return np.vstack([fixed, extra])
+    return np.vstack([fixed, random_contexts(region, n - len(fixed), rng or np.random.default_rng(0))])
+
+
+def random_contexts(region: dict[str, list[float]], n: int, rng: np.random.Generator) -> np.ndarray:
+    """``n`` contexts drawn uniformly from ``region`` with ``rng``: (n, 2)."""
+    return np.column_stack([rng.uniform(*region["dx"], n), rng.uniform(*region["dy"], n)])
 
 
 def learn_grasp_template(base_skill: GraspSkill, scenario: str, contexts: np.ndarray, out_dir: str | Path,
@@ -115,10 +118,14 @@ def learn_grasp_template(base_skill: GraspSkill, scenario: str, contexts: np.nda
     ``out_dir/context_NN``) and fit a :class:`GraspTemplate` to the corrections; ``template.json`` in ``out_dir``."""
     from besdrake.tasks.pick_and_place.refine import refine_grasp
 
+    from besdrake.sim.scenario import load_scenario
+    from besdrake.tasks.pick_and_place.rollout import PickPlaceRollout
+
     out = Path(out_dir)
+    rollout = PickPlaceRollout(load_scenario(scenario))  # the scene's planner facts; built once
     template, rows = GraspTemplate(base_skill), []
     for i, c in enumerate(np.asarray(contexts, dtype=float)):
-        carried = _planner(scenario, c).carry_over(template.base_skill)
+        carried = _planner(rollout, c).carry_over(template.base_skill)
         res = refine_grasp(carried, scenario, out / f"context_{i:02d}", settings, box_offset=c)
         param = GraspParameterization(carried, weights=False)
         refined = GraspSkill.from_dict(res.best_skill)
@@ -149,12 +156,8 @@ def evaluate_grasp_template(template: GraspTemplate, scenario: str, contexts: np
     return ev
 
 
-def _planner(scenario_or_rollout, context):
-    """The SkillPlanner of the box at ``context`` in a scenario (name/path) or a PickPlaceRollout's scene."""
-    from besdrake.sim.scenario import load_scenario
-    from besdrake.tasks.pick_and_place.rollout import PickPlaceRollout
+def _planner(rollout, context):
+    """The SkillPlanner of a PickPlaceRollout's scene with the box at ``context``."""
     from besdrake.tasks.pick_and_place.skill_plan import SkillPlanner
 
-    rollout = scenario_or_rollout if isinstance(scenario_or_rollout, PickPlaceRollout) else \
-        PickPlaceRollout(load_scenario(scenario_or_rollout))
     return SkillPlanner.for_rollout(rollout, box_offset=np.asarray(context, dtype=float))

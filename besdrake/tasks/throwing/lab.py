@@ -339,32 +339,13 @@ class VirtualLab(TrialCounter):
         if not isinstance(plan, MotionPlan):
             raise TypeError(f"VirtualLab.execute needs a MotionPlan, got {type(plan).__name__}")
         trial = self.next_trial(trial)
-        c, n = self.config, self.config.noise
+        c = self.config
         rng = np.random.default_rng([c.seed, trial])
-        offset = rng.normal(0.0, n.ball_placement_sd, 2)
-        if np.abs(offset).sum() > MAX_PLACEMENT_OFFSET:
-            offset *= MAX_PLACEMENT_OFFSET / np.abs(offset).sum()
-        delta = rng.normal(0.0, n.touchdown_sd, 2)
-        td_noise = rng.normal(0.0, n.mocap_noise_sd, 2)
-        meta = {
-            "lab": c.name,
-            "plan_name": str(plan.meta.get("name", plan.meta.get("generator", ""))),
-            "executed_at": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-            "mocap_rate_hz": n.mocap_rate_hz,
-            "joint_rate_hz": n.joint_rate_hz,
-        }
-        try:
-            over = plan.check_limits(self.robot.limits).violations()
-        except PlanError as err:
-            return ThrowMeasurement(trial=trial, plan=plan, flags={"aborted": True}, message=f"aborted: malformed plan: {err}", meta=meta)
-        if over:  # no safety gate in front: the robot's drives stop it, as in the paper
-            return ThrowMeasurement(
-                trial=trial,
-                plan=plan,
-                flags={"joint_limit_exceeded": True, "aborted": True},
-                message="aborted: the plan drove a joint beyond its limits and the robot switched itself off: " + "; ".join(over),
-                meta=meta,
-            )
+        offset, delta, td_noise = self._trial_draws(rng)
+        meta = self._meta(plan)
+        refused = self._refusal(plan, trial, meta)
+        if refused is not None:
+            return refused
         # This trial's placement adds to any systematic placement offset among the hidden effects.
         effects = {name: dict(values) for name, values in c.effects.items()}
         # The sum stays where a ball can sit in the scoop: within the effect's bounds.
@@ -375,7 +356,58 @@ class VirtualLab(TrialCounter):
             return ThrowMeasurement(trial=trial, plan=plan, flags={"aborted": True}, message=f"aborted: malformed plan: {err}", meta=meta)
         if self._pose is not None:
             self._pose = np.array(plan.q[-1], dtype=float)  # the robot stays where the plan left it
+        flags, message = self._flags(out)
+        ball_t, path, true_td, t_end = self._scattered_path(out, delta)
+        touchdown = None
+        if true_td is not None and not flags["aborted"]:
+            touchdown, message = self._seen_touchdown(true_td, path, td_noise, flags, message)
+        m_ball_t = m_ball_path = None
+        if c.record_ball_path:
+            m_ball_t, m_ball_path = self._mocap(ball_t, path, t_end, rng)
+        joint_t = q_cmd = q_meas = None
+        if c.record_joints and out.joint_t.size:
+            joint_t, q_cmd, q_meas = self._encoders(plan, out.joint_t, out.q_measured, rng)
+        return ThrowMeasurement(trial=trial, plan=plan, touchdown=touchdown, ball_t=m_ball_t, ball_path=m_ball_path,
+                                joint_t=joint_t, q_commanded=q_cmd, q_measured=q_meas,
+                                flags={k: v for k, v in flags.items() if v}, message=message, meta=meta)
 
+    def _trial_draws(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """This trial's ball placement offset (capped), unexplained touchdown scatter and touchdown measurement noise
+        (drawn first, in this order, so that a trial is reproducible from the seed)."""
+        n = self.config.noise
+        offset = rng.normal(0.0, n.ball_placement_sd, 2)
+        if np.abs(offset).sum() > MAX_PLACEMENT_OFFSET:
+            offset *= MAX_PLACEMENT_OFFSET / np.abs(offset).sum()
+        return offset, rng.normal(0.0, n.touchdown_sd, 2), rng.normal(0.0, n.mocap_noise_sd, 2)
+
+    def _meta(self, plan: MotionPlan) -> dict[str, Any]:
+        n = self.config.noise
+        return {
+            "lab": self.config.name,
+            "plan_name": str(plan.meta.get("name", plan.meta.get("generator", ""))),
+            "executed_at": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+            "mocap_rate_hz": n.mocap_rate_hz,
+            "joint_rate_hz": n.joint_rate_hz,
+        }
+
+    def _refusal(self, plan: MotionPlan, trial: int, meta: dict[str, Any]) -> ThrowMeasurement | None:
+        """The aborted trial of a malformed plan or one beyond the joint limits (no safety gate in front: the robot's
+        drives stop it, as in the paper), else None."""
+        try:
+            over = plan.check_limits(self.robot.limits).violations()
+        except PlanError as err:
+            return ThrowMeasurement(trial=trial, plan=plan, flags={"aborted": True}, message=f"aborted: malformed plan: {err}", meta=meta)
+        if not over:
+            return None
+        return ThrowMeasurement(
+            trial=trial, plan=plan, flags={"joint_limit_exceeded": True, "aborted": True},
+            message="aborted: the plan drove a joint beyond its limits and the robot switched itself off: " + "; ".join(over),
+            meta=meta)
+
+    @staticmethod
+    def _flags(out) -> tuple[dict[str, bool], str]:
+        """The trial's flags and message from the rollout's outcome (a failed simulation or a joint beyond its limit
+        aborts the trial)."""
         flags = {
             "dropped_early": bool(out.flags.get("dropped_early")),
             "never_released": bool(out.flags.get("never_released")),
@@ -390,8 +422,12 @@ class VirtualLab(TrialCounter):
         if flags["joint_limit_exceeded"]:
             flags["aborted"] = True
             message = "aborted: a joint went beyond its position limit and the robot switched itself off"
+        return flags, message
 
-        # True path with the unexplained scatter (a horizontal release-velocity perturbation).
+    @staticmethod
+    def _scattered_path(out, delta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, float]:
+        """The true ball path with the unexplained scatter (a horizontal release-velocity perturbation ``delta`` reached
+        at the touchdown): ``(t, path, true touchdown or None, end time)``."""
         ball_t = np.asarray(out.ball_t, float)
         path = np.asarray(out.ball_path, float).copy()
         true_td = None
@@ -401,35 +437,17 @@ class VirtualLab(TrialCounter):
             path[:, :2] += frac[:, None] * delta
             true_td = np.asarray(out.touchdown, float) + delta
         t_end = out.touchdown_time if out.touchdown_time is not None else (float(ball_t[-1]) if ball_t.size else 0.0)
+        return ball_t, path, true_td, t_end
 
-        touchdown = None
-        if true_td is not None and not flags["aborted"]:
-            radius = float(path[-1, 2]) if path.size else 0.0
-            if c.noise.capture_volume.contains(np.array([true_td[0], true_td[1], radius])):
-                touchdown = true_td + td_noise
-            else:
-                flags["ball_not_seen"] = True
-                message = message or f"touchdown outside the capture volume {c.noise.capture_volume.to_dict()}"
-
-        m_ball_t = m_ball_path = None
-        if c.record_ball_path:
-            m_ball_t, m_ball_path = self._mocap(ball_t, path, t_end, rng)
-        joint_t = q_cmd = q_meas = None
-        if c.record_joints and out.joint_t.size:
-            joint_t, q_cmd, q_meas = self._encoders(plan, out.joint_t, out.q_measured, rng)
-        return ThrowMeasurement(
-            trial=trial,
-            plan=plan,
-            touchdown=touchdown,
-            ball_t=m_ball_t,
-            ball_path=m_ball_path,
-            joint_t=joint_t,
-            q_commanded=q_cmd,
-            q_measured=q_meas,
-            flags={k: v for k, v in flags.items() if v},
-            message=message,
-            meta=meta,
-        )
+    def _seen_touchdown(self, true_td: np.ndarray, path: np.ndarray, td_noise: np.ndarray, flags: dict[str, bool],
+                        message: str) -> tuple[np.ndarray | None, str]:
+        """The measured touchdown (with noise) if the capture volume sees it, else None with ``ball_not_seen`` set."""
+        volume = self.config.noise.capture_volume
+        radius = float(path[-1, 2]) if path.size else 0.0
+        if volume.contains(np.array([true_td[0], true_td[1], radius])):
+            return true_td + td_noise, message
+        flags["ball_not_seen"] = True
+        return None, message or f"touchdown outside the capture volume {volume.to_dict()}"
 
     def _mocap(self, t: np.ndarray, path: np.ndarray, t_end: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         n = self.config.noise
