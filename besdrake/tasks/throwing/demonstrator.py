@@ -291,17 +291,40 @@ class SyntheticSubject:
     # ---------------------------------------------------------------- experiment
     def experiment(self, j: int) -> SyntheticExperiment:
         """The ``j``-th experiment (0-based) of this subject: recording, segments, truth."""
-        st = self.style
         dt = 1.0 / self.frequency
         rng_seed = [self.seed, self.index, j]
         heading = float(np.random.default_rng(rng_seed + [7]).normal(0.0, 0.05))
         base = np.random.default_rng(rng_seed + [8]).normal(0.0, 0.05, size=3) * [1, 1, 0]
         # The target is fixed in the room before the subject turns towards it.
-        target = base + np.array([np.cos(heading), np.sin(heading), 0.0]) * (TARGET_DISTANCE + st.target_offset)
-        # Pass 1: nominal throw durations, to measure release directions; pass 2: durations
-        # that send the ball to the target (release velocity scales as 1 / duration).
-        # Pass 0 turns the subject so the throws head for the target (the arm's sweep and the
-        # trunk rotation send the ball to the left of the facing direction).
+        target = base + np.array([np.cos(heading), np.sin(heading), 0.0]) * (TARGET_DISTANCE + self.style.target_offset)
+        subs, time, kin, release_idx, vel = self._aimed_throws(rng_seed, heading, base, target)
+        n = len(time)
+        markers = kin["markers"]
+        markers["Ball"], landing = self._ball(kin, subs, release_idx, vel, np.random.default_rng(rng_seed + [3]), n, dt)
+        clean = np.stack([markers[name] for name in MARKER_NAMES], axis=1)
+        hand_speed = np.linalg.norm(np.gradient(kin["hand_centre"], dt, axis=0), axis=1)
+        frames = np.arange(1, n + 1)
+        exact, segments = self._segments(subs, hand_speed, frames, np.random.default_rng(rng_seed + [6]))
+        # Noise and gaps.
+        noise_rng = np.random.default_rng(rng_seed + [4])
+        observed = clean + noise_rng.normal(0.0, self.style.noise_mm / 1000.0 / np.sqrt(3), size=clean.shape)
+        short_gaps, long_gaps = self._gap_mask(noise_rng, time, subs)
+        observed[short_gaps] = np.nan
+        rec = MocapRecording(
+            list(MARKER_NAMES), observed, self.frequency, frames, time,
+            {"NO_OF_CAMERAS": 7, "DESCRIPTION": f"besdrake synthetic throws: subject {self.index + 1}, experiment {j + 1}",
+             "TIME_STAMP": "2026-01-01, 00:00:00\t0.0"},
+        )
+        truth = _truth(kin, time, frames, hand_speed, clean, long_gaps, release_idx, vel, landing, target, exact)
+        return SyntheticExperiment(rec, segments, truth)
+
+    def _aimed_throws(self, rng_seed: list[int], heading: float, base: np.ndarray, target: np.ndarray):
+        """The experiment's timeline and kinematics, aimed at ``target``: ``(subs, time, kin, release indices, release
+        velocities)``. Pass 0 turns the subject so the throws head for the target (the arm's sweep and the trunk
+        rotation send the ball to the left of the facing direction); pass 1 measures the release directions at nominal
+        throw durations; pass 2 uses durations that send the ball to the target (release velocity scales as
+        1 / duration)."""
+        dt = 1.0 / self.frequency
         durations = None
         for _pass in range(3):
             rng = np.random.default_rng(rng_seed)
@@ -326,13 +349,14 @@ class SyntheticSubject:
                 speed_now = np.linalg.norm(vel[k])
                 need = am.ballistic_speed(vel[k] / speed_now, p[2], max(np.linalg.norm(target[:2] - p[:2]) + jitter[k], 0.5))
                 durations[k] = np.clip(throw_durs[k] * speed_now / need, 0.12, 0.6)
-        n = len(time)
-        markers = kin["markers"]
-        # Ball: in the hand from a while before each strike-out until release, then ballistic
-        # until it leaves the capture volume (or reaches the ground).
+        return subs, time, kin, release_idx, vel
+
+    def _ball(self, kin: dict, subs: list[_Sub], release_idx: np.ndarray, vel: np.ndarray, ball_rng: np.random.Generator,
+              n: int, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """The ball marker (n, 3; NaN where not seen) and the landing points: in the hand from a while before each
+        strike-out until release, then ballistic until it leaves the capture volume (or reaches the ground)."""
         ball = np.full((n, 3), np.nan)
         landing = np.zeros((self.n_throws, 3))
-        ball_rng = np.random.default_rng(rng_seed + [3])
         strike_starts = [s.start for s in subs if s.label == "strike_out"]
         prev_end = 0
         for k in range(self.n_throws):
@@ -347,11 +371,13 @@ class SyntheticSubject:
             tt = np.arange(1, m + 1)[:, None] * dt
             ball[r + 1 : r + 1 + m] = (p0 + v0 * tt + 0.5 * GRAVITY * tt**2)[: max(0, min(m, n - r - 1))]
             prev_end = min(r + 1 + m, n)
-        markers["Ball"] = ball
-        clean = np.stack([markers[name] for name in MARKER_NAMES], axis=1)
+        return ball, landing
 
-        # Segments: borders at the hand-speed minimum where consecutive sub-movements overlap.
-        hand_speed = np.linalg.norm(np.gradient(kin["hand_centre"], dt, axis=0), axis=1)
+    def _segments(self, subs: list[_Sub], hand_speed: np.ndarray, frames: np.ndarray,
+                  jitter_rng: np.random.Generator) -> tuple[list[Segment], list[Segment]]:
+        """The exact segments (borders at the hand-speed minimum where consecutive sub-movements overlap) and the
+        "manual" ones: a human annotator places interior borders a little off (Gaussian, ANNOTATOR_JITTER_S)."""
+        dt, n = 1.0 / self.frequency, len(frames)
         bounds = [0]
         labels = ["idle"]
         for k in range(self.n_throws):
@@ -365,45 +391,14 @@ class SyntheticSubject:
             bounds += [i_so, i_th, i_sw, i_end]
             labels += ["strike_out", "throw", "swing_out", "idle"]
         bounds.append(n - 1)
-        frames = np.arange(1, n + 1)
         exact = [Segment(int(frames[bounds[i]]), int(frames[bounds[i + 1]]), labels[i]) for i in range(len(labels))]
-        # The "manual" segmentation: a human annotator places interior borders a little off
-        # (Gaussian, ANNOTATOR_JITTER_S); the exact borders stay in the truth.
         b = np.array(bounds, dtype=float)
-        jitter = np.random.default_rng(rng_seed + [6]).normal(0.0, ANNOTATOR_JITTER_S * self.frequency, size=len(b))
+        jitter = jitter_rng.normal(0.0, ANNOTATOR_JITTER_S * self.frequency, size=len(b))
         b[1:-1] = np.round(b[1:-1] + jitter[1:-1])
         for i in range(1, len(b) - 1):  # keep every segment at least 2 frames long
             b[i] = np.clip(b[i], b[i - 1] + 2, bounds[i + 1] - 2)
         segments = [Segment(int(frames[int(b[i])]), int(frames[int(b[i + 1])]), labels[i]) for i in range(len(labels))]
-
-        # Noise and gaps.
-        noise_rng = np.random.default_rng(rng_seed + [4])
-        observed = clean + noise_rng.normal(0.0, st.noise_mm / 1000.0 / np.sqrt(3), size=clean.shape)
-        short_gaps, long_gaps = self._gap_mask(noise_rng, time, subs)
-        observed[short_gaps] = np.nan
-
-        rec = MocapRecording(
-            list(MARKER_NAMES), observed, self.frequency, frames, time,
-            {"NO_OF_CAMERAS": 7, "DESCRIPTION": f"besdrake synthetic throws: subject {self.index + 1}, experiment {j + 1}",
-             "TIME_STAMP": "2026-01-01, 00:00:00\t0.0"},
-        )
-        back_q = am.rotation_to_quaternion(kin["rot"])
-        hand_q = am.rotation_to_quaternion(kin["hand_rot"])
-        rel_rot = np.einsum("nji,njk->nik", kin["rot"], kin["hand_rot"])
-        truth = ExperimentTruth(
-            time=time, frames=frames,
-            hand_position=kin["hand_centre"], hand_quaternion=hand_q,
-            back_position=kin["back_origin"], back_quaternion=back_q,
-            hand_position_in_back=np.einsum("nji,nj->ni", kin["rot"], kin["hand_centre"] - kin["back_origin"]),
-            hand_quaternion_in_back=am.rotation_to_quaternion(rel_rot),
-            shoulder=kin["shoulder"], elbow=kin["elbow"], wrist=kin["wrist"], hand_speed=hand_speed,
-            clean_positions=clean, long_occlusions=long_gaps, release_frames=frames[release_idx], release_velocity=vel,
-            landing_points=landing, target=target,
-            segment_starts=np.array([s.start_frame for s in exact]),
-            segment_ends=np.array([s.end_frame for s in exact]),
-            segment_labels=[s.label for s in exact],
-        )
-        return SyntheticExperiment(rec, segments, truth)
+        return exact, segments
 
     def _gap_mask(self, rng: np.random.Generator, time: np.ndarray, subs: list[_Sub]) -> tuple[np.ndarray, np.ndarray]:
         """Occlusions ``(n_frames, n_markers)``: short ones (random, and hand or elbow markers
@@ -587,3 +582,22 @@ def generate_dataset(
                                     marker_names=np.array(MARKER_NAMES))
     _atomic_write_text(out / "dataset.json", json.dumps({**asdict(summary), "styles": styles}, indent=1))
     return summary
+
+
+def _truth(kin: dict, time, frames, hand_speed, clean, long_gaps, release_idx, vel, landing, target,
+           exact: list[Segment]) -> ExperimentTruth:
+    """What the experiment really was (the hidden truth the tests and benchmarks score against)."""
+    rel_rot = np.einsum("nji,njk->nik", kin["rot"], kin["hand_rot"])
+    return ExperimentTruth(
+        time=time, frames=frames,
+        hand_position=kin["hand_centre"], hand_quaternion=am.rotation_to_quaternion(kin["hand_rot"]),
+        back_position=kin["back_origin"], back_quaternion=am.rotation_to_quaternion(kin["rot"]),
+        hand_position_in_back=np.einsum("nji,nj->ni", kin["rot"], kin["hand_centre"] - kin["back_origin"]),
+        hand_quaternion_in_back=am.rotation_to_quaternion(rel_rot),
+        shoulder=kin["shoulder"], elbow=kin["elbow"], wrist=kin["wrist"], hand_speed=hand_speed,
+        clean_positions=clean, long_occlusions=long_gaps, release_frames=frames[release_idx], release_velocity=vel,
+        landing_points=landing, target=target,
+        segment_starts=np.array([s.start_frame for s in exact]),
+        segment_ends=np.array([s.end_frame for s in exact]),
+        segment_labels=[s.label for s in exact],
+    )
