@@ -33,14 +33,29 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from besdrake.cli import UserError
-    from besdrake.embodiment import EmbodimentMapping
-    from besdrake.mocap.preprocess import PreprocessError
-    from besdrake.mocap.recording import MocapFormatError
-    from besdrake.tasks.throwing.imitation import find_throws, imitate_recording, load_demonstration, prepare, reports_to_json
     from besdrake._io import write_json
 
     t_start = time.perf_counter()
+    demos, classifier, mapping, rollout = _inputs(args)
+    recordings = _imitate_all(args, demos, classifier, mapping, rollout)
+    summary = _summary(args, recordings, time.perf_counter() - t_start)
+    write_json(args.out / "summary.json", summary)
+    if args.json:
+        print(json.dumps(summary, default=float))
+    else:
+        _print_summary(summary, recordings, args.out)
+    return 0
+
+
+def _inputs(args: argparse.Namespace):
+    """The recordings, the classifier (``--classifier``, else None), the embodiment mapping of the scenario's robot and
+    the rollout (None with ``--no-sim``); a bad input is a UserError."""
+    from besdrake.cli import UserError
+    from besdrake.embodiment import EmbodimentMapping
+    from besdrake.mocap.recording import MocapFormatError
+    from besdrake.sim.scenario import ScenarioError, load_scenario
+    from besdrake.tasks.throwing.imitation import load_demonstration
+
     try:
         demos = load_demonstration(args.recording)
     except (FileNotFoundError, ValueError, MocapFormatError) as err:
@@ -53,8 +68,6 @@ def run(args: argparse.Namespace) -> int:
             classifier = SegmentClassifier.from_json(json.loads(args.classifier.read_text()))
         except (OSError, ValueError) as err:
             raise UserError(f"classifier {args.classifier}: {err}") from None
-    from besdrake.sim.scenario import ScenarioError, load_scenario
-
     try:
         mapping = EmbodimentMapping(load_scenario(args.scenario).robot)
     except ScenarioError as err:
@@ -64,6 +77,15 @@ def run(args: argparse.Namespace) -> int:
         from besdrake.sim import Rollout
 
         rollout = Rollout(args.scenario)
+    return demos, classifier, mapping, rollout
+
+
+def _imitate_all(args: argparse.Namespace, demos, classifier, mapping, rollout) -> list[dict]:
+    """One entry per recording: its imitated throws' reports, or the preprocessing error."""
+    from besdrake.cli import UserError
+    from besdrake.mocap.preprocess import PreprocessError
+    from besdrake.tasks.throwing.imitation import find_throws, imitate_recording, prepare, reports_to_json
+
     recordings = []
     for name, rec, segments in demos:
         entry: dict = {"name": name}
@@ -88,10 +110,15 @@ def run(args: argparse.Namespace) -> int:
         )
         entry["throws"] = reports_to_json(reports)
         recordings.append(entry)
+    return recordings
+
+
+def _summary(args: argparse.Namespace, recordings: list[dict], wall_s: float) -> dict:
+    """``summary.json``: counts, the median imitation time, the largest IK residuals, the median landing distance."""
     throws = [t for r in recordings for t in r.get("throws", [])]
     times = [t["timings_s"]["total"] for t in throws if "timings_s" in t]
     landed = [t["simulation"]["touchdown_m"] for t in throws if t.get("simulation") and t["simulation"].get("touchdown_m")]
-    summary = {
+    return {
         "source": args.recording,
         "segments": args.segments,
         "out": str(args.out),
@@ -104,20 +131,18 @@ def run(args: argparse.Namespace) -> int:
         "median_landing_distance_from_base_m": (
             float(sorted((x * x + y * y) ** 0.5 for x, y in landed)[len(landed) // 2]) if landed else None
         ),
-        "wall_time_s": time.perf_counter() - t_start,
+        "wall_time_s": wall_s,
         "recordings": recordings,
     }
-    write_json(args.out / "summary.json", summary)
-    if args.json:
-        print(json.dumps(summary, default=float))
-    else:
-        print(f"{summary['n_executable']}/{summary['n_throws']} throws imitated as executable plans "
-              f"(median {summary['median_imitation_time_s'] or 0:.2f} s each); summary: {args.out / 'summary.json'}")
-        for r in recordings:
-            for t in r.get("throws", []):
-                sim = t.get("simulation") or {}
-                state = "ok" if t["executable"] else (t["error"] or "; ".join(t.get("problems", [])))
-                print(f"  {r['name']} throw {t['index']} frames {t['start_frame']}-{t['end_frame']}: {state}; "
-                      f"T={t.get('execution_time_s', float('nan')):.2f} s; sim: {', '.join(sim.get('flags', [])) or 'ok'} "
-                      f"landing {sim.get('touchdown_m')}")
-    return 0
+
+
+def _print_summary(summary: dict, recordings: list[dict], out) -> None:
+    print(f"{summary['n_executable']}/{summary['n_throws']} throws imitated as executable plans "
+          f"(median {summary['median_imitation_time_s'] or 0:.2f} s each); summary: {out / 'summary.json'}")
+    for r in recordings:
+        for t in r.get("throws", []):
+            sim = t.get("simulation") or {}
+            state = "ok" if t["executable"] else (t["error"] or "; ".join(t.get("problems", [])))
+            print(f"  {r['name']} throw {t['index']} frames {t['start_frame']}-{t['end_frame']}: {state}; "
+                  f"T={t.get('execution_time_s', float('nan')):.2f} s; sim: {', '.join(sim.get('flags', [])) or 'ok'} "
+                  f"landing {sim.get('touchdown_m')}")
