@@ -118,10 +118,35 @@ def solve_sync_frame(
     if model is None or model.n_mount != 6:
         raise ValueError("solve_sync_frame needs model=mounted_plant(robot)")
     opts = options or SyncFrameOptions()
-    plant, robot, tool_axis = model.plant, model.robot, model.tool_axis
     poses = hand.resample(opts.n_poses) if len(hand.t) != opts.n_poses else hand
+    prog, m, Q, _contexts = _sync_program(model, poses, opts, hard)  # the contexts live as long as the program
+    t0 = time.perf_counter()
+    guesses = _initial_guesses(poses, model.ik_seed)
+    best = _best_solution(prog, m, Q, guesses, opts, len(poses.t))
+    elapsed = time.perf_counter() - t0
+    if best is None:
+        raise RuntimeError("the synchronization-frame program failed from every starting guess")
+    cost, mount, q, info = best
+    pos_res, ang_res = pose_residuals(model, mount, q, poses)
+    return SyncFrameResult(
+        mount=mount,
+        q=q,
+        t=poses.t,
+        position_residual=pos_res,
+        angle_residual=ang_res,
+        cost=float(cost),
+        solve_time_s=elapsed,
+        n_starts=len(guesses),
+        info={"snopt_info": int(info)},
+    )
+
+
+def _sync_program(model: KinematicModel, poses: HandTrajectory, opts: SyncFrameOptions, hard: bool):
+    """The program over the mount (6) and the joints at every pose (n, joints): tool on the hand's positions (hard
+    constraints or costs), tool axis along the palm axis, within a cone of the base's vertical if asked, joints within
+    their limits less a margin, smooth joint paths, the mount within its bounds: ``(prog, m, Q, contexts)``."""
+    plant, robot, tool_axis, tcp = model.plant, model.robot, model.tool_axis, model.tcp
     n = len(poses.t)
-    tcp = model.tcp
     base = plant.GetFrameByName(robot.base_link)
     prog = MathematicalProgram()
     m = prog.NewContinuousVariables(6, "mount")
@@ -157,15 +182,17 @@ def solve_sync_frame(
     for j in range(robot.n_joints):
         prog.AddQuadraticCost(2.0 * hess, np.zeros(n), Q[:, j], is_convex=True)
     prog.AddBoundingBoxConstraint(np.array(opts.mount_lower), np.array(opts.mount_upper), m)
+    return prog, m, Q, contexts
 
+
+def _best_solution(prog, m, Q, guesses, opts: SyncFrameOptions, n: int):
+    """SNOPT from every guess: ``(cost, mount, q, info)`` of the lowest finite cost, or None."""
     solver = SnoptSolver()
     if not solver.available():  # pragma: no cover - SNOPT ships with the drake wheel
         raise RuntimeError("SNOPT is not available in this Drake build")
     solver_options = SolverOptions()
     solver_options.SetOption(solver.solver_id(), "Major iterations limit", opts.major_iterations)
     best = None
-    t0 = time.perf_counter()
-    guesses = _initial_guesses(poses, model.ik_seed)
     for mount0, q0 in guesses:
         mount0 = np.clip(mount0, opts.mount_lower, opts.mount_upper)
         prog.SetInitialGuess(m, mount0)
@@ -174,22 +201,7 @@ def solve_sync_frame(
         cost = result.get_optimal_cost()
         if np.isfinite(cost) and (best is None or cost < best[0]):
             best = (cost, result.GetSolution(m), result.GetSolution(Q), result.get_solver_details().info)
-    elapsed = time.perf_counter() - t0
-    if best is None:
-        raise RuntimeError("the synchronization-frame program failed from every starting guess")
-    cost, mount, q, info = best
-    pos_res, ang_res = pose_residuals(model, mount, q, poses)
-    return SyncFrameResult(
-        mount=mount,
-        q=q,
-        t=poses.t,
-        position_residual=pos_res,
-        angle_residual=ang_res,
-        cost=float(cost),
-        solve_time_s=elapsed,
-        n_starts=len(guesses),
-        info={"snopt_info": int(info)},
-    )
+    return best
 
 
 def pose_residuals(model: KinematicModel, mount: np.ndarray, q: np.ndarray, hand: HandTrajectory) -> tuple[np.ndarray, np.ndarray]:
