@@ -177,6 +177,38 @@ def reliability(rows: list[dict]) -> dict:
     return out
 
 
+#: Thresholds the confidence sweep tries: the BIC lead over the nearest real rival and the p-value an added effect must
+#: stay above (:func:`besdrake.diagnosis.verdict.is_high`).
+SWEEP_MARGINS = (6.0, 8.0, 10.0, 12.0, 15.0, 20.0)
+SWEEP_EXTRA_P = (0.0, 0.01, 0.05, 0.1, 0.2, 0.3)
+
+
+def confidence_sweep(known: list[dict], unknown: list[dict]) -> list[dict]:
+    """The "high" level re-decided from each trial's recorded confidence basis under other thresholds: per (margin,
+    extra p) how many answers would be "high", how many of those right (up to structural identity), and how many
+    confidently wrong (an unknown effect named with "high" counts). Trials without a named cause keep their level."""
+    from besdrake.diagnosis.verdict import is_high
+
+    out = []
+    for m in SWEEP_MARGINS:
+        for ep in SWEEP_EXTRA_P:
+            high = right = wrong = 0
+            for r in known + unknown:
+                b = r.get("confidence_basis")
+                h = is_high(b, m, ep) if b else r["confidence"] == "high"
+                if not h:
+                    continue
+                ok = (not r["unknown"]) and r.get("correct_structural", r["correct"])
+                if r["unknown"] and not (r["explained"] and r["best"]):
+                    ok = True  # "nothing wrong" with high confidence for an unknown effect is judged by the main table
+                high += 1
+                right += ok
+                wrong += not ok
+            out.append({"margin_dbic": m, "extra_p": ep, "high": high, "high_right": right, "confident_wrong": wrong,
+                        "share_right": right / high if high else None})
+    return out
+
+
 def _register_unknown():
     """Effects the registry does not know (registered here for the lab only)."""
     from besdrake.plan import MotionPlan
@@ -466,6 +498,7 @@ def _summarize(results: list[dict], modes: list[str], args, t_bench: float, regi
             "right_cause_rate_structural": rate([{**r, "c": r.get("correct_structural", r["correct"])} for r in known], "c"),
             "confident_wrong": int(sum(r["confidence"] == "high" and not r.get("correct_structural", r["correct"]) for r in known)
                                    + sum(r["explained"] and r["confidence"] == "high" and bool(r["best"]) for r in unk)),
+            "confidence_sweep": confidence_sweep(known, unk),
             "structural_trials": int(sum(r.get("structural_arises", False) for r in known)),
             "structural_named_and_stated": int(sum(r.get("structural_arises", False) and r.get("structural_in_verdict", False) for r in known)),
             "residual_model": _residual_summary(unk),
@@ -612,6 +645,7 @@ def main(argv=None) -> int:
                     "nominal_agrees": not d.best.effects if d.best else True,
                     "after_over_floor": (d.gain.median_disparity_after_m / floor) if d.gain and floor > 0 else None,
                     "wall_s": wall, "rollouts": d.n_rollouts,
+                    "confidence_basis": d.confidence_basis, "timings_s": d.timings,
                 }
                 if unknown and d.residual is not None:
                     row.update(_residual_row(d))

@@ -184,7 +184,7 @@ def _diagnose_evidence(ev: Evidence, cands: list[str], pairs: bool, folds: int, 
         explained=v.explained, confidence=v.confidence, verdict=v.text, causes=v.causes, best=v.best, indistinguishable=v.indist, noise=ev.nm,
         comparison=comparison, gain=gain, groups_measured=ev.measured_groups, n_trials=len(ev.used), n_used=len(ev.used), skipped=[], per_trial=per_trial,
         scenario=None, timings=timings, n_rollouts=ev.sim.n_rollouts, notes=notes, cannot_tell=v.cannot_tell, excluded=v.excluded,
-        structural=[{"members": c.members, "reason": c.statement()} for c in ident.classes] if ident is not None else [], residual=residual,
+        structural=[{"members": c.members, "reason": c.statement()} for c in ident.classes] if ident is not None else [], residual=residual, confidence_basis=v.basis,
     )
 
 

@@ -168,6 +168,9 @@ class Diagnosis:
     #: When not explained: where the residual lives and a data-driven residual model with its held-out gain
     #: (:class:`~besdrake.diagnosis.residual.ResidualReport` as a dict), else None.
     residual: dict | None = None
+    #: What the confidence of a named cause rests on (:func:`~besdrake.diagnosis.verdict.confidence_basis`; empty when
+    #: no cause was named).
+    confidence_basis: dict = field(default_factory=dict)
 
     def refined_effects(self) -> dict[str, dict[str, float]]:
         if not self.best or not self.best.effects:
@@ -201,6 +204,7 @@ class Diagnosis:
             "excluded": [a.to_dict() for a in self.excluded],
             "structurally_identical": self.structural,
             "residual": self.residual,
+            "confidence_basis": self.confidence_basis,
             "gain": self.gain.to_dict() if self.gain else None,
             "noise": self.noise.to_dict(),
             "comparison": [vars(g) for g in self.comparison],
