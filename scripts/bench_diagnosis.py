@@ -163,6 +163,23 @@ def equivalent_answer(best: tuple[str, ...], fitted: dict, hidden: dict, structu
     return bool(keys) and tuple(sorted({alias.get(k, k).split(".")[0] for k in keys})) == tuple(sorted(hidden))
 
 
+def _correct_detectable(row: dict, d) -> bool:
+    """Right up to what the log can show: the answer names (up to structural identity) exactly the hidden effects
+    whose expected signature on top of the other hidden effects reaches the detection limit (all of them for a
+    single effect that is detectable; the nominal model when none is)."""
+    shown = {e: v for e, v in row["hidden"].items() if row.get("marginal_over_limit", {}).get(e, row["signature_over_limit_expected"]) >= 1.0}
+    if not shown:
+        return not row["best"]
+    return equivalent_answer(tuple(row["best"]), d.refined_effects(), shown, d.structural)
+
+
+def _wrong_kind(r: dict) -> str:
+    """"incomplete": the answer names a part of the hidden set and nothing else; "false claim": it names an effect
+    that is not hidden (the nominal model for a hidden effect included)."""
+    best, hidden = set(r["best"]), set(r["hidden"])
+    return "incomplete" if best and best < hidden and not r.get("unknown") else "false claim"
+
+
 def reliability(rows: list[dict]) -> dict:
     """Per confidence level: trials, how often the answer is right (the hidden cause, up to structural identity), right
     or honest (cannot tell, holding the truth), and wrong; and the share right (the calibration of that level)."""
@@ -173,7 +190,7 @@ def reliability(rows: list[dict]) -> dict:
         honest = [r for r in sel if r.get("correct_structural", r["correct"]) or r["honest_cannot_tell"]]
         out[level] = {"n": len(sel), "right": len(right), "right_or_honest": len(honest), "wrong": len(sel) - len(honest),
                       "share_right": len(right) / len(sel) if sel else None,
-                      "wrong_trials": [{"trial": r["trial"], "hidden": r["hidden"], "best": r["best"]} for r in sel if r not in honest]}
+                      "wrong_trials": [{"trial": r["trial"], "hidden": r["hidden"], "best": r["best"], "kind": _wrong_kind(r)} for r in sel if r not in honest]}
     return out
 
 
@@ -181,31 +198,33 @@ def reliability(rows: list[dict]) -> dict:
 #: stay above (:func:`besdrake.diagnosis.verdict.is_high`).
 SWEEP_MARGINS = (6.0, 8.0, 10.0, 12.0, 15.0, 20.0)
 SWEEP_EXTRA_P = (0.0, 0.01, 0.05, 0.1, 0.2, 0.3)
+SWEEP_MAX_MOVED = (1, 2, 3, 99)
 
 
 def confidence_sweep(known: list[dict], unknown: list[dict]) -> list[dict]:
     """The "high" level re-decided from each trial's recorded confidence basis under other thresholds: per (margin,
     extra p) how many answers would be "high", how many of those right (up to structural identity), and how many
     confidently wrong (an unknown effect named with "high" counts). Trials without a named cause keep their level."""
-    from besdrake.diagnosis.verdict import is_high
+    from besdrake.diagnosis.verdict import is_high, moved_per_effect
 
     out = []
-    for m in SWEEP_MARGINS:
-        for ep in SWEEP_EXTRA_P:
-            high = right = wrong = 0
-            for r in known + unknown:
-                b = r.get("confidence_basis")
-                h = is_high(b, m, ep) if b else r["confidence"] == "high"
-                if not h:
-                    continue
-                ok = (not r["unknown"]) and r.get("correct_structural", r["correct"])
-                if r["unknown"] and not (r["explained"] and r["best"]):
-                    ok = True  # "nothing wrong" with high confidence for an unknown effect is judged by the main table
-                high += 1
-                right += ok
-                wrong += not ok
-            out.append({"margin_dbic": m, "extra_p": ep, "high": high, "high_right": right, "confident_wrong": wrong,
-                        "share_right": right / high if high else None})
+    for m, ep, mm in ((m, ep, mm) for m in SWEEP_MARGINS for ep in SWEEP_EXTRA_P for mm in SWEEP_MAX_MOVED):
+        high = right = wrong = 0
+        for r in known + unknown:
+            b = r.get("confidence_basis")
+            if b and "moved_parameters" not in b:  # a row of an earlier version: counted from its fitted values
+                b = {**b, "moved_parameters": sum(moved_per_effect(r["fitted"]).values())}
+            h = is_high(b, m, ep, mm) if b else r["confidence"] == "high"
+            if not h:
+                continue
+            ok = (not r["unknown"]) and r.get("correct_structural", r["correct"])
+            if r["unknown"] and not (r["explained"] and r["best"]):
+                ok = True  # "nothing wrong" with high confidence for an unknown effect is judged by the main table
+            high += 1
+            right += ok
+            wrong += not ok
+        out.append({"margin_dbic": m, "extra_p": ep, "max_moved": mm, "high": high, "high_right": right, "confident_wrong": wrong,
+                    "share_right": right / high if high else None})
     return out
 
 
@@ -289,19 +308,21 @@ def _signature(hidden: dict, lab_seed: int, ms, plans, truth_roll) -> np.ndarray
     return out
 
 
-def _expected_signature(hidden: dict, ms, plans, truth_roll, sd: float, n_draws: int = 4, seed: int = 0) -> np.ndarray:
+def _expected_signature(hidden: dict, ms, plans, truth_roll, sd: float, n_draws: int = 4, seed: int = 0, base: dict | None = None) -> np.ndarray:
     """The systematic part of the signature: per throw, the effect on minus off of the *expected* throw over the
     lab's ball-placement scatter (``2 n_draws`` antithetic Gaussian draws of SD ``sd`` per axis, the same for on and
     off), noise-free, read at the diagnosis' windows. The per-throw placement is unknown to any diagnosis, so only
     this part of :func:`_signature` can show in a fit (a placement habit moves single throws a lot through the
-    funnel's kink, their mean much less)."""
+    funnel's kink, their mean much less). ``base``: the effects of the "off" world (default none): with ``hidden``
+    minus one effect, the signature of that effect on top of the others."""
     from besdrake.tasks.throwing.diagnosis import observables
     from besdrake.sim.effects import get_effect
 
     b = get_effect("ball_placement").params
     d = np.random.default_rng(seed).normal(0.0, sd, (n_draws, 2))
     d = np.vstack([d, -d])
-    habit = hidden.get("ball_placement", {})
+    base = base or {}
+    habit, base_habit = hidden.get("ball_placement", {}), base.get("ball_placement", {})
     out = np.full((len(ms), observables.N_FEATURES), np.nan)
     for i, (m, p) in enumerate(zip(ms, plans)):
         if not observables.usable(m)[0]:
@@ -309,9 +330,9 @@ def _expected_signature(hidden: dict, ms, plans, truth_roll, sd: float, n_draws:
         lay = observables.make_layout(m, truth_roll.rollout(p, limits="flag"))
         f_on, f_off = [], []
         for dk in d:
-            for own, acc in ((habit, f_on), ({}, f_off)):
+            for world, own, acc in ((hidden, habit, f_on), (base, base_habit, f_off)):
                 pl = {ax: float(np.clip(own.get(ax, 0.0) + dk[j], b[ax].low, b[ax].high)) for j, ax in enumerate(("x", "y"))}
-                eff = {**(hidden if own is habit else {}), "ball_placement": pl}
+                eff = {**world, "ball_placement": pl}
                 acc.append(observables.simulated_features(truth_roll.rollout(p, effects=eff, limits="flag"), lay))
         with np.errstate(invalid="ignore"):
             out[i] = np.mean(f_on, axis=0) - np.mean(f_off, axis=0)
@@ -499,6 +520,11 @@ def _summarize(results: list[dict], modes: list[str], args, t_bench: float, regi
             "confident_wrong": int(sum(r["confidence"] == "high" and not r.get("correct_structural", r["correct"]) for r in known)
                                    + sum(r["explained"] and r["confidence"] == "high" and bool(r["best"]) for r in unk)),
             "confidence_sweep": confidence_sweep(known, unk),
+            # Right up to what the log can show (pairs: each hidden effect judged by its own signature on top of the
+            # other's; trials run before this field existed are left out).
+            "n_with_marginal_detectability": int(sum("correct_detectable" in r for r in known)),
+            "right_cause_rate_up_to_detectability": rate([r for r in known if "correct_detectable" in r], "correct_detectable"),
+            "confident_wrong_up_to_detectability": int(sum(r["confidence"] == "high" and not r["correct_detectable"] for r in known if "correct_detectable" in r)),
             "structural_trials": int(sum(r.get("structural_arises", False) for r in known)),
             "structural_named_and_stated": int(sum(r.get("structural_arises", False) and r.get("structural_in_verdict", False) for r in known)),
             "residual_model": _residual_summary(unk),
@@ -603,6 +629,10 @@ def main(argv=None) -> int:
             sig = None if unknown else _signature(hidden, 1000 * args.seed + i, ms, plans, truth_roll)
             sig_exp = None if unknown else _expected_signature(hidden, ms, plans, truth_roll, lab.config.noise.ball_placement_sd, seed=1000 * args.seed + i)
             k_hidden = sum(len(v) for v in hidden.values())
+            # Each effect of a hidden pair on top of the other: a diagnosis can name only the ones that show.
+            marginal = {} if unknown or len(hidden) < 2 else {
+                e: _expected_signature(hidden, ms, plans, truth_roll, lab.config.noise.ball_placement_sd, seed=1000 * args.seed + i,
+                                       base={o: v for o, v in hidden.items() if o != e}) for e in hidden}
             cache: dict = {}
             fresh_ms = None
             for mode in modes:
@@ -662,6 +692,8 @@ def main(argv=None) -> int:
                     row.update({k + "_expected": v for k, v in _signature_size(sig_exp, d, k_hidden).items()})
                     row["detectable_same_draws"] = row["signature_over_limit"] >= 1.0
                     row["detectable"] = row["signature_over_limit_expected"] >= 1.0
+                    row["marginal_over_limit"] = {e: _signature_size(m_, d, len(hidden[e]))["signature_over_limit"] for e, m_ in marginal.items()}
+                    row["correct_detectable"] = _correct_detectable(row, d)
                 results.append(row)
                 if args.out:
                     with open(args.out, "w") as fh:

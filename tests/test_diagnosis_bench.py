@@ -103,3 +103,19 @@ def test_the_residual_model_summary_counts_offered_trials_checked_on_fresh_throw
     assert s["trials_with_residual_report"] == 3 and s["offered"] == 2 and s["offered_heldout_lower"] == 2
     assert s["offered_fresh_checked"] == 2 and s["offered_fresh_lower"] == 1 and s["share_offered_fresh_lower"] == 0.5
     assert s["fitted_not_offered_fresh_checked"] == 0 and [r["trial"] for r in s["per_trial"]] == [0, 1, 2]
+
+
+def test_confidence_sweep_re_decides_high_from_the_recorded_basis(script):
+    bench = script("bench_diagnosis")
+    basis = {"explained": True, "separable_rival": False, "p_value": 0.5, "outcome_only": False, "rival_margin_dbic": 12.0,
+             "extra_effect_p": 0.3, "moved_parameters": 1}
+    right = {"trial": 0, "unknown": False, "confidence": "high", "correct": True, "correct_structural": True, "explained": True,
+             "best": ["ball"], "hidden": {"ball": {"radius": 0.03}}, "confidence_basis": basis, "fitted": {"ball": {"radius": 0.03}}}
+    wrong = {**right, "trial": 1, "correct": False, "correct_structural": False, "best": ["joint_offset"],
+             "confidence_basis": {**basis, "moved_parameters": 3}}
+    sweep = {(r["margin_dbic"], r["extra_p"], r["max_moved"]): r for r in bench.confidence_sweep([right, wrong], [])}
+    assert sweep[(10.0, 0.05, 99)]["high"] == 2 and sweep[(10.0, 0.05, 99)]["confident_wrong"] == 1
+    assert sweep[(10.0, 0.05, 2)]["high"] == 1 and sweep[(10.0, 0.05, 2)]["confident_wrong"] == 0
+    assert sweep[(15.0, 0.05, 99)]["high"] == 0  # both leads of 12 BIC fall short of 15
+    assert bench._wrong_kind({"best": ["ball"], "hidden": {"ball": {}, "air_drag": {}}}) == "incomplete"
+    assert bench._wrong_kind({"best": ["ball", "gain_scale"], "hidden": {"ball": {}, "air_drag": {}}}) == "false claim"

@@ -14,7 +14,7 @@ from besdrake.diagnosis.identifiability import Identifiability, StructuralClass
 from besdrake.diagnosis.allowed import _allowed_effects
 from besdrake.diagnosis.results import AllowedEffect, Cause
 from besdrake.diagnosis import settings
-from besdrake.diagnosis.settings import ALPHA, CONFIDENT_P, EXCLUDE_FRACTION, HIGH_EXTRA_P, HIGH_MARGIN_DBIC, INDISTINGUISHABLE_DBIC
+from besdrake.diagnosis.settings import ALPHA, CONFIDENT_P, EXCLUDE_FRACTION, HIGH_EXTRA_P, HIGH_MARGIN_DBIC, HIGH_MAX_MOVED, MOVED_FRACTION, INDISTINGUISHABLE_DBIC
 from besdrake.diagnosis.stats import _lack_of_fit_p
 from besdrake.sim.effects import get_effect
 
@@ -124,24 +124,49 @@ def strongest_extra(causes: list[Cause]) -> tuple[float, Cause | None]:
     return p_min, which
 
 
+def moved_per_effect(values: dict[str, dict[str, float]]) -> dict[str, int]:
+    """Per effect of ``values`` ({effect: {parameter: fitted value}}), how many of its parameters are moved materially:
+    by more than MOVED_FRACTION of the realistic range on that side of nominal (the registry's bounds)."""
+    out: dict[str, int] = {}
+    for effect, params in values.items():
+        out[effect] = 0
+        for name, value in params.items():
+            spec = get_effect(effect).params[name]
+            room = (spec.high - spec.nominal) if value >= spec.nominal else (spec.nominal - spec.low)
+            out[effect] += int(room > 0 and abs(value - spec.nominal) > MOVED_FRACTION * room)
+    return out
+
+
+def _values(cause: Cause) -> dict[str, dict[str, float]]:
+    out: dict[str, dict[str, float]] = {e: {} for e in cause.effects}
+    for p in cause.parameters:
+        out.setdefault(p["effect"], {})[p["parameter"]] = float(p["value"])
+    return out
+
+
 def confidence_basis(fits: list[fitting.CandidateFit], causes: list[Cause], indist: list[dict], explained: bool,
                      outcome_only: bool) -> dict:
     """The figures the confidence of a named cause rests on: explained, a rival it cannot be told from (not
     structurally the same), its lack-of-fit p-value, an outcome-only log, its BIC lead over the nearest real rival
-    (:func:`rival_margin`) and the evidence for an added effect (:func:`strongest_extra`)."""
+    (:func:`rival_margin`), the evidence for an added effect (:func:`strongest_extra`) and how many parameters it moves
+    materially (:func:`moved_per_effect`)."""
     p_extra, _ = strongest_extra(causes)
     margin = rival_margin(fits, causes, indist)
     return {"explained": explained, "separable_rival": any(not a.get("structural") for a in indist), "p_value": causes[0].p_value,
-            "outcome_only": outcome_only, "rival_margin_dbic": margin if np.isfinite(margin) else None, "extra_effect_p": p_extra}
+            "outcome_only": outcome_only, "rival_margin_dbic": margin if np.isfinite(margin) else None, "extra_effect_p": p_extra,
+            "moved_parameters": sum(moved_per_effect(_values(causes[0])).values())}
 
 
-def is_high(basis: dict, margin_dbic: float | None = None, extra_p: float | None = None) -> bool:
+def is_high(basis: dict, margin_dbic: float | None = None, extra_p: float | None = None, max_moved: int | None = None) -> bool:
     """"high" confidence for a named cause, from its :func:`confidence_basis` (the thresholds default to the settings'
-    HIGH_MARGIN_DBIC and HIGH_EXTRA_P; a benchmark passes others to calibrate them; switched off with VERIFY_SINGLES)."""
+    HIGH_MARGIN_DBIC, HIGH_EXTRA_P and HIGH_MAX_MOVED; a benchmark passes others to calibrate them; switched off with
+    VERIFY_SINGLES)."""
     margin_dbic = HIGH_MARGIN_DBIC if margin_dbic is None else margin_dbic
     extra_p = HIGH_EXTRA_P if extra_p is None else extra_p
+    max_moved = HIGH_MAX_MOVED if max_moved is None else max_moved
     margin = np.inf if basis["rival_margin_dbic"] is None else basis["rival_margin_dbic"]
-    strict = not settings.VERIFY_SINGLES or (margin >= margin_dbic and basis["extra_effect_p"] >= extra_p)
+    strict = not settings.VERIFY_SINGLES or (margin >= margin_dbic and basis["extra_effect_p"] >= extra_p
+                                             and basis.get("moved_parameters", 0) <= max_moved)
     return bool(basis["explained"] and not basis["separable_rival"] and basis["p_value"] >= CONFIDENT_P and not basis["outcome_only"] and strict)
 
 
