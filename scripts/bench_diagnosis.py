@@ -36,12 +36,12 @@ offset, counts as right) and ``structural_trials`` / ``structural_named_and_stat
     python3 scripts/bench_diagnosis.py --trials 40 --unknown 5 --workers 1 --progress --out /tmp/diag_bench/partial.json > bench_diagnosis.json
     python3 scripts/bench_diagnosis.py --trials 80 --unknown 8 --workers 2 --progress --out /tmp/diag_bench/full.json > bench_full.json  # issue 25
 
-Measured so far (a subset only, commit c921238, heavily loaded shared 2 cores: ``--trials 15 --unknown 1 --only
-0,1,3,6,11,14,15 --modes full --workers 1``): 6 known trials (joint6 -0.063, scoop roll +0.065, joint1 -0.082,
-joint2 -0.046, joint4 +0.054 with base yaw -0.086, ball radius 0.031 with cd 0.79) all named right up to structural
-identity (5/6 exactly; trial 11 as joint_offset with joint 1 for the base yaw), all "high"; the cross-wind trial "not
-explained", "low"; confident-wrong 0; wall median 276 s, max 764 s (not the quiet-core figure). The full 80-trial run
-is still to be done.
+Measured (session 16, the calibration table in ``besdrake/tasks/throwing/diagnosis/CALIBRATION.md``): 40 known + 3
+unknown trials of ``--trials 80 --unknown 8`` on full logs and 30 + 2 on touchdown-only logs, 8 shards of 2 workers on
+a lent 16-core machine: full logs right 75 % (85 % up to structural identity), touchdown right or honest 50 % (80 %
+signature-aware); "high" 18 times, 17 right (the old rule: 33, 28 right); unknown effects never "high"; wall per
+full-log diagnosis median 54 s, max 87 s. Shards: ``--only`` with every 8th trial, merged and re-summarised with
+``--resummarize``.
 
 Residual model (issue 25 item 5; ``--fresh``: each unknown-effect trial also throws 15 new plans in the same lab, which
 no part of the diagnosis saw). Session 14, ``PYTHONPATH=. python3 scripts/bench_diagnosis.py --seed 1 --trials 0 --unknown 5
