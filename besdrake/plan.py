@@ -130,7 +130,11 @@ class MotionPlan:
             return self.qd
         from scipy.interpolate import CubicSpline
 
-        return CubicSpline(self.t, self.q, axis=0, bc_type="not-a-knot")(self.t, 1)
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # absurd knots: inf/nan, flagged by _peaks
+            try:
+                return CubicSpline(self.t, self.q, axis=0, bc_type="not-a-knot")(self.t, 1)
+            except ValueError as err:  # the slopes overflow
+                raise PlanError(f"the plan's knots cannot be interpolated ({err})") from None
 
     def trajectory(self, time_shift: float = 0.0):
         """The plan as a Drake ``PiecewisePolynomial`` (cubic Hermite, 6 rows), optionally shifted by ``time_shift`` s."""
@@ -140,17 +144,19 @@ class MotionPlan:
         return PiecewisePolynomial.CubicHermite(self.t + time_shift, self.q.T, self.knot_velocities().T)
 
     def _hermite(self, times: np.ndarray, qd: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Positions, velocities, accelerations (len(times), 6) of the Hermite interpolation (clamped at the ends)."""
+        """Positions, velocities, accelerations (len(times), 6) of the Hermite interpolation (clamped at the ends).
+        Absurd knots (fuzzed or corrupt files) give inf/nan here without a warning; :meth:`_peaks` flags them."""
         qd = self.knot_velocities() if qd is None else qd
         times = np.clip(np.asarray(times, dtype=float), 0.0, self.duration)
         i = np.clip(np.searchsorted(self.t, times, side="right") - 1, 0, self.t.size - 2)
-        h = (self.t[i + 1] - self.t[i])[:, None]
-        s = ((times - self.t[i])[:, None]) / h
-        p0, p1, m0, m1 = self.q[i], self.q[i + 1], qd[i] * h, qd[i + 1] * h
-        s2, s3 = s * s, s * s * s
-        pos = (2 * s3 - 3 * s2 + 1) * p0 + (s3 - 2 * s2 + s) * m0 + (-2 * s3 + 3 * s2) * p1 + (s3 - s2) * m1
-        vel = ((6 * s2 - 6 * s) * p0 + (3 * s2 - 4 * s + 1) * m0 + (-6 * s2 + 6 * s) * p1 + (3 * s2 - 2 * s) * m1) / h
-        acc = ((12 * s - 6) * p0 + (6 * s - 4) * m0 + (-12 * s + 6) * p1 + (6 * s - 2) * m1) / (h * h)
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            h = (self.t[i + 1] - self.t[i])[:, None]
+            s = ((times - self.t[i])[:, None]) / h
+            p0, p1, m0, m1 = self.q[i], self.q[i + 1], qd[i] * h, qd[i + 1] * h
+            s2, s3 = s * s, s * s * s
+            pos = (2 * s3 - 3 * s2 + 1) * p0 + (s3 - 2 * s2 + s) * m0 + (-2 * s3 + 3 * s2) * p1 + (s3 - s2) * m1
+            vel = ((6 * s2 - 6 * s) * p0 + (3 * s2 - 4 * s + 1) * m0 + (-6 * s2 + 6 * s) * p1 + (3 * s2 - 2 * s) * m1) / h
+            acc = ((12 * s - 6) * p0 + (6 * s - 4) * m0 + (-12 * s + 6) * p1 + (6 * s - 2) * m1) / (h * h)
         return pos, vel, acc
 
     def sample(self, times: np.ndarray, derivative: int = 0) -> np.ndarray:
@@ -190,7 +196,11 @@ class MotionPlan:
         if cached is not None and cached[0] == key:
             return cached[1]
         q, qd, qdd = self._sampled(resolution)
-        peaks = (np.min(q, axis=0), np.max(q, axis=0), np.max(np.abs(qd), axis=0), np.max(np.abs(qdd), axis=0))
+        # A plan whose numbers overflow the interpolation (fuzzed or corrupt knots) must fail every limit, not pass
+        # it through NaN comparisons: non-finite samples count as infinitely far out.
+        bad = lambda a: ~np.isfinite(a).all(axis=0)  # noqa: E731
+        peaks = (np.where(bad(q), -np.inf, np.min(q, axis=0)), np.where(bad(q), np.inf, np.max(q, axis=0)),
+                 np.where(bad(qd), np.inf, np.max(np.abs(qd), axis=0)), np.where(bad(qdd), np.inf, np.max(np.abs(qdd), axis=0)))
         self.__dict__["_peaks_cache"] = (key, peaks)
         return peaks
 

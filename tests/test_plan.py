@@ -137,3 +137,22 @@ def test_limit_checks_keep_the_per_sample_figures_and_follow_a_changed_plan():
     assert p.check_limits(lim).ok
     assert np.array_equal(p.peak_limit_ratios(lim)[1], fresh.peak_limit_ratios(lim)[1])
     assert np.array_equal(p.peak_limit_ratios(lim, resolution=0.01)[0], fresh.peak_limit_ratios(lim, resolution=0.01)[0])
+
+
+def test_a_plan_whose_interpolation_overflows_fails_its_limits_quietly():
+    import warnings
+
+    from besdrake.sim.scenario import load_scenario
+
+    limits = load_scenario("nominal").robot.limits
+    t = np.array([0.0, 1e-300, 1.0])
+    q = np.zeros((3, 6))
+    q[1, 0] = 1e10
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no overflow warning escapes
+        try:
+            report = MotionPlan(t, q).check_limits(limits)
+        except PlanError:
+            return  # refused as malformed: as good
+    assert not report.ok and np.all(np.isfinite(report.position) | np.isinf(report.position))
+    assert report.velocity[0] > 0 and report.acceleration[0] > 0
