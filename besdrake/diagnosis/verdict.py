@@ -195,7 +195,10 @@ def judge(prob: fitting.Problem, sens: fitting.Sensitivity, fits: list[fitting.C
     elif separable:
         v.text = f"explained by {fits[0].name}, but cannot tell it from " + ", ".join(a["b"] for a in separable)
     else:
-        v.text = f"explained by {fits[0].name} (next candidate {causes[1].delta_bic:.1f} BIC worse)"
+        nxt = causes[1]
+        v.text = (f"explained by {fits[0].name} (next candidate {nxt.delta_bic:.1f} BIC worse)" if nxt.delta_bic >= 0 else
+                  f"explained by {fits[0].name} ({' + '.join(nxt.effects) or 'none'} fits {-nxt.delta_bic:.1f} BIC better but is not "
+                  f"claimed: what it adds is immaterial or not significant over the plans; see the notes)")
         p_extra, extra = strongest_extra(causes)
         if extra is not None and p_extra < HIGH_EXTRA_P:
             v.text += (f"; {' + '.join(extra.effects)} fits better than chance allows (p = {p_extra:.2g}) but not enough to be "
