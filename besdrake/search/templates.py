@@ -467,7 +467,8 @@ def train_template(
 ) -> TemplateTraining:
     """Learn a behaviour template from ``base`` with ``method`` in ``n_episodes`` rollouts.
 
-    The first ``probes`` rollouts (``"rotate"`` and ``"scale"`` modes only; 0: none) simulate the base at as many
+    The first ``probes`` rollouts (at most a quarter of ``n_episodes``, at least 2, else none; ``"rotate"`` and
+    ``"scale"`` modes only) simulate the base at as many
     execution times (:mod:`besdrake.search.template_reach`): without ``meta_bounds`` they set the meta-parameter box
     to what reaches the context box, and with ``reach_prior`` their touchdown model is the prior mean of the reward
     model (BO-CPS, ACES) or C-REPS's initial linear policy. The remaining ``n_episodes - probes`` rollouts are
@@ -480,10 +481,11 @@ def train_template(
 
     if method not in METHODS:
         raise TemplateError(f"unknown method {method!r}; choose one of {METHODS}")
-    use_probes = probes > 0 and joint1_mode == "rotate" and time_mode == "scale"
-    n_probes = int(probes) if use_probes else 0
-    if n_probes == 1 or n_episodes - n_probes < 1:
-        raise TemplateError(f"n_episodes must exceed the probe rollouts ({n_probes}; probes is 0 or >= 2), got {n_episodes}")
+    if n_episodes < 1:
+        raise TemplateError(f"n_episodes must be >= 1, got {n_episodes}")
+    # at most a quarter of the budget; fewer than two probes make no model
+    n_probes = min(int(probes), n_episodes // 4) if joint1_mode == "rotate" and time_mode == "scale" else 0
+    n_probes = n_probes if n_probes >= 2 else 0
     robot = robot or getattr(getattr(executor, "scenario", None), "robot", None)
     if robot is None:
         raise TemplateError("train_template needs robot= (the executor has no scenario to take it from)")
