@@ -47,24 +47,19 @@ def _load_base(name: str):
     return load_dmp(name)
 
 
-def _reach(base, ex, args) -> dict:
-    """The base's reach within the box a template would use (the probes' touchdowns within the limits)."""
-    from besdrake.search.templates import TEST_CONTEXTS, MetaDMP, default_meta_bounds, touchdowns
-    from besdrake.search.template_reach import probe_reach
+def _reach(probe, safe: np.ndarray, base) -> dict:
+    """The base's reach within the joint limits from the template's probes (over the whole limit-safe box)."""
+    from besdrake.search.templates import TEST_CONTEXTS
+    from besdrake.search.template_reach import model_floor
 
-    robot = ex.scenario.robot
-    bounds = default_meta_bounds(base, robot, time_mode=args.time_mode)
-    probe = probe_reach(MetaDMP(base, robot, time_mode=args.time_mode), ex, bounds[0, 0], bounds[0, 1], 9)
     r = np.linalg.norm(probe.touchdowns, axis=1)
     ok = probe.within_limits & np.isfinite(r)
     far, near = (float(r[ok].max()), float(r[ok].min())) if ok.any() else (float("nan"), float("nan"))
     # The nearest modelled touchdown to each test context over the whole box (execution times within the limits,
-    # joint-1 goals within joint 1's limits): what no template of this base can avoid, by range or by direction.
-    grid = np.array([[t, g] for t in np.linspace(*bounds[0], 80) for g in np.linspace(*bounds[1], 80)])
-    td = probe.predict(grid)
-    floor = np.min(np.linalg.norm(td[None, :, :] - TEST_CONTEXTS[:, None, :], axis=2), axis=1)
-    return {"meta_box_within_limits": bounds.tolist(), "probes": probe.summary(), "farthest_m": far, "nearest_m": near,
-            "joint1_goal_shift_rad": (bounds[1] - float(base.goal[0])).tolist(),
+    # joint-1 goals within joint 1's limits): what no template of this base avoids, by range or by direction.
+    floor = model_floor(probe, safe, TEST_CONTEXTS)
+    return {"meta_box_within_limits": safe.tolist(), "probes": probe.summary(), "farthest_m": far, "nearest_m": near,
+            "joint1_goal_shift_rad": (safe[1] - float(base.goal[0])).tolist(),
             "unavoidable_mean_cm": 100.0 * float(np.mean(floor)), "unavoidable_cm": [round(100.0 * float(v), 2) for v in floor]}
 
 
@@ -89,8 +84,9 @@ def _references(base, ex, args) -> dict:
     bounds = default_meta_bounds(base, robot, time_mode=args.time_mode)
     out = {}
     probe = None
-    if args.probes and args.time_mode == "scale":
+    if args.probes and args.time_mode == "scale":  # the probes train_template makes (the same rollouts)
         probe = probe_reach(meta, ex, bounds[0, 0], bounds[0, 1], args.probes)
+        out["reach"] = _reach(probe, bounds, base)
         bounds = reach_meta_bounds(probe, bounds, CONTEXT_BOUNDS)
     out["meta_bounds"] = bounds.tolist()
 
@@ -179,8 +175,11 @@ def main(argv: list[str] | None = None) -> int:
         for name in args.base:
             base = _load_base(name)
             print(f"base {name}", file=sys.stderr, flush=True)
-            entry = {"reach": _reach(base, ex, args), "references": _references(base, ex, args), "methods": {}}
-            print(f"  reach {entry['reach']['nearest_m']:.2f}-{entry['reach']['farthest_m']:.2f} m, untrained "
+            refs = _references(base, ex, args)
+            nan = {"nearest_m": float("nan"), "farthest_m": float("nan"), "unavoidable_mean_cm": float("nan")}
+            entry = {"reach": refs.pop("reach", nan), "references": refs, "methods": {}}
+            print(f"  reach {entry['reach']['nearest_m']:.2f}-{entry['reach']['farthest_m']:.2f} m "
+                  f"(unavoidable {entry['reach']['unavoidable_mean_cm']:.2f} cm), untrained "
                   f"{entry['references']['untrained_cm']:.2f} cm, probes only {entry['references'].get('probes_only_cm', float('nan')):.2f} cm",
                   file=sys.stderr, flush=True)
             for method in args.methods:

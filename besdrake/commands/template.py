@@ -153,7 +153,8 @@ def _train(args, pool) -> int:
     training.template.provenance["test_mean_distance_cm"] = 100.0 * ev.mean_distance
     path = pool.add(training.template, overwrite=args.overwrite)
     data = {
-        "template": name, "file": str(path), "method": args.method, "episodes": int(training.loop.n_evaluations),
+        "template": name, "file": str(path), "method": args.method, "episodes": int(training.template.provenance["n_episodes"]),
+        "probe_rollouts": int(training.template.provenance["n_probe_rollouts"]),
         "failed_episodes": int(training.loop.n_failed), "resumed": bool(training.loop.resumed),
         "test": ev.summary(), "curve_mean_distance_cm": {str(k): 100.0 * v for k, v in training.curve.items()},
         "paper_real_robot_mean_cm": PAPER_MEAN_CM.get(args.method), "wall_time_s": time.perf_counter() - t0,

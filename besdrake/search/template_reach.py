@@ -131,6 +131,15 @@ def reach_meta_bounds(probe: ReachProbe, safe_bounds: np.ndarray, context_bounds
     return box
 
 
+def model_floor(probe: ReachProbe, bounds: np.ndarray, contexts: np.ndarray, n: int = 80) -> np.ndarray:
+    """Per context (m): the distance to the nearest modelled touchdown over the box ``bounds`` (``n`` x ``n`` grid):
+    what no choice of the two meta-parameters avoids, by range or by direction (up to the model's error)."""
+    grid = np.array([[t, g] for t in np.linspace(*bounds[0], n) for g in np.linspace(*bounds[1], n)])
+    td = probe.predict(grid)
+    contexts = np.atleast_2d(np.asarray(contexts, dtype=float))
+    return np.min(np.linalg.norm(td[None, :, :] - contexts[:, None, :], axis=2), axis=1)
+
+
 class ReachPrior:
     """Prior reward of BO-CPS inputs ``(context, theta)``: minus the squared distance (m^2) from the probes' modelled
     touchdown of ``theta`` to the target ``context``."""
@@ -196,5 +205,5 @@ class PriorMeanGP(GaussianProcess):
         return mean + self.prior(X), cov
 
 
-__all__ = ["ReachProbe", "ReachPrior", "PriorMeanGP", "prior_from_dict", "probe_reach", "reach_meta_bounds", "prior_policy",
+__all__ = ["ReachProbe", "ReachPrior", "PriorMeanGP", "prior_from_dict", "model_floor", "probe_reach", "reach_meta_bounds", "prior_policy",
            "context_polar_box", "RANGE_MARGIN", "YAW_MARGIN"]

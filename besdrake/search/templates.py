@@ -7,6 +7,14 @@ A :class:`BehaviorTemplate` is a base DMP (a refined movement) plus an upper-lev
 * ``theta[0]``: execution time (s) of the DMP -- e.g. how far a released object flies;
 * ``theta[1]``: goal of joint 1 (rad) -- the direction of the movement.
 
+Time mode (issue 27). A refined throw ends in motion (goal velocity and acceleration from the imitated swing).
+Changing only the DMP's execution time then changes the *shape* of the path, not just its speed: on refined throws
+of subjects 0-2 the box within the joint limits shrank to a few hundredths of a second around the base's own
+execution time (limits broken on both sides), and the touchdown's direction swung by tens of degrees over the
+box (the release moves along a fast joint-1 swing). ``time_mode="scale"`` (default) scales the base in time
+(:class:`MetaDMP`): the path stays, a slower throw is always within the velocity and acceleration limits, the
+touchdown moves smoothly and nearly radially. ``"raw"`` is the former behaviour (kept for saved templates).
+
 The context ``s = (x, y)`` is the target on the floor in m, the robot at the origin facing +x:
 **x is forward, y is lateral (left positive)**. The paper's test grid lists the lateral coordinate
 first ({-0.7, -0.2, 0.2, 0.7} lateral x {1.3, 1.6, 1.9, 2.2} forward); :data:`TEST_CONTEXTS` holds
@@ -27,6 +35,12 @@ touchdown distance (m^2, the ``touchdown`` of the task's outcome: where it reach
 rollout without touchdown or a failed simulation is a
 failed episode. :meth:`BehaviorTemplate.instantiate` returns the :class:`~besdrake.plan.MotionPlan`
 for a target; :class:`TemplatePool` stores templates as JSON + npz with their provenance.
+
+Reach probes (:mod:`besdrake.search.template_reach`). :func:`train_template` spends its first few rollouts
+(default 7 of 80) on the base at execution times across the box: they cut the box to what reaches the context box,
+and their touchdown model (range and direction per execution time, rotated by the joint-1 goal) is the prior mean of
+the BO-CPS/ACES reward model and C-REPS's initial policy. What the model says no meta-parameters reach is
+reported (``model_floor``): a refined throw's reach, not the search, bounds the template's accuracy there.
 
 Joint limits. :func:`default_meta_bounds` shrinks the meta-parameter box to plans within the robot's
 limits: the joint-1 goal range keeps the rotated path inside joint 1's limits, and the execution time
@@ -537,7 +551,7 @@ def train_template(
         "joint1_mode": joint1_mode,
         "time_mode": time_mode,
         "reach_prior": bool(reach_prior and probe is not None),
-        "reach_probe": None if probe is None else probe.summary(),
+        "reach_probe": None if probe is None else probe.to_dict(),
         "reward": "-(squared touchdown distance, m^2)",
         "scenario": getattr(getattr(executor, "scenario", None), "name", None),
     } | dict(provenance or {})
