@@ -223,7 +223,7 @@ class MetaDMP:
         return MotionPlan(t=traj.t, q=traj.y, qd=traj.yd, meta=meta, joint_names=self.robot.joint_names)
 
 
-def _make_optimizer(method: str, meta_bounds: np.ndarray, seed: int, **kwargs: Any):
+def _make_optimizer(method: str, meta_bounds: np.ndarray, seed: int, creps_spread: float = 4.0, **kwargs: Any):
     from besdrake.search.aces import ACES
     from besdrake.search.bocps import BOCPS
 
@@ -237,7 +237,7 @@ def _make_optimizer(method: str, meta_bounds: np.ndarray, seed: int, **kwargs: A
 
         width = meta_bounds[:, 1] - meta_bounds[:, 0]
         settings = {"n_samples_per_update": 20, "context_bounds": CONTEXT_BOUNDS} | kwargs
-        return CREPS(meta_bounds.mean(axis=1), len(CONTEXT_BOUNDS), np.diag((width / 4.0) ** 2), rng, **settings)
+        return CREPS(meta_bounds.mean(axis=1), len(CONTEXT_BOUNDS), np.diag((width / creps_spread) ** 2), rng, **settings)
     raise TemplateError(f"unknown method {method!r}; choose one of {METHODS}")
 
 
