@@ -169,10 +169,10 @@ def test_bad_contexts_and_corrupt_files_are_reported(trained, tmp_path):
 
 def test_failed_episodes_are_kept_and_training_resumes(base, tmp_path):
     ex = PolarStandIn(fail_every=4)
-    first = train_template(base, ex, "ucb", 10, seed=1, out_dir=tmp_path)
+    first = train_template(base, ex, "ucb", 10, seed=1, out_dir=tmp_path, probes=0)
     assert first.loop.n_evaluations == 10 and first.loop.n_failed == 2
     ex2 = PolarStandIn()
-    again = train_template(base, ex2, "ucb", 14, seed=1, out_dir=tmp_path)
+    again = train_template(base, ex2, "ucb", 14, seed=1, out_dir=tmp_path, probes=0)
     assert again.loop.resumed and again.loop.n_evaluations == 14 and ex2.calls == 4
     assert again.loop.n_failed == 2
 
@@ -224,9 +224,90 @@ def test_template_cli_train_list_instantiate(tmp_path):
 
 
 def test_creps_baseline_trains_saves_and_loads(base, tmp_path):
-    tr = train_template(base, PolarStandIn(), "creps", 40, seed=0, name="creps")
+    tr = train_template(base, PolarStandIn(), "creps", 40, seed=0, name="creps", probes=0)
     assert tr.loop.n_evaluations == 40 and tr.loop.optimizer.n_updates == 2
     pool = TemplatePool(tmp_path)
     pool.add(tr.template)
     s = [1.9, 0.4]
     assert np.array_equal(pool.instantiate("creps", s).q, tr.template.instantiate(s).q)
+
+
+# ------------------------------------------------------------------ issue 27: time scaling, reach probes, prior
+@pytest.fixture(scope="module")
+def moving_base():
+    """A base that ends in motion (as refined throws do): the fitted default throw given a goal velocity and acceleration."""
+    d = fitted_default_throw()
+    d.goal_velocity = np.array([0.0, 0.8, -0.6, 0.0, 0.5, 0.0])
+    d.goal_acceleration = np.array([0.0, -4.0, 3.0, 0.0, 2.0, 0.0])
+    return d
+
+
+def test_scale_mode_plays_the_base_path_slower_and_raw_mode_changes_it(moving_base):
+    assert np.abs(moving_base.goal_velocity).max() > 0.5
+    tau = moving_base.execution_time
+    base_plan = MetaDMP(moving_base, COMPI, time_mode="scale").plan([tau, moving_base.goal[0]])
+    slow = MetaDMP(moving_base, COMPI, time_mode="scale").plan([1.5 * tau, moving_base.goal[0]])
+    q_at = np.array([np.interp(1.5 * base_plan.t, slow.t, slow.q[:, j]) for j in range(6)]).T
+    assert np.abs(q_at - base_plan.q).max() < 2e-3  # the same path, 1.5 times slower
+    assert np.abs(slow.qd).max() == pytest.approx(np.abs(base_plan.qd).max() / 1.5, rel=0.02)
+    raw = MetaDMP(moving_base, COMPI, time_mode="raw").plan([1.5 * tau, moving_base.goal[0]])
+    q_raw = np.array([np.interp(1.5 * base_plan.t, raw.t, raw.q[:, j]) for j in range(6)]).T
+    assert np.abs(q_raw - base_plan.q).max() > 0.02  # the goal velocity is not scaled: another path
+    with pytest.raises(TemplateError, match="time_mode"):
+        MetaDMP(moving_base, COMPI, time_mode="stretch")
+
+
+def test_scale_mode_bounds_keep_slow_throws_within_the_limits(moving_base):
+    b = default_meta_bounds(moving_base, COMPI, time_mode="scale")
+    m = MetaDMP(moving_base, COMPI, time_mode="scale")
+    assert b[0, 1] == pytest.approx(2.0 * moving_base.execution_time)
+    for tau in np.linspace(*b[0], 5):
+        assert m.plan([tau, moving_base.goal[0]]).check_limits(COMPI.limits).ok
+
+
+def test_reach_probe_models_range_and_rotation():
+    from besdrake.search.template_reach import ReachProbe
+
+    taus = np.array([1.0, 1.5, 2.0])
+    yaws = np.radians([2.0, 4.0, 6.0])
+    r = np.array([2.4, 1.9, 1.4])
+    probe = ReachProbe(taus, np.column_stack([r * np.cos(yaws), r * np.sin(yaws)]), 0.5, np.ones(3, bool))
+    assert np.allclose(probe.predict(np.column_stack([taus, np.full(3, 0.5)])), probe.touchdowns)
+    mid = probe.predict([[1.25, 0.5 + 0.3]])[0]
+    assert np.hypot(*mid) == pytest.approx(2.15) and np.arctan2(mid[1], mid[0]) == pytest.approx(np.radians(3.0) + 0.3)
+    assert ReachProbe.from_dict(probe.to_dict()).predict([[1.7, 0.1]]) == pytest.approx(probe.predict([[1.7, 0.1]]))
+    with pytest.raises(ValueError, match="two probes"):
+        ReachProbe(taus, np.full((3, 2), np.nan), 0.0, np.ones(3, bool))
+
+
+def test_probes_set_the_box_and_the_prior_makes_a_template_accurate_from_few_episodes(base, tmp_path):
+    """On the stand-in (range 3.3 m - duration, direction = final joint-1 angle) the probes' model is exact: the
+    box stops where the nearest target is reached and 16 rollouts (4 probes) aim within 2 cm of every target within
+    reach (the farthest ones are beyond the fastest throw within the limits)."""
+    from besdrake.search.template_reach import PriorMeanGP
+
+    ex = PolarStandIn()
+    tr = train_template(base, ex, "es", 16, seed=0, name="probed")
+    t = tr.template
+    assert ex.calls == 16 and tr.loop.n_evaluations == 12 and t.provenance["n_probe_rollouts"] == 4
+    assert t.meta_bounds[0, 1] <= 3.3 - 1.0 + 0.05 + 0.5  # no slower than reaching the nearest target (box cut at a probe)
+    assert isinstance(t.optimizer.gp, PriorMeanGP)
+    ev = evaluate_template(t, PolarStandIn())
+    shortfall = np.maximum(np.linalg.norm(TEST_CONTEXTS, axis=1) - (3.3 - t.meta_bounds[0, 0]), 0.0)  # beyond the limits
+    assert np.abs(ev.distances - shortfall).max() < 0.02
+    plain = evaluate_template(train_template(base, PolarStandIn(), "es", 16, seed=0, probes=0).template, PolarStandIn())
+    assert plain.mean_distance > ev.mean_distance + 0.05
+    pool = TemplatePool(tmp_path)
+    pool.add(t)
+    loaded = pool.get("probed")
+    assert isinstance(loaded.optimizer.gp, PriorMeanGP) and loaded.meta.time_mode == "scale"
+    assert np.allclose(loaded.meta_parameters([1.9, 0.4]), t.meta_parameters([1.9, 0.4]), atol=1e-6)
+
+
+def test_creps_starts_from_the_probes_policy(base):
+    ex = PolarStandIn()
+    tr = train_template(base, ex, "creps", 8, seed=0, probes=2)  # 2 probes, 6 episodes: no C-REPS update yet
+    assert tr.loop.optimizer.n_updates == 0
+    probed = evaluate_template(tr.template, PolarStandIn()).mean_distance
+    plain = evaluate_template(train_template(base, PolarStandIn(), "creps", 8, seed=0, probes=0).template, PolarStandIn()).mean_distance
+    assert probed < plain - 0.1  # a linear fit of the probes' policy instead of the box centre

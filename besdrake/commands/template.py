@@ -33,6 +33,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--episodes", type=int, default=80)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--joint1-mode", choices=("rotate", "goal"), default="rotate", help="rotate: the joint-1 start moves with its goal (default); goal: the paper-literal goal only")
+    parser.add_argument("--time-mode", choices=("scale", "raw"), default="scale",
+                        help="scale: the execution time plays the base's path slower or faster (default); raw: only the DMP's execution time changes")
+    parser.add_argument("--probes", type=int, default=None,
+                        help="rollouts of the base that set the meta-parameter box and the reward model's prior (default 7, at most a quarter of --episodes; 0: none)")
     parser.add_argument("--overwrite", action="store_true", help="train: replace a template of the same name")
     parser.add_argument("--target", "--context", dest="target", nargs=2, type=float, metavar=("X", "Y"), help="instantiate: target (x forward, y lateral), m")
     parser.add_argument("--plan-out", type=Path, default=None, help="instantiate: write the motion plan JSON here")
@@ -109,11 +113,13 @@ def _train(args, pool) -> int:
     from besdrake.cli import UserError
     from besdrake.imitation import DMPParameterError, load_dmp
     from besdrake.search.loop import ResumeError
-    from besdrake.search.templates import PAPER_MEAN_CM, evaluate_template, train_template
+    from besdrake.search.templates import DEFAULT_PROBES, PAPER_MEAN_CM, evaluate_template, train_template
     from besdrake.tasks.throwing.template_base import TEMPLATE_BASE_WEIGHTS, default_template_base
 
     if args.episodes < 1:
         raise UserError(f"--episodes must be >= 1, got {args.episodes}")
+    if args.probes is not None and args.probes < 0:
+        raise UserError(f"--probes must be >= 0, got {args.probes}")
     name = args.name or f"{args.method}_seed{args.seed}"
     if name in pool and not args.overwrite:
         raise UserError(f"{args.pool} already holds a template {name!r} (use --overwrite or another --name)")
@@ -142,7 +148,8 @@ def _train(args, pool) -> int:
     try:
         with _executor(args) as ex:
             training = train_template(base, ex, args.method, args.episodes, args.seed, name, run_dir,
-                                      joint1_mode=args.joint1_mode, checkpoints=checkpoints,
+                                      joint1_mode=args.joint1_mode, checkpoints=checkpoints, time_mode=args.time_mode,
+                                      probes=DEFAULT_PROBES if args.probes is None else args.probes,
                                       provenance={"base_dmp": base_source, "run_dir": str(run_dir)}, progress=progress)
             ev = evaluate_template(training.template, ex)
     except ResumeError as err:
@@ -153,7 +160,8 @@ def _train(args, pool) -> int:
     training.template.provenance["test_mean_distance_cm"] = 100.0 * ev.mean_distance
     path = pool.add(training.template, overwrite=args.overwrite)
     data = {
-        "template": name, "file": str(path), "method": args.method, "episodes": int(training.loop.n_evaluations),
+        "template": name, "file": str(path), "method": args.method, "episodes": int(training.template.provenance["n_episodes"]),
+        "probe_rollouts": int(training.template.provenance["n_probe_rollouts"]),
         "failed_episodes": int(training.loop.n_failed), "resumed": bool(training.loop.resumed),
         "test": ev.summary(), "curve_mean_distance_cm": {str(k): 100.0 * v for k, v in training.curve.items()},
         "paper_real_robot_mean_cm": PAPER_MEAN_CM.get(args.method), "wall_time_s": time.perf_counter() - t0,

@@ -54,6 +54,10 @@ class BOCPS(GPEpisodes, ContextualOptimizer):
         Monte-Carlo samples, fantasy nodes, random parameter pool per context.
     nu, n_restarts:
         GP kernel smoothness and hyperparameter restarts.
+    prior_mean:
+        Optional prior knowledge of the reward: ``{"type": "reach", "probe": ...}`` (a
+        :class:`~besdrake.search.template_reach.ReachProbe` as a dict); the GP then models the reward minus
+        the prior (:class:`~besdrake.search.template_reach.PriorMeanGP`). Kept in the state.
     """
 
     def __init__(
@@ -71,6 +75,7 @@ class BOCPS(GPEpisodes, ContextualOptimizer):
         pool_size: int = 200,
         nu: float = 2.5,
         n_restarts: int = 1,
+        prior_mean: dict[str, Any] | None = None,
     ) -> None:
         self.context_bounds = check_bounds(context_bounds, "context_bounds")
         self.param_bounds = check_bounds(param_bounds, "param_bounds")
@@ -87,6 +92,8 @@ class BOCPS(GPEpisodes, ContextualOptimizer):
         self.n_samples, self.n_fantasies, self.pool_size = int(n_samples), int(n_fantasies), int(pool_size)
         self.gp = GaussianProcess(np.vstack([self.context_bounds, self.param_bounds]), nu=nu,
                                   n_restarts=n_restarts, seed=int(self.rng.integers(2**31 - 1)))
+        self.prior_mean = prior_mean
+        self._wrap_prior()
         self.rep_contexts = self._scale(self.context_bounds,
                                         qmc.Halton(self.n_context, seed=self.rng).random(self.n_rep_contexts))
         # Deterministic parameter grid for the (randomness-free) policy.
@@ -95,6 +102,14 @@ class BOCPS(GPEpisodes, ContextualOptimizer):
         self._init_episodes(self.n_context + self.n_params)
 
     # ------------------------------------------------------------------ helpers
+    def _wrap_prior(self) -> None:
+        """Model the reward minus ``prior_mean`` (no-op without one)."""
+        if self.prior_mean is None:
+            return
+        from .template_reach import prior_from_dict, PriorMeanGP
+
+        self.gp = PriorMeanGP.wrap(self.gp, prior_from_dict(self.prior_mean, self.n_context))
+
     @staticmethod
     def _scale(bounds: np.ndarray, unit: np.ndarray) -> np.ndarray:
         return bounds[:, 0] + unit * (bounds[:, 1] - bounds[:, 0])
@@ -196,7 +211,7 @@ class BOCPS(GPEpisodes, ContextualOptimizer):
             "acquisition": self.acquisition, "n_initial": self.n_initial, "kappa": self.kappa,
             "n_rep_contexts": self.n_rep_contexts, "n_representers": self.n_representers,
             "n_samples": self.n_samples, "n_fantasies": self.n_fantasies, "pool_size": self.pool_size,
-            "nu": self.gp.nu, "n_restarts": self.gp.n_restarts,
+            "nu": self.gp.nu, "n_restarts": self.gp.n_restarts, "prior_mean": self.prior_mean,
         }
 
     def state_dict(self) -> dict[str, Any]:
@@ -214,4 +229,5 @@ class BOCPS(GPEpisodes, ContextualOptimizer):
         opt = cls(state["context_bounds"], state["param_bounds"], **state["settings"])
         opt.rep_contexts = np.asarray(state["rep_contexts"], dtype=float).reshape(-1, opt.n_context)
         opt._restore_episodes(state)
+        opt._wrap_prior()
         return opt

@@ -7,6 +7,14 @@ A :class:`BehaviorTemplate` is a base DMP (a refined movement) plus an upper-lev
 * ``theta[0]``: execution time (s) of the DMP -- e.g. how far a released object flies;
 * ``theta[1]``: goal of joint 1 (rad) -- the direction of the movement.
 
+Time mode (issue 27). A refined throw ends in motion (goal velocity and acceleration from the imitated swing).
+Changing only the DMP's execution time then changes the *shape* of the path, not just its speed: on refined throws
+of subjects 0-2 the box within the joint limits shrank to a few hundredths of a second around the base's own
+execution time (limits broken on both sides), and the touchdown's direction swung by tens of degrees over the
+box (the release moves along a fast joint-1 swing). ``time_mode="scale"`` (default) scales the base in time
+(:class:`MetaDMP`): the path stays, a slower throw is always within the velocity and acceleration limits, the
+touchdown moves smoothly and nearly radially. ``"raw"`` is the former behaviour (kept for saved templates).
+
 The context ``s = (x, y)`` is the target on the floor in m, the robot at the origin facing +x:
 **x is forward, y is lateral (left positive)**. The paper's test grid lists the lateral coordinate
 first ({-0.7, -0.2, 0.2, 0.7} lateral x {1.3, 1.6, 1.9, 2.2} forward); :data:`TEST_CONTEXTS` holds
@@ -27,6 +35,12 @@ touchdown distance (m^2, the ``touchdown`` of the task's outcome: where it reach
 rollout without touchdown or a failed simulation is a
 failed episode. :meth:`BehaviorTemplate.instantiate` returns the :class:`~besdrake.plan.MotionPlan`
 for a target; :class:`TemplatePool` stores templates as JSON + npz with their provenance.
+
+Reach probes (:mod:`besdrake.search.template_reach`). :func:`train_template` spends its first few rollouts
+(default 7 of 80) on the base at execution times across the box: they cut the box to what reaches the context box,
+and their touchdown model (range and direction per execution time, rotated by the joint-1 goal) is the prior mean of
+the BO-CPS/ACES reward model and C-REPS's initial policy. What the model says no meta-parameters reach is
+reported (``model_floor``): a refined throw's reach, not the search, bounds the template's accuracy there.
 
 Joint limits. :func:`default_meta_bounds` shrinks the meta-parameter box to plans within the robot's
 limits: the joint-1 goal range keeps the rotated path inside joint 1's limits, and the execution time
@@ -62,6 +76,7 @@ CONTEXT_BOUNDS = np.array([[1.0, 2.5], [-1.0, 1.0]])
 TEST_CONTEXTS = np.array([[x, y] for x in (1.3, 1.6, 1.9, 2.2) for y in (-0.7, -0.2, 0.2, 0.7)])
 METHODS = ("es", "ucb", "aces", "creps")
 JOINT1_MODES = ("rotate", "goal")
+TIME_MODES = ("scale", "raw")
 META_NAMES = ("execution_time", "goal.joint1")
 #: Paper's results on the real robot after 80 episodes (mean distance over the test contexts, cm).
 PAPER_MEAN_CM = {"es": 9.01, "ucb": 19.74}
@@ -71,8 +86,10 @@ class TemplateError(ValueError):
     """Bad template input: context out of shape, NaN, corrupt template file, unknown method or name."""
 
 
-def default_meta_bounds(base: DMP, robot: Robot, respect_limits: bool = True, joint1_mode: str = "rotate") -> np.ndarray:
-    """Execution time in [0.7, 1.6] x the base's (at least 0.95 s), joint-1 goal within +-0.9 rad of the base's.
+def default_meta_bounds(base: DMP, robot: Robot, respect_limits: bool = True, joint1_mode: str = "rotate",
+                        time_mode: str = "scale") -> np.ndarray:
+    """Execution time in [0.7, 1.6] x the base's (``time_mode="raw"``; [0.7, 2.0] x with ``"scale"``, where a slower
+    throw is the same path and stays within the limits), at least 0.95 s, joint-1 goal within +-0.9 rad of the base's.
 
     With ``respect_limits`` the box shrinks to plans within the robot's joint limits: in ``"rotate"`` mode
     the joint-1 goal range keeps the whole rotated joint-1 path inside its limits, and the execution time
@@ -84,11 +101,11 @@ def default_meta_bounds(base: DMP, robot: Robot, respect_limits: bool = True, jo
     tau = float(base.execution_time)
     g1 = float(base.goal[0])
     lo = max(MIN_EXECUTION_TIME, 0.7 * tau)
-    hi = max(lo + 0.1, 1.6 * tau)
+    hi = max(lo + 0.1, (2.0 if time_mode == "scale" else 1.6) * tau)
     jl = robot.position_limits[0]
     bounds = np.array([[lo, hi], [max(jl[0], g1 - 0.9), min(jl[1], g1 + 0.9)]])
     if respect_limits:
-        meta = MetaDMP(base, robot, joint1_mode)
+        meta = MetaDMP(base, robot, joint1_mode, time_mode=time_mode)
         if joint1_mode == "rotate":  # the whole joint-1 path shifts with the goal
             q1 = meta.plan(np.array([tau, g1])).q[:, 0]
             bounds[1, 0] = max(bounds[1, 0], g1 + jl[0] - q1.min())
@@ -152,12 +169,20 @@ def _check_context(context: Any) -> np.ndarray:
 
 @dataclass
 class MetaDMP:
-    """The base DMP of ``robot`` with its two meta-parameters exposed: ``dmp(theta)``, ``plan(theta)``."""
+    """The base DMP of ``robot`` with its two meta-parameters exposed: ``dmp(theta)``, ``plan(theta)``.
+
+    ``time_mode``: ``"scale"`` (default) plays the base's movement ``k = theta[0] / base.execution_time`` times
+    slower: its boundary velocities and accelerations are divided by ``k`` and ``k**2`` with the execution time
+    (the DMP is exactly time-invariant then), so the path, and where on it the ball leaves the tool, stay the base's.
+    ``"raw"`` (templates written before it) changes the DMP's execution time only: a base that ends in motion
+    (every refined throw) keeps its goal velocity and acceleration, so its path changes shape with the execution time.
+    """
 
     base: DMP
     robot: Robot
     joint1_mode: str = "rotate"
     dt: float = PLAN_DT
+    time_mode: str = "scale"
 
     def __post_init__(self) -> None:
         if not isinstance(self.robot, Robot):
@@ -166,6 +191,8 @@ class MetaDMP:
             raise TemplateError(f"the base of a template must be a {self.robot.n_joints}-joint besdrake.imitation.DMP of {self.robot.name}")
         if self.joint1_mode not in JOINT1_MODES:
             raise TemplateError(f"joint1_mode must be one of {JOINT1_MODES}, got {self.joint1_mode!r}")
+        if self.time_mode not in TIME_MODES:
+            raise TemplateError(f"time_mode must be one of {TIME_MODES}, got {self.time_mode!r}")
 
     def dmp(self, theta: np.ndarray) -> DMP:
         theta = np.asarray(theta, dtype=float).ravel()
@@ -176,6 +203,10 @@ class MetaDMP:
             d.execution_time = float(theta[0])
         except DMPParameterError as err:
             raise TemplateError(str(err)) from err
+        if self.time_mode == "scale":
+            k = float(theta[0]) / float(self.base.execution_time)
+            d.start_velocity, d.goal_velocity = self.base.start_velocity / k, self.base.goal_velocity / k
+            d.start_acceleration, d.goal_acceleration = self.base.start_acceleration / k**2, self.base.goal_acceleration / k**2
         goal = d.goal.copy()
         shift = float(theta[1]) - goal[0]
         goal[0] = float(theta[1])
@@ -192,7 +223,7 @@ class MetaDMP:
         return MotionPlan(t=traj.t, q=traj.y, qd=traj.yd, meta=meta, joint_names=self.robot.joint_names)
 
 
-def _make_optimizer(method: str, meta_bounds: np.ndarray, seed: int, **kwargs: Any):
+def _make_optimizer(method: str, meta_bounds: np.ndarray, seed: int, creps_spread: float = 4.0, **kwargs: Any):
     from besdrake.search.aces import ACES
     from besdrake.search.bocps import BOCPS
 
@@ -206,7 +237,7 @@ def _make_optimizer(method: str, meta_bounds: np.ndarray, seed: int, **kwargs: A
 
         width = meta_bounds[:, 1] - meta_bounds[:, 0]
         settings = {"n_samples_per_update": 20, "context_bounds": CONTEXT_BOUNDS} | kwargs
-        return CREPS(meta_bounds.mean(axis=1), len(CONTEXT_BOUNDS), np.diag((width / 4.0) ** 2), rng, **settings)
+        return CREPS(meta_bounds.mean(axis=1), len(CONTEXT_BOUNDS), np.diag((width / creps_spread) ** 2), rng, **settings)
     raise TemplateError(f"unknown method {method!r}; choose one of {METHODS}")
 
 
@@ -267,6 +298,7 @@ class BehaviorTemplate:
             "meta_bounds": self.meta_bounds.tolist(),
             "robot": self.meta.robot.reference,
             "joint1_mode": self.meta.joint1_mode,
+            "time_mode": self.meta.time_mode,
             "dt": self.meta.dt,
             "base_dmp": self.meta.base.to_dict(),
             "policy_type": type(self.optimizer).__name__,
@@ -296,7 +328,8 @@ class BehaviorTemplate:
             base = DMP.from_dict(rec["base_dmp"])
             if "robot" not in rec:
                 raise TemplateError(f"{path}: the template names no robot (written before robots were files): train it again")
-            meta = MetaDMP(base, load_robot(rec["robot"]), rec["joint1_mode"], float(rec["dt"]))
+            # templates written before time_mode existed changed the DMP's execution time only
+            meta = MetaDMP(base, load_robot(rec["robot"]), rec["joint1_mode"], float(rec["dt"]), rec.get("time_mode", "raw"))
             state_path = path.parent / f"{name}-policy"
             if not state_path.with_suffix(".json").is_file() or not state_path.with_suffix(".npz").is_file():
                 raise TemplateError(f"{path}: the policy files {state_path}.json/.npz are missing")
@@ -422,6 +455,10 @@ class TemplateTraining:
     wall_time: float
 
 
+#: Probe rollouts of the base (:func:`besdrake.search.template_reach.probe_reach`) a template spends by default.
+DEFAULT_PROBES = 7
+
+
 def train_template(
     base: DMP,
     executor,
@@ -438,30 +475,51 @@ def train_template(
     progress: Callable[[int, float], None] | None = None,
     optimizer_kwargs: dict[str, Any] | None = None,
     robot: Robot | None = None,
+    time_mode: str = "scale",
+    probes: int = DEFAULT_PROBES,
+    reach_prior: bool = True,
 ) -> TemplateTraining:
     """Learn a behaviour template from ``base`` with ``method`` in ``n_episodes`` rollouts.
 
-    With ``out_dir`` the search is resumable (episodes and optimizer state on disk). At each episode
-    in ``checkpoints`` the current policy is evaluated on ``eval_contexts`` (extra rollouts that are
-    not training episodes). ``progress(episode, reward)`` is called after every episode. ``robot``: the
-    robot of the plans (default: that of the executor's scenario).
+    The first ``probes`` rollouts (at most a quarter of ``n_episodes``, at least 2, else none; ``"rotate"`` and
+    ``"scale"`` modes only) simulate the base at as many
+    execution times (:mod:`besdrake.search.template_reach`): without ``meta_bounds`` they set the meta-parameter box
+    to what reaches the context box, and with ``reach_prior`` their touchdown model is the prior mean of the reward
+    model (BO-CPS, ACES) or C-REPS's initial linear policy. The remaining ``n_episodes - probes`` rollouts are
+    contextual episodes. With ``out_dir`` the search is resumable (episodes and optimizer state on disk). At each
+    episode in ``checkpoints`` (counted with the probes) the current policy is evaluated on ``eval_contexts`` (extra
+    rollouts that are not training episodes). ``progress(episode, reward)`` is called after every episode.
+    ``robot``: the robot of the plans (default: that of the executor's scenario).
     """
     from besdrake.search.loop import run_contextual_search
 
-    if n_episodes < 1:
-        raise TemplateError(f"n_episodes must be >= 1, got {n_episodes}")
     if method not in METHODS:
         raise TemplateError(f"unknown method {method!r}; choose one of {METHODS}")
+    if n_episodes < 1:
+        raise TemplateError(f"n_episodes must be >= 1, got {n_episodes}")
+    # at most a quarter of the budget; fewer than two probes make no model
+    n_probes = min(int(probes), n_episodes // 4) if joint1_mode == "rotate" and time_mode == "scale" else 0
+    n_probes = n_probes if n_probes >= 2 else 0
     robot = robot or getattr(getattr(executor, "scenario", None), "robot", None)
     if robot is None:
         raise TemplateError("train_template needs robot= (the executor has no scenario to take it from)")
-    meta = MetaDMP(base, robot, joint1_mode)
-    bounds = default_meta_bounds(base, robot, joint1_mode=joint1_mode) if meta_bounds is None else np.asarray(meta_bounds, dtype=float)
-    if bounds.shape != (2, 2) or not np.isfinite(bounds).all() or (bounds[:, 0] >= bounds[:, 1]).any():
-        raise TemplateError(f"meta_bounds must be a finite 2x2 array with lower < upper, got {bounds.tolist()}")
-    if bounds[0, 0] <= 0:
-        raise TemplateError("the execution-time bound must be > 0 s")
-    optimizer = _make_optimizer(method, bounds, seed, **(optimizer_kwargs or {}))
+    meta = MetaDMP(base, robot, joint1_mode, time_mode=time_mode)
+    bounds = default_meta_bounds(base, robot, joint1_mode=joint1_mode, time_mode=time_mode) if meta_bounds is None else np.asarray(meta_bounds, dtype=float)
+    _check_meta_bounds(bounds)
+    probe = None
+    if n_probes:
+        from besdrake.search.template_reach import probe_reach, reach_meta_bounds
+
+        try:
+            probe = probe_reach(meta, executor, bounds[0, 0], bounds[0, 1], n_probes)
+        except ValueError:  # fewer than two probes landed: no model, the box as it is
+            probe = None
+        if probe is not None and meta_bounds is None:
+            bounds = reach_meta_bounds(probe, bounds, CONTEXT_BOUNDS)
+            _check_meta_bounds(bounds)
+    optimizer = _make_optimizer(method, bounds, seed, **(_prior_kwargs(method, probe) if reach_prior else {}), **(optimizer_kwargs or {}))
+    if reach_prior and probe is not None and method == "creps":
+        _creps_prior_policy(optimizer, probe, bounds)
 
     def evaluate(context: np.ndarray, theta: np.ndarray) -> float:
         # C-REPS samples from a Gaussian: execute the nearest parameters inside the box
@@ -474,22 +532,26 @@ def train_template(
 
     def callback(info) -> bool:
         if progress is not None:
-            progress(info.n_evaluations, float(info.rewards[0]))
-        if info.n_evaluations in checkpoints:
+            progress(n_probes + info.n_evaluations, float(info.rewards[0]))
+        if n_probes + info.n_evaluations in checkpoints:
             tmp = BehaviorTemplate(name, meta, bounds, info.optimizer)
-            curve[info.n_evaluations] = evaluate_template(tmp, executor, eval_contexts).mean_distance
+            curve[n_probes + info.n_evaluations] = evaluate_template(tmp, executor, eval_contexts).mean_distance
         return False
 
     t0 = time.perf_counter()
-    loop = run_contextual_search(optimizer, evaluate, n_episodes, CONTEXT_BOUNDS, out_dir=out_dir, callback=callback)
+    loop = run_contextual_search(optimizer, evaluate, n_episodes - n_probes, CONTEXT_BOUNDS, out_dir=out_dir, callback=callback)
     wall = time.perf_counter() - t0
     prov = {
         "created_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "method": method,
-        "n_episodes": int(loop.n_evaluations),
+        "n_episodes": int(loop.n_evaluations) + n_probes,
+        "n_probe_rollouts": n_probes,
         "n_failed_episodes": int(loop.n_failed),
         "seed": int(seed),
         "joint1_mode": joint1_mode,
+        "time_mode": time_mode,
+        "reach_prior": bool(reach_prior and probe is not None),
+        "reach_probe": None if probe is None else probe.to_dict(),
         "reward": "-(squared touchdown distance, m^2)",
         "scenario": getattr(getattr(executor, "scenario", None), "name", None),
     } | dict(provenance or {})
@@ -497,8 +559,33 @@ def train_template(
     return TemplateTraining(template, loop, curve, wall)
 
 
+def _check_meta_bounds(bounds: np.ndarray) -> None:
+    if bounds.shape != (2, 2) or not np.isfinite(bounds).all() or (bounds[:, 0] >= bounds[:, 1]).any():
+        raise TemplateError(f"meta_bounds must be a finite 2x2 array with lower < upper, got {bounds.tolist()}")
+    if bounds[0, 0] <= 0:
+        raise TemplateError("the execution-time bound must be > 0 s")
+
+
+def _prior_kwargs(method: str, probe) -> dict[str, Any]:
+    """The GP prior mean of BO-CPS and ACES from a reach probe (none for C-REPS or without a probe)."""
+    if probe is None or method == "creps":
+        return {}
+    return {"prior_mean": {"type": "reach", "probe": probe.to_dict()}}
+
+
+def _creps_prior_policy(optimizer, probe, bounds: np.ndarray, n: int = 9) -> None:
+    """Start C-REPS's linear policy at the least-squares fit of the probes' best meta-parameters on a context grid."""
+    from besdrake.search.creps import context_features
+    from besdrake.search.template_reach import prior_policy
+
+    grid = np.array([[x, y] for x in np.linspace(*CONTEXT_BOUNDS[0], n) for y in np.linspace(*CONTEXT_BOUNDS[1], n)])
+    features = context_features(grid, optimizer.policy_features)
+    optimizer.W = np.linalg.lstsq(features, prior_policy(probe, bounds, grid), rcond=None)[0]
+
+
 __all__ = [
     "CONTEXT_BOUNDS", "TEST_CONTEXTS", "METHODS", "JOINT1_MODES", "META_NAMES", "PAPER_MEAN_CM",
     "TemplateError", "MetaDMP", "BehaviorTemplate", "TemplatePool", "TemplateEvaluation", "TemplateTraining",
     "default_meta_bounds", "limit_safe_execution_times", "evaluate_template", "train_template", "touchdowns",
+    "TIME_MODES", "DEFAULT_PROBES",
 ]

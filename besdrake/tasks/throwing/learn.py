@@ -495,16 +495,41 @@ def stage_template(ctx: Context, out: Path) -> dict[str, Any]:
     lab_td = np.array([m.touchdown if m.touchdown is not None else [np.nan, np.nan] for m in log.measurements()])
     lab_dist = np.linalg.norm(lab_td - TEST_CONTEXTS, axis=1)
     _plot_template(TEST_CONTEXTS, sim_eval.touchdowns, lab_td, out / "template_accuracy.png")
+    prov = training.template.provenance
     return {
         "method": method,
         "episodes": int(cfg["episodes"]),
+        "probe_rollouts": int(prov["n_probe_rollouts"]),
         "base": str(base_file),
         "scenario": scenario,
+        "meta_bounds": training.template.meta_bounds.tolist(),
+        "base_reach_m": _base_reach(prov.get("reach_probe")),
+        "model_floor_mean_m": _model_floor(training.template),
         "sim_mean_distance_m": float(sim_eval.mean_distance),
         "lab_mean_distance_m": float(np.nanmean(lab_dist)),
         "lab_not_measured": int(np.isnan(lab_dist).sum()),
         "training_wall_time_s": training.wall_time,
     }
+
+
+def _base_reach(probe: dict | None) -> list[float] | None:
+    """Nearest and farthest touchdown (m) of the template's probes of its base within the joint limits."""
+    if not probe:
+        return None
+    r = np.linalg.norm(np.array(probe["touchdowns"], dtype=float), axis=1)[np.array(probe["within_limits"], dtype=bool)]
+    r = r[np.isfinite(r)]
+    return [float(r.min()), float(r.max())] if r.size else None
+
+
+def _model_floor(template) -> float | None:
+    """Mean distance (m) over the test contexts that the probes' model says no meta-parameters in the box avoid."""
+    from besdrake.search.template_reach import ReachProbe, model_floor
+    from besdrake.search.templates import TEST_CONTEXTS
+
+    probe = template.provenance.get("reach_probe")
+    if not probe:
+        return None
+    return float(np.mean(model_floor(ReachProbe.from_dict(probe), template.meta_bounds, TEST_CONTEXTS)))
 
 
 def _plot_template(contexts: np.ndarray, sim_td: np.ndarray, lab_td: np.ndarray, path: Path) -> None:
