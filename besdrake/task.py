@@ -156,6 +156,26 @@ def load_task_effects() -> None:
         importlib.import_module(f"besdrake.tasks.{path.parent.name}.effects")
 
 
+def effects_for(task: str) -> list[str]:
+    """The registry's effects (in application order) that act on ``task``'s rollouts: those it lists
+    (:attr:`Task.effects`) and those no known task lists (a user's plugin effects); the default candidates of its
+    diagnosis. Another task's effects (e.g. the pick-and-place box's mass for throwing) are left out."""
+    from besdrake.sim.effects import list_effects
+
+    own, others = set(get_task(task).effects), _listed_by_others(task)
+    return [n for n in list_effects() if n in own or n not in others]
+
+
+def foreign_effects(task: str, names) -> list[str]:
+    """Those of ``names`` that another known task lists and ``task`` does not (they do not act on its rollouts)."""
+    own, others = set(get_task(task).effects), _listed_by_others(task)
+    return sorted(n for n in names if n not in own and n in others)
+
+
+def _listed_by_others(task: str) -> set[str]:
+    return {e for name in known_tasks() if name != task for e in get_task(name).effects}
+
+
 def object_markers() -> tuple[str, ...]:
     """The object markers of every known task (:attr:`Task.object_markers`), in task-name order, without repeats."""
     out: list[str] = []
