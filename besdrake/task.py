@@ -158,22 +158,32 @@ def load_task_effects() -> None:
 
 def effects_for(task: str) -> list[str]:
     """The registry's effects (in application order) that act on ``task``'s rollouts: those it lists
-    (:attr:`Task.effects`) and those no known task lists (a user's plugin effects); the default candidates of its
-    diagnosis. Another task's effects (e.g. the pick-and-place box's mass for throwing) are left out."""
+    (:attr:`Task.effects`) and a user's plugin effects that no task lists; the default candidates of its diagnosis.
+    Another task's own effects (e.g. the pick-and-place box's mass for throwing) are left out, and so are the robot
+    effects of :mod:`besdrake.sim.effects` the task does not list (its rollout does not apply them)."""
     from besdrake.sim.effects import list_effects
 
-    own, others = set(get_task(task).effects), _listed_by_others(task)
-    return [n for n in list_effects() if n in own or n not in others]
+    own, listed = set(get_task(task).effects), {e for name in known_tasks() for e in get_task(name).effects}
+    return [n for n in list_effects() if n in own or (effect_origin(n) is None and n not in listed)]
 
 
 def foreign_effects(task: str, names) -> list[str]:
-    """Those of ``names`` that another known task lists and ``task`` does not (they do not act on its rollouts)."""
-    own, others = set(get_task(task).effects), _listed_by_others(task)
-    return sorted(n for n in names if n not in own and n in others)
+    """Those of ``names`` that another task registered (its ``effects.py``) and ``task`` does not list: they act on
+    that task's scene, not on ``task``'s rollouts."""
+    own = set(get_task(task).effects)
+    return sorted(n for n in names if n not in own and effect_origin(n) not in (None, "", task))
 
 
-def _listed_by_others(task: str) -> set[str]:
-    return {e for name in known_tasks() if name != task for e in get_task(name).effects}
+def effect_origin(name: str) -> str | None:
+    """Who registered the effect ``name``: a built-in task's name (its ``besdrake/tasks/<task>/effects.py``), "" for the
+    robot effects of :mod:`besdrake.sim.effects`, None for anything else (a user's plugin)."""
+    from besdrake.sim.effects import get_effect
+
+    module = type(get_effect(name)).__module__
+    if module == "besdrake.sim.effects":
+        return ""
+    parts = module.split(".")
+    return parts[2] if len(parts) >= 4 and parts[:2] == ["besdrake", "tasks"] else None
 
 
 def object_markers() -> tuple[str, ...]:

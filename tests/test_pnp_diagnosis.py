@@ -43,7 +43,7 @@ def test_each_task_gets_its_own_candidates_and_refuses_another_tasks():
     with pytest.raises(DiagnosisError, match="do not act on throwing"):
         diagnose([], candidates=["base_offset", "box_mass"])
     with pytest.raises(DiagnosisError, match="do not act on pick_and_place"):
-        diagnose([], scenario="pick_and_place", candidates=["gain_scale"])
+        diagnose([], scenario="pick_and_place", candidates=["air_drag"])
 
 
 def test_the_rollout_refuses_an_effect_only_another_task_lists(quiet, plan):
@@ -71,7 +71,7 @@ def test_the_lab_hides_its_truth_with_the_registry_effects_and_the_model_reads_b
     np.testing.assert_allclose(measured[sl["joints"]], simulated[sl["joints"]], atol=1e-6)  # encoders read true - offset
     assert abs(measured[sl["grip"]][0] - simulated[sl["grip"]][0]) < 1e-3  # lift: from the shelf vs the box's first sample
     # the hidden truth moves the box where the nominal simulation does not put it
-    assert np.linalg.norm(measured[sl["box"]] - MODEL.simulated_features(nominal, layout)[sl["box"]]) > 0.01
+    assert np.linalg.norm(measured[sl["box"]] - MODEL.simulated_features(nominal, layout)[sl["box"]]) > 0.005
 
 
 def test_designed_picks_spread_places_and_speeds_and_repeat_some(quiet):

@@ -218,7 +218,8 @@ class PickPlaceRollout:
         """Simulate ``plan`` (arm joints; gripper command in ``plan.meta["gripper"]``) with the registry's ``effects``
         ``{name: {param: value}}`` (on top of the scenario's; those the task lists, :attr:`PickAndPlaceTask.effects`:
         :mod:`besdrake.tasks.pick_and_place.effects` and the plan effects ``joint_offset``, ``actuator_lag``, and a user's
-        plugin effects; one that only another task lists is an :class:`~besdrake.sim.effects.EffectError`). Shorthands: ``box_friction`` replaces the box's friction coefficient, ``box_mass`` (kg) its
+        plugin effects; another task's or a robot effect it does not list, e.g. ``base_offset``, is an
+        :class:`~besdrake.sim.effects.EffectError`). Shorthands: ``box_friction`` replaces the box's friction coefficient, ``box_mass`` (kg) its
         mass, ``box_offset`` (dx m, dy m, yaw rad; the shelf's ``box_start`` frame) moves its start on the shelf,
         ``pad_friction`` the finger pads' friction coefficient. ``limits``: "flag" simulates a plan beyond the joint
         limits and flags it, "raise" refuses one beyond the position limits (:class:`~besdrake.plan.PlanError`). The
@@ -248,7 +249,7 @@ class PickPlaceRollout:
         """The scenario's effects with ``effects`` and the shorthands merged in, validated and completed; a ValueError
         for an effect the task does not list."""
         from besdrake.sim.effects import EffectError, merge_effects
-        from besdrake.task import foreign_effects, get_task
+        from besdrake.task import effect_origin, foreign_effects, get_task
 
         extra = {k: dict(v or {}) for k, v in (effects or {}).items()}
         if box_mass is not None:
@@ -256,9 +257,10 @@ class PickPlaceRollout:
         if pad_friction is not None:
             extra["pad_friction"] = {"scale": float(pad_friction) / self.pad_friction}
         done = merge_effects(self.scenario.effects, extra)
-        other = foreign_effects("pick_and_place", done)
+        own = get_task("pick_and_place").effects
+        other = foreign_effects("pick_and_place", done) + [n for n in done if n not in own and effect_origin(n) == ""]
         if other:
-            raise EffectError(f"effect(s) {other} do not act on pick-and-place rollouts (those that do: {list(get_task('pick_and_place').effects)})")
+            raise EffectError(f"effect(s) {other} do not act on pick-and-place rollouts (those that do: {list(own)} and a user's plugin effects)")
         if box_offset is not None:
             dx, dy, yaw = (float(v) for v in box_offset)
             world = self.h.box_start.rotation().matrix() @ np.array([dx, dy, 0.0])
