@@ -6,7 +6,8 @@ friction, a heavy box, a joint-2 encoder offset, nothing), the lab runs the desi
 (:func:`besdrake.tasks.pick_and_place.diagnosis.design.diagnosis_plans`: ``--trials`` picks over spread place targets
 and speeds, ``--repeats`` of them repeated) with its placement scatter and camera/encoder noise, and the diagnosis
 names a cause among ``--candidates``. Printed per truth: the named cause and its parameters, the confidence, whether
-it is right (the hidden effect named, or nothing claimed for a lab with nothing hidden), the held-out median final box
+it is right (the hidden effect named, or nothing claimed for a lab with nothing hidden) or honest (not right, but no
+cause claimed with high or medium confidence), the held-out median final box
 position disparity before -> after (m), rollouts and wall seconds; the last stdout line is one JSON object.
 
     python3 scripts/bench_pnp_diagnosis.py                       # every truth, about 5-10 min each on a busy core
@@ -60,10 +61,12 @@ def run_truth(name: str, args, rollout) -> dict:
     named = list(d.best.effects) if d.best is not None and d.explained else []
     claimed = bool(named) and d.confidence in ("high", "medium")
     correct = (named == [right]) if right else not claimed
+    # honest: nothing claimed with confidence where the answer is not right (e.g. "cannot tell", "not explained")
+    honest = correct or not claimed
     g = d.gain
     return {
         "truth": name, "hidden": hidden, "right_answer": right, "named": named, "explained": d.explained, "confidence": d.confidence,
-        "correct": bool(correct), "parameters": {k: round(v["value"], 5) for k, v in (d.best.to_dict()["parameters"].items() if d.best else [])},
+        "correct": bool(correct), "right_or_honest": bool(honest), "parameters": {k: round(v["value"], 5) for k, v in (d.best.to_dict()["parameters"].items() if d.best else [])},
         "verdict": d.verdict, "disparity_before_m": None if g is None else g.median_disparity_before_m,
         "disparity_after_m": None if g is None else g.median_disparity_after_m, "n_heldout": None if g is None else g.n_heldout,
         "lab_success": sum(m.success for m in log), "rollouts": d.n_rollouts, "wall_s": round(wall, 1), "lab_s": round(t_lab, 1),
@@ -97,9 +100,10 @@ def main(argv=None) -> int:
         rows.append(r)
         b, a = r["disparity_before_m"], r["disparity_after_m"]
         print(f"{name:8s} -> {'+'.join(r['named']) or 'nothing'} {r['parameters']} ({r['confidence']}) "
-              f"{'RIGHT' if r['correct'] else 'WRONG'}; disparity {b * 1000:.1f} -> {a * 1000:.1f} mm; "
+              f"{'RIGHT' if r['correct'] else ('honest' if r['right_or_honest'] else 'WRONG')}; disparity {b * 1000:.1f} -> {a * 1000:.1f} mm; "
               f"{r['rollouts']} rollouts, {r['wall_s']} s", file=sys.stderr, flush=True)
     out = {"config": {k: v for k, v in vars(args).items() if k != "out"}, "results": rows, "right": sum(r["correct"] for r in rows),
+           "right_or_honest": sum(r["right_or_honest"] for r in rows), "confident_wrong": sum(not r["right_or_honest"] for r in rows),
            "n": len(rows), "bench_wall_s": round(time.perf_counter() - t0, 1)}
     if args.out:
         with open(args.out, "w") as f:
