@@ -156,6 +156,36 @@ def load_task_effects() -> None:
         importlib.import_module(f"besdrake.tasks.{path.parent.name}.effects")
 
 
+def effects_for(task: str) -> list[str]:
+    """The registry's effects (in application order) that act on ``task``'s rollouts: those it lists
+    (:attr:`Task.effects`) and a user's plugin effects that no task lists; the default candidates of its diagnosis.
+    Another task's own effects (e.g. the pick-and-place box's mass for throwing) are left out, and so are the robot
+    effects of :mod:`besdrake.sim.effects` the task does not list (its rollout does not apply them)."""
+    from besdrake.sim.effects import list_effects
+
+    own, listed = set(get_task(task).effects), {e for name in known_tasks() for e in get_task(name).effects}
+    return [n for n in list_effects() if n in own or (effect_origin(n) is None and n not in listed)]
+
+
+def foreign_effects(task: str, names) -> list[str]:
+    """Those of ``names`` that another task registered (its ``effects.py``) and ``task`` does not list: they act on
+    that task's scene, not on ``task``'s rollouts."""
+    own = set(get_task(task).effects)
+    return sorted(n for n in names if n not in own and effect_origin(n) not in (None, "", task))
+
+
+def effect_origin(name: str) -> str | None:
+    """Who registered the effect ``name``: a built-in task's name (its ``besdrake/tasks/<task>/effects.py``), "" for the
+    robot effects of :mod:`besdrake.sim.effects`, None for anything else (a user's plugin)."""
+    from besdrake.sim.effects import get_effect
+
+    module = type(get_effect(name)).__module__
+    if module == "besdrake.sim.effects":
+        return ""
+    parts = module.split(".")
+    return parts[2] if len(parts) >= 4 and parts[:2] == ["besdrake", "tasks"] else None
+
+
 def object_markers() -> tuple[str, ...]:
     """The object markers of every known task (:attr:`Task.object_markers`), in task-name order, without repeats."""
     out: list[str] = []

@@ -36,11 +36,11 @@ def main(argv: list[str] | None = None) -> int:
 
     from besdrake.diagnosis import diagnose, diagnosis_plans, settings
     from besdrake.tasks.throwing.diagnosis.design import DEFAULT_PROBES
-    from besdrake.sim.effects import list_effects
     from besdrake.sim.executors import make_executor
+    from besdrake.task import effects_for
     from besdrake.tasks.throwing.lab import VirtualLab
 
-    registry = list(list_effects())
+    registry = effects_for("throwing")  # the registry's effects that act on throws
     rows = []
     t_bench = time.perf_counter()
     shipped = settings.FORWARD_PAIRS

@@ -54,10 +54,11 @@ def test_signature_size_is_in_units_of_the_detection_limit(script):
 
 
 def test_full_range_draws_cover_every_parameter_in_both_directions(script):
-    from besdrake.sim.effects import get_effect, list_effects
+    from besdrake.sim.effects import get_effect
+    from besdrake.task import effects_for
 
     bench = script("bench_diagnosis")
-    registry = list(list_effects())
+    registry = effects_for("throwing")
     cases = bench.full_range_cases(registry)
     # the ball smaller and larger, gains down and up, every joint both ways, base roll/pitch/yaw, the scoop mount
     for case in [("ball", "radius", -1), ("ball", "radius", 1), ("gain_scale", "kp_scale", -1), ("gain_scale", "kp_scale", 1),

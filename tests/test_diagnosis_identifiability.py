@@ -82,10 +82,10 @@ def test_results_are_cached_as_json(tmp_path, monkeypatch):
 
 @pytest.mark.slow
 def test_the_registry_has_base_yaw_and_joint1_offset_as_its_structural_class(tmp_path, monkeypatch):
-    from besdrake.sim.effects import list_effects
+    from besdrake.task import effects_for
 
     monkeypatch.setenv("BESDRAKE_CACHE", str(tmp_path))
-    r = idf.structural_classes(list_effects())
+    r = idf.structural_classes(effects_for("throwing"))
     assert [sorted(c.members) for c in r.classes] == [["base_offset.yaw", "joint_offset.joint1"]], r.classes
     assert "same rotation" in r.classes[0].reason
 

@@ -21,8 +21,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--sideways", type=int, default=None,
                         help="with --design: how many of the distinct throws are sideways throws that also move joints 1, 4 and 6 (default 5)")
     parser.add_argument("--out", type=Path, default=None, help="folder for report.md, diagnosis.json, refined_scenario.yaml, figures (default: runs/diagnosis/<log name>)")
-    parser.add_argument("--scenario", default="nominal", help="the simulation the lab is compared with (name or YAML path)")
-    parser.add_argument("--candidates", default=None, help="comma-separated effect names to consider (default: every registered effect)")
+    parser.add_argument("--scenario", default=None,
+                        help="the simulation the lab is compared with (name or YAML path; default: the log's task's default scenario, 'nominal' for throwing)")
+    parser.add_argument("--candidates", default=None, help="comma-separated effect names to consider (default: every registered effect that acts on the scenario's task)")
     parser.add_argument("--no-pairs", action="store_true", help="fit single effects only (no pairs)")
     parser.add_argument("--plugin", action="append", default=[], metavar="FILE.py", help="load a Python file that registers further effects (repeatable)")
     from besdrake.sim.cliutil import add_backend_arguments
@@ -46,6 +47,8 @@ def run(args: argparse.Namespace) -> int:
     from besdrake.sim.executors import ExecutorError
     from besdrake.sim.scenario import ScenarioError, load_scenario
 
+    if args.design is not None and args.scenario is not None and _task_of(args.scenario) != "throwing":
+        return _design_task(args)
     if args.design is not None:
         from besdrake.diagnosis import diagnosis_plans
         from besdrake.tasks.throwing.diagnosis.design import DEFAULT_PROBES, DEFAULT_SIDEWAYS
@@ -56,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
             sideways = max(0, min(sideways, args.throws - args.repeats - probes))
         try:
             plans = diagnosis_plans(args.throws, args.repeats, seed=args.seed, probes=probes, sideways=sideways,
-                                    limits=load_scenario(args.scenario).robot.limits)
+                                    limits=load_scenario(args.scenario or "nominal").robot.limits)
         except ValueError as err:
             raise UserError(str(err)) from None
         args.design.mkdir(parents=True, exist_ok=True)
@@ -83,8 +86,10 @@ def run(args: argparse.Namespace) -> int:
     except (OSError, ValueError) as err:
         raise UserError(f"cannot read the log {args.logdir}: {err}") from None
     tasks = sorted({type(m).TASK for m in measurements if type(m).TASK is not None})
-    if tasks:
-        raise UserError(f"the log {args.logdir} holds {tasks[0]} trials; the diagnosis reads throwing logs only so far")
+    if args.scenario is None:
+        from besdrake.task import get_task
+
+        args.scenario = get_task(tasks[0]).default_scenario if tasks else "nominal"
     candidates = None if args.candidates is None else [c.strip() for c in args.candidates.split(",") if c.strip()]
     try:
         scenario = load_scenario(args.scenario)
@@ -110,9 +115,40 @@ def run(args: argparse.Namespace) -> int:
             print(f"cannot tell nominal from {a.describe()}: {a.recommendation}")
         if diag.gain:
             g = diag.gain
-            print(f"held-out median touchdown disparity: {g.median_disparity_before_m:.3f} m -> {g.median_disparity_after_m:.3f} m "
-                  f"(95% CI {g.ci_after_m[0]:.3f}-{g.ci_after_m[1]:.3f} m, {g.n_heldout} throws)")
+            what = "touchdown" if diag.scenario is None or diag.scenario.task in (None, "throwing") else "final box position"
+            print(f"held-out median {what} disparity: {g.median_disparity_before_m:.3f} m -> {g.median_disparity_after_m:.3f} m "
+                  f"(95% CI {g.ci_after_m[0]:.3f}-{g.ci_after_m[1]:.3f} m, {g.n_heldout} trials)")
         print(f"report: {paths['report']}")
         print(f"refined scenario: {paths['scenario']}")
         print(json.dumps({"timings_s": {k: round(v, 1) for k, v in diag.timings.items()}, "rollouts": diag.n_rollouts}))
+    return 0
+
+
+def _task_of(scenario: str) -> str | None:
+    from besdrake.cli import UserError
+    from besdrake.sim.scenario import ScenarioError, load_scenario
+
+    try:
+        return load_scenario(scenario).task or "throwing"
+    except ScenarioError as err:
+        raise UserError(str(err)) from None
+
+
+def _design_task(args: argparse.Namespace) -> int:
+    """``--design`` for a task other than throwing: its own designed experiment (``--throws`` trials, ``--repeats``)."""
+    from besdrake.cli import UserError
+    from besdrake.diagnosis.trials import model_for
+    from besdrake.sim.scenario import load_scenario
+    from besdrake.task import TaskError
+
+    scen = load_scenario(args.scenario)
+    try:
+        model = model_for(scen)
+        plans = model.design_experiments(args.throws, args.repeats, seed=args.seed, limits=scen.robot.limits, scenario=args.scenario)
+    except (TaskError, ValueError) as err:
+        raise UserError(str(err)) from None
+    args.design.mkdir(parents=True, exist_ok=True)
+    for i, p in enumerate(plans):
+        p.save(args.design / f"{i:03d}_{p.meta['name']}.plan.json")
+    print(f"wrote {len(plans)} {model.plural()} ({args.repeats} repeats) to {args.design}")
     return 0

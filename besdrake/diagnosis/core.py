@@ -72,7 +72,8 @@ def diagnose(
 ) -> Diagnosis:
     """Diagnose a lab log (a list of :class:`~besdrake.transfer.measurement.Measurement`) of the scenario's task.
 
-    ``candidates``: effect names to consider (default: every registered effect); ``pairs``: also fit every
+    ``candidates``: effect names to consider (default: the registry's effects that act on the scenario's task,
+    :func:`besdrake.task.effects_for`); ``pairs``: also fit every
     pair; ``backend``/``workers``: the rollout executor (:func:`besdrake.sim.make_executor`), or pass an
     open ``executor``; ``folds``: K of the held-out (K-fold) gain; ``seed`` seeds the bootstrap and folds;
     ``cache``: a dict memoising Outcomes by (plan hash, effects), shareable between diagnoses of the same
@@ -111,7 +112,7 @@ def _check_inputs(scenario: Scenario | str, candidates: Sequence[str] | None,
                   placement_sd: float | None) -> tuple[Scenario, list[str], TrialModel, float]:
     """The scenario, the candidate effects, the task's trial model and the placement scatter; :class:`DiagnosisError`
     for unknown candidates, a task without a diagnosis or a bad placement scatter."""
-    from besdrake.task import TaskError
+    from besdrake.task import DEFAULT_TASK, TaskError, effects_for, foreign_effects
 
     scen = load_scenario(scenario) if not isinstance(scenario, Scenario) else scenario
     try:
@@ -119,10 +120,14 @@ def _check_inputs(scenario: Scenario | str, candidates: Sequence[str] | None,
     except TaskError as err:
         raise DiagnosisError(str(err)) from None
     known = list_effects()
-    cands = list(known if candidates is None else candidates)
+    task = getattr(scen, "task", None) or DEFAULT_TASK
+    cands = list(effects_for(task) if candidates is None else candidates)
     unknown = [c for c in cands if c not in known]
     if unknown:
         raise DiagnosisError(f"unknown candidate effect(s) {unknown}; registered effects: {known}")
+    foreign = foreign_effects(task, cands)
+    if foreign:
+        raise DiagnosisError(f"candidate effect(s) {foreign} do not act on {task} rollouts; those that do: {effects_for(task)}")
     if not cands:
         raise DiagnosisError("no candidate effects to fit")
     sc = model.scatter

@@ -7,7 +7,9 @@ whenever it is re-run, which makes resuming a log safe):
 
 1. **The box on the shelf.** The planner knows the scenario's (perceived) box pose; the box stands at that pose plus
    the hidden ``box_pose_offset`` plus this trial's placement scatter (N(0, placement_sd^2) in x and y,
-   N(0, placement_yaw_sd^2) in yaw), with the hidden ``box_mass`` and ``pad_friction``.
+   N(0, placement_yaw_sd^2) in yaw), with the hidden ``box_mass`` and ``pad_friction`` (and any further effect the
+   config names): the registry's effects (:mod:`besdrake.tasks.pick_and_place.effects`), the same the diagnosis
+   searches over (:meth:`PickPlaceLab.hidden_effects`).
 2. **Simulation** of the plan and its gripper command
    (:meth:`~besdrake.tasks.pick_and_place.rollout.PickPlaceRollout.rollout`).
 3. **Camera.** The box's final pose is measured with N(0, pose_noise_sd^2) per axis on its position and
@@ -120,12 +122,17 @@ class PickPlaceLab(TrialCounter):
             "box_perceived_m": self.rollout.box_start.tolist(), "place_target_m": self.rollout.place_target.tolist(),
         }
 
+    def hidden_effects(self) -> dict[str, dict[str, float]]:
+        """The hidden truth as the registry's effects (what the diagnosis searches over): the box pose offset, mass and
+        pad friction of :mod:`besdrake.tasks.pick_and_place.effects` and any further effect the config names."""
+        return self.config.effects.registry(self.rollout.box_mass, self.rollout.pad_friction)
+
     def box_offset(self, placement: np.ndarray) -> np.ndarray:
-        """The box's start offset (dx, dy, yaw in the shelf's box_start frame) for this trial: hidden + placement."""
-        dx, dy, dyaw = np.asarray(self.config.effects.box_pose_offset, float) + placement
+        """This trial's placement scatter (dx, dy, yaw; world) in the shelf's box_start frame (the rollout's
+        ``box_offset``; the hidden offset comes on top, as the ``box_pose_offset`` effect)."""
         R = self.rollout.h.box_start.rotation().matrix()
-        local = R.T @ np.array([dx, dy, 0.0])
-        return np.array([local[0], local[1], dyaw])
+        local = R.T @ np.array([placement[0], placement[1], 0.0])
+        return np.array([local[0], local[1], placement[2]])
 
     def execute(self, plan: MotionPlan, trial: int | None = None) -> PickPlaceMeasurement:
         """Run ``plan`` (its gripper command in ``meta["gripper"]``) as trial ``trial`` (default: the next) and measure it."""
@@ -148,10 +155,8 @@ class PickPlaceLab(TrialCounter):
         if over:
             return aborted("aborted: the plan drove a joint beyond its limits and the robot switched itself off: " + "; ".join(over),
                            joint_limit_exceeded=True)
-        e = c.effects
         try:
-            out = self.rollout.rollout(plan, limits="flag", box_mass=e.box_mass, pad_friction=e.pad_friction,
-                                       box_offset=self.box_offset(draws.placement))
+            out = self.rollout.rollout(plan, effects=self.hidden_effects(), limits="flag", box_offset=self.box_offset(draws.placement))
         except PlanError as err:
             return aborted(f"aborted: malformed plan: {err}")
         if self._pose is not None:

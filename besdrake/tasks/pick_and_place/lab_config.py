@@ -10,6 +10,7 @@
       box_pose_offset: {x: 0.012, y: -0.008, yaw: 0.05}   # true minus perceived box pose on the shelf (world; m, m, rad)
       box_mass: 0.25                  # kg, the box's true mass
       pad_friction: 0.7               # the finger pads' true friction coefficient
+      joint_offset: {joint2: 0.01}    # any further registry effect the pick-and-place task lists (``{param: value}``)
     noise:
       placement_sd: 0.003             # m per axis (x, y): where the box is put on the shelf, trial to trial
       placement_yaw_sd: 0.02          # rad, its yaw, trial to trial
@@ -35,22 +36,37 @@ import numpy as np
 
 from besdrake.transfer.lab_config import LabConfigError, _bool, _number, _seed, read_lab_yaml, scenario_path
 
-#: (low, high) of each hidden effect's parameters (SI units).
+#: (low, high) of each hidden effect's parameters (SI units); the box pose offset's are those of the registry's
+#: ``box_pose_offset`` effect (:mod:`besdrake.tasks.pick_and_place.effects`), which the lab hides them with.
 EFFECT_RANGES: dict[str, Any] = {
-    "box_pose_offset": {"x": (-0.1, 0.1), "y": (-0.1, 0.1), "yaw": (-0.5, 0.5)},
-    "box_mass": (0.01, 5.0),
-    "pad_friction": (0.01, 2.0),
+    "box_pose_offset": {"x": (-0.05, 0.05), "y": (-0.05, 0.05), "yaw": (-0.3, 0.3)},
+    "box_mass": (0.05, 1.2),
+    "pad_friction": (0.01, 1.0),
 }
 
 
 @dataclass(frozen=True)
 class HiddenEffects:
     """What the simulation does not know: the box's true pose offset on the shelf (world x, y in m, yaw in rad: true
-    minus perceived), its true mass (kg) and the pads' true friction coefficient (None: as simulated)."""
+    minus perceived), its true mass (kg) and the pads' true friction coefficient (None: as simulated); ``other``:
+    further registry effects ``{name: {param: value}}`` the pick-and-place task lists (e.g. ``joint_offset``)."""
 
     box_pose_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
     box_mass: float | None = None
     pad_friction: float | None = None
+    other: dict = field(default_factory=dict)
+
+    def registry(self, model_mass: float, model_pad_friction: float) -> dict[str, dict[str, float]]:
+        """The hidden truth as the registry's effects (:mod:`besdrake.tasks.pick_and_place.effects`), for a box model
+        of ``model_mass`` kg and pads of friction ``model_pad_friction``."""
+        out = {k: dict(v) for k, v in self.other.items()}
+        if any(self.box_pose_offset):
+            out["box_pose_offset"] = dict(zip(("x", "y", "yaw"), (float(v) for v in self.box_pose_offset)))
+        if self.box_mass is not None:
+            out["box_mass"] = {"delta": float(self.box_mass) - model_mass}
+        if self.pad_friction is not None:
+            out["pad_friction"] = {"scale": float(self.pad_friction) / model_pad_friction}
+        return out
 
 
 @dataclass(frozen=True)
@@ -123,10 +139,19 @@ def _mapping(key: str, value: Any) -> dict:
 
 
 def _effects(data: Any) -> HiddenEffects:
+    from besdrake.sim.effects import EffectError, normalize_effects
+    from besdrake.task import get_task
+
     d = _mapping("effects", data)
-    unknown = sorted(set(d) - set(EFFECT_RANGES))
+    listed = get_task("pick_and_place").effects
+    unknown = sorted(set(d) - set(EFFECT_RANGES) - set(listed))
     if unknown:
-        raise LabConfigError(f"lab config effects has unknown effect(s) {unknown}; known: {sorted(EFFECT_RANGES)}")
+        raise LabConfigError(f"lab config effects has unknown effect(s) {unknown}; known: {sorted(set(EFFECT_RANGES) | set(listed))}")
+    other = {k: v for k, v in d.items() if k not in EFFECT_RANGES}
+    try:
+        other = normalize_effects(other)
+    except EffectError as err:
+        raise LabConfigError(f"lab config effects: {err}") from None
     offset = _mapping("effects.box_pose_offset", d.get("box_pose_offset"))
     ranges = EFFECT_RANGES["box_pose_offset"]
     unknown = sorted(set(offset) - set(ranges))
@@ -134,7 +159,7 @@ def _effects(data: Any) -> HiddenEffects:
         raise LabConfigError(f"lab config effects.box_pose_offset has unknown field(s) {unknown}; known: x, y, yaw")
     pose = tuple(_number(f"effects.box_pose_offset.{k}", offset.get(k, 0.0), *ranges[k]) for k in ("x", "y", "yaw"))
     scalar = {k: None if d.get(k) is None else _number(f"effects.{k}", d[k], *EFFECT_RANGES[k]) for k in ("box_mass", "pad_friction")}
-    return HiddenEffects(box_pose_offset=pose, **scalar)
+    return HiddenEffects(box_pose_offset=pose, other=other, **scalar)
 
 
 def _noise(data: Any) -> PickPlaceNoise:

@@ -66,7 +66,8 @@ class PickPlaceOutcome:
     flags: dict[str, bool] = field(default_factory=lambda: {k: False for k in FLAG_NAMES})
     message: str = ""
     t: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    q_arm: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    q_arm: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))  # arm joints as the encoders read them (rad)
+    q_commanded: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))  # the plan's arm joints at ``t`` (rad)
     box_path: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
 
     def to_dict(self) -> dict[str, Any]:

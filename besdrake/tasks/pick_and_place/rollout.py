@@ -55,6 +55,10 @@ class PickPlaceRollout:
         self._box_q = self.h.box_body.floating_positions_start()
         self._box_v = self.h.plant.num_positions() + self.h.box_body.floating_velocities_start_in_v()
         self._rest_height = self._box_rest_height()
+        #: The box model's mass (kg) and the finger pads' friction coefficient as modelled (what the ``box_mass`` and
+        #: ``pad_friction`` effects change).
+        self.box_mass = float(self.h.box_body.get_mass(self.h.plant.CreateDefaultContext()))
+        self.pad_friction = self._pad_friction()
 
     @property
     def place_target(self) -> np.ndarray:
@@ -117,11 +121,22 @@ class PickPlaceRollout:
         plant.SetPositions(self.plant_context, q)
 
     def _place_box(self, offset: np.ndarray | None) -> None:
+        """The box at rest on the shelf at its perceived start moved by ``offset`` (dx m, dy m, dyaw rad; world frame)."""
         from pydrake.math import RigidTransform, RollPitchYaw
 
         dx, dy, yaw = (0.0, 0.0, 0.0) if offset is None else (float(v) for v in offset)
-        X = self.h.box_start.multiply(RigidTransform(RollPitchYaw(0, 0, yaw), [dx, dy, self._rest_height + 1e-4]))
+        local = self.h.box_start.rotation().matrix().T @ np.array([dx, dy, 0.0])
+        X = self.h.box_start.multiply(RigidTransform(RollPitchYaw(0, 0, yaw), [local[0], local[1], self._rest_height + 1e-4]))
         self.h.plant.SetFreeBodyPose(self.plant_context, self.h.box_body, X)
+
+    def _pad_friction(self) -> float:
+        """The finger pads' (static) friction coefficient as modelled (1.0 where the model names none)."""
+        inspector = self.h.scene_graph.model_inspector()
+        for gid in self._finger_geometries():
+            props = inspector.GetProximityProperties(gid)
+            if props is not None and props.HasProperty("material", "coulomb_friction"):
+                return float(props.GetProperty("material", "coulomb_friction").static_friction())
+        return 1.0
 
     def _finger_geometries(self) -> list:
         """Collision geometries of the gripper's fingers (the bodies its joints move: their pads)."""
@@ -129,21 +144,31 @@ class PickPlaceRollout:
         bodies = [h.plant.GetJointByName(j, h.robot_instance).child_body() for j in (*g.joints, *g.coupled)]
         return [gid for b in bodies for gid in h.plant.GetCollisionGeometriesForBody(b)]
 
-    def _reset(self, plan: MotionPlan, grip: GripperCommand, box_friction, box_mass, box_offset, pad_friction=None) -> None:
+    def _reset(self, plan: MotionPlan, grip: GripperCommand, effects: dict, box_friction) -> "PickPlaceSetup":
+        """Reset the Context, apply the registry ``effects`` (completed) and the legacy box friction, swap the plan
+        (as the effects changed it) in and place the arm, gripper and box; returns the effects' setup."""
+        from besdrake.sim.effects import apply_effects
+        from besdrake.tasks.pick_and_place.effects import PickPlaceSetup
+
         self.context.SetTimeStateAndParametersFrom(self.default_context)
+        setup = PickPlaceSetup(plan=plan, handles=self.h, context=self.context, plant_context=self.plant_context,
+                               scene_graph_context=self.sg_context)
+        apply_effects(setup, effects)
         if box_friction is not None:
             self._set_box_friction(float(box_friction))
-        if pad_friction is not None:
-            self._set_box_friction(float(pad_friction), self._finger_geometries())
-        if box_mass is not None:
-            self.h.box_body.SetMass(self.plant_context, float(box_mass))
+        if setup.pad_friction_scale != 1.0:
+            self._set_box_friction(self.pad_friction * setup.pad_friction_scale, self._finger_geometries())
+        if setup.box_mass_delta != 0.0:
+            self.h.box_body.SetMass(self.plant_context, max(self.box_mass + setup.box_mass_delta, 1e-3))
+        plan = setup.plan
         lead = self.scenario.time_step  # the implicit PD acts on the end of the step: lead the reference by one step
         self.h.arm_source.UpdateTrajectory(plan.trajectory(time_shift=-lead))
         self.h.gripper_source.UpdateTrajectory(grip.trajectory(self.robot, time_shift=-lead))
         self.h.feedforward_source.UpdateTrajectory(self._gravity_feedforward(plan, grip, lead))
         self._place_robot(plan.q[0], grip.joint_positions(self.robot, grip.width[:1])[0])
-        self._place_box(box_offset)
+        self._place_box(setup.box_offset)
         self.log.Clear()
+        return setup
 
     # ------------------------------------------------------------------ checks while simulating
     def _fixture_contact(self) -> str:
@@ -190,30 +215,58 @@ class PickPlaceRollout:
     def rollout(self, plan: MotionPlan, effects: dict | None = None, limits: str = "flag", box_friction: float | None = None,
                 box_mass: float | None = None, box_offset: np.ndarray | None = None,
                 pad_friction: float | None = None) -> PickPlaceOutcome:
-        """Simulate ``plan`` (arm joints; gripper command in ``plan.meta["gripper"]``). ``box_friction`` replaces the
-        box's friction coefficient, ``box_mass`` (kg) its mass, ``box_offset`` (dx m, dy m, yaw rad) moves its start
-        on the shelf, ``pad_friction`` the finger pads' friction coefficient. ``limits``: "flag" simulates a plan beyond the joint limits and flags it, "raise" refuses one
-        beyond the position limits (:class:`~besdrake.plan.PlanError`). ``effects``: the registry's effects act on
-        throwing rollouts only so far; a pick-and-place rollout takes none (ValueError). Never raises for
+        """Simulate ``plan`` (arm joints; gripper command in ``plan.meta["gripper"]``) with the registry's ``effects``
+        ``{name: {param: value}}`` (on top of the scenario's; those the task lists, :attr:`PickAndPlaceTask.effects`:
+        :mod:`besdrake.tasks.pick_and_place.effects` and the plan effects ``joint_offset``, ``actuator_lag``, and a user's
+        plugin effects; another task's or a robot effect it does not list, e.g. ``base_offset``, is an
+        :class:`~besdrake.sim.effects.EffectError`). Shorthands: ``box_friction`` replaces the box's friction coefficient, ``box_mass`` (kg) its
+        mass, ``box_offset`` (dx m, dy m, yaw rad; the shelf's ``box_start`` frame) moves its start on the shelf,
+        ``pad_friction`` the finger pads' friction coefficient. ``limits``: "flag" simulates a plan beyond the joint
+        limits and flags it, "raise" refuses one beyond the position limits (:class:`~besdrake.plan.PlanError`). The
+        outcome's ``q_arm`` is what the encoders read (true angles minus a ``joint_offset``). Never raises for
         simulation trouble."""
         if not isinstance(plan, MotionPlan):
             raise PlanError(f"rollout needs a MotionPlan, got {type(plan).__name__}")
-        if effects:
-            raise ValueError(f"pick-and-place rollouts take no registry effects yet, got {sorted(effects)} "
-                             "(use box_friction, box_mass, box_offset)")
         if limits not in ("raise", "flag"):
             raise ValueError(f"limits must be 'raise' or 'flag', got {limits!r}")
+        effs = self._effects(effects, box_mass, box_offset, pad_friction)
         report = plan.check_limits(self.robot.limits)
         if limits == "raise" and np.any(report.position > 0):
             raise PlanError(f"motion plan exceeds {self.robot.name}'s position limits: " + ", ".join(report.violations()))
         grip = GripperCommand.of(plan, self.robot)
-        self._reset(plan, grip, box_friction, box_mass, box_offset, pad_friction)
+        setup = self._reset(plan, grip, effs, box_friction)
         out = PickPlaceOutcome()
         out.limits_kept = not (np.any(report.position > 0) or np.any(report.velocity > 0))
-        self._simulate(plan.duration + self.criteria.tail, out)
+        self._simulate(setup.plan.duration + self.criteria.tail, out)
         self._measure(out, plan, grip)
+        if out.q_arm.size:
+            out.q_arm = out.q_arm - setup.measurement_offset
+            out.q_commanded = plan.sample(out.t)
         score(out, self.place_target, self.criteria)
         return out
+
+    def _effects(self, effects: dict | None, box_mass, box_offset, pad_friction) -> dict:
+        """The scenario's effects with ``effects`` and the shorthands merged in, validated and completed; a ValueError
+        for an effect the task does not list."""
+        from besdrake.sim.effects import EffectError, merge_effects
+        from besdrake.task import effect_origin, foreign_effects, get_task
+
+        extra = {k: dict(v or {}) for k, v in (effects or {}).items()}
+        if box_mass is not None:
+            extra["box_mass"] = {"delta": float(box_mass) - self.box_mass}
+        if pad_friction is not None:
+            extra["pad_friction"] = {"scale": float(pad_friction) / self.pad_friction}
+        done = merge_effects(self.scenario.effects, extra)
+        own = get_task("pick_and_place").effects
+        other = foreign_effects("pick_and_place", done) + [n for n in done if n not in own and effect_origin(n) == ""]
+        if other:
+            raise EffectError(f"effect(s) {other} do not act on pick-and-place rollouts (those that do: {list(own)} and a user's plugin effects)")
+        if box_offset is not None:
+            dx, dy, yaw = (float(v) for v in box_offset)
+            world = self.h.box_start.rotation().matrix() @ np.array([dx, dy, 0.0])
+            bo = done.setdefault("box_pose_offset", {"x": 0.0, "y": 0.0, "yaw": 0.0})
+            bo.update(x=bo["x"] + world[0], y=bo["y"] + world[1], yaw=bo["yaw"] + yaw)  # may pass the effect's bounds
+        return done
 
     def _measure(self, out: PickPlaceOutcome, plan: MotionPlan, grip: GripperCommand) -> None:
         """Box path, lift, slip in the gripper, final pose and measured limits from the state log."""

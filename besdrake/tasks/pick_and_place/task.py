@@ -19,7 +19,9 @@ class PickAndPlaceTask(Task):
     description = "pick a box from a shelf and put it upright on a table with a gripper, held by friction only"
     default_scenario = "pick_and_place"
     object_markers = ("Box back",)
-    effects = ()  # none of the registry's effects acts on this task yet (box friction, mass, offset: rollout arguments)
+    #: The box's pose offset, mass and the pads' friction (:mod:`besdrake.tasks.pick_and_place.effects`) and the plan
+    #: effects (encoder offsets, actuator lag); the rollout refuses any other.
+    effects = ("joint_offset", "actuator_lag", "box_pose_offset", "box_mass", "pad_friction")
     default_lab = "pick_and_place_lab"
 
     learn_config = Path(__file__).resolve().parent / "learn.yaml"
@@ -70,6 +72,13 @@ class PickAndPlaceTask(Task):
         from besdrake.tasks.pick_and_place.replay import record_grasp
 
         record_grasp(rollout, plan, outcome, meshcat, fps)
+
+    def diagnosis_model(self):
+        """The pick-and-place trials as the diagnosis reads them
+        (:class:`~besdrake.tasks.pick_and_place.diagnosis.model.PickPlaceDiagnosis`)."""
+        from besdrake.tasks.pick_and_place.diagnosis.model import MODEL
+
+        return MODEL
 
     def failed_outcome(self, message: str):
         from besdrake.tasks.pick_and_place.outcome import failed_outcome
