@@ -558,13 +558,13 @@ def main(argv=None) -> int:
     ap.add_argument("--resummarize", default=None, help="print the summary of the trials in this earlier output JSON (no new diagnoses)")
     args = ap.parse_args(argv)
     if args.resummarize:
-        from besdrake.sim.effects import list_effects
+        from besdrake.task import effects_for
 
         with open(args.resummarize) as fh:
             old = json.load(fh)
         results = old["trials"]
         modes = [m for m in ("full", "touchdown") if any(r["mode"] == m for r in results)]
-        out = _summarize(results, modes, argparse.Namespace(**{**old.get("config", {}), "resummarize": args.resummarize}), time.perf_counter() - old.get("bench_wall_s", 0.0), list(list_effects()))
+        out = _summarize(results, modes, argparse.Namespace(**{**old.get("config", {}), "resummarize": args.resummarize}), time.perf_counter() - old.get("bench_wall_s", 0.0), effects_for("throwing"))
         out["bench_wall_s"] = old.get("bench_wall_s")
         print(json.dumps(out, indent=1, default=float))
         return 0
@@ -573,11 +573,11 @@ def main(argv=None) -> int:
     from besdrake.tasks.throwing.diagnosis.design import DEFAULT_PROBES, DEFAULT_SIDEWAYS
     from besdrake.sim import Rollout
     from besdrake.sim.scenario import load_scenario
-    from besdrake.sim.effects import list_effects
+    from besdrake.task import effects_for
     from besdrake.sim.executors import make_executor
     from besdrake.tasks.throwing.lab import VirtualLab
 
-    registry = list(list_effects())
+    registry = effects_for("throwing")  # before the bench's unknown effects are registered (plugins join it)
     only = None if args.only is None else {int(x) for x in args.only.split(",") if x.strip()}
     dkw = {} if args.placement_sd is None else {"placement_sd": args.placement_sd}
     draw_unknown = _register_unknown()
