@@ -77,8 +77,8 @@ HIGH_MARGIN_DBIC = 10.0
 HIGH_EXTRA_P = 0.05
 #: ... and the named cause may move at most HIGH_MAX_MOVED parameters materially (by more than MOVED_FRACTION of the
 #: realistic range on that side of nominal): a realistic deviation moves one or two (one joint's encoder zero, a base
-#: tilt and a joint), and a cause that needs more is likely absorbing an effect the fit left out or chose wrongly. Issue 25: a ball 4 mm smaller
+#: tilt and a joint), and a cause that needs more is likely absorbing an effect the fit left out or chose wrongly. Issue 25: an object 4 mm smaller
 #: than nominal was named a joint offset of joints 2, 5 and 6 with "high"; the 33-trial benchmark on the device
-#: (session 16) had the same shape once more (a hidden ball radius + joint-3 offset named as offsets of four joints).
+#: (session 16) had the same shape once more (a hidden object radius + joint-3 offset named as offsets of four joints).
 HIGH_MAX_MOVED = 2
 MOVED_FRACTION = 0.15

@@ -11,7 +11,7 @@ alone (at the base's joint-1 goal) describe the whole meta-parameter box: a rang
 * :func:`probe_reach` simulates the probes (``n`` execution times, geometric grid).
 * :func:`reach_meta_bounds` derives the box from them: execution times from the fastest within the joint limits
   down to the slowest that still reaches the context box's nearest target (the probes outside are cut), joint-1
-  goals that turn the throw to every direction of the context box (within joint 1's limits).
+  goals that turn the movement to every direction of the context box (within joint 1's limits).
 * :class:`ReachPrior` is minus the squared distance between the modelled touchdown and the target: the prior
   mean of BO-CPS's reward model (:class:`PriorMeanGP`: the GP models what the probes did not capture) and,
   through :func:`prior_policy`, C-REPS's initial linear policy.

@@ -7,12 +7,12 @@ A :class:`BehaviorTemplate` is a base DMP (a refined movement) plus an upper-lev
 * ``theta[0]``: execution time (s) of the DMP -- e.g. how far a released object flies;
 * ``theta[1]``: goal of joint 1 (rad) -- the direction of the movement.
 
-Time mode (issue 27). A refined throw ends in motion (goal velocity and acceleration from the imitated swing).
-Changing only the DMP's execution time then changes the *shape* of the path, not just its speed: on refined throws
+Time mode (issue 27). A refined skill ends in motion (goal velocity and acceleration from the imitated swing).
+Changing only the DMP's execution time then changes the *shape* of the path, not just its speed: on refined skills
 of subjects 0-2 the box within the joint limits shrank to a few hundredths of a second around the base's own
 execution time (limits broken on both sides), and the touchdown's direction swung by tens of degrees over the
 box (the release moves along a fast joint-1 swing). ``time_mode="scale"`` (default) scales the base in time
-(:class:`MetaDMP`): the path stays, a slower throw is always within the velocity and acceleration limits, the
+(:class:`MetaDMP`): the path stays, a slower movement is always within the velocity and acceleration limits, the
 touchdown moves smoothly and nearly radially. ``"raw"`` is the former behaviour (kept for saved templates).
 
 The context ``s = (x, y)`` is the target on the floor in m, the robot at the origin facing +x:
@@ -40,7 +40,7 @@ Reach probes (:mod:`besdrake.search.template_reach`). :func:`train_template` spe
 (default 7 of 80) on the base at execution times across the box: they cut the box to what reaches the context box,
 and their touchdown model (range and direction per execution time, rotated by the joint-1 goal) is the prior mean of
 the BO-CPS/ACES reward model and C-REPS's initial policy. What the model says no meta-parameters reach is
-reported (``model_floor``): a refined throw's reach, not the search, bounds the template's accuracy there.
+reported (``model_floor``): a refined skill's reach, not the search, bounds the template's accuracy there.
 
 Joint limits. :func:`default_meta_bounds` shrinks the meta-parameter box to plans within the robot's
 limits: the joint-1 goal range keeps the rotated path inside joint 1's limits, and the execution time
@@ -89,7 +89,7 @@ class TemplateError(ValueError):
 def default_meta_bounds(base: DMP, robot: Robot, respect_limits: bool = True, joint1_mode: str = "rotate",
                         time_mode: str = "scale") -> np.ndarray:
     """Execution time in [0.7, 1.6] x the base's (``time_mode="raw"``; [0.7, 2.0] x with ``"scale"``, where a slower
-    throw is the same path and stays within the limits), at least 0.95 s, joint-1 goal within +-0.9 rad of the base's.
+    movement is the same path and stays within the limits), at least 0.95 s, joint-1 goal within +-0.9 rad of the base's.
 
     With ``respect_limits`` the box shrinks to plans within the robot's joint limits: in ``"rotate"`` mode
     the joint-1 goal range keeps the whole rotated joint-1 path inside its limits, and the execution time
@@ -173,9 +173,9 @@ class MetaDMP:
 
     ``time_mode``: ``"scale"`` (default) plays the base's movement ``k = theta[0] / base.execution_time`` times
     slower: its boundary velocities and accelerations are divided by ``k`` and ``k**2`` with the execution time
-    (the DMP is exactly time-invariant then), so the path, and where on it the ball leaves the tool, stay the base's.
+    (the DMP is exactly time-invariant then), so the path, and where on it the object leaves the tool, stay the base's.
     ``"raw"`` (templates written before it) changes the DMP's execution time only: a base that ends in motion
-    (every refined throw) keeps its goal velocity and acceleration, so its path changes shape with the execution time.
+    (every refined skill) keeps its goal velocity and acceleration, so its path changes shape with the execution time.
     """
 
     base: DMP
