@@ -29,6 +29,9 @@ class RewardBreakdown:
     touchdown: tuple[float, float] | None
     flags: list[str] = field(default_factory=list)
     message: str = ""
+    #: RMS distance (m) of the outcome point over the setup's scatter where a robust check ran
+    #: (:mod:`besdrake.search.refinement.robust`), else NaN
+    robust_distance: float = float("nan")
 
     @property
     def failed(self) -> bool:

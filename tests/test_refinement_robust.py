@@ -1,0 +1,130 @@
+"""Robust refinement (issue 27): candidates near the goal re-simulated under the setup's scatter, their reward the RMS
+distance over it; the stop margin; a plan's lab repetitions against the lab's noise floor."""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import pytest
+
+from besdrake.robot import load_robot
+from besdrake.search.refinement import RefinementError, RefinementProblem, read_details, refine
+from besdrake.search.refinement.robust import RobustCheck
+from besdrake.search.reward import RewardBreakdown
+from besdrake.task import get_task
+from besdrake.tasks.throwing.outcome import FLAG_NAMES, Outcome
+from besdrake.tasks.throwing.template_base import fitted_default_throw
+
+logging.getLogger("drake").setLevel(logging.ERROR)
+COMPI = load_robot("compi")
+
+
+@pytest.fixture(scope="module")
+def base():
+    return fitted_default_throw()
+
+
+class ScatterStandIn:
+    """No physics: x = goal of joint 2 + 1 m, y = goal of joint 1; a ball placed off-centre along x moves the touchdown
+    by ``gain`` times the offset, and by 0.5 m more where the goal of joint 3 is above ``cliff`` (a plan on a cliff)."""
+
+    def __init__(self, gain: float = 10.0, cliff: float = np.inf) -> None:
+        self.gain, self.cliff = gain, cliff
+        self.calls = 0
+        self.perturbed = 0
+
+    def evaluate(self, plans, effects=None):
+        effs = effects if isinstance(effects, list) else [effects] * len(plans)
+        out = []
+        for p, e in zip(plans, effs):
+            self.calls += 1
+            dx = 0.0 if not e else e["ball_placement"]["x"]
+            self.perturbed += bool(e)
+            x = p.q[-1, 1] + 1.0 + self.gain * dx + (0.5 * abs(np.sign(dx)) if p.q[-1, 2] > self.cliff else 0.0)
+            o = Outcome(flags={k: False for k in FLAG_NAMES})
+            o.touchdown = np.array([x, p.q[-1, 0]])
+            out.append(o)
+        return out
+
+
+def placement_check(sd: float = 0.002, radius: float = 0.3) -> RobustCheck:
+    from besdrake.sim.scenario import load_scenario
+
+    return RobustCheck.from_task(get_task("throwing"), load_scenario("nominal"), sd, radius=radius)
+
+
+def test_robust_reward_is_the_rms_distance_over_the_quadrature():
+    check = placement_check()
+    assert check.n_rollouts == 8 and check.weights.sum() == pytest.approx(1.0)
+    nominal = RewardBreakdown(-0.05, 0.05, 0.0, (1.95, 0.0))
+    d = np.array([0.05, 0.05, 0.05, 0.02, 0.08, 0.3, 0.05, 0.05])
+    perturbed = [RewardBreakdown(-v, v, 0.0, (2.0 - v, 0.0)) for v in d]
+    r = check.combine(nominal, perturbed)
+    rms = np.sqrt(check.weights @ np.r_[0.05, d] ** 2)
+    assert r.robust_distance == pytest.approx(rms) and r.reward == pytest.approx(-rms)
+    assert r.distance == 0.05 and r.touchdown == (1.95, 0.0)  # the nominal outcome is kept
+    failed = check.combine(nominal, [RewardBreakdown(np.nan, np.nan, np.nan, None)] * 8)
+    assert failed.robust_distance == pytest.approx(np.sqrt(check.weights[0] * 0.05**2 + 1 - check.weights[0]))  # a miss: 1 m
+    assert check.needs(nominal) and not check.needs(RewardBreakdown(-0.5, 0.4, 0.0, (1.6, 0.0)))
+    assert not check.needs(RewardBreakdown(-1.05, 0.05, 1.0, (1.95, 0.0)))  # beyond a limit: not checked
+    assert RobustCheck.from_dict(check.to_dict()).to_dict() == check.to_dict()
+    assert RobustCheck.from_task(get_task("throwing"), None, 0.0) is None  # no scatter: no check
+    with pytest.raises(RefinementError):
+        RobustCheck([{"ball_placement": {"x": 0.001}}], [0.5, 0.6])
+    with pytest.raises(RefinementError):
+        RobustCheck([{"ball_placement": {"x": 0.001}}], [0.5, 0.5], radius=0.0)
+
+
+def test_only_candidates_near_the_goal_are_rechecked_and_a_cliff_ranks_lower(base):
+    check = placement_check()
+    problem = RefinementProblem(COMPI, base, robust=check)
+    n = problem.parameterization.template.n_dims
+    theta0, scale = problem.scaling.theta0, problem.scaling.scale
+    # candidate 0 lands far off (no check), 1 and 2 at about (1.95, 0) m, 2 on a cliff (goal of joint 3 raised)
+    X = np.zeros((3, problem.n_params))
+    X[1:, n] = (0.0 - theta0[n]) / scale[n]
+    X[1:, n + 1] = (0.95 - theta0[n + 1]) / scale[n + 1]
+    X[2, n + 2] = 0.5
+    ex = ScatterStandIn(cliff=base.goal[2] + 0.1)
+    r = problem.evaluate(X, ex)
+    assert ex.perturbed == 2 * 8 and ex.calls == 3 + 16
+    assert not np.isfinite(r[0].robust_distance) and r[0].reward == pytest.approx(-r[0].distance)
+    assert r[1].distance == pytest.approx(r[2].distance, abs=1e-6) and r[1].distance < 0.1
+    assert r[2].robust_distance > r[1].robust_distance + 0.2 and r[2].reward < r[1].reward
+    assert RefinementProblem.from_description(problem.describe()).robust.to_dict() == check.to_dict()
+
+
+def test_a_robust_run_records_its_checks_resumes_and_stops_inside_the_margin(base, tmp_path):
+    problem = RefinementProblem(COMPI, base, robust=placement_check())
+    first = refine(problem, ScatterStandIn(), n_episodes=30, seed=1, popsize=10, out_dir=tmp_path, stop_on_success=False)
+    details = read_details(tmp_path / "details.csv")
+    assert len(details) == 30
+    again = refine(RefinementProblem(COMPI, base, robust=placement_check()), ScatterStandIn(), n_episodes=30, seed=1, popsize=10,
+                   out_dir=tmp_path, stop_on_success=False)
+    assert again.resumed and np.array_equal(np.isfinite(again.robust_distances), np.isfinite(first.robust_distances))
+    assert first.n_robust_rollouts == 8 * int(np.isfinite(first.robust_distances).sum())
+    with pytest.raises(RefinementError, match="stop_distance"):
+        refine(RefinementProblem(COMPI, base), ScatterStandIn(), n_episodes=10, stop_distance=0.2)
+    loose = refine(RefinementProblem(COMPI, base, robust=placement_check()), ScatterStandIn(), n_episodes=3000, seed=1)
+    tight = refine(RefinementProblem(COMPI, base, robust=placement_check()), ScatterStandIn(), n_episodes=3000, seed=1, stop_distance=0.03)
+    assert loose.success and tight.success and tight.n_episodes >= loose.n_episodes
+    assert tight.best_robust_distance < 0.03 and tight.summary()["robust_rollouts"] == tight.n_robust_rollouts
+
+
+def test_lab_repetitions_against_the_noise_floor(tmp_path):
+    from besdrake.tasks.throwing.repeatability import DEFAULT_LAB, lab_repeatability, pooled_sd
+    from besdrake.tasks.throwing.throws import default_throw
+
+    plan = default_throw()
+    rep = lab_repeatability(plan, DEFAULT_LAB, repeats=3, seed=0)
+    s = rep.summary()
+    assert s["repeats"] == 3 and s["n_missing"] == 0 and rep.floor > 0 and np.isfinite(rep.ratio)
+    assert not np.allclose(rep.touchdowns, rep.floor_touchdowns)  # the placement moves the touchdown
+    still = tmp_path / "still_lab.yaml"
+    still.write_text(DEFAULT_LAB.read_text().replace("ball_placement_sd: 0.002", "ball_placement_sd: 0.0"))
+    same = lab_repeatability(plan, still, repeats=3, seed=0)
+    assert same.ratio == pytest.approx(1.0) and np.allclose(same.touchdowns, rep.floor_touchdowns)
+    assert pooled_sd(np.array([[0.0, 0.0], [np.nan, 1.0], [2.0, 0.0]])) == pytest.approx(1.0)  # rows without a touchdown left out
+    with pytest.raises(ValueError):
+        lab_repeatability(plan, DEFAULT_LAB, repeats=1)
