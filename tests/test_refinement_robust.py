@@ -128,3 +128,11 @@ def test_lab_repetitions_against_the_noise_floor(tmp_path):
     assert pooled_sd(np.array([[0.0, 0.0], [np.nan, 1.0], [2.0, 0.0]])) == pytest.approx(1.0)  # rows without a touchdown left out
     with pytest.raises(ValueError):
         lab_repeatability(plan, DEFAULT_LAB, repeats=1)
+
+
+def test_a_run_that_stopped_on_success_stays_stopped_when_resumed(base, tmp_path):
+    first = refine(RefinementProblem(COMPI, base), ScatterStandIn(), n_episodes=3000, seed=1, out_dir=tmp_path)
+    assert first.success and first.stop_reason == "callback"
+    ex = ScatterStandIn()
+    again = refine(RefinementProblem(COMPI, base), ex, n_episodes=3000, seed=1, out_dir=tmp_path)
+    assert ex.calls == 0 and again.n_episodes == first.n_episodes and again.episodes_to_success == first.episodes_to_success

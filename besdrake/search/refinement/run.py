@@ -126,10 +126,13 @@ def refine(
     if out is not None:
         details_path = _open_run_folder(out, _run_record(problem, seed, sigma0, popsize, **search), problem)
     opt = optimizer if optimizer is not None else make_optimizer(problem, seed, sigma0, popsize, **search)
-    t0 = time.perf_counter()
     stop = SUCCESS_DISTANCE if stop_distance is None else float(stop_distance)
     if not (np.isfinite(stop) and 0 < stop <= SUCCESS_DISTANCE):
         raise RefinementError(f"stop_distance must be within (0, {SUCCESS_DISTANCE}] m, got {stop_distance!r}")
+    own = read_details(details_path) if details_path is not None else {}
+    if stop_on_success and any(_stops(r, stop) for r in own.values()):
+        n_episodes = min(n_episodes, len(own))  # a resumed run that had stopped stays stopped
+    t0 = time.perf_counter()
     callback = _generation_callback(problem, progress, stop_on_success, t0, stop)
     loop = run_search(opt, problem.batch_evaluator(executor, details_path), n_evaluations=n_episodes, out_dir=out, callback=callback)
     wall = time.perf_counter() - t0
