@@ -48,10 +48,10 @@ class ScatterStandIn:
         return out
 
 
-def placement_check(sd: float = 0.002, radius: float = 0.3) -> RobustCheck:
+def placement_check(sd: float = 0.002, radius: float = 0.3, probe_tolerance: float | None = 0.01) -> RobustCheck:
     from besdrake.sim.scenario import load_scenario
 
-    return RobustCheck.from_task(get_task("throwing"), load_scenario("nominal"), sd, radius=radius)
+    return RobustCheck.from_task(get_task("throwing"), load_scenario("nominal"), sd, radius=radius, probe_tolerance=probe_tolerance)
 
 
 def test_robust_reward_is_the_rms_distance_over_the_quadrature():
@@ -63,7 +63,12 @@ def test_robust_reward_is_the_rms_distance_over_the_quadrature():
     r = check.combine(nominal, perturbed)
     rms = np.sqrt(check.weights @ np.r_[0.05, d] ** 2)
     assert r.robust_distance == pytest.approx(rms) and r.reward == pytest.approx(-rms)
-    assert r.distance == 0.05 and r.touchdown == (1.95, 0.0)  # the nominal outcome is kept
+    assert r.distance == 0.05 and r.touchdown == (1.95, 0.0) and r.robust_rollouts == 8  # the nominal outcome is kept
+    skipped = check.combine(nominal, [perturbed[0]] + [None] * 7)  # setups not simulated count as the nominal
+    assert skipped.robust_distance == pytest.approx(0.05) and skipped.robust_rollouts == 1
+    a, b = (check.effects[k]["ball_placement"] for k in check.probes())
+    assert a["x"] == -b["x"] != 0 and a["y"] == -b["y"] != 0  # the probes: two opposite corners of the rule
+    assert placement_check(probe_tolerance=None).probes() == list(range(8))
     failed = check.combine(nominal, [RewardBreakdown(np.nan, np.nan, np.nan, None)] * 8)
     assert failed.robust_distance == pytest.approx(np.sqrt(check.weights[0] * 0.05**2 + 1 - check.weights[0]))  # a miss: 1 m
     assert check.needs(nominal) and not check.needs(RewardBreakdown(-0.5, 0.4, 0.0, (1.6, 0.0)))
@@ -86,9 +91,10 @@ def test_only_candidates_near_the_goal_are_rechecked_and_a_cliff_ranks_lower(bas
     X[1:, n] = (0.0 - theta0[n]) / scale[n]
     X[1:, n + 1] = (0.95 - theta0[n + 1]) / scale[n + 1]
     X[2, n + 2] = 0.5
-    ex = ScatterStandIn(cliff=base.goal[2] + 0.1)
+    ex = ScatterStandIn(gain=0.0, cliff=base.goal[2] + 0.1)
     r = problem.evaluate(X, ex)
-    assert ex.perturbed == 2 * 8 and ex.calls == 3 + 16
+    assert ex.perturbed == 2 + 8 and ex.calls == 3 + 10  # candidate 1 stays put under both probes, 2 is checked fully
+    assert r[1].robust_rollouts == 2 and r[2].robust_rollouts == 8
     assert not np.isfinite(r[0].robust_distance) and r[0].reward == pytest.approx(-r[0].distance)
     assert r[1].distance == pytest.approx(r[2].distance, abs=1e-6) and r[1].distance < 0.1
     assert r[2].robust_distance > r[1].robust_distance + 0.2 and r[2].reward < r[1].reward
@@ -103,7 +109,7 @@ def test_a_robust_run_records_its_checks_resumes_and_stops_inside_the_margin(bas
     again = refine(RefinementProblem(COMPI, base, robust=placement_check()), ScatterStandIn(), n_episodes=30, seed=1, popsize=10,
                    out_dir=tmp_path, stop_on_success=False)
     assert again.resumed and np.array_equal(np.isfinite(again.robust_distances), np.isfinite(first.robust_distances))
-    assert first.n_robust_rollouts == 8 * int(np.isfinite(first.robust_distances).sum())
+    assert first.n_robust_rollouts == 8 * int(np.isfinite(first.robust_distances).sum())  # gain 10: no probe stays put
     with pytest.raises(RefinementError, match="stop_distance"):
         refine(RefinementProblem(COMPI, base), ScatterStandIn(), n_episodes=10, stop_distance=0.2)
     loose = refine(RefinementProblem(COMPI, base, robust=placement_check()), ScatterStandIn(), n_episodes=3000, seed=1)

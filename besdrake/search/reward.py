@@ -32,6 +32,8 @@ class RewardBreakdown:
     #: RMS distance (m) of the outcome point over the setup's scatter where a robust check ran
     #: (:mod:`besdrake.search.refinement.robust`), else NaN
     robust_distance: float = float("nan")
+    #: rollouts that robust check took (0: none ran)
+    robust_rollouts: int = 0
 
     @property
     def failed(self) -> bool:

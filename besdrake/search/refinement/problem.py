@@ -150,17 +150,29 @@ class RefinementProblem:
         return [r for r in out if r is not None]
 
     def _check_robust(self, plans: list, out: list, executor) -> None:
-        """Replace the records of the candidates near the goal by their robust ones (one batch of rollouts)."""
+        """Replace the records of the candidates near the goal by their robust ones: the probes of every such candidate
+        in one batch of rollouts, then the other setups of those that did not stay put in another."""
         check = [i for i, r in enumerate(out) if r is not None and plans[i] is not None and self.robust.needs(r)]
         if not check:
             return
-        k = self.robust.n_rollouts
-        outcomes = executor.evaluate([plans[i] for i in check for _ in range(k)], effects=[e for _ in check for e in self.robust.effects])
-        if len(outcomes) != k * len(check):
-            raise RuntimeError(f"executor returned {len(outcomes)} outcomes for {k * len(check)} plans")
-        for n, i in enumerate(check):
-            perturbed = [self.reward(plans[i], o, self.robot.limits) for o in outcomes[n * k:(n + 1) * k]]
-            out[i] = self.robust.combine(out[i], perturbed)
+        probes = self.robust.probes()
+        perturbed = {i: [None] * self.robust.n_rollouts for i in check}
+        self._simulate_setups(plans, out, executor, [(i, k) for i in check for k in probes], perturbed)
+        rest = [k for k in range(self.robust.n_rollouts) if k not in probes]
+        moved = [i for i in check if not self.robust.stays_put(out[i], [perturbed[i][k] for k in probes])]
+        self._simulate_setups(plans, out, executor, [(i, k) for i in moved for k in rest], perturbed)
+        for i in check:
+            out[i] = self.robust.combine(out[i], perturbed[i])
+
+    def _simulate_setups(self, plans: list, out: list, executor, jobs: list[tuple[int, int]], perturbed: dict) -> None:
+        """Simulate candidate ``i``'s plan in setup ``k`` for every ``(i, k)`` of ``jobs`` (one batch), into ``perturbed``."""
+        if not jobs:
+            return
+        outcomes = executor.evaluate([plans[i] for i, _ in jobs], effects=[self.robust.effects[k] for _, k in jobs])
+        if len(outcomes) != len(jobs):
+            raise RuntimeError(f"executor returned {len(outcomes)} outcomes for {len(jobs)} plans")
+        for (i, k), o in zip(jobs, outcomes):
+            perturbed[i][k] = self.reward(plans[i], o, self.robot.limits)
 
     def batch_evaluator(self, executor, details_path: Path | None = None) -> Callable[[np.ndarray], list[float]]:
         """``evaluate_batch`` for :func:`besdrake.search.loop.run_search`; records every episode

@@ -22,13 +22,13 @@ def params_key(x: np.ndarray) -> str:
 
 _DETAIL_COLUMNS = ["key", "reward", "distance", "penalty", "touchdown_x", "touchdown_y", "flags", "message"]
 #: written where a run checks robustness (:mod:`besdrake.search.refinement.robust`): one column more
-_ROBUST_COLUMNS = _DETAIL_COLUMNS + ["robust_distance"]
+_ROBUST_COLUMNS = _DETAIL_COLUMNS + ["robust_distance", "robust_rollouts"]
 
 
 def _details_row(key: str, r: RewardBreakdown, robust: bool = False) -> list[str]:
     td = r.touchdown if r.touchdown is not None else (np.nan, np.nan)
     row = [key, repr(float(r.reward)), repr(float(r.distance)), repr(float(r.penalty)), repr(float(td[0])), repr(float(td[1])), ";".join(r.flags), r.message.replace("\n", " ")[:300]]
-    return row + [repr(float(r.robust_distance))] if robust else row
+    return row + [repr(float(r.robust_distance)), str(int(r.robust_rollouts))] if robust else row
 
 
 def _append_details(path: Path, rows: list[list[str]], robust: bool = False) -> None:
@@ -62,6 +62,7 @@ def read_details(path: Path) -> dict[str, RewardBreakdown]:
                     None if not (np.isfinite(tx) and np.isfinite(ty)) else (tx, ty),
                     [f for f in fields[6].split(";") if f], fields[7],
                     robust_distance=float(fields[8]) if len(fields) > 8 else float("nan"),
+                    robust_rollouts=int(fields[9]) if len(fields) > 9 else 0,
                 )
             except ValueError:
                 continue

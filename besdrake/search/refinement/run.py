@@ -42,15 +42,16 @@ class RefinementResult:
     stop_reason: str = "budget"
     #: restart attempts of a :class:`~besdrake.search.cmaes.StagnationRestartCMAES` run (finished ones), else empty
     attempts: list[dict[str, Any]] = field(default_factory=list)
-    #: RMS distance over the setup's scatter per episode (NaN where no robust check ran) and the extra rollouts per check
+    #: RMS distance over the setup's scatter per episode (NaN where no robust check ran) and the rollouts of each check
     robust_distances: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    robust_rollouts_per_check: int = 0
+    robust_rollouts: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
     best_robust_distance: float = float("nan")
+    robust: bool = False
 
     @property
     def n_robust_rollouts(self) -> int:
         """Rollouts spent on robust checks (the price of robustness; the episodes' own rollouts not counted)."""
-        return int(np.isfinite(self.robust_distances).sum()) * self.robust_rollouts_per_check
+        return int(self.robust_rollouts.sum())
 
     def best_so_far(self) -> np.ndarray:
         """Best target distance (m) of the episodes within every limit, up to each episode (NaN before the first)."""
@@ -75,7 +76,7 @@ class RefinementResult:
             "n_restarts": len(self.attempts),
         } | ({"robust_rollouts": self.n_robust_rollouts,
               "best_robust_distance_m": None if not np.isfinite(self.best_robust_distance) else self.best_robust_distance}
-             if self.robust_rollouts_per_check else {})
+             if self.robust else {})
 
 
 def refine(
@@ -263,7 +264,7 @@ def _result(problem: RefinementProblem, loop, wall: float) -> RefinementResult:
         n_failed=int(loop.n_failed), wall_time=wall, rewards=rewards, distances=distances, successes=successes,
         penalties=penalties, resumed=bool(loop.resumed), stop_reason=loop.stop_reason,
         attempts=[dict(a) for a in getattr(loop.optimizer, "attempt_history", [])], robust_distances=robust,
-        robust_rollouts_per_check=0 if problem.robust is None else problem.robust.n_rollouts,
+        robust_rollouts=np.array([0 if r is None else r.robust_rollouts for r in recs], dtype=int), robust=problem.robust is not None,
         best_robust_distance=float(robust[i]) if i >= 0 else float("nan"),
     )
 
