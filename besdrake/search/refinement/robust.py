@@ -1,18 +1,16 @@
 """Robust refinement: a candidate near the goal is simulated again under the lab's trial-to-trial scatter of the task's
-setup (:meth:`besdrake.task.Task.scatter_effects`, e.g. where the ball sits in the scoop), and its reward becomes the
+setup (:meth:`besdrake.task.Task.scatter_effects`, e.g. where an object is put), and its reward becomes the
 root-mean-square distance of the outcome point from the target over that scatter (issue 27).
 
-Why: a plan that hits the target in simulation can sit on a cliff, where a millimetre of placement sends the ball
+Why: a plan that hits the target in simulation can sit on a cliff, where a millimetre of setup sends the outcome
 elsewhere; in the lab such a plan lands on the target in some repetitions and far off in others. The nominal
 distance cannot see that; the RMS distance over the scatter's quadrature can (``E|p - target|^2`` is the squared
 distance of the mean outcome plus the outcome's variance, so the reward is smooth near the goal and prefers a plan
 whose outcome stays put). Only candidates within :attr:`RobustCheck.radius` of the target and within every limit are
 checked, so the price in rollouts is paid near the goal only, and a check *probes* first: the two setups farthest
-apart (e.g. two opposite corners of the placement rule) are simulated, and only where one of them moves the outcome
-point by more than :attr:`RobustCheck.probe_tolerance` are the other setups simulated too (elsewhere they count as
-landing where the nominal does). Measured on the throwing task (``REFINEMENT.md``): the refined imitated throws
-forget where the ball was put (it settles in the funnel before the swing), so a full check costs 8 rollouts and
-changes nothing there, a probe 2.
+apart (e.g. two opposite corners of the quadrature) are simulated, and only where one of them moves the outcome
+point by :attr:`RobustCheck.probe_tolerance` or more are the other setups simulated too (elsewhere they count as
+landing where the nominal does). Measured on a task: the notes beside it (``besdrake/tasks/<name>/REFINEMENT.md``).
 """
 
 from __future__ import annotations
