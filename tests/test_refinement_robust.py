@@ -142,3 +142,23 @@ def test_a_run_that_stopped_on_success_stays_stopped_when_resumed(base, tmp_path
     ex = ScatterStandIn()
     again = refine(RefinementProblem(COMPI, base), ex, n_episodes=3000, seed=1, out_dir=tmp_path)
     assert ex.calls == 0 and again.n_episodes == first.n_episodes and again.episodes_to_success == first.episodes_to_success
+
+
+def test_learn_keeps_a_start_throw_within_the_stop_distance_and_refines_one_beyond_it(base, tmp_path):
+    from besdrake.pipeline.config import load_config
+    from besdrake.pipeline.learn import Context
+    from besdrake.sim import make_executor
+    from besdrake.tasks.throwing.learn import _refine_from
+
+    with make_executor("serial") as ex:
+        td = RefinementProblem(COMPI, base).evaluate(np.zeros((1, 49)), ex)[0].touchdown
+    target = [f"refinement.target=[{td[0] + 0.02}, {td[1]}]", "workers=1", "refinement.plans=1", "refinement.robust_sd=0"]
+    said = []
+    ctx = Context(run=None, config=load_config(overrides=target), progress=said.append)
+    kept = _refine_from(ctx, [base], "nominal", tmp_path / "kept", 20, "test")
+    assert kept["runs"][0]["n_episodes"] == 0 and kept["best_distance_within_limits_m"] == pytest.approx(0.02, abs=1e-3)
+    assert (tmp_path / "kept" / "refined0.dmp.json").is_file() and not (tmp_path / "kept" / "run0").exists()
+    assert "kept, no CMA-ES run" in said[-1]
+    ctx = Context(run=None, config=load_config(overrides=target + ["refinement.stop_distance=0.01"]), progress=said.append)
+    refined = _refine_from(ctx, [base], "nominal", tmp_path / "refined", 20, "test")
+    assert refined["runs"][0]["n_episodes"] >= 20 and (tmp_path / "refined" / "run0" / "episodes.csv").is_file()

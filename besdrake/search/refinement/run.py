@@ -131,7 +131,7 @@ def refine(
     if not (np.isfinite(stop) and 0 < stop <= SUCCESS_DISTANCE):
         raise RefinementError(f"stop_distance must be within (0, {SUCCESS_DISTANCE}] m, got {stop_distance!r}")
     own = read_details(details_path) if details_path is not None else {}
-    if stop_on_success and any(_stops(r, stop) for r in own.values()):
+    if stop_on_success and any(stops_at(r, stop) for r in own.values()):
         n_episodes = min(n_episodes, len(own))  # a resumed run that had stopped stays stopped
     t0 = time.perf_counter()
     callback = _generation_callback(problem, progress, stop_on_success, t0, stop)
@@ -208,7 +208,7 @@ def _open_run_folder(out: Path, desc: dict[str, Any], problem: RefinementProblem
     return details_path
 
 
-def _stops(r, stop_distance: float) -> bool:
+def stops_at(r, stop_distance: float = SUCCESS_DISTANCE) -> bool:
     """Whether episode record ``r`` ends a run that stops on success (:func:`refine`'s ``stop_distance``)."""
     if r is None or not r.success:
         return False
@@ -229,7 +229,7 @@ def _generation_callback(problem: RefinementProblem, progress, stop_on_success: 
         if progress is not None:
             progress(info.n_evaluations, best[0], now - last[0])
         last[0] = now
-        return bool(stop_on_success and any(_stops(r, stop_distance) for r in recs))
+        return bool(stop_on_success and any(stops_at(r, stop_distance) for r in recs))
 
     return callback
 

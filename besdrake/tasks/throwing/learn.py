@@ -264,8 +264,9 @@ def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int
     """CMA-ES from the best of ``dmps`` (the paper uses all available plans) in ``scenario``. The default search's scouts
     (short first attempts from the best throws) run only with ``scouting`` and where they take at most half of
     ``budget``: a re-refinement from throws refined already goes straight to CMA-ES from the best of them."""
-    from besdrake.search.refinement import (DEFAULT_SCOUTS, RefinementProblem, plot_learning_curves, rank_starts, refine,
-                                            scout_start_points, scouting_episodes)
+    from besdrake.search.refinement import (DEFAULT_SCOUTS, SUCCESS_DISTANCE, RefinementProblem, plot_learning_curves, rank_starts,
+                                            refine, scout_start_points, scouting_episodes)
+    from besdrake.search.refinement.run import stops_at
     from besdrake.sim.scheduler import run_concurrently
     from besdrake.task import DEFAULT_TASK, get_task
 
@@ -280,6 +281,8 @@ def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int
         ranking = rank_starts(problems, executor)
         index, start = ranking[0]
         problem = problems[index]
+        if settings["stop_on_success"] and stops_at(start, settings["stop_distance"] or SUCCESS_DISTANCE):
+            return _keep_start(ctx, problem, robot, index, start, out, tag)
         starts = scout_start_points(problems, ranking)  # None unless the default search scouts from several throws
         scouts = DEFAULT_SCOUTS if scouting and 2 * scouting_episodes(int(cfg["population"])) <= int(budget) else 0
 
@@ -307,6 +310,24 @@ def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int
         "best_distance_within_limits_m": best["best_distance_within_limits_m"],
         "best_dmp": best["dmp"],
     }
+
+
+def _keep_start(ctx: Context, problem, robot, index: int, start, out: Path, tag: str) -> dict[str, Any]:
+    """No CMA-ES run: the best start throw already lands within the stop distance (e.g. a re-refinement from a refined
+    throw); it is kept as ``refined0`` (0 episodes)."""
+    from besdrake.imitation import DMPParameterization
+
+    ctx.progress(f"{tag}: throw {index} lands {start.distance:.3f} m from the target already: kept, no CMA-ES run")
+    out.mkdir(parents=True, exist_ok=True)
+    dmp = problem.parameterization.from_vector(problem.theta(np.zeros(problem.n_params)))  # retimed, as it was evaluated
+    dmp.save(out / "refined0.dmp.json")
+    DMPParameterization(dmp, robot.joint_names).motion_plan(DMPParameterization(dmp).to_vector(), dt=0.01).save(out / "refined0.plan.json")
+    run = {"success": True, "episodes_to_success": 0, "best_distance_m": start.distance, "best_distance_within_limits_m": start.distance,
+           "best_touchdown_m": list(start.touchdown), "n_episodes": 0, "stop_reason": "start", "dmp": "refined0.dmp.json"}
+    if np.isfinite(start.robust_distance):
+        run["best_robust_distance_m"] = start.robust_distance
+    return {"start_throw": int(index), "start_distance_m": start.distance, "runs": [run], "success_runs": 1,
+            "median_episodes_to_success": 0.0, "best_distance_within_limits_m": start.distance, "best_dmp": run["dmp"]}
 
 
 def _save_refined(problem, robot, results: list, out: Path) -> list[dict[str, Any]]:
