@@ -48,6 +48,22 @@ def _median_all(runs: list[dict]) -> float | None:
     return m if m is not None and np.isfinite(m) else None
 
 
+def _lab_repeats(problem, result, args) -> dict:
+    """The best plan of ``result`` thrown ``args.lab_repeats`` times in the lab and in its noise floor."""
+    from besdrake.tasks.throwing.repeatability import DEFAULT_LAB, lab_repeatability
+
+    plan = problem.parameterization.motion_plan(result.best_theta, dt=problem.dt)
+    rep = lab_repeatability(plan, args.lab or DEFAULT_LAB, args.lab_repeats)
+    return rep.summary()
+
+
+def _lab_line(lab: dict | None) -> str:
+    if not lab:
+        return ""
+    f = lambda v: "-" if v is None else f"{v:.3f}"  # noqa: E731
+    return f"; lab scatter {f(lab['scatter_m'])} m, floor {f(lab['floor_m'])} m, ratio {f(lab['ratio'])}, {lab['n_missing']} unseen"
+
+
 def main(argv: list[str] | None = None) -> int:
     from besdrake.commands.refine import collect_imitated
     from besdrake.imitation import load_dmp
@@ -103,6 +119,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--position-step", type=float, default=None, help="initial step of start/goal parameters, in multiples of --sigma0 (cma's CMA_stds; default: the module's)")
     parser.add_argument("--time-step", type=float, default=None, help="initial step of the execution time, in multiples of --sigma0 (default: as --position-step)")
     parser.add_argument("--plain", action="store_true", help="the search before issue 5 (plain CMA-ES, no restarts): overrides --diagonal --elitist --stagnation")
+    parser.add_argument("--robust-sd", type=float, default=0.0,
+                        help="robust refinement (issue 27): candidates near the goal are simulated again at the ball placements "
+                             "of the task's scatter quadrature with this SD (m per axis; the lab's: 0.002) and rewarded by their RMS "
+                             "distance (0: off)")
+    parser.add_argument("--robust-radius", type=float, default=None, help="robust check of candidates within this distance (m; default: the module's)")
+    parser.add_argument("--stop-distance", type=float, default=None,
+                        help="stop at the first generation with a throw within every limit closer than this (m; the robust "
+                             "distance where checked; default: the success distance 0.1 m)")
+    parser.add_argument("--lab-repeats", type=int, default=0,
+                        help="throw each run's best plan this often in the virtual lab and in its noise floor (the same lab "
+                             "with the ball always at its habit; besdrake.tasks.throwing.repeatability): scatter / floor")
+    parser.add_argument("--lab", type=Path, default=None, help="lab YAML of --lab-repeats (default: the default lab)")
     parser.add_argument("--out", type=Path, default=None, help="keep each run's folder (episodes, details.csv) under OUT/sS_runK")
     args = parser.parse_args(argv)
     logging.getLogger("drake").setLevel(logging.ERROR)
@@ -125,8 +153,15 @@ def main(argv: list[str] | None = None) -> int:
             unit = {k: v for k, v in (("position_unit", args.position_unit), ("acceleration_unit", args.acceleration_unit),
                                       ("time_unit", args.time_unit)) if v is not None}
             robot = ex.scenario.robot
+            robust = None
+            if args.robust_sd > 0:
+                from besdrake.search.refinement.robust import ROBUST_RADIUS, RobustCheck
+                from besdrake.task import get_task
+                robust = RobustCheck.from_task(get_task("throwing"), ex.scenario, args.robust_sd,
+                                               radius=ROBUST_RADIUS if args.robust_radius is None else args.robust_radius)
             problems = [RefinementProblem(robot, dm, reward, ParameterScaling.for_dmp(
-                dm, robot.position_limits, max_execution_time=max(dm.execution_time, MIN_EXECUTION_TIME + 0.05) if args.no_slower else None, **unit), retime=args.retime) for dm in dmps]
+                dm, robot.position_limits, max_execution_time=max(dm.execution_time, MIN_EXECUTION_TIME + 0.05) if args.no_slower else None, **unit),
+                retime=args.retime, robust=robust) for dm in dmps]
             cma_options = {} if args.plain else dict(DEFAULT_CMA_OPTIONS)
             if args.diagonal is not None and not args.plain:
                 cma_options["CMA_diagonal"] = True if args.diagonal < 0 else args.diagonal
@@ -158,12 +193,18 @@ def main(argv: list[str] | None = None) -> int:
                            restart_from_best=args.restart_from == "best", max_attempt_generations=args.max_attempt_generations,
                            cma_options=cma_options, popsize_growth=args.popsize_growth, restart_regimes=args.regimes,
                            small_share=args.small_share, patience=args.patience,
-                           scouts=args.scouts, scout_generations=args.scout_generations, scout_halving=args.scout_halving)
+                           scouts=args.scouts, scout_generations=args.scout_generations, scout_halving=args.scout_halving,
+                           stop_distance=args.stop_distance)
                 runs.append({"seed": args.first_seed + k, "success": r.success, "episodes_to_success": r.episodes_to_success,
                              "best_distance_within_limits_m": r.summary()["best_distance_within_limits_m"],
-                             "n_episodes": r.n_episodes, "n_failed": r.n_failed, "n_restarts": len(r.attempts), "wall_time_s": r.wall_time})
+                             "best_distance_m": r.summary()["best_distance_m"], "n_episodes": r.n_episodes, "n_failed": r.n_failed,
+                             "n_restarts": len(r.attempts), "wall_time_s": r.wall_time,
+                             "robust_rollouts": r.n_robust_rollouts, "best_robust_distance_m": r.summary().get("best_robust_distance_m")})
+                if args.lab_repeats:
+                    runs[-1]["lab"] = _lab_repeats(problems[index], r, args)
                 print(f"subject {s} run {k}: {'success after %d episodes' % r.episodes_to_success if r.success else 'no success'}; "
-                      f"best {runs[-1]['best_distance_within_limits_m']} m; {r.wall_time:.0f} s", file=sys.stderr, flush=True)
+                      f"best {runs[-1]['best_distance_within_limits_m']} m; {r.n_episodes} episodes, {r.n_robust_rollouts} robust rollouts; "
+                      f"{r.wall_time:.0f} s{_lab_line(runs[-1].get('lab'))}", file=sys.stderr, flush=True)
             all_runs += runs
             eps = [r["episodes_to_success"] for r in runs if r["success"]]
             subjects[str(s)] = {"n_imitated_throws": len(files), "start_distance_m": start.distance, "start_flags": start.flags,
@@ -179,6 +220,7 @@ def main(argv: list[str] | None = None) -> int:
         "restart_regimes": DEFAULT_RESTART_REGIMES if args.regimes is None else args.regimes, "small_share": args.small_share, "patience": args.patience, "scouts": DEFAULT_SCOUTS if args.scouts is None else args.scouts,
         "scout_generations": DEFAULT_SCOUT_GENERATIONS if args.scout_generations is None else args.scout_generations,
         "scout_halving": DEFAULT_SCOUT_HALVING if args.scout_halving is None else args.scout_halving, "plain": args.plain, "target_m": [2.0, 0.0], "backend": args.backend,
+        "robust_sd_m": args.robust_sd, "robust_radius_m": args.robust_radius, "stop_distance_m": args.stop_distance, "lab_repeats": args.lab_repeats,
         "success_rate": float(np.mean([r["success"] for r in all_runs])),
         "subjects_with_success_in_every_run": sum(v["success_rate"] == 1.0 for v in subjects.values()),
         "subjects_with_success_in_some_run": sum(v["success_rate"] > 0.0 for v in subjects.values()),

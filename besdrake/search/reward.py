@@ -29,6 +29,11 @@ class RewardBreakdown:
     touchdown: tuple[float, float] | None
     flags: list[str] = field(default_factory=list)
     message: str = ""
+    #: RMS distance (m) of the outcome point over the setup's scatter where a robust check ran
+    #: (:mod:`besdrake.search.refinement.robust`), else NaN
+    robust_distance: float = float("nan")
+    #: rollouts that robust check took (0: none ran)
+    robust_rollouts: int = 0
 
     @property
     def failed(self) -> bool:

@@ -16,6 +16,7 @@ from besdrake.imitation import DMP, DMPParameterError, DMPParameterization
 from besdrake.plan import MotionPlan, PlanError
 from besdrake.robot import Robot
 from besdrake.search.refinement.records import RewardBreakdown, _append_details, _details_row, failed_breakdown, params_key
+from besdrake.search.refinement.robust import RobustCheck
 from besdrake.search.refinement.scaling import ParameterScaling
 from besdrake.search.refinement.settings import DEFAULT_RETIME, PLAN_DT, RETIME_MARGIN, RETIME_ROUNDS, RefinementError
 from besdrake.task import DEFAULT_TASK, get_task
@@ -31,6 +32,8 @@ class RefinementProblem:
     ``evaluate(X)`` simulates a batch of normalised candidates (rows of ``X``) with ``executor``
     (anything with ``evaluate(plans) -> list[Outcome]``) and returns one :class:`RewardBreakdown` each.
     Candidates whose DMP cannot be rolled out become failed episodes; an executor that raises fails the batch.
+    With ``robust`` (:class:`~besdrake.search.refinement.robust.RobustCheck`) a candidate near the goal is simulated
+    again under the setup's scatter and rewarded by its RMS distance over it.
     """
 
     def __init__(
@@ -42,6 +45,7 @@ class RefinementProblem:
         dt: float = PLAN_DT,
         retime: bool | None = None,
         task: str | None = None,
+        robust: RobustCheck | None = None,
     ) -> None:
         if not isinstance(robot, Robot):
             raise RefinementError(f"robot must be a besdrake.robot.Robot, got {type(robot).__name__}")
@@ -60,6 +64,9 @@ class RefinementProblem:
             raise RefinementError(f"dt must be > 0 s, got {dt!r}")
         self.dt = float(dt)
         self.retime = DEFAULT_RETIME if retime is None else bool(retime)
+        if robust is not None and not isinstance(robust, RobustCheck):
+            raise RefinementError(f"robust must be a RobustCheck or None, got {type(robust).__name__}")
+        self.robust = robust
         self.records: dict[str, RewardBreakdown] = {}
 
     @property
@@ -138,7 +145,34 @@ class RefinementProblem:
                 raise RuntimeError(f"executor returned {len(outcomes)} outcomes for {len(todo)} plans")
             for i, o in zip(todo, outcomes):
                 out[i] = self.reward(plans[i], o, self.robot.limits)
+            if self.robust is not None:
+                self._check_robust(plans, out, executor)
         return [r for r in out if r is not None]
+
+    def _check_robust(self, plans: list, out: list, executor) -> None:
+        """Replace the records of the candidates near the goal by their robust ones: the probes of every such candidate
+        in one batch of rollouts, then the other setups of those that did not stay put in another."""
+        check = [i for i, r in enumerate(out) if r is not None and plans[i] is not None and self.robust.needs(r)]
+        if not check:
+            return
+        probes = self.robust.probes()
+        perturbed = {i: [None] * self.robust.n_rollouts for i in check}
+        self._simulate_setups(plans, out, executor, [(i, k) for i in check for k in probes], perturbed)
+        rest = [k for k in range(self.robust.n_rollouts) if k not in probes]
+        moved = [i for i in check if not self.robust.stays_put(out[i], [perturbed[i][k] for k in probes])]
+        self._simulate_setups(plans, out, executor, [(i, k) for i in moved for k in rest], perturbed)
+        for i in check:
+            out[i] = self.robust.combine(out[i], perturbed[i])
+
+    def _simulate_setups(self, plans: list, out: list, executor, jobs: list[tuple[int, int]], perturbed: dict) -> None:
+        """Simulate candidate ``i``'s plan in setup ``k`` for every ``(i, k)`` of ``jobs`` (one batch), into ``perturbed``."""
+        if not jobs:
+            return
+        outcomes = executor.evaluate([plans[i] for i, _ in jobs], effects=[self.robust.effects[k] for _, k in jobs])
+        if len(outcomes) != len(jobs):
+            raise RuntimeError(f"executor returned {len(outcomes)} outcomes for {len(jobs)} plans")
+        for (i, k), o in zip(jobs, outcomes):
+            perturbed[i][k] = self.reward(plans[i], o, self.robot.limits)
 
     def batch_evaluator(self, executor, details_path: Path | None = None) -> Callable[[np.ndarray], list[float]]:
         """``evaluate_batch`` for :func:`besdrake.search.loop.run_search`; records every episode
@@ -150,9 +184,9 @@ class RefinementProblem:
             for x, r in zip(np.atleast_2d(X), results):
                 key = params_key(x)
                 self.records[key] = r
-                rows.append(_details_row(key, r))
+                rows.append(_details_row(key, r, robust=self.robust is not None))
             if details_path is not None:
-                _append_details(details_path, rows)
+                _append_details(details_path, rows, robust=self.robust is not None)
             return [r.reward for r in results]
 
         return evaluate_batch
@@ -166,7 +200,8 @@ class RefinementProblem:
             "scaling": self.scaling.to_dict(),
             "dt": self.dt,
             "names": list(self.parameterization.names),
-        } | ({"retime": True} if self.retime else {}) | ({"task": self.task} if self.task != DEFAULT_TASK else {})
+        } | ({"retime": True} if self.retime else {}) | ({"task": self.task} if self.task != DEFAULT_TASK else {}) | (
+            {"robust": self.robust.to_dict()} if self.robust is not None else {})
 
     @classmethod
     def from_description(cls, d: dict[str, Any]) -> "RefinementProblem":
@@ -179,4 +214,5 @@ class RefinementProblem:
             raise RefinementError(f"bad problem record: {err}") from err
         task = str(d.get("task", DEFAULT_TASK))
         return cls(robot, template, get_task(task).reward_from_dict(d["reward"]), ParameterScaling.from_dict(d["scaling"]),
-                   float(d["dt"]), retime=bool(d.get("retime", False)), task=task)
+                   float(d["dt"]), retime=bool(d.get("retime", False)), task=task,
+                   robust=RobustCheck.from_dict(d["robust"]) if d.get("robust") is not None else None)

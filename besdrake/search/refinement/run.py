@@ -42,6 +42,16 @@ class RefinementResult:
     stop_reason: str = "budget"
     #: restart attempts of a :class:`~besdrake.search.cmaes.StagnationRestartCMAES` run (finished ones), else empty
     attempts: list[dict[str, Any]] = field(default_factory=list)
+    #: RMS distance over the setup's scatter per episode (NaN where no robust check ran) and the rollouts of each check
+    robust_distances: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    robust_rollouts: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
+    best_robust_distance: float = float("nan")
+    robust: bool = False
+
+    @property
+    def n_robust_rollouts(self) -> int:
+        """Rollouts spent on robust checks (the price of robustness; the episodes' own rollouts not counted)."""
+        return int(self.robust_rollouts.sum())
 
     def best_so_far(self) -> np.ndarray:
         """Best target distance (m) of the episodes within every limit, up to each episode (NaN before the first)."""
@@ -64,7 +74,9 @@ class RefinementResult:
             "resumed": self.resumed,
             "stop_reason": self.stop_reason,
             "n_restarts": len(self.attempts),
-        }
+        } | ({"robust_rollouts": self.n_robust_rollouts,
+              "best_robust_distance_m": None if not np.isfinite(self.best_robust_distance) else self.best_robust_distance}
+             if self.robust else {})
 
 
 def refine(
@@ -94,12 +106,15 @@ def refine(
     scouts: int | None = None,
     scout_generations: int | None = None,
     scout_halving: bool | None = None,
+    stop_distance: float | None = None,
 ) -> RefinementResult:
     """Refine ``problem`` with CMA-ES for at most ``n_episodes`` episodes (stops at the first
     generation with a success when ``stop_on_success``). With ``out_dir`` the run is resumable:
     calling again with the same folder continues it (see :mod:`besdrake.search.loop`).
     ``progress(n_episodes, best_distance, generation_wall_time)`` is called after each generation.
-    ``meta_episodes``/``meta_sigma``: the meta-parameter stage of :func:`make_optimizer` (0: none)."""
+    ``meta_episodes``/``meta_sigma``: the meta-parameter stage of :func:`make_optimizer` (0: none).
+    ``stop_distance`` (m, default :data:`SUCCESS_DISTANCE`): with ``stop_on_success``, stop only at a success whose
+    distance (its robust distance where a robust check ran) is below it: a margin inside the goal."""
     from besdrake.search.loop import run_search
 
     settings = _checked_settings(n_episodes, meta_episodes, meta_sigma, stagnation_generations, patience, cma_options,
@@ -112,8 +127,14 @@ def refine(
     if out is not None:
         details_path = _open_run_folder(out, _run_record(problem, seed, sigma0, popsize, **search), problem)
     opt = optimizer if optimizer is not None else make_optimizer(problem, seed, sigma0, popsize, **search)
+    stop = SUCCESS_DISTANCE if stop_distance is None else float(stop_distance)
+    if not (np.isfinite(stop) and 0 < stop <= SUCCESS_DISTANCE):
+        raise RefinementError(f"stop_distance must be within (0, {SUCCESS_DISTANCE}] m, got {stop_distance!r}")
+    own = read_details(details_path) if details_path is not None else {}
+    if stop_on_success and any(stops_at(r, stop) for r in own.values()):
+        n_episodes = min(n_episodes, len(own))  # a resumed run that had stopped stays stopped
     t0 = time.perf_counter()
-    callback = _generation_callback(problem, progress, stop_on_success, t0)
+    callback = _generation_callback(problem, progress, stop_on_success, t0, stop)
     loop = run_search(opt, problem.batch_evaluator(executor, details_path), n_evaluations=n_episodes, out_dir=out, callback=callback)
     wall = time.perf_counter() - t0
     return _result(problem, loop, wall)
@@ -187,7 +208,14 @@ def _open_run_folder(out: Path, desc: dict[str, Any], problem: RefinementProblem
     return details_path
 
 
-def _generation_callback(problem: RefinementProblem, progress, stop_on_success: bool, t0: float):
+def stops_at(r, stop_distance: float = SUCCESS_DISTANCE) -> bool:
+    """Whether episode record ``r`` ends a run that stops on success (:func:`refine`'s ``stop_distance``)."""
+    if r is None or not r.success:
+        return False
+    return (r.robust_distance if np.isfinite(r.robust_distance) else r.distance) < stop_distance
+
+
+def _generation_callback(problem: RefinementProblem, progress, stop_on_success: bool, t0: float, stop_distance: float = SUCCESS_DISTANCE):
     """The search loop's callback: reports ``progress`` after each generation and stops at a success when asked."""
     best = [np.inf]
     last = [t0]
@@ -201,7 +229,7 @@ def _generation_callback(problem: RefinementProblem, progress, stop_on_success: 
         if progress is not None:
             progress(info.n_evaluations, best[0], now - last[0])
         last[0] = now
-        return bool(stop_on_success and any(r is not None and r.success for r in recs))
+        return bool(stop_on_success and any(stops_at(r, stop_distance) for r in recs))
 
     return callback
 
@@ -214,9 +242,9 @@ def _result(problem: RefinementProblem, loop, wall: float) -> RefinementResult:
     rewards = np.asarray(loop.rewards, dtype=float)
     ok = np.flatnonzero(np.isfinite(rewards) & ~loop.failed)
     if successes.any():
-        # best = the closest successful episode
+        # best = the closest successful episode (with a robust check: the one of the highest, robust, reward)
         idx = np.flatnonzero(successes)
-        i = int(idx[np.argmin(distances[idx])])
+        i = int(idx[np.argmin(distances[idx])]) if problem.robust is None else int(idx[np.argmax(rewards[idx])])
     elif ok.size:
         i = int(ok[np.argmax(rewards[ok])])
     else:
@@ -229,12 +257,15 @@ def _result(problem: RefinementProblem, loop, wall: float) -> RefinementResult:
     else:
         best_theta, best_reward, best_distance, best_td = problem.scaling.theta0.copy(), -np.inf, np.inf, None
     first = int(np.argmax(successes)) + 1 if successes.any() else None
+    robust = np.array([np.nan if r is None else r.robust_distance for r in recs], dtype=float)
     return RefinementResult(
         best_theta=best_theta, best_reward=best_reward, best_distance=best_distance, best_touchdown=best_td,
         success=bool(successes.any()), episodes_to_success=first, n_episodes=int(loop.n_evaluations),
         n_failed=int(loop.n_failed), wall_time=wall, rewards=rewards, distances=distances, successes=successes,
         penalties=penalties, resumed=bool(loop.resumed), stop_reason=loop.stop_reason,
-        attempts=[dict(a) for a in getattr(loop.optimizer, "attempt_history", [])],
+        attempts=[dict(a) for a in getattr(loop.optimizer, "attempt_history", [])], robust_distances=robust,
+        robust_rollouts=np.array([0 if r is None else r.robust_rollouts for r in recs], dtype=int), robust=problem.robust is not None,
+        best_robust_distance=float(robust[i]) if i >= 0 else float("nan"),
     )
 
 

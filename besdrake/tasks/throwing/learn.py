@@ -264,9 +264,9 @@ def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int
     """CMA-ES from the best of ``dmps`` (the paper uses all available plans) in ``scenario``. The default search's scouts
     (short first attempts from the best throws) run only with ``scouting`` and where they take at most half of
     ``budget``: a re-refinement from throws refined already goes straight to CMA-ES from the best of them."""
-    from besdrake.imitation import DMPParameterization
-    from besdrake.search.refinement import (DEFAULT_SCOUTS, RefinementProblem, plot_learning_curves, rank_starts, refine,
-                                            scout_start_points, scouting_episodes)
+    from besdrake.search.refinement import (DEFAULT_SCOUTS, SUCCESS_DISTANCE, RefinementProblem, plot_learning_curves, rank_starts,
+                                            refine, scout_start_points, scouting_episodes)
+    from besdrake.search.refinement.run import stops_at
     from besdrake.sim.scheduler import run_concurrently
     from besdrake.task import DEFAULT_TASK, get_task
 
@@ -274,12 +274,15 @@ def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int
     task = str(ctx.config.get("task") or DEFAULT_TASK)
     reward = get_task(task).reward(target=tuple(cfg["target"]))
     robot = ctx.robot(scenario)
-    problems = [RefinementProblem(robot, d, reward, task=task) for d in dmps]
-    runs = []
+    settings = refinement_settings(ctx.config)
+    robust = _robust_check(task, scenario, settings)
+    problems = [RefinementProblem(robot, d, reward, task=task, robust=robust) for d in dmps]
     with _executor(ctx, scenario) as executor:
         ranking = rank_starts(problems, executor)
         index, start = ranking[0]
         problem = problems[index]
+        if settings["stop_on_success"] and stops_at(start, settings["stop_distance"] or SUCCESS_DISTANCE):
+            return _keep_start(ctx, problem, robot, index, start, out, tag)
         starts = scout_start_points(problems, ranking)  # None unless the default search scouts from several throws
         scouts = DEFAULT_SCOUTS if scouting and 2 * scouting_episodes(int(cfg["population"])) <= int(budget) else 0
 
@@ -288,17 +291,13 @@ def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int
             def job(ex):
                 ctx.progress(f"{tag}: CMA-ES run {k + 1}/{cfg['plans']} from throw {index} ({start.distance:.2f} m from the target)")
                 return refine(problem, ex, n_episodes=int(budget), seed=int(cfg["seed"]) + k, out_dir=out / f"run{k}",
-                              popsize=int(cfg["population"]), stop_on_success=bool(cfg.get("stop_on_success", True)),
-                              starts=starts, scouts=scouts)
+                              popsize=int(cfg["population"]), stop_on_success=settings["stop_on_success"],
+                              stop_distance=settings["stop_distance"], starts=starts, scouts=scouts)
             return job
 
         # The runs are independent: their generations share the pool, one wider batch per round (same results).
         results = run_concurrently(executor, [run_job(k) for k in range(int(cfg["plans"]))])
-    for k, result in enumerate(results):
-        dmp = problem.parameterization.from_vector(result.best_theta)
-        dmp.save(out / f"refined{k}.dmp.json")
-        DMPParameterization(dmp, robot.joint_names).motion_plan(DMPParameterization(dmp).to_vector(), dt=0.01).save(out / f"refined{k}.plan.json")
-        runs.append(result.summary() | {"dmp": f"refined{k}.dmp.json"})
+    runs = _save_refined(problem, robot, results, out)
     plot_learning_curves(results, out / "learning_curve.png")
     # The best run is judged by throws within every joint limit: a closer throw that breaks a limit is no plan.
     best = min(runs, key=lambda r: r["best_distance_within_limits_m"] if r["best_distance_within_limits_m"] is not None else np.inf)
@@ -311,6 +310,72 @@ def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int
         "best_distance_within_limits_m": best["best_distance_within_limits_m"],
         "best_dmp": best["dmp"],
     }
+
+
+def _keep_start(ctx: Context, problem, robot, index: int, start, out: Path, tag: str) -> dict[str, Any]:
+    """No CMA-ES run: the best start throw already lands within the stop distance (e.g. a re-refinement from a refined
+    throw); it is kept as ``refined0`` (0 episodes)."""
+    from besdrake.imitation import DMPParameterization
+
+    ctx.progress(f"{tag}: throw {index} lands {start.distance:.3f} m from the target already: kept, no CMA-ES run")
+    out.mkdir(parents=True, exist_ok=True)
+    dmp = problem.parameterization.from_vector(problem.theta(np.zeros(problem.n_params)))  # retimed, as it was evaluated
+    dmp.save(out / "refined0.dmp.json")
+    DMPParameterization(dmp, robot.joint_names).motion_plan(DMPParameterization(dmp).to_vector(), dt=0.01).save(out / "refined0.plan.json")
+    run = {"success": True, "episodes_to_success": 0, "best_distance_m": start.distance, "best_distance_within_limits_m": start.distance,
+           "best_touchdown_m": list(start.touchdown), "n_episodes": 0, "stop_reason": "start", "dmp": "refined0.dmp.json"}
+    if np.isfinite(start.robust_distance):
+        run["best_robust_distance_m"] = start.robust_distance
+    return {"start_throw": int(index), "start_distance_m": start.distance, "runs": [run], "success_runs": 1,
+            "median_episodes_to_success": 0.0, "best_distance_within_limits_m": start.distance, "best_dmp": run["dmp"]}
+
+
+def _save_refined(problem, robot, results: list, out: Path) -> list[dict[str, Any]]:
+    """Each run's best throw as ``refinedK.dmp.json`` and ``refinedK.plan.json``; the runs' summaries."""
+    from besdrake.imitation import DMPParameterization
+
+    runs = []
+    for k, result in enumerate(results):
+        dmp = problem.parameterization.from_vector(result.best_theta)
+        dmp.save(out / f"refined{k}.dmp.json")
+        DMPParameterization(dmp, robot.joint_names).motion_plan(DMPParameterization(dmp).to_vector(), dt=0.01).save(out / f"refined{k}.plan.json")
+        runs.append(result.summary() | {"dmp": f"refined{k}.dmp.json"})
+    return runs
+
+
+def refinement_settings(config: dict[str, Any]) -> dict[str, Any]:
+    """The refinement section's stop and robustness settings, checked (:class:`~besdrake.pipeline.config.ConfigError`):
+    ``stop_on_success``, ``stop_distance`` (m; null: the success distance) and ``robust_sd`` (m per axis; 0: no robust
+    check), ``robust_radius`` (m)."""
+    from besdrake.pipeline.config import ConfigError
+    from besdrake.search.refinement import SUCCESS_DISTANCE
+    from besdrake.search.refinement.robust import ROBUST_RADIUS
+
+    cfg = config["refinement"]
+    try:
+        stop = cfg.get("stop_distance")
+        out = {"stop_on_success": bool(cfg.get("stop_on_success", True)), "stop_distance": None if stop is None else float(stop),
+               "robust_sd": float(cfg.get("robust_sd", 0.0)), "robust_radius": float(cfg.get("robust_radius", ROBUST_RADIUS))}
+    except (TypeError, ValueError) as err:
+        raise ConfigError(f"refinement: {err}") from None
+    if out["stop_distance"] is not None and not (0 < out["stop_distance"] <= SUCCESS_DISTANCE):
+        raise ConfigError(f"refinement: stop_distance must be within (0, {SUCCESS_DISTANCE}] m or null, got {stop!r}")
+    if not (0 <= out["robust_sd"] <= 0.005) or not (out["robust_radius"] > 0):
+        raise ConfigError(f"refinement: robust_sd must be within 0..0.005 m and robust_radius > 0 m, "
+                          f"got {out['robust_sd']!r}, {out['robust_radius']!r}")
+    return out
+
+
+def _robust_check(task: str, scenario: str, settings: dict[str, Any]):
+    """The refinement's :class:`~besdrake.search.refinement.robust.RobustCheck` over the task's setup scatter in
+    ``scenario`` (None with ``robust_sd`` 0)."""
+    from besdrake.search.refinement.robust import RobustCheck
+    from besdrake.sim.scenario import load_scenario
+    from besdrake.task import get_task
+
+    if settings["robust_sd"] <= 0:
+        return None
+    return RobustCheck.from_task(get_task(task), load_scenario(scenario), settings["robust_sd"], radius=settings["robust_radius"])
 
 
 def stage_refine(ctx: Context, out: Path) -> dict[str, Any]:

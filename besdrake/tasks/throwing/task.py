@@ -38,9 +38,11 @@ class ThrowingTask(Task):
         return list(STAGES)
 
     def check_learn_config(self, config) -> None:
-        """The Transferability settings and the diagnosis experiment's design, checked before any stage runs."""
-        from besdrake.tasks.throwing.learn import diagnosis_design, transfer_config
+        """The refinement's stop and robustness settings, the Transferability settings and the diagnosis experiment's
+        design, checked before any stage runs."""
+        from besdrake.tasks.throwing.learn import diagnosis_design, refinement_settings, transfer_config
 
+        refinement_settings(config)
         transfer_config(config)
         if config["diagnosis"].get("enabled", True):
             diagnosis_design(config)
