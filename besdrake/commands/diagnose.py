@@ -62,9 +62,7 @@ def run(args: argparse.Namespace) -> int:
                                     limits=load_scenario(args.scenario or "nominal").robot.limits)
         except ValueError as err:
             raise UserError(str(err)) from None
-        args.design.mkdir(parents=True, exist_ok=True)
-        for i, p in enumerate(plans):
-            p.save(args.design / f"{i:03d}_{p.meta['name']}.plan.json")
+        _write_plans(plans, args.design)
         print(f"wrote {len(plans)} plans ({args.repeats} repeats, {probes} tilt probes, {sideways} sideways throws) to {args.design}")
         return 0
     if args.logdir is None:
@@ -147,8 +145,13 @@ def _design_task(args: argparse.Namespace) -> int:
         plans = model.design_experiments(args.throws, args.repeats, seed=args.seed, limits=scen.robot.limits, scenario=args.scenario)
     except (TaskError, ValueError) as err:
         raise UserError(str(err)) from None
-    args.design.mkdir(parents=True, exist_ok=True)
-    for i, p in enumerate(plans):
-        p.save(args.design / f"{i:03d}_{p.meta['name']}.plan.json")
+    _write_plans(plans, args.design)
     print(f"wrote {len(plans)} {model.plural()} ({args.repeats} repeats) to {args.design}")
     return 0
+
+
+def _write_plans(plans: list, folder) -> None:
+    """The designed plans as ``NNN_<name>.plan.json`` in ``folder`` (created)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    for i, p in enumerate(plans):
+        p.save(folder / f"{i:03d}_{p.meta['name']}.plan.json")
