@@ -506,17 +506,7 @@ def train_template(
     meta = MetaDMP(base, robot, joint1_mode, time_mode=time_mode)
     bounds = default_meta_bounds(base, robot, joint1_mode=joint1_mode, time_mode=time_mode) if meta_bounds is None else np.asarray(meta_bounds, dtype=float)
     _check_meta_bounds(bounds)
-    probe = None
-    if n_probes:
-        from besdrake.search.template_reach import probe_reach, reach_meta_bounds
-
-        try:
-            probe = probe_reach(meta, executor, bounds[0, 0], bounds[0, 1], n_probes)
-        except ValueError:  # fewer than two probes landed: no model, the box as it is
-            probe = None
-        if probe is not None and meta_bounds is None:
-            bounds = reach_meta_bounds(probe, bounds, CONTEXT_BOUNDS)
-            _check_meta_bounds(bounds)
+    probe, bounds = _probe_reach(meta, executor, bounds, n_probes, fixed_bounds=meta_bounds is not None)
     optimizer = _make_optimizer(method, bounds, seed, **(_prior_kwargs(method, probe) if reach_prior else {}), **(optimizer_kwargs or {}))
     if reach_prior and probe is not None and method == "creps":
         _creps_prior_policy(optimizer, probe, bounds)
@@ -557,6 +547,23 @@ def train_template(
     } | dict(provenance or {})
     template = BehaviorTemplate(name, meta, bounds, loop.optimizer, prov)
     return TemplateTraining(template, loop, curve, wall)
+
+
+def _probe_reach(meta: MetaDMP, executor, bounds: np.ndarray, n_probes: int, fixed_bounds: bool):
+    """The reach probes of :func:`train_template` (None without probes, or when fewer than two landed) and the
+    meta-parameter box they set (``bounds`` unchanged when the caller fixed it)."""
+    if not n_probes:
+        return None, bounds
+    from besdrake.search.template_reach import probe_reach, reach_meta_bounds
+
+    try:
+        probe = probe_reach(meta, executor, bounds[0, 0], bounds[0, 1], n_probes)
+    except ValueError:  # fewer than two probes landed: no model, the box as it is
+        return None, bounds
+    if not fixed_bounds:
+        bounds = reach_meta_bounds(probe, bounds, CONTEXT_BOUNDS)
+        _check_meta_bounds(bounds)
+    return probe, bounds
 
 
 def _check_meta_bounds(bounds: np.ndarray) -> None:
