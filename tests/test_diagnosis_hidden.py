@@ -257,3 +257,17 @@ def test_a_tilted_scoop_mount_is_named_from_a_full_log():
     roll = next(p for p in d.best.parameters if p["parameter"] == "roll")
     assert abs(roll["value"] - 0.04) <= max(4 * roll["stderr"], 0.006), roll
     assert d.explained and d.gain.median_disparity_after_m < d.gain.median_disparity_before_m
+
+
+def test_cli_text_summary_names_the_task_outcome(capsys):
+    from types import SimpleNamespace
+
+    from besdrake.commands.diagnose import _print_summary
+
+    gain = SimpleNamespace(median_disparity_before_m=0.1, median_disparity_after_m=0.02, ci_after_m=(0.01, 0.03), n_heldout=8)
+    for scenario, word in (("nominal", "touchdown"), ("pick_and_place", "box")):
+        diag = SimpleNamespace(verdict="explained by x", explained=True, confidence="low", best=None, cannot_tell=[], gain=gain,
+                               scenario=load_scenario(scenario), timings={"total": 1.0}, n_rollouts=3)
+        _print_summary(diag, {"report": "r.md", "scenario": "s.yaml"})
+        out = capsys.readouterr().out
+        assert f"held-out median {word} disparity: 0.100 m -> 0.020 m" in out and "report: r.md" in out

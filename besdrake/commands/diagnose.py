@@ -50,21 +50,7 @@ def run(args: argparse.Namespace) -> int:
     if args.design is not None and args.scenario is not None and _task_of(args.scenario) != "throwing":
         return _design_task(args)
     if args.design is not None:
-        from besdrake.diagnosis import diagnosis_plans
-        from besdrake.tasks.throwing.diagnosis.design import DEFAULT_PROBES, DEFAULT_SIDEWAYS
-
-        probes = DEFAULT_PROBES if args.probes is None else args.probes
-        sideways = DEFAULT_SIDEWAYS if args.sideways is None else args.sideways
-        if args.sideways is None:  # the default fits the design's distinct throws
-            sideways = max(0, min(sideways, args.throws - args.repeats - probes))
-        try:
-            plans = diagnosis_plans(args.throws, args.repeats, seed=args.seed, probes=probes, sideways=sideways,
-                                    limits=load_scenario(args.scenario or "nominal").robot.limits)
-        except ValueError as err:
-            raise UserError(str(err)) from None
-        _write_plans(plans, args.design)
-        print(f"wrote {len(plans)} plans ({args.repeats} repeats, {probes} tilt probes, {sideways} sideways throws) to {args.design}")
-        return 0
+        return _design_throwing(args)
     if args.logdir is None:
         raise UserError("give a log folder to diagnose (or --design DIR to write a plan set)")
     if args.workers < 1:
@@ -107,19 +93,48 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(diag.to_json())
     else:
-        print(f"{diag.verdict}")
-        print(f"explained: {diag.explained} (confidence {diag.confidence}); best: {diag.best.to_dict()['effect'] if diag.best else 'none'}")
-        for a in diag.cannot_tell:
-            print(f"cannot tell nominal from {a.describe()}: {a.recommendation}")
-        if diag.gain:
-            g = diag.gain
-            what = "touchdown" if diag.scenario is None or diag.scenario.task in (None, "throwing") else "final box position"
-            print(f"held-out median {what} disparity: {g.median_disparity_before_m:.3f} m -> {g.median_disparity_after_m:.3f} m "
-                  f"(95% CI {g.ci_after_m[0]:.3f}-{g.ci_after_m[1]:.3f} m, {g.n_heldout} trials)")
-        print(f"report: {paths['report']}")
-        print(f"refined scenario: {paths['scenario']}")
-        print(json.dumps({"timings_s": {k: round(v, 1) for k, v in diag.timings.items()}, "rollouts": diag.n_rollouts}))
+        _print_summary(diag, paths)
     return 0
+
+
+def _design_throwing(args: argparse.Namespace) -> int:
+    """``--design`` for throwing: the diagnosis throws with tilt probes and sideways throws."""
+    from besdrake.cli import UserError
+    from besdrake.sim.scenario import load_scenario
+
+    from besdrake.diagnosis import diagnosis_plans
+    from besdrake.tasks.throwing.diagnosis.design import DEFAULT_PROBES, DEFAULT_SIDEWAYS
+
+    probes = DEFAULT_PROBES if args.probes is None else args.probes
+    sideways = DEFAULT_SIDEWAYS if args.sideways is None else args.sideways
+    if args.sideways is None:  # the default fits the design's distinct throws
+        sideways = max(0, min(sideways, args.throws - args.repeats - probes))
+    try:
+        plans = diagnosis_plans(args.throws, args.repeats, seed=args.seed, probes=probes, sideways=sideways,
+                                limits=load_scenario(args.scenario or "nominal").robot.limits)
+    except ValueError as err:
+        raise UserError(str(err)) from None
+    _write_plans(plans, args.design)
+    print(f"wrote {len(plans)} plans ({args.repeats} repeats, {probes} tilt probes, {sideways} sideways throws) to {args.design}")
+    return 0
+
+
+def _print_summary(diag, paths: dict) -> None:
+    """The verdict, what the log cannot tell, the held-out gain, where the report went, timings."""
+    print(f"{diag.verdict}")
+    print(f"explained: {diag.explained} (confidence {diag.confidence}); best: {diag.best.to_dict()['effect'] if diag.best else 'none'}")
+    for a in diag.cannot_tell:
+        print(f"cannot tell nominal from {a.describe()}: {a.recommendation}")
+    if diag.gain:
+        g = diag.gain
+        from besdrake.diagnosis.trials import model_for
+
+        what = model_for(diag.scenario).outcome if diag.scenario is not None else "outcome"
+        print(f"held-out median {what} disparity: {g.median_disparity_before_m:.3f} m -> {g.median_disparity_after_m:.3f} m "
+              f"(95% CI {g.ci_after_m[0]:.3f}-{g.ci_after_m[1]:.3f} m, {g.n_heldout} trials)")
+    print(f"report: {paths['report']}")
+    print(f"refined scenario: {paths['scenario']}")
+    print(json.dumps({"timings_s": {k: round(v, 1) for k, v in diag.timings.items()}, "rollouts": diag.n_rollouts}))
 
 
 def _task_of(scenario: str) -> str | None:
