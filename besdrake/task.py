@@ -157,21 +157,30 @@ def load_task_effects() -> None:
 
 
 def effects_for(task: str) -> list[str]:
-    """The registry's effects (in application order) that act on ``task``'s rollouts: those it lists
-    (:attr:`Task.effects`) and a user's plugin effects that no task lists; the default candidates of its diagnosis.
-    Another task's own effects (e.g. the pick-and-place box's mass for throwing) are left out, and so are the robot
-    effects of :mod:`besdrake.sim.effects` the task does not list (its rollout does not apply them)."""
+    """The registry's effects (in application order) that act on ``task``'s rollouts (:func:`effects_not_for` names
+    the others): the default candidates of its diagnosis."""
     from besdrake.sim.effects import list_effects
 
-    own, listed = set(get_task(task).effects), {e for name in known_tasks() for e in get_task(name).effects}
-    return [n for n in list_effects() if n in own or (effect_origin(n) is None and n not in listed)]
+    names = list_effects()
+    other = set(effects_not_for(task, names))
+    return [n for n in names if n not in other]
 
 
-def foreign_effects(task: str, names) -> list[str]:
-    """Those of ``names`` that another task registered (its ``effects.py``) and ``task`` does not list: they act on
-    that task's scene, not on ``task``'s rollouts."""
+def effects_not_for(task: str, names) -> list[str]:
+    """Those of ``names`` that do not act on ``task``'s rollouts: an effect acts on them when the task lists it
+    (:attr:`Task.effects`), when it is a user's plugin effect that no other task lists, or when it is a robot effect of
+    :mod:`besdrake.sim.effects` and the task lists none (it declares nothing). So another task's own effects (e.g. the
+    pick-and-place box's mass for throwing) and the robot effects a declaring task does not list (its rollout does not
+    apply them) are left out. The one rule behind :func:`effects_for`, the rollouts' refusals and the diagnosis' check
+    of its candidates."""
     own = set(get_task(task).effects)
-    return sorted(n for n in names if n not in own and effect_origin(n) not in (None, "", task))
+    others = {e for name in known_tasks() if name != task for e in get_task(name).effects}
+
+    def acts(n: str) -> bool:
+        origin = effect_origin(n)
+        return n in own or (origin is None and n not in others) or (origin == "" and not own)
+
+    return sorted(n for n in names if not acts(n))
 
 
 def effect_origin(name: str) -> str | None:

@@ -112,7 +112,7 @@ def _check_inputs(scenario: Scenario | str, candidates: Sequence[str] | None,
                   placement_sd: float | None) -> tuple[Scenario, list[str], TrialModel, float]:
     """The scenario, the candidate effects, the task's trial model and the placement scatter; :class:`DiagnosisError`
     for unknown candidates, a task without a diagnosis or a bad placement scatter."""
-    from besdrake.task import DEFAULT_TASK, TaskError, effects_for, foreign_effects
+    from besdrake.task import DEFAULT_TASK, TaskError, effects_for, effects_not_for
 
     scen = load_scenario(scenario) if not isinstance(scenario, Scenario) else scenario
     try:
@@ -125,7 +125,7 @@ def _check_inputs(scenario: Scenario | str, candidates: Sequence[str] | None,
     unknown = [c for c in cands if c not in known]
     if unknown:
         raise DiagnosisError(f"unknown candidate effect(s) {unknown}; registered effects: {known}")
-    foreign = foreign_effects(task, cands)
+    foreign = effects_not_for(task, cands)
     if foreign:
         raise DiagnosisError(f"candidate effect(s) {foreign} do not act on {task} rollouts; those that do: {effects_for(task)}")
     if not cands:

@@ -76,7 +76,7 @@ def creps_weights(rewards: np.ndarray, baseline_features: np.ndarray, epsilon: f
         return float(value), np.concatenate([[eta * d_eta], d_v])
 
     # log(eta) makes the problem unconstrained; BFGS (pure numpy) is much faster than L-BFGS-B's
-    # compiled driver on these tiny problems when the CPU is shared.
+    # native driver on these tiny problems when the CPU is shared.
     result = minimize(dual, np.zeros(k + 1), jac=True, method="BFGS", options={"gtol": 1e-8})
     eta, v = float(np.exp(np.clip(result.x[0], -_LOG_ETA_LIMIT, _LOG_ETA_LIMIT))), result.x[1:]
     _, w = _log_softmax((r - psi @ v) / eta)

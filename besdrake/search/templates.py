@@ -497,9 +497,7 @@ def train_template(
         raise TemplateError(f"unknown method {method!r}; choose one of {METHODS}")
     if n_episodes < 1:
         raise TemplateError(f"n_episodes must be >= 1, got {n_episodes}")
-    # at most a quarter of the budget; fewer than two probes make no model
-    n_probes = min(int(probes), n_episodes // 4) if joint1_mode == "rotate" and time_mode == "scale" else 0
-    n_probes = n_probes if n_probes >= 2 else 0
+    n_probes = _n_probes(probes, n_episodes, joint1_mode, time_mode)
     robot = robot or getattr(getattr(executor, "scenario", None), "robot", None)
     if robot is None:
         raise TemplateError("train_template needs robot= (the executor has no scenario to take it from)")
@@ -507,9 +505,7 @@ def train_template(
     bounds = default_meta_bounds(base, robot, joint1_mode=joint1_mode, time_mode=time_mode) if meta_bounds is None else np.asarray(meta_bounds, dtype=float)
     _check_meta_bounds(bounds)
     probe, bounds = _probe_reach(meta, executor, bounds, n_probes, fixed_bounds=meta_bounds is not None)
-    optimizer = _make_optimizer(method, bounds, seed, **(_prior_kwargs(method, probe) if reach_prior else {}), **(optimizer_kwargs or {}))
-    if reach_prior and probe is not None and method == "creps":
-        _creps_prior_policy(optimizer, probe, bounds)
+    optimizer = _template_optimizer(method, bounds, seed, probe if reach_prior else None, optimizer_kwargs)
 
     def evaluate(context: np.ndarray, theta: np.ndarray) -> float:
         # C-REPS samples from a Gaussian: execute the nearest parameters inside the box
@@ -531,22 +527,27 @@ def train_template(
     t0 = time.perf_counter()
     loop = run_contextual_search(optimizer, evaluate, n_episodes - n_probes, CONTEXT_BOUNDS, out_dir=out_dir, callback=callback)
     wall = time.perf_counter() - t0
-    prov = {
+    prov = _provenance(method, loop, n_probes, seed, meta, probe, reach_prior, executor) | dict(provenance or {})
+    template = BehaviorTemplate(name, meta, bounds, loop.optimizer, prov)
+    return TemplateTraining(template, loop, curve, wall)
+
+
+def _provenance(method: str, loop, n_probes: int, seed: int, meta: MetaDMP, probe, reach_prior: bool, executor) -> dict[str, Any]:
+    """How a template was trained (its record's provenance)."""
+    return {
         "created_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "method": method,
         "n_episodes": int(loop.n_evaluations) + n_probes,
         "n_probe_rollouts": n_probes,
         "n_failed_episodes": int(loop.n_failed),
         "seed": int(seed),
-        "joint1_mode": joint1_mode,
-        "time_mode": time_mode,
+        "joint1_mode": meta.joint1_mode,
+        "time_mode": meta.time_mode,
         "reach_prior": bool(reach_prior and probe is not None),
         "reach_probe": None if probe is None else probe.to_dict(),
         "reward": "-(squared touchdown distance, m^2)",
         "scenario": getattr(getattr(executor, "scenario", None), "name", None),
-    } | dict(provenance or {})
-    template = BehaviorTemplate(name, meta, bounds, loop.optimizer, prov)
-    return TemplateTraining(template, loop, curve, wall)
+    }
 
 
 def _probe_reach(meta: MetaDMP, executor, bounds: np.ndarray, n_probes: int, fixed_bounds: bool):
@@ -564,6 +565,21 @@ def _probe_reach(meta: MetaDMP, executor, bounds: np.ndarray, n_probes: int, fix
         bounds = reach_meta_bounds(probe, bounds, CONTEXT_BOUNDS)
         _check_meta_bounds(bounds)
     return probe, bounds
+
+
+def _n_probes(probes: int, n_episodes: int, joint1_mode: str, time_mode: str) -> int:
+    """The reach probes a training spends: at most a quarter of the budget, none below two (they make no model), and
+    none where the joint-1 goal does not rotate the movement or the execution time does not scale it."""
+    n = min(int(probes), n_episodes // 4) if joint1_mode == "rotate" and time_mode == "scale" else 0
+    return n if n >= 2 else 0
+
+
+def _template_optimizer(method: str, bounds: np.ndarray, seed: int, probe, optimizer_kwargs: dict[str, Any] | None):
+    """The upper-level search of ``method``, with the reach ``probe``'s model as prior knowledge where given."""
+    optimizer = _make_optimizer(method, bounds, seed, **_prior_kwargs(method, probe), **(optimizer_kwargs or {}))
+    if probe is not None and method == "creps":
+        _creps_prior_policy(optimizer, probe, bounds)
+    return optimizer
 
 
 def _check_meta_bounds(bounds: np.ndarray) -> None:

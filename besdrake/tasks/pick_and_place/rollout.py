@@ -249,7 +249,7 @@ class PickPlaceRollout:
         """The scenario's effects with ``effects`` and the shorthands merged in, validated and completed; a ValueError
         for an effect the task does not list."""
         from besdrake.sim.effects import EffectError, merge_effects
-        from besdrake.task import effect_origin, foreign_effects, get_task
+        from besdrake.task import effects_not_for, get_task
 
         extra = {k: dict(v or {}) for k, v in (effects or {}).items()}
         if box_mass is not None:
@@ -257,10 +257,10 @@ class PickPlaceRollout:
         if pad_friction is not None:
             extra["pad_friction"] = {"scale": float(pad_friction) / self.pad_friction}
         done = merge_effects(self.scenario.effects, extra)
-        own = get_task("pick_and_place").effects
-        other = foreign_effects("pick_and_place", done) + [n for n in done if n not in own and effect_origin(n) == ""]
+        other = effects_not_for("pick_and_place", done)
         if other:
-            raise EffectError(f"effect(s) {other} do not act on pick-and-place rollouts (those that do: {list(own)} and a user's plugin effects)")
+            raise EffectError(f"effect(s) {other} do not act on pick-and-place rollouts (those that do: "
+                              f"{list(get_task('pick_and_place').effects)} and a user's plugin effects)")
         if box_offset is not None:
             dx, dy, yaw = (float(v) for v in box_offset)
             world = self.h.box_start.rotation().matrix() @ np.array([dx, dy, 0.0])

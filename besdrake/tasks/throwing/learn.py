@@ -315,13 +315,9 @@ def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int
 def _keep_start(ctx: Context, problem, robot, index: int, start, out: Path, tag: str) -> dict[str, Any]:
     """No CMA-ES run: the best start throw already lands within the stop distance (e.g. a re-refinement from a refined
     throw); it is kept as ``refined0`` (0 episodes)."""
-    from besdrake.imitation import DMPParameterization
-
     ctx.progress(f"{tag}: throw {index} lands {start.distance:.3f} m from the target already: kept, no CMA-ES run")
     out.mkdir(parents=True, exist_ok=True)
-    dmp = problem.parameterization.from_vector(problem.theta(np.zeros(problem.n_params)))  # retimed, as it was evaluated
-    dmp.save(out / "refined0.dmp.json")
-    DMPParameterization(dmp, robot.joint_names).motion_plan(DMPParameterization(dmp).to_vector(), dt=0.01).save(out / "refined0.plan.json")
+    _save_throw(problem.parameterization.from_vector(problem.theta(np.zeros(problem.n_params))), robot, out, 0)  # retimed, as evaluated
     run = {"success": True, "episodes_to_success": 0, "best_distance_m": start.distance, "best_distance_within_limits_m": start.distance,
            "best_touchdown_m": list(start.touchdown), "n_episodes": 0, "stop_reason": "start", "dmp": "refined0.dmp.json"}
     if np.isfinite(start.robust_distance):
@@ -332,15 +328,19 @@ def _keep_start(ctx: Context, problem, robot, index: int, start, out: Path, tag:
 
 def _save_refined(problem, robot, results: list, out: Path) -> list[dict[str, Any]]:
     """Each run's best throw as ``refinedK.dmp.json`` and ``refinedK.plan.json``; the runs' summaries."""
-    from besdrake.imitation import DMPParameterization
-
     runs = []
     for k, result in enumerate(results):
-        dmp = problem.parameterization.from_vector(result.best_theta)
-        dmp.save(out / f"refined{k}.dmp.json")
-        DMPParameterization(dmp, robot.joint_names).motion_plan(DMPParameterization(dmp).to_vector(), dt=0.01).save(out / f"refined{k}.plan.json")
+        _save_throw(problem.parameterization.from_vector(result.best_theta), robot, out, k)
         runs.append(result.summary() | {"dmp": f"refined{k}.dmp.json"})
     return runs
+
+
+def _save_throw(dmp, robot, out: Path, k: int) -> None:
+    """A refined throw as ``refinedK.dmp.json`` and its motion plan (10 ms samples) as ``refinedK.plan.json``."""
+    from besdrake.imitation import DMPParameterization
+
+    dmp.save(out / f"refined{k}.dmp.json")
+    DMPParameterization(dmp, robot.joint_names).motion_plan(DMPParameterization(dmp).to_vector(), dt=0.01).save(out / f"refined{k}.plan.json")
 
 
 def refinement_settings(config: dict[str, Any]) -> dict[str, Any]:

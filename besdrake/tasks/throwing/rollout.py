@@ -32,7 +32,7 @@ from pydrake.math import RigidTransform
 from besdrake.plan import MotionPlan, PlanError, PlanLimitError
 from besdrake.sim.diagram import SimHandles, build_diagram
 from besdrake.sim.effects import EffectError, apply_effects, merge_effects, set_gains
-from besdrake.task import foreign_effects
+from besdrake.task import effects_not_for
 from besdrake.tasks.throwing.effects import ThrowSetup
 from besdrake.sim.scenario import Scenario, load_scenario
 from besdrake.tasks.throwing.flight import fly
@@ -184,9 +184,9 @@ class ThrowRollout:
         """Simulate ``plan`` with ``effects`` ``{name: {param: value}}``; never raises for simulation trouble."""
         plan_limit_exceeded = self._check_plan(plan, limits)
         effects_done = merge_effects(self.scenario.effects, effects)
-        other = foreign_effects("throwing", effects_done)
+        other = effects_not_for("throwing", effects_done)
         if other:
-            raise EffectError(f"effect(s) {other} act on another task's rollouts, not on throwing")
+            raise EffectError(f"effect(s) {other} do not act on throwing rollouts")
         setup, cmd, skip = self._prepare(plan, effects_done)
         out = Outcome(effects=effects_done, scenario=self.scenario.name)
         flags = {k: False for k in FLAG_NAMES}
