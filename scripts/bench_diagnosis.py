@@ -194,6 +194,21 @@ def reliability(rows: list[dict]) -> dict:
     return out
 
 
+def with_rule_now(rows: list[dict]) -> list[dict]:
+    """The rows with their confidence re-decided by today's rule (:func:`besdrake.diagnosis.verdict.is_high` at the
+    settings' thresholds) from each row's recorded basis: rows of earlier versions, run before a condition existed,
+    are judged as a diagnosis run now would judge them (their moved parameters counted from the fitted values)."""
+    from besdrake.diagnosis.verdict import is_high, moved_per_effect
+
+    out = []
+    for r in rows:
+        b = r.get("confidence_basis")
+        if b and "moved_parameters" not in b:
+            b = {**b, "moved_parameters": sum(moved_per_effect(r["fitted"]).values())}
+        out.append({**r, "confidence": ("high" if is_high(b) else "low")} if b else r)
+    return out
+
+
 #: Thresholds the confidence sweep tries: the BIC lead over the nearest real rival and the p-value an added effect must
 #: stay above (:func:`besdrake.diagnosis.verdict.is_high`).
 SWEEP_MARGINS = (6.0, 8.0, 10.0, 12.0, 15.0, 20.0)
@@ -520,6 +535,10 @@ def _summarize(results: list[dict], modes: list[str], args, t_bench: float, regi
             "confident_wrong": int(sum(r["confidence"] == "high" and not r.get("correct_structural", r["correct"]) for r in known)
                                    + sum(r["explained"] and r["confidence"] == "high" and bool(r["best"]) for r in unk)),
             "confidence_sweep": confidence_sweep(known, unk),
+            # The same two figures with every row's confidence re-decided by today's rule (rows of earlier versions).
+            "reliability_rule_now": reliability(with_rule_now(known) + [{**r, "correct": False, "correct_structural": False, "honest_cannot_tell": not r["explained"]} for r in with_rule_now(unk)]),
+            "confident_wrong_rule_now": int(sum(r["confidence"] == "high" and not r.get("correct_structural", r["correct"]) for r in with_rule_now(known))
+                                            + sum(r["explained"] and r["confidence"] == "high" and bool(r["best"]) for r in with_rule_now(unk))),
             # Right up to what the log can show (pairs: each hidden effect judged by its own signature on top of the
             # other's; trials run before this field existed are left out).
             "n_with_marginal_detectability": int(sum("correct_detectable" in r for r in known)),
