@@ -456,8 +456,8 @@ def test_an_extra_effect_is_claimed_only_if_significant_over_plans():
 
 
 def test_the_plan_level_bootstrap_of_an_extra_effect_is_calibrated_where_the_likelihood_ratio_is_not():
-    """A per-plan misfit of the simulation (twice the noise SD, like the expected-throw simulation's on the benchmark's
-    ball paths) that a catch-all extra effect partly absorbs: the likelihood ratio over entries finds the extra nearly
+    """A per-plan error twice the noise SD that the noise model does not hold (on the benchmark: noise SDs estimated
+    too low from a few repeats, a throw's correlated features), which a catch-all extra effect partly absorbs: the likelihood ratio over entries finds the extra nearly
     always, the wild cluster bootstrap over plans about at its level; a real extra of 3 SD on every throw (about 5 standard errors over the plans) is found."""
     from scipy.stats import chi2
 

@@ -112,11 +112,11 @@ def _extra_effect_bootstrap_p(prob: fitting.Problem, sub: fitting.CandidateFit, 
     wild cluster bootstrap of the score statistic along the change of prediction ``big - sub`` (made orthogonal to
     ``sub``'s own parameters), the plans as clusters (Rademacher signs per plan on ``sub``'s residuals).
 
-    Why: the chi-square gain of an added effect is judged against the within-plan noise the repeats measure, but the
-    expected-throw simulation also misfits each *plan* systematically, even at the true parameters (issue 25's
-    benchmark: the plan means of the true model's ball-path residuals scatter 1.5-3.3x the repeats' noise variance),
-    and an added effect absorbs part of that; along its direction the per-plan scores scatter 3-9x the noise model's
-    variance, so the likelihood ratio p (1e-11 for a joint offset + scoop tilt on a single joint offset) is far too
+    Why: the chi-square gain of an added effect is judged against a diagonal noise model whose SDs come from a few
+    repeated plans, but one throw's release perturbation moves its touchdown, ball position and speed together (and one
+    placement draw all its ball features), and the SDs are uncertain by 20-30 % (issue 25's benchmark: along an added
+    effect's direction the per-plan scores scatter 4.6-8.7x the model's variance), so the likelihood ratio p (1e-11 for
+    a joint offset + scoop tilt on a single joint offset) is far too
     small. The sign-flipped plan scores carry that scatter (and the correlation within a throw). NaN with fewer than
     NESTED_TEST_MIN_PLANS plans or no fitted predictions."""
     if sub.y_fit is None or big.y_fit is None:
