@@ -10,7 +10,7 @@ import numpy as np
 from besdrake.diagnosis import fitting, noise, settings
 from besdrake.diagnosis.settings import ALPHA, FORWARD_TOP, INDISTINGUISHABLE_DBIC, LOCAL_CHI2_FACTOR, LOCAL_TOP, MATERIAL, STRONG_DBIC
 from besdrake.diagnosis.simulate import _Sim
-from besdrake.diagnosis.stats import _extra_effect_significant, _lack_of_fit_p, _material_change
+from besdrake.diagnosis.stats import _extra_effect_bootstrap_p, _extra_effect_significant, _lack_of_fit_p, _material_change
 
 
 def _forward_pairs(prob: fitting.Problem, fits: list[fitting.CandidateFit], sens: fitting.Sensitivity, sim: _Sim,
@@ -203,6 +203,8 @@ def _drop(prob: fitting.Problem, best_fit: fitting.CandidateFit, by_effects: dic
             notes.append(f"{size_txt}, but fits {sub_fit.bic - best_fit.bic:.1f} BIC better than the nominal simulation, "
                          f"consistently over the plans (p = {p_w:.2g}): named, although it hardly matters for the {nm.model.noun}s' outcomes")
             return None
+    if immaterial and sub and _small_extra_claimed(prob, best_fit, sub_fit, e, keys, alpha_extra, size_txt, notes):
+        return None
     if immaterial:
         return (sub_fit.bic, e, sub_fit, f"{best_fit.name} fits better by BIC ({sub_fit.bic - best_fit.bic:.1f}) but {size_txt}: "
                 f"not claimed, below the {MATERIAL} SD materiality threshold")
@@ -212,6 +214,27 @@ def _drop(prob: fitting.Problem, best_fit: fitting.CandidateFit, by_effects: dic
             return (sub_fit.bic, e, sub_fit, f"{best_fit.name} fits better by BIC ({sub_fit.bic - best_fit.bic:.1f}) but {e} is not significant "
                     f"with the {nm.model.noun}s' plans as the independent units (cluster-robust Wald test p = {p_w:.2g} >= {alpha_extra:.2g}): not claimed")
     return None
+
+
+def _small_extra_claimed(prob: fitting.Problem, best_fit: fitting.CandidateFit, sub_fit: fitting.CandidateFit, e: str, keys: list[str],
+                        alpha: float, size_txt: str, notes: list[str]) -> bool:
+    """Whether the added effect ``e`` of a pair, immaterial by MATERIAL, is claimed all the same: the pair PAIR_EXTRA_DBIC
+    better by BIC and ``e`` significant with the plans as the units by both the cluster-robust Wald test and the wild
+    cluster bootstrap (:func:`~besdrake.diagnosis.stats._extra_effect_bootstrap_p`) at ``alpha``; a note says why."""
+    dbic = sub_fit.bic - best_fit.bic
+    if settings.PAIR_EXTRA_DBIC is None or dbic < settings.PAIR_EXTRA_DBIC:
+        return False
+    sig, p_w = _extra_effect_significant(prob, best_fit, e, keys, alpha)
+    if not sig:
+        return False
+    p_b = _extra_effect_bootstrap_p(prob, sub_fit, best_fit, keys)
+    if not p_b < alpha:
+        notes.append(f"{best_fit.name} fits better by BIC ({dbic:.1f}) but {size_txt}, and with the plans as the units its gain is within "
+                     f"what the throws' own scatter over the plans gives (wild cluster bootstrap p = {p_b:.2g} >= {alpha:.2g}): not claimed")
+        return False
+    notes.append(f"{size_txt}, but {best_fit.name} fits {dbic:.1f} BIC better and {e} is significant with the plans as the units "
+                 f"(cluster-robust Wald p = {p_w:.2g}, wild cluster bootstrap p = {p_b:.2g} < {alpha:.2g}): the pair is named")
+    return True
 
 
 def refine_rivals(prob: fitting.Problem, fits: list[fitting.CandidateFit], best_fit: fitting.CandidateFit, sim: _Sim, groups: list[str],
