@@ -108,6 +108,10 @@ def test_quick_run_goes_from_demonstrations_to_a_template_pool(tmp_path, capsys)
     assert set(records) == {"label", "segment", "imitate", "refine", "transfer", "diagnose", "transfer_refined", "template", "pool", "report"}
     assert (out / "report.md").read_text().count("| yes |") >= 5
     assert records["pool"]["templates"] == ["throw"]
+    reach = records["template"]["reach_refinement"]  # the base refined further towards the farthest context
+    assert reach["target_m"] == [2.35, 0.0] and reach["episodes"] <= 20 and reach["start_distance_m"] > 0
+    assert reach["kept"] == (reach["best_distance_m"] is not None and reach["best_distance_m"] < reach["start_distance_m"])
+    assert ("08_template/reach" in records["template"]["base"]) == reach["kept"]
     from besdrake.search.templates import TemplatePool
 
     plan = TemplatePool(out / "09_pool").instantiate("throw", [1.9, 0.2])
