@@ -562,8 +562,11 @@ def _template_base(ctx: Context, scenario: str, out: Path) -> tuple[Path, dict[s
     A throw refined to land at the refinement's target drives a joint at its speed limit, so a template cannot make it
     throw farther: contexts beyond its touchdown are missed by the shortfall, while a slower execution reaches the nearer
     ones. Refined towards the farthest context, the base covers the context range. The further-refined throw is kept
-    only where it lands nearer that target than the refined throw (a throw family may not reach it)."""
+    only where the template's reach probes of both throws leave it the smaller floor (the test contexts' mean distance
+    that no meta-parameters avoid, :func:`~besdrake.search.templates.reach_floor`): a throw family may not reach the
+    target, and one that lands a little farther may turn less far (joint 1's limits)."""
     from besdrake.imitation import load_dmp
+    from besdrake.search.templates import reach_floor
 
     base_file = _best_throw(ctx)
     settings = template_reach_settings(ctx.config)
@@ -571,10 +574,14 @@ def _template_base(ctx: Context, scenario: str, out: Path) -> tuple[Path, dict[s
         return base_file, {}
     result = _refine_from(ctx, [load_dmp(base_file)], scenario, out, settings["evaluations"], "template reach", scouting=False,
                           target=settings["target"], plans=1)
-    best = result["best_distance_within_limits_m"]
-    kept = best is not None and best < result["start_distance_m"]
-    record = {"target_m": list(settings["target"]), "start_distance_m": result["start_distance_m"], "best_distance_m": best,
-              "episodes": int(sum(r["n_episodes"] for r in result["runs"])), "kept": bool(kept)}
+    record = {"target_m": list(settings["target"]), "start_distance_m": result["start_distance_m"],
+              "best_distance_m": result["best_distance_within_limits_m"], "episodes": int(sum(r["n_episodes"] for r in result["runs"]))}
+    if result["runs"][0].get("stop_reason") == "start" or result["best_distance_within_limits_m"] is None:
+        return base_file, record | {"kept": False}
+    with _executor(ctx, scenario) as executor:
+        floors = [reach_floor(load_dmp(f), executor, ctx.robot(scenario)) for f in (base_file, out / result["best_dmp"])]
+    kept = floors[1] < floors[0]
+    record |= {"floor_m": floors, "kept": bool(kept)}
     return (out / result["best_dmp"] if kept else base_file), record
 
 
