@@ -72,7 +72,8 @@ def test_unknown_stage_is_refused(tmp_path, capsys):
 @pytest.mark.parametrize("override", ["transfer.placement_sd=0.01", "transfer.transfer_choice=random", "transfer.population=many",
                                       "diagnosis.probes=9", "diagnosis.repeats=-1", "diagnosis.throws=lots",
                                       "diagnosis.sideways=99", "diagnosis.sideways=some", "refinement.stop_distance=0.5",
-                                      "refinement.robust_sd=0.01", "refinement.robust_sd=lots", "refinement.robust_radius=0"])
+                                      "refinement.robust_sd=0.01", "refinement.robust_sd=lots", "refinement.robust_radius=0",
+                                      "templates.reach_target=far", "templates.reach_target=[1]", "templates.reach_evaluations=-5"])
 def test_a_bad_refinement_transfer_or_diagnosis_setting_is_refused_before_any_stage_runs(tmp_path, capsys, override):
     code = main(["learn", "--quick", "--set", override, "--out", str(tmp_path / "run")])
     err = capsys.readouterr().err
@@ -107,6 +108,10 @@ def test_quick_run_goes_from_demonstrations_to_a_template_pool(tmp_path, capsys)
     assert set(records) == {"label", "segment", "imitate", "refine", "transfer", "diagnose", "transfer_refined", "template", "pool", "report"}
     assert (out / "report.md").read_text().count("| yes |") >= 5
     assert records["pool"]["templates"] == ["throw"]
+    reach = records["template"]["reach_refinement"]  # the base refined further towards the farthest context
+    assert reach["target_m"] == [2.35, 0.0] and reach["episodes"] <= 20 and reach["start_distance_m"] > 0
+    assert reach["kept"] == ("floor_m" in reach and reach["floor_m"][1] < reach["floor_m"][0])
+    assert ("08_template/reach" in records["template"]["base"]) == reach["kept"]
     from besdrake.search.templates import TemplatePool
 
     plan = TemplatePool(out / "09_pool").instantiate("throw", [1.9, 0.2])

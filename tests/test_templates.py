@@ -205,6 +205,18 @@ def test_default_template_base_reaches_every_test_context_within_the_limits():
     assert fastest > distances.max() + 0.1 and slowest < distances.min()
 
 
+def test_reach_floor_ranks_bases_by_the_test_contexts_they_reach():
+    """Issue 27: the probes' floor tells a base that reaches every test context (the 10-weight default base) from one
+    that falls short of the farthest (the 6-weight fit of the same throw); the learn stage keeps the base with the
+    smaller floor."""
+    from besdrake.search.templates import reach_floor
+    from besdrake.sim import make_executor
+
+    with make_executor("serial") as ex:
+        full, short = reach_floor(default_template_base(), ex), reach_floor(fitted_default_throw(0.6, 6), ex)
+    assert full < 0.02 and short > full + 0.02  # measured: 0.010 m and 0.044 m
+
+
 def test_template_cli_train_list_instantiate(tmp_path):
     from besdrake.cli import main
 

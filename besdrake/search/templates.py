@@ -567,6 +567,24 @@ def _probe_reach(meta: MetaDMP, executor, bounds: np.ndarray, n_probes: int, fix
     return probe, bounds
 
 
+def reach_floor(base: DMP, executor, robot: Robot | None = None, probes: int = DEFAULT_PROBES,
+                contexts: np.ndarray = TEST_CONTEXTS) -> float:
+    """Mean distance (m) over ``contexts`` that no template of ``base`` avoids (``"rotate"``/``"scale"`` modes), from
+    ``probes`` simulated probes of it over the box within the joint limits
+    (:func:`~besdrake.search.template_reach.model_floor`): a measure of a base's reach; inf when fewer than two landed."""
+    from besdrake.search.template_reach import model_floor, probe_reach
+
+    robot = robot or getattr(getattr(executor, "scenario", None), "robot", None)
+    if robot is None:
+        raise TemplateError("reach_floor needs robot= (the executor has no scenario to take it from)")
+    bounds = default_meta_bounds(base, robot)
+    try:
+        probe = probe_reach(MetaDMP(base, robot), executor, bounds[0, 0], bounds[0, 1], max(2, int(probes)))
+    except ValueError:
+        return float("inf")
+    return float(np.mean(model_floor(probe, bounds, contexts)))
+
+
 def _n_probes(probes: int, n_episodes: int, joint1_mode: str, time_mode: str) -> int:
     """The reach probes a training spends: at most a quarter of the budget, none below two (they make no model), and
     none where the joint-1 goal does not rotate the movement or the execution time does not scale it."""
@@ -610,5 +628,5 @@ __all__ = [
     "CONTEXT_BOUNDS", "TEST_CONTEXTS", "METHODS", "JOINT1_MODES", "META_NAMES", "PAPER_MEAN_CM",
     "TemplateError", "MetaDMP", "BehaviorTemplate", "TemplatePool", "TemplateEvaluation", "TemplateTraining",
     "default_meta_bounds", "limit_safe_execution_times", "evaluate_template", "train_template", "touchdowns",
-    "TIME_MODES", "DEFAULT_PROBES",
+    "TIME_MODES", "DEFAULT_PROBES", "reach_floor",
 ]

@@ -260,10 +260,12 @@ def stage_imitate(ctx: Context, out: Path) -> dict[str, Any]:
 # --------------------------------------------------------------------------------------------
 # 4. refinement in simulation
 # --------------------------------------------------------------------------------------------
-def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int, tag: str, scouting: bool = True) -> dict[str, Any]:
+def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int, tag: str, scouting: bool = True,
+                 target: tuple[float, float] | None = None, plans: int | None = None) -> dict[str, Any]:
     """CMA-ES from the best of ``dmps`` (the paper uses all available plans) in ``scenario``. The default search's scouts
     (short first attempts from the best throws) run only with ``scouting`` and where they take at most half of
-    ``budget``: a re-refinement from throws refined already goes straight to CMA-ES from the best of them."""
+    ``budget``: a re-refinement from throws refined already goes straight to CMA-ES from the best of them.
+    ``target`` and ``plans`` (runs): the refinement section's unless given."""
     from besdrake.search.refinement import (DEFAULT_SCOUTS, SUCCESS_DISTANCE, RefinementProblem, plot_learning_curves, rank_starts,
                                             refine, scout_start_points, scouting_episodes)
     from besdrake.search.refinement.run import stops_at
@@ -272,7 +274,8 @@ def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int
 
     cfg = ctx.config["refinement"]
     task = str(ctx.config.get("task") or DEFAULT_TASK)
-    reward = get_task(task).reward(target=tuple(cfg["target"]))
+    reward = get_task(task).reward(target=tuple(cfg["target"] if target is None else target))
+    n_runs = int(cfg["plans"] if plans is None else plans)
     robot = ctx.robot(scenario)
     settings = refinement_settings(ctx.config)
     robust = _robust_check(task, scenario, settings)
@@ -289,14 +292,14 @@ def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int
         def run_job(k: int):
             """CMA-ES run ``k`` (its own seed and resumable folder) on the shared executor ``ex``."""
             def job(ex):
-                ctx.progress(f"{tag}: CMA-ES run {k + 1}/{cfg['plans']} from throw {index} ({start.distance:.2f} m from the target)")
+                ctx.progress(f"{tag}: CMA-ES run {k + 1}/{n_runs} from throw {index} ({start.distance:.2f} m from the target)")
                 return refine(problem, ex, n_episodes=int(budget), seed=int(cfg["seed"]) + k, out_dir=out / f"run{k}",
                               popsize=int(cfg["population"]), stop_on_success=settings["stop_on_success"],
                               stop_distance=settings["stop_distance"], starts=starts, scouts=scouts)
             return job
 
         # The runs are independent: their generations share the pool, one wider batch per round (same results).
-        results = run_concurrently(executor, [run_job(k) for k in range(int(cfg["plans"]))])
+        results = run_concurrently(executor, [run_job(k) for k in range(n_runs)])
     runs = _save_refined(problem, robot, results, out)
     plot_learning_curves(results, out / "learning_curve.png")
     # The best run is judged by throws within every joint limit: a closer throw that breaks a limit is no plan.
@@ -535,15 +538,63 @@ def _best_throw(ctx: Context) -> Path:
     return ctx.run.root / "04_refine" / ctx.run.done(4, "refine")["summary"]["best_dmp"]
 
 
+def template_reach_settings(config: dict[str, Any]) -> dict[str, Any]:
+    """The templates section's reach refinement, checked (:class:`~besdrake.pipeline.config.ConfigError`): ``target``
+    (m, or None: off) and ``evaluations`` (episodes)."""
+    from besdrake.pipeline.config import ConfigError
+
+    cfg = config["templates"]
+    target, budget = cfg.get("reach_target"), cfg.get("reach_evaluations", 0)
+    try:
+        target = None if target is None else tuple(float(v) for v in target)
+        budget = int(budget)
+    except (TypeError, ValueError) as err:
+        raise ConfigError(f"templates: reach_target must be [x, y] in m or null and reach_evaluations an integer ({err})") from None
+    if target is not None and (len(target) != 2 or not np.isfinite(target).all()) or budget < 0:
+        raise ConfigError(f"templates: reach_target must be two finite numbers (m) or null and reach_evaluations >= 0, "
+                          f"got {cfg.get('reach_target')!r}, {cfg.get('reach_evaluations')!r}")
+    return {"target": target if budget > 0 else None, "evaluations": budget}
+
+
+def _template_base(ctx: Context, scenario: str, out: Path) -> tuple[Path, dict[str, Any]]:
+    """The template's base: the best refined throw, refined further towards ``templates.reach_target`` (issue 27).
+
+    A throw refined to land at the refinement's target drives a joint at its speed limit, so a template cannot make it
+    throw farther: contexts beyond its touchdown are missed by the shortfall, while a slower execution reaches the nearer
+    ones. Refined towards the farthest context, the base covers the context range. The further-refined throw is kept
+    only where the template's reach probes of both throws leave it the smaller floor (the test contexts' mean distance
+    that no meta-parameters avoid, :func:`~besdrake.search.templates.reach_floor`): a throw family may not reach the
+    target, and one that lands a little farther may turn less far (joint 1's limits)."""
+    from besdrake.imitation import load_dmp
+    from besdrake.search.templates import reach_floor
+
+    base_file = _best_throw(ctx)
+    settings = template_reach_settings(ctx.config)
+    if settings["target"] is None:
+        return base_file, {}
+    result = _refine_from(ctx, [load_dmp(base_file)], scenario, out, settings["evaluations"], "template reach", scouting=False,
+                          target=settings["target"], plans=1)
+    record = {"target_m": list(settings["target"]), "start_distance_m": result["start_distance_m"],
+              "best_distance_m": result["best_distance_within_limits_m"], "episodes": int(sum(r["n_episodes"] for r in result["runs"]))}
+    if result["runs"][0].get("stop_reason") == "start" or result["best_distance_within_limits_m"] is None:
+        return base_file, record | {"kept": False}
+    with _executor(ctx, scenario) as executor:
+        floors = [reach_floor(load_dmp(f), executor, ctx.robot(scenario)) for f in (base_file, out / result["best_dmp"])]
+    kept = floors[1] < floors[0]
+    record |= {"floor_m": floors, "kept": bool(kept)}
+    return (out / result["best_dmp"] if kept else base_file), record
+
+
 def stage_template(ctx: Context, out: Path) -> dict[str, Any]:
-    """BO-CPS over (execution time, joint-1 goal) in the refined simulation; tested in simulation and in the lab."""
+    """BO-CPS over (execution time, joint-1 goal) in the refined simulation, from the refined throw refined further to
+    reach the farthest context (:func:`_template_base`); tested in simulation and in the lab."""
     from besdrake.imitation import load_dmp
     from besdrake.search.templates import TEST_CONTEXTS, evaluate_template, train_template
 
     cfg = ctx.config["templates"]
     method = {"entropy_search": "es", "ucb": "ucb"}.get(cfg["acquisition"], cfg["acquisition"])
-    base_file = _best_throw(ctx)
     scenario = _refined_scenario(ctx)
+    base_file, reach = _template_base(ctx, scenario, out / "reach")
     with _executor(ctx, scenario) as executor:
         training = train_template(
             load_dmp(base_file), executor, method=method, n_episodes=int(cfg["episodes"]), seed=int(cfg["seed"]),
@@ -566,6 +617,7 @@ def stage_template(ctx: Context, out: Path) -> dict[str, Any]:
         "episodes": int(cfg["episodes"]),
         "probe_rollouts": int(prov["n_probe_rollouts"]),
         "base": str(base_file),
+        "reach_refinement": reach,
         "scenario": scenario,
         "meta_bounds": training.template.meta_bounds.tolist(),
         "base_reach_m": _base_reach(prov.get("reach_probe")),

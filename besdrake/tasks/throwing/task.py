@@ -38,11 +38,12 @@ class ThrowingTask(Task):
         return list(STAGES)
 
     def check_learn_config(self, config) -> None:
-        """The refinement's stop and robustness settings, the Transferability settings and the diagnosis experiment's
+        """The refinement's stop and robustness settings, the template's reach refinement, the Transferability settings and the diagnosis experiment's
         design, checked before any stage runs."""
-        from besdrake.tasks.throwing.learn import diagnosis_design, refinement_settings, transfer_config
+        from besdrake.tasks.throwing.learn import diagnosis_design, refinement_settings, template_reach_settings, transfer_config
 
         refinement_settings(config)
+        template_reach_settings(config)
         transfer_config(config)
         if config["diagnosis"].get("enabled", True):
             diagnosis_design(config)
