@@ -221,25 +221,19 @@ def _plot_segmentation(pre, found, manual, path: Path) -> None:
 # 3. imitation
 # --------------------------------------------------------------------------------------------
 def stage_imitate(ctx: Context, out: Path) -> dict[str, Any]:
-    """Embodiment mapping and DMP imitation of every throw found; simulated in the designed scenario."""
-    from besdrake.mocap.qualisys import read_recording
-    from besdrake.mocap.segments_io import read_segmentation
-    from besdrake.tasks.throwing.imitation import imitate_recording, prepare, reports_to_json
-    from besdrake.sim import Rollout
+    """Embodiment mapping and DMP imitation of every throw found; simulated in the designed scenario. The throws are
+    spread over the configured workers (same results as one after the other); figures of the first ``figures``."""
+    from besdrake.tasks.throwing.imitation import reports_to_json
+    from besdrake.tasks.throwing.imitation_pool import imitate_throws
 
-    max_throws = ctx.config["imitation"]["max_throws"]
-    rollout = Rollout(ctx.config["scenario"])
-    throws_out = []
-    for seg_file in sorted((ctx.run.root / "02_segment").glob("*_segments.json")):
-        name = seg_file.name[: -len("_segments.json")]
-        pre = prepare(read_recording(ctx.run.root / "01_label" / f"{name}.tsv"))
-        throws = [(s.start_frame, s.end_frame) for s in read_segmentation(seg_file) if s.label == "throw"]
-        if max_throws is not None:
-            throws = throws[: max(0, int(max_throws) - len(throws_out))]
-        reports = imitate_recording(name, pre, throws, out_dir=out, mapping=ctx.mapping(), rollout=rollout)
-        throws_out += reports_to_json(reports)
-        if max_throws is not None and len(throws_out) >= int(max_throws):
-            break
+    jobs = _imitation_jobs(ctx)
+    figures = ctx.config["imitation"].get("figures")
+    for k, job in enumerate(jobs):
+        job.figure = figures is None or k < int(figures)
+    workers = 1 if ctx.config.get("ray_address") else int(ctx.config["workers"])
+    throws_out = reports_to_json(imitate_throws(jobs, ctx.config["scenario"], out_dir=out, workers=workers))
+    for job, t in zip(jobs, throws_out):
+        t.setdefault("name", job.name)  # a throw that could not be imitated has no summary
     target = np.asarray(ctx.config["refinement"]["target"], dtype=float)
     for t in throws_out:
         sim = t.get("simulation") or {}
@@ -255,6 +249,28 @@ def stage_imitate(ctx: Context, out: Path) -> dict[str, Any]:
         "median_target_distance_m": float(np.median(dists)) if dists else None,
         "min_target_distance_m": float(min(dists)) if dists else None,
     }
+
+
+def _imitation_jobs(ctx: Context) -> list:
+    """The throw segments of the segmentation stage, recording by recording, at most ``imitation.max_throws``."""
+    from besdrake.mocap.qualisys import read_recording
+    from besdrake.mocap.segments_io import read_segmentation
+    from besdrake.tasks.throwing.imitation import prepare
+    from besdrake.tasks.throwing.imitation_pool import ThrowJob
+
+    max_throws = ctx.config["imitation"]["max_throws"]
+    jobs: list[ThrowJob] = []
+    for seg_file in sorted((ctx.run.root / "02_segment").glob("*_segments.json")):
+        if max_throws is not None and len(jobs) >= int(max_throws):
+            break
+        name = seg_file.name[: -len("_segments.json")]
+        throws = [(s.start_frame, s.end_frame) for s in read_segmentation(seg_file) if s.label == "throw"]
+        if max_throws is not None:
+            throws = throws[: max(0, int(max_throws) - len(jobs))]
+        if throws:
+            pre = prepare(read_recording(ctx.run.root / "01_label" / f"{name}.tsv"))
+            jobs += [ThrowJob(f"{name}_throw{i}", i, pre, f0, f1) for i, (f0, f1) in enumerate(throws)]
+    return jobs
 
 
 # --------------------------------------------------------------------------------------------
