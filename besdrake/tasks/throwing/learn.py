@@ -311,8 +311,11 @@ def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int
                               stop_distance=settings["stop_distance"], starts=starts, scouts=scouts)
             return job
 
-        # The runs are independent: their generations share the pool, one wider batch per round (same results).
-        results = run_concurrently(executor, [run_job(k) for k in range(int(cfg["plans"]))])
+        jobs = [run_job(k) for k in range(int(cfg["plans"]))]
+        if settings["stop_on_success"] and settings["runs_in_turn"]:
+            results = _runs_in_turn(jobs, executor, settings["stop_distance"] or SUCCESS_DISTANCE)
+        else:  # independent runs: their generations share the pool, one wider batch per round (same results)
+            results = run_concurrently(executor, jobs)
     runs = _save_refined(problem, robot, results, out)
     plot_learning_curves(results, out / "learning_curve.png")
     # The best run is judged by throws within every joint limit: a closer throw that breaks a limit is no plan.
@@ -326,6 +329,19 @@ def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int
         "best_distance_within_limits_m": best["best_distance_within_limits_m"],
         "best_dmp": best["dmp"],
     }
+
+
+def _runs_in_turn(jobs: list, executor, stop_distance: float) -> list:
+    """The CMA-ES runs one after the other on ``executor``, up to the first that stops at a throw within
+    ``stop_distance`` (its robust distance where checked): a later run only where every earlier one failed."""
+    results = []
+    for job in jobs:
+        results.append(job(executor))
+        r = results[-1]
+        d = np.where(np.isfinite(r.robust_distances), r.robust_distances, r.distances) if r.robust_distances.size == r.distances.size else r.distances
+        if np.any(r.successes & (d < stop_distance)):
+            break
+    return results
 
 
 def _keep_start(ctx: Context, problem, robot, index: int, start, out: Path, tag: str) -> dict[str, Any]:
@@ -361,8 +377,8 @@ def _save_throw(dmp, robot, out: Path, k: int) -> None:
 
 def refinement_settings(config: dict[str, Any]) -> dict[str, Any]:
     """The refinement section's stop and robustness settings, checked (:class:`~besdrake.pipeline.config.ConfigError`):
-    ``stop_on_success``, ``stop_distance`` (m; null: the success distance) and ``robust_sd`` (m per axis; 0: no robust
-    check), ``robust_radius`` (m)."""
+    ``stop_on_success``, ``runs_in_turn`` (the runs one after the other up to the first success), ``stop_distance`` (m;
+    null: the success distance) and ``robust_sd`` (m per axis; 0: no robust check), ``robust_radius`` (m)."""
     from besdrake.pipeline.config import ConfigError
     from besdrake.search.refinement import SUCCESS_DISTANCE
     from besdrake.search.refinement.robust import ROBUST_RADIUS
@@ -371,6 +387,7 @@ def refinement_settings(config: dict[str, Any]) -> dict[str, Any]:
     try:
         stop = cfg.get("stop_distance")
         out = {"stop_on_success": bool(cfg.get("stop_on_success", True)), "stop_distance": None if stop is None else float(stop),
+               "runs_in_turn": bool(cfg.get("runs_in_turn", False)),
                "robust_sd": float(cfg.get("robust_sd", 0.0)), "robust_radius": float(cfg.get("robust_radius", ROBUST_RADIUS))}
     except (TypeError, ValueError) as err:
         raise ConfigError(f"refinement: {err}") from None
