@@ -468,6 +468,8 @@ def diagnosis_design(config: dict[str, Any], limits=None) -> list:
     cfg = config["diagnosis"]
     try:
         sideways = int(cfg.get("sideways", 0))
+        if int(cfg.get("refine_top", 3)) < 1:
+            raise ConfigError(f"diagnosis: refine_top must be an integer >= 1, got {cfg.get('refine_top')!r}")
         if sideways and limits is None:
             limits = learn_scenario(config).robot.limits
         return diagnosis_plans(n=int(cfg["throws"]), repeats=int(cfg["repeats"]), seed=int(config["transfer"]["seed"]), probes=int(cfg.get("probes", 0)),
@@ -528,7 +530,8 @@ def stage_diagnose(ctx: Context, out: Path) -> dict[str, Any]:
     run_plans(lab, plans, log)
     t0 = time.perf_counter()
     with _executor(ctx, ctx.config["scenario"]) as executor:
-        diag = diagnose(log.measurements(), scenario=ctx.config["scenario"], pairs=bool(cfg["pairs"]), executor=executor)
+        diag = diagnose(log.measurements(), scenario=ctx.config["scenario"], pairs=bool(cfg["pairs"]), executor=executor,
+                        refine_top=int(cfg.get("refine_top", 3)))
     seconds = time.perf_counter() - t0
     paths = write_report(diag, out / "report")
     summary = diag.summary()
