@@ -116,3 +116,25 @@ def test_quick_run_goes_from_demonstrations_to_a_template_pool(tmp_path, capsys)
 
     plan = TemplatePool(out / "09_pool").instantiate("throw", [1.9, 0.2])
     assert plan.check_limits(COMPI.limits).ok
+
+
+def test_refinement_runs_in_turn_stop_at_the_first_that_succeeds():
+    from types import SimpleNamespace
+
+    from besdrake.tasks.throwing.learn import _runs_in_turn
+
+    def run(distances, robust=None):
+        d = np.array(distances, dtype=float)
+        r = np.full(d.size, np.nan) if robust is None else np.array(robust, dtype=float)
+        return SimpleNamespace(distances=d, robust_distances=r, successes=d < 0.1)
+
+    calls = []
+
+    def job(result):
+        return lambda ex: calls.append(ex) or result
+
+    failed, near, robustly_far = run([0.5, 0.3]), run([0.4, 0.04]), run([0.04], robust=[0.08])
+    assert _runs_in_turn([job(failed), job(near), job(failed)], "ex", 0.05) == [failed, near]  # the third never runs
+    assert len(calls) == 2 and calls == ["ex", "ex"]
+    # a success outside the stop distance (its robust distance where checked) does not end the turn
+    assert _runs_in_turn([job(robustly_far), job(near)], "ex", 0.05) == [robustly_far, near]

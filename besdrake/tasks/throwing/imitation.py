@@ -134,36 +134,41 @@ def imitate_recording(
     rollout=None,
 ) -> list[ThrowReport]:
     """Imitate every throw of one recording; write plans, summaries and figures to ``out_dir``."""
-    from besdrake.embodiment import EmbodimentMapping, hand_trajectory
+    from besdrake.embodiment import EmbodimentMapping
     from besdrake.sim.scenario import load_scenario
 
     mapping = mapping or EmbodimentMapping(load_scenario(scenario).robot)
-    reports = []
-    for i, (f0, f1) in enumerate(throws):
-        throw_name = f"{name}_throw{i}"
-        try:
-            hand = hand_trajectory(pre, f0, f1)
-            result = mapping.imitate(hand, name=throw_name)
-        except Exception as err:  # one bad throw must not stop the others
-            reports.append(ThrowReport(i, f0, f1, ok=False, error=f"{type(err).__name__}: {err}"))
-            continue
-        report = ThrowReport(i, f0, f1, ok=result.executable, summary=result.summary())
-        if simulate:
-            if rollout is None:
-                from besdrake.sim import Rollout
+    if simulate and rollout is None:
+        from besdrake.sim import Rollout
 
-                rollout = Rollout(scenario)
-            t0 = time.perf_counter()
-            outcome = rollout.rollout(result.plan, limits="flag")
-            report.landing = outcome.summary() | {"sim_time_s": time.perf_counter() - t0}
-        if out_dir is not None:
-            result.save(out_dir)
-            if figures:
-                from besdrake.embodiment.figures import plot_imitation
+        rollout = Rollout(scenario)
+    return [imitate_throw(f"{name}_throw{i}", i, pre, f0, f1, mapping, rollout if simulate else None, out_dir, figures)
+            for i, (f0, f1) in enumerate(throws)]
 
-                plot_imitation(result, hand, mapping.welded, out_dir / f"{throw_name}.png")
-        reports.append(report)
-    return reports
+
+def imitate_throw(throw_name: str, i: int, pre: Preprocessed, f0: int, f1: int, mapping, rollout=None,
+                  out_dir: Path | None = None, figure: bool = True) -> ThrowReport:
+    """Imitate throw ``i`` (frames ``f0..f1`` of ``pre``) with ``mapping``; simulate it with ``rollout`` (None: not
+    simulated); write its plan, summary and (``figure``) figure to ``out_dir``. An error is reported, not raised."""
+    from besdrake.embodiment import hand_trajectory
+
+    try:
+        hand = hand_trajectory(pre, f0, f1)
+        result = mapping.imitate(hand, name=throw_name)
+    except Exception as err:  # one bad throw must not stop the others
+        return ThrowReport(i, f0, f1, ok=False, error=f"{type(err).__name__}: {err}")
+    report = ThrowReport(i, f0, f1, ok=result.executable, summary=result.summary())
+    if rollout is not None:
+        t0 = time.perf_counter()
+        outcome = rollout.rollout(result.plan, limits="flag")
+        report.landing = outcome.summary() | {"sim_time_s": time.perf_counter() - t0}
+    if out_dir is not None:
+        result.save(out_dir)
+        if figure:
+            from besdrake.embodiment.figures import plot_imitation
+
+            plot_imitation(result, hand, mapping.welded, out_dir / f"{throw_name}.png")
+    return report
 
 
 def reports_to_json(reports: list[ThrowReport]) -> list[dict[str, Any]]:

@@ -221,25 +221,19 @@ def _plot_segmentation(pre, found, manual, path: Path) -> None:
 # 3. imitation
 # --------------------------------------------------------------------------------------------
 def stage_imitate(ctx: Context, out: Path) -> dict[str, Any]:
-    """Embodiment mapping and DMP imitation of every throw found; simulated in the designed scenario."""
-    from besdrake.mocap.qualisys import read_recording
-    from besdrake.mocap.segments_io import read_segmentation
-    from besdrake.tasks.throwing.imitation import imitate_recording, prepare, reports_to_json
-    from besdrake.sim import Rollout
+    """Embodiment mapping and DMP imitation of every throw found; simulated in the designed scenario. The throws are
+    spread over the configured workers (same results as one after the other); figures of the first ``figures``."""
+    from besdrake.tasks.throwing.imitation import reports_to_json
+    from besdrake.tasks.throwing.imitation_pool import imitate_throws
 
-    max_throws = ctx.config["imitation"]["max_throws"]
-    rollout = Rollout(ctx.config["scenario"])
-    throws_out = []
-    for seg_file in sorted((ctx.run.root / "02_segment").glob("*_segments.json")):
-        name = seg_file.name[: -len("_segments.json")]
-        pre = prepare(read_recording(ctx.run.root / "01_label" / f"{name}.tsv"))
-        throws = [(s.start_frame, s.end_frame) for s in read_segmentation(seg_file) if s.label == "throw"]
-        if max_throws is not None:
-            throws = throws[: max(0, int(max_throws) - len(throws_out))]
-        reports = imitate_recording(name, pre, throws, out_dir=out, mapping=ctx.mapping(), rollout=rollout)
-        throws_out += reports_to_json(reports)
-        if max_throws is not None and len(throws_out) >= int(max_throws):
-            break
+    jobs = _imitation_jobs(ctx)
+    figures = ctx.config["imitation"].get("figures")
+    for k, job in enumerate(jobs):
+        job.figure = figures is None or k < int(figures)
+    workers = 1 if ctx.config.get("ray_address") else int(ctx.config["workers"])
+    throws_out = reports_to_json(imitate_throws(jobs, ctx.config["scenario"], out_dir=out, workers=workers))
+    for job, t in zip(jobs, throws_out):
+        t.setdefault("name", job.name)  # a throw that could not be imitated has no summary
     target = np.asarray(ctx.config["refinement"]["target"], dtype=float)
     for t in throws_out:
         sim = t.get("simulation") or {}
@@ -255,6 +249,28 @@ def stage_imitate(ctx: Context, out: Path) -> dict[str, Any]:
         "median_target_distance_m": float(np.median(dists)) if dists else None,
         "min_target_distance_m": float(min(dists)) if dists else None,
     }
+
+
+def _imitation_jobs(ctx: Context) -> list:
+    """The throw segments of the segmentation stage, recording by recording, at most ``imitation.max_throws``."""
+    from besdrake.mocap.qualisys import read_recording
+    from besdrake.mocap.segments_io import read_segmentation
+    from besdrake.tasks.throwing.imitation import prepare
+    from besdrake.tasks.throwing.imitation_pool import ThrowJob
+
+    max_throws = ctx.config["imitation"]["max_throws"]
+    jobs: list[ThrowJob] = []
+    for seg_file in sorted((ctx.run.root / "02_segment").glob("*_segments.json")):
+        if max_throws is not None and len(jobs) >= int(max_throws):
+            break
+        name = seg_file.name[: -len("_segments.json")]
+        throws = [(s.start_frame, s.end_frame) for s in read_segmentation(seg_file) if s.label == "throw"]
+        if max_throws is not None:
+            throws = throws[: max(0, int(max_throws) - len(jobs))]
+        if throws:
+            pre = prepare(read_recording(ctx.run.root / "01_label" / f"{name}.tsv"))
+            jobs += [ThrowJob(f"{name}_throw{i}", i, pre, f0, f1) for i, (f0, f1) in enumerate(throws)]
+    return jobs
 
 
 # --------------------------------------------------------------------------------------------
@@ -298,8 +314,11 @@ def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int
                               stop_distance=settings["stop_distance"], starts=starts, scouts=scouts)
             return job
 
-        # The runs are independent: their generations share the pool, one wider batch per round (same results).
-        results = run_concurrently(executor, [run_job(k) for k in range(n_runs)])
+        jobs = [run_job(k) for k in range(n_runs)]
+        if settings["stop_on_success"] and settings["runs_in_turn"]:
+            results = _runs_in_turn(jobs, executor, settings["stop_distance"] or SUCCESS_DISTANCE)
+        else:  # independent runs: their generations share the pool, one wider batch per round (same results)
+            results = run_concurrently(executor, jobs)
     runs = _save_refined(problem, robot, results, out)
     plot_learning_curves(results, out / "learning_curve.png")
     # The best run is judged by throws within every joint limit: a closer throw that breaks a limit is no plan.
@@ -313,6 +332,19 @@ def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int
         "best_distance_within_limits_m": best["best_distance_within_limits_m"],
         "best_dmp": best["dmp"],
     }
+
+
+def _runs_in_turn(jobs: list, executor, stop_distance: float) -> list:
+    """The CMA-ES runs one after the other on ``executor``, up to the first that stops at a throw within
+    ``stop_distance`` (its robust distance where checked): a later run only where every earlier one failed."""
+    results = []
+    for job in jobs:
+        results.append(job(executor))
+        r = results[-1]
+        d = np.where(np.isfinite(r.robust_distances), r.robust_distances, r.distances) if r.robust_distances.size == r.distances.size else r.distances
+        if np.any(r.successes & (d < stop_distance)):
+            break
+    return results
 
 
 def _keep_start(ctx: Context, problem, robot, index: int, start, out: Path, tag: str) -> dict[str, Any]:
@@ -348,8 +380,8 @@ def _save_throw(dmp, robot, out: Path, k: int) -> None:
 
 def refinement_settings(config: dict[str, Any]) -> dict[str, Any]:
     """The refinement section's stop and robustness settings, checked (:class:`~besdrake.pipeline.config.ConfigError`):
-    ``stop_on_success``, ``stop_distance`` (m; null: the success distance) and ``robust_sd`` (m per axis; 0: no robust
-    check), ``robust_radius`` (m)."""
+    ``stop_on_success``, ``runs_in_turn`` (the runs one after the other up to the first success), ``stop_distance`` (m;
+    null: the success distance) and ``robust_sd`` (m per axis; 0: no robust check), ``robust_radius`` (m)."""
     from besdrake.pipeline.config import ConfigError
     from besdrake.search.refinement import SUCCESS_DISTANCE
     from besdrake.search.refinement.robust import ROBUST_RADIUS
@@ -358,6 +390,7 @@ def refinement_settings(config: dict[str, Any]) -> dict[str, Any]:
     try:
         stop = cfg.get("stop_distance")
         out = {"stop_on_success": bool(cfg.get("stop_on_success", True)), "stop_distance": None if stop is None else float(stop),
+               "runs_in_turn": bool(cfg.get("runs_in_turn", False)),
                "robust_sd": float(cfg.get("robust_sd", 0.0)), "robust_radius": float(cfg.get("robust_radius", ROBUST_RADIUS))}
     except (TypeError, ValueError) as err:
         raise ConfigError(f"refinement: {err}") from None
@@ -438,6 +471,8 @@ def diagnosis_design(config: dict[str, Any], limits=None) -> list:
     cfg = config["diagnosis"]
     try:
         sideways = int(cfg.get("sideways", 0))
+        if int(cfg.get("refine_top", 3)) < 1:
+            raise ConfigError(f"diagnosis: refine_top must be an integer >= 1, got {cfg.get('refine_top')!r}")
         if sideways and limits is None:
             limits = learn_scenario(config).robot.limits
         return diagnosis_plans(n=int(cfg["throws"]), repeats=int(cfg["repeats"]), seed=int(config["transfer"]["seed"]), probes=int(cfg.get("probes", 0)),
@@ -498,7 +533,8 @@ def stage_diagnose(ctx: Context, out: Path) -> dict[str, Any]:
     run_plans(lab, plans, log)
     t0 = time.perf_counter()
     with _executor(ctx, ctx.config["scenario"]) as executor:
-        diag = diagnose(log.measurements(), scenario=ctx.config["scenario"], pairs=bool(cfg["pairs"]), executor=executor)
+        diag = diagnose(log.measurements(), scenario=ctx.config["scenario"], pairs=bool(cfg["pairs"]), executor=executor,
+                        refine_top=int(cfg.get("refine_top", 3)))
     seconds = time.perf_counter() - t0
     paths = write_report(diag, out / "report")
     summary = diag.summary()
