@@ -152,7 +152,7 @@ def test_a_named_cause_with_a_structural_twin_says_so_without_a_rival():
     none.effects, none.p_value = (), 0.0
     fit = SimpleNamespace(name="joint_offset", refined=True, effects=("joint_offset",))
     nfit = SimpleNamespace(name="none", refined=True, effects=())
-    ev = SimpleNamespace(measured_groups=["touchdown", "joints"], model=MODEL)
+    ev = SimpleNamespace(measured_groups=["touchdown", "joints"], model=MODEL, nm=None, keys=[])
     v = verdict.judge(None, None, [fit, nfit], [best, none], ev, ["base_offset", "joint_offset"], ident)
     assert v.text.startswith("explained by joint_offset") and "structurally identical" in v.text and v.confidence == "high"
     v = verdict.judge(None, None, [fit, nfit], [best, none], ev, ["joint_offset"], ident)  # the twin is no candidate
