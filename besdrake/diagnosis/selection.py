@@ -230,7 +230,7 @@ def _small_extra_claimed(prob: fitting.Problem, best_fit: fitting.CandidateFit, 
     p_b = _extra_effect_bootstrap_p(prob, sub_fit, best_fit, keys)
     if not p_b < alpha:
         notes.append(f"{best_fit.name} fits better by BIC ({dbic:.1f}) but {size_txt}, and with the plans as the units its gain is within "
-                     f"what the throws' own scatter over the plans gives (wild cluster bootstrap p = {p_b:.2g} >= {alpha:.2g}): not claimed")
+                     f"what the trials' own scatter over the plans gives (wild cluster bootstrap p = {p_b:.2g} >= {alpha:.2g}): not claimed")
         return False
     notes.append(f"{size_txt}, but {best_fit.name} fits {dbic:.1f} BIC better and {e} is significant with the plans as the units "
                  f"(cluster-robust Wald p = {p_w:.2g}, wild cluster bootstrap p = {p_b:.2g} < {alpha:.2g}): the pair is named")

@@ -56,8 +56,8 @@ NESTED_TEST_MIN_PLANS = 6
 #: significant with the plans as the units by a calibrated test (:func:`~besdrake.diagnosis.stats._extra_effect_bootstrap_p`,
 #: a wild cluster bootstrap with EXTRA_BOOTSTRAP_DRAWS sign draws, at ALPHA / the number of candidates it was chosen
 #: from) as well as by the cluster-robust Wald test, and the pair is at least PAIR_EXTRA_DBIC better by BIC. Issue 25's
-#: benchmark: a joint-5 offset + a ball 57 % heavier named the joint offset alone (the ball moves the touchdowns by
-#: 0.18 SD), while the likelihood-ratio evidence for an added effect on single-effect logs was as strong (p 1e-11) and
+#: benchmark on the default task: a joint-5 offset + an object 57 % heavier named the joint offset alone (the mass
+#: moves the outcomes by 0.18 SD), while the likelihood-ratio evidence for an added effect on single-effect logs was as strong (p 1e-11) and
 #: no threshold on it separated them; the bootstrap's p: true pair 0.0003, singles 0.008-0.019 (CALIBRATION.md).
 #: None: off (an immaterial added effect is never claimed).
 PAIR_EXTRA_DBIC: float | None = 6.0

@@ -113,11 +113,10 @@ def _extra_effect_bootstrap_p(prob: fitting.Problem, sub: fitting.CandidateFit, 
     ``sub``'s own parameters), the plans as clusters (Rademacher signs per plan on ``sub``'s residuals).
 
     Why: the chi-square gain of an added effect is judged against a diagonal noise model whose SDs come from a few
-    repeated plans, but one throw's release perturbation moves its touchdown, ball position and speed together (and one
-    placement draw all its ball features), and the SDs are uncertain by 20-30 % (issue 25's benchmark: along an added
+    repeated plans, but one trial's unmodelled perturbation moves several of its observables together (one release
+    perturbation, one placement draw), and the SDs are uncertain by 20-30 % (issue 25's benchmark: along an added
     effect's direction the per-plan scores scatter 4.6-8.7x the model's variance), so the likelihood ratio p (1e-11 for
-    a joint offset + scoop tilt on a single joint offset) is far too
-    small. The sign-flipped plan scores carry that scatter (and the correlation within a throw). NaN with fewer than
+    a pair named on a single joint offset) is far too small. The sign-flipped plan scores carry that scatter (and the correlation within a trial). NaN with fewer than
     NESTED_TEST_MIN_PLANS plans or no fitted predictions."""
     if sub.y_fit is None or big.y_fit is None:
         return float("nan")

@@ -238,7 +238,7 @@ def judge(prob: fitting.Problem, sens: fitting.Sensitivity, fits: list[fitting.C
         p_plans = basis.get("extra_effect_p_plans")
         if extra is not None and p_extra < HIGH_EXTRA_P and p_plans is not None and p_plans >= HIGH_EXTRA_P:
             v.text += (f"; {' + '.join(extra.effects)} fits better than the noise of the repeats allows (likelihood ratio p = {p_extra:.2g}), "
-                       f"but no better than the throws' scatter over the plans allows (over the plans p = {p_plans:.2g}): no sign of "
+                       f"but no better than the trials' scatter over the plans allows (over the plans p = {p_plans:.2g}): no sign of "
                        f"a second effect")
         elif extra is not None and p_extra < HIGH_EXTRA_P:
             v.text += (f"; {' + '.join(extra.effects)} fits better than chance allows (p = {p_extra:.2g}"
