@@ -42,6 +42,11 @@ a lent 16-core machine: full logs right 75 % (85 % up to structural identity), t
 signature-aware); "high" 18 times, 17 right (the old rule: 33, 28 right); unknown effects never "high"; wall per
 full-log diagnosis median 54 s, max 87 s. Shards: ``--only`` with every 8th trial, merged and re-summarised with
 ``--resummarize``.
+Session 17 completed the full-log trials (all 88; two device runs of 16 single-worker shards with ``--modes full`` or
+``touchdown`` and a trial list each): right cause 73.8 % (82.5 % up to structural identity, 86.3 % right or honest),
+"high" right 32 of 33 with today's rule (``reliability_rule_now``; trials 40-87: 15 of 15), 1 confidently wrong, unknown
+effects never "high" (0 / 8), the residual model lower on held-out throws in 4 of the 4 trials where offered;
+touchdown-only logs 63 of 88 trials. Wall on the otherwise idle 2 cores, trials 0-3, ``--workers 2``: 61-89 s.
 
 Residual model (issue 25 item 5; ``--fresh``: each unknown-effect trial also throws 15 new plans in the same lab, which
 no part of the diagnosis saw). Session 14, ``PYTHONPATH=. python3 scripts/bench_diagnosis.py --seed 1 --trials 0 --unknown 5
