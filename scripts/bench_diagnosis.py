@@ -199,19 +199,24 @@ def reliability(rows: list[dict]) -> dict:
     return out
 
 
+def _basis(r: dict) -> dict | None:
+    """A row's recorded confidence basis; for a row of an earlier version, its moved parameters counted from its fitted
+    values (the condition did not exist when it ran)."""
+    from besdrake.diagnosis.verdict import moved_per_effect
+
+    b = r.get("confidence_basis")
+    if b and "moved_parameters" not in b:
+        b = {**b, "moved_parameters": sum(moved_per_effect(r["fitted"]).values())}
+    return b
+
+
 def with_rule_now(rows: list[dict]) -> list[dict]:
     """The rows with their confidence re-decided by today's rule (:func:`besdrake.diagnosis.verdict.is_high` at the
-    settings' thresholds) from each row's recorded basis: rows of earlier versions, run before a condition existed,
-    are judged as a diagnosis run now would judge them (their moved parameters counted from the fitted values)."""
-    from besdrake.diagnosis.verdict import is_high, moved_per_effect
+    settings' thresholds) from each row's recorded basis (:func:`_basis`): rows of earlier versions are judged as a
+    diagnosis run now would judge them."""
+    from besdrake.diagnosis.verdict import is_high
 
-    out = []
-    for r in rows:
-        b = r.get("confidence_basis")
-        if b and "moved_parameters" not in b:
-            b = {**b, "moved_parameters": sum(moved_per_effect(r["fitted"]).values())}
-        out.append({**r, "confidence": ("high" if is_high(b) else "low")} if b else r)
-    return out
+    return [{**r, "confidence": ("high" if is_high(b) else "low")} if (b := _basis(r)) else r for r in rows]
 
 
 #: Thresholds the confidence sweep tries: the BIC lead over the nearest real rival and the p-value an added effect must
@@ -225,15 +230,13 @@ def confidence_sweep(known: list[dict], unknown: list[dict]) -> list[dict]:
     """The "high" level re-decided from each trial's recorded confidence basis under other thresholds: per (margin,
     extra p) how many answers would be "high", how many of those right (up to structural identity), and how many
     confidently wrong (an unknown effect named with "high" counts). Trials without a named cause keep their level."""
-    from besdrake.diagnosis.verdict import is_high, moved_per_effect
+    from besdrake.diagnosis.verdict import is_high
 
     out = []
     for m, ep, mm in ((m, ep, mm) for m in SWEEP_MARGINS for ep in SWEEP_EXTRA_P for mm in SWEEP_MAX_MOVED):
         high = right = wrong = 0
         for r in known + unknown:
-            b = r.get("confidence_basis")
-            if b and "moved_parameters" not in b:  # a row of an earlier version: counted from its fitted values
-                b = {**b, "moved_parameters": sum(moved_per_effect(r["fitted"]).values())}
+            b = _basis(r)
             h = is_high(b, m, ep, mm) if b else r["confidence"] == "high"
             if not h:
                 continue

@@ -121,12 +121,15 @@ def test_quick_run_goes_from_demonstrations_to_a_template_pool(tmp_path, capsys)
 def test_refinement_runs_in_turn_stop_at_the_first_that_succeeds():
     from types import SimpleNamespace
 
+    from besdrake.search.refinement.run import RefinementResult
     from besdrake.tasks.throwing.learn import _runs_in_turn
 
     def run(distances, robust=None):
         d = np.array(distances, dtype=float)
         r = np.full(d.size, np.nan) if robust is None else np.array(robust, dtype=float)
-        return SimpleNamespace(distances=d, robust_distances=r, successes=d < 0.1)
+        ns = SimpleNamespace(distances=d, robust_distances=r, successes=d < 0.1)
+        ns.reached = lambda stop_distance: RefinementResult.reached(ns, stop_distance)  # the result's own rule
+        return ns
 
     calls = []
 

@@ -572,17 +572,14 @@ def reach_floor(base: DMP, executor, robot: Robot | None = None, probes: int = D
     """Mean distance (m) over ``contexts`` that no template of ``base`` avoids (``"rotate"``/``"scale"`` modes), from
     ``probes`` simulated probes of it over the box within the joint limits
     (:func:`~besdrake.search.template_reach.model_floor`): a measure of a base's reach; inf when fewer than two landed."""
-    from besdrake.search.template_reach import model_floor, probe_reach
+    from besdrake.search.template_reach import model_floor
 
     robot = robot or getattr(getattr(executor, "scenario", None), "robot", None)
     if robot is None:
         raise TemplateError("reach_floor needs robot= (the executor has no scenario to take it from)")
     bounds = default_meta_bounds(base, robot)
-    try:
-        probe = probe_reach(MetaDMP(base, robot), executor, bounds[0, 0], bounds[0, 1], max(2, int(probes)))
-    except ValueError:
-        return float("inf")
-    return float(np.mean(model_floor(probe, bounds, contexts)))
+    probe, _ = _probe_reach(MetaDMP(base, robot), executor, bounds, max(2, int(probes)), fixed_bounds=True)
+    return float("inf") if probe is None else float(np.mean(model_floor(probe, bounds, contexts)))
 
 
 def _n_probes(probes: int, n_episodes: int, joint1_mode: str, time_mode: str) -> int:

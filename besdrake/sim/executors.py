@@ -241,6 +241,14 @@ def _worker_ready(_=None) -> str:
     return "" if _WORKER_ROLLOUT is not None else (_WORKER_ERROR or "not initialised")
 
 
+def default_start_method() -> str:
+    """The process start method of besdrake's local pools: fork where available (workers inherit the loaded
+    modules and plugins), else spawn."""
+    import multiprocessing as mp
+
+    return "fork" if "fork" in mp.get_all_start_methods() else "spawn"
+
+
 class ProcessExecutor(Executor):
     """A local process pool; each worker builds its Diagram once (pool initializer) and reuses it.
 
@@ -258,9 +266,7 @@ class ProcessExecutor(Executor):
         import multiprocessing as mp
 
         super().__init__(scenario, limits)
-        if start_method is None:
-            start_method = "fork" if "fork" in mp.get_all_start_methods() else "spawn"
-        self._context = mp.get_context(start_method)
+        self._context = mp.get_context(start_method or default_start_method())
         self.workers = int(workers or os.cpu_count() or 1)
         if self.workers < 1:
             raise ValueError(f"workers must be >= 1, got {workers}")

@@ -53,6 +53,14 @@ class RefinementResult:
         """Rollouts spent on robust checks (the price of robustness; the episodes' own rollouts not counted)."""
         return int(self.robust_rollouts.sum())
 
+    def reached(self, stop_distance: float = SUCCESS_DISTANCE) -> bool:
+        """Whether an episode of this run ends a run that stops on success (:func:`stops_at`'s rule: a successful
+        episode within ``stop_distance``, by its robust distance where one was checked)."""
+        d = self.distances
+        if self.robust_distances.size == d.size:
+            d = np.where(np.isfinite(self.robust_distances), self.robust_distances, d)
+        return bool(np.any(self.successes & (d < stop_distance)))
+
     def best_so_far(self) -> np.ndarray:
         """Best target distance (m) of the episodes within every limit, up to each episode (NaN before the first)."""
         valid = np.isfinite(self.distances) & (self.penalties == 0.0) if self.penalties.size == self.distances.size else np.isfinite(self.distances)

@@ -57,7 +57,8 @@ def imitate_throws(jobs: list[ThrowJob], scenario: str, out_dir: Path | None = N
     the order of ``jobs``."""
     if workers <= 1 or len(jobs) <= 1:
         return [_run(job, scenario, out_dir) for job in jobs]
-    method = "fork" if "fork" in mp.get_all_start_methods() else "spawn"
-    with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=mp.get_context(method)) as pool:
+    from besdrake.sim.executors import default_start_method
+
+    with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=mp.get_context(default_start_method())) as pool:
         futures = [pool.submit(_run, job, scenario, out_dir) for job in jobs]
         return [f.result() for f in futures]

@@ -340,9 +340,7 @@ def _runs_in_turn(jobs: list, executor, stop_distance: float) -> list:
     results = []
     for job in jobs:
         results.append(job(executor))
-        r = results[-1]
-        d = np.where(np.isfinite(r.robust_distances), r.robust_distances, r.distances) if r.robust_distances.size == r.distances.size else r.distances
-        if np.any(r.successes & (d < stop_distance)):
+        if results[-1].reached(stop_distance):
             break
     return results
 
