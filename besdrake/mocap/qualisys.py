@@ -115,6 +115,33 @@ def read_tsv(path: str | Path, check_units: bool = True) -> MocapRecording:
     except UnicodeDecodeError:
         raise MocapFormatError(f"{path}: not a text file (is it a C3D file?)") from None
     lines = text.splitlines()
+    metadata, marker_names, i = _read_header(lines, path)
+    n_markers = len(marker_names)
+    frequency = _header_frequency(metadata, n_markers, path)
+    has_frame_time, i = _read_column_line(lines, i, n_markers, path)
+    first_data_line = i + 1
+    rows, line_numbers = _data_rows(lines, i, path)
+    if has_frame_time is None:
+        has_frame_time = _layout_from_row(rows[0], line_numbers[0], n_markers, path)
+    _check_row_lengths(rows, line_numbers, 3 * n_markers + (2 if has_frame_time else 0), n_markers, path)
+    if not text.endswith(("\n", "\r")):
+        _check_last_row(rows, line_numbers[-1], path)
+    data = _parse_floats(rows, first_data_line, path)
+    if has_frame_time:
+        frames, time, coords = _frames_and_time(data, line_numbers, path)
+    else:
+        frames = np.arange(1, len(rows) + 1)
+        time = (frames - 1) / frequency
+        coords = data
+    positions = coords.reshape(len(rows), n_markers, 3) / MM_PER_M
+    positions[np.all(positions == 0.0, axis=2)] = np.nan
+    _check_declared_frames(metadata, len(rows), path)
+    metadata["HAS_FRAME_TIME"] = bool(has_frame_time)
+    return MocapRecording(marker_names, positions, frequency, frames, time, metadata).check_units(path, strict=check_units)
+
+
+def _read_header(lines: list[str], path: Path) -> tuple[dict, list[str], int]:
+    """The header lines (up to the first non-header line): metadata, the marker names, the index of the next line."""
     metadata: dict = {}
     marker_names: list[str] | None = None
     trajectory_types: list[str] | None = None
@@ -143,7 +170,11 @@ def read_tsv(path: str | Path, check_units: bool = True) -> MocapRecording:
         raise MocapFormatError(f"{path}: MARKER_NAMES line has empty names: {marker_names}")
     if trajectory_types is not None:
         metadata["TRAJECTORY_TYPES"] = trajectory_types
-    n_markers = len(marker_names)
+    return metadata, marker_names, i
+
+
+def _header_frequency(metadata: dict, n_markers: int, path: Path) -> float:
+    """The frame rate (Hz), after checking NO_OF_MARKERS against the marker names."""
     if "NO_OF_MARKERS" in metadata:
         try:
             declared = int(metadata["NO_OF_MARKERS"])
@@ -161,26 +192,33 @@ def read_tsv(path: str | Path, check_units: bool = True) -> MocapRecording:
         raise MocapFormatError(f"{path}: FREQUENCY is not a number: {metadata['FREQUENCY']!r}") from None
     if not np.isfinite(frequency) or frequency <= 0:
         raise MocapFormatError(f"{path}: FREQUENCY must be positive, got {metadata['FREQUENCY']!r}")
+    return frequency
 
-    # Optional column line.
-    has_frame_time: bool | None = None
-    if i < len(lines):
-        fields = lines[i].rstrip("\r\n").rstrip("\t").split("\t")
-        if fields and fields[0] in ("Frame", "Time") or (len(fields) > 0 and fields[0].endswith(" X")):
-            has_frame_time = fields[0] == "Frame"
-            if has_frame_time and (len(fields) < 2 or fields[1] != "Time"):
-                raise MocapFormatError(f"{path}, line {i + 1}: column line starts with Frame but not Frame, Time")
-            expected_cols = 3 * n_markers + (2 if has_frame_time else (1 if fields[0] == "Time" else 0))
-            if len(fields) != expected_cols:
-                raise MocapFormatError(
-                    f"{path}, line {i + 1}: column line has {len(fields)} columns, expected {expected_cols} "
-                    f"for {n_markers} markers"
-                )
-            if fields[0] == "Time":
-                raise MocapFormatError(f"{path}, line {i + 1}: a Time column without Frame is not supported")
-            i += 1
 
-    first_data_line = i + 1
+def _read_column_line(lines: list[str], i: int, n_markers: int, path: Path) -> tuple[bool | None, int]:
+    """The optional column line at ``i``: whether it declares Frame and Time columns (None: no column line), and the
+    index of the first data line."""
+    if i >= len(lines):
+        return None, i
+    fields = lines[i].rstrip("\r\n").rstrip("\t").split("\t")
+    if not (fields and fields[0] in ("Frame", "Time") or (len(fields) > 0 and fields[0].endswith(" X"))):
+        return None, i
+    has_frame_time = fields[0] == "Frame"
+    if has_frame_time and (len(fields) < 2 or fields[1] != "Time"):
+        raise MocapFormatError(f"{path}, line {i + 1}: column line starts with Frame but not Frame, Time")
+    expected_cols = 3 * n_markers + (2 if has_frame_time else (1 if fields[0] == "Time" else 0))
+    if len(fields) != expected_cols:
+        raise MocapFormatError(
+            f"{path}, line {i + 1}: column line has {len(fields)} columns, expected {expected_cols} "
+            f"for {n_markers} markers"
+        )
+    if fields[0] == "Time":
+        raise MocapFormatError(f"{path}, line {i + 1}: a Time column without Frame is not supported")
+    return has_frame_time, i + 1
+
+
+def _data_rows(lines: list[str], i: int, path: Path) -> tuple[list[list[str]], list[int]]:
+    """The non-blank lines from ``i`` on, split into fields, with their 1-based line numbers."""
     rows: list[list[str]] = []
     line_numbers: list[int] = []
     for k in range(i, len(lines)):
@@ -191,61 +229,63 @@ def read_tsv(path: str | Path, check_units: bool = True) -> MocapRecording:
         line_numbers.append(k + 1)
     if not rows:
         raise MocapFormatError(f"{path}: no data rows after the header (truncated file?)")
-    if has_frame_time is None:
-        n0 = len(rows[0])
-        if n0 == 3 * n_markers + 2:
-            has_frame_time = True
-        elif n0 == 3 * n_markers:
-            has_frame_time = False
-        else:
-            raise MocapFormatError(
-                f"{path}, line {line_numbers[0]}: {n0} columns, expected {3 * n_markers} or "
-                f"{3 * n_markers + 2} (with Frame and Time) for {n_markers} markers"
-            )
-    n_cols = 3 * n_markers + (2 if has_frame_time else 0)
+    return rows, line_numbers
+
+
+def _layout_from_row(row: list[str], line: int, n_markers: int, path: Path) -> bool:
+    """Without a column line: whether the first data row holds Frame and Time columns, from its length."""
+    n0 = len(row)
+    if n0 == 3 * n_markers + 2:
+        return True
+    if n0 == 3 * n_markers:
+        return False
+    raise MocapFormatError(
+        f"{path}, line {line}: {n0} columns, expected {3 * n_markers} or "
+        f"{3 * n_markers + 2} (with Frame and Time) for {n_markers} markers"
+    )
+
+
+def _check_row_lengths(rows: list[list[str]], line_numbers: list[int], n_cols: int, n_markers: int, path: Path) -> None:
     for row, ln in zip(rows, line_numbers):
         if len(row) != n_cols:
             raise MocapFormatError(
                 f"{path}, line {ln}: {len(row)} columns, expected {n_cols} for {n_markers} markers"
                 + (" (truncated file?)" if ln == line_numbers[-1] else "")
             )
-    if not text.endswith(("\n", "\r")):
-        _check_last_row(rows, line_numbers[-1], path)
-    data = _parse_floats(rows, first_data_line, path)
-    if has_frame_time:
-        if np.isnan(data[:, :2]).any():
-            bad = line_numbers[int(np.nonzero(np.isnan(data[:, :2]).any(axis=1))[0][0])]
-            raise MocapFormatError(f"{path}, line {bad}: Frame or Time is missing")
-        frames_f = data[:, 0]
-        if np.any(frames_f != np.round(frames_f)):
-            bad = line_numbers[int(np.nonzero(frames_f != np.round(frames_f))[0][0])]
-            raise MocapFormatError(f"{path}, line {bad}: Frame is not an integer")
-        frames = frames_f.astype(int)
-        time = data[:, 1]
-        coords = data[:, 2:]
-        if len(frames) > 1 and np.any(np.diff(frames) <= 0):
-            bad = line_numbers[int(np.nonzero(np.diff(frames) <= 0)[0][0]) + 1]
-            raise MocapFormatError(f"{path}, line {bad}: Frame numbers must increase")
-        if len(time) > 1 and np.any(np.diff(time) <= 0):
-            bad = line_numbers[int(np.nonzero(np.diff(time) <= 0)[0][0]) + 1]
-            raise MocapFormatError(f"{path}, line {bad}: Time must increase")
-    else:
-        frames = np.arange(1, len(rows) + 1)
-        time = (frames - 1) / frequency
-        coords = data
-    positions = coords.reshape(len(rows), n_markers, 3) / MM_PER_M
-    positions[np.all(positions == 0.0, axis=2)] = np.nan
-    if "NO_OF_FRAMES" in metadata:
-        try:
-            declared_frames = int(metadata["NO_OF_FRAMES"])
-        except ValueError:
-            raise MocapFormatError(f"{path}: NO_OF_FRAMES is not an integer: {metadata['NO_OF_FRAMES']!r}") from None
-        if declared_frames < len(rows):
-            raise MocapFormatError(
-                f"{path}: NO_OF_FRAMES says {declared_frames} but the file has {len(rows)} data rows"
-            )
-    metadata["HAS_FRAME_TIME"] = bool(has_frame_time)
-    return MocapRecording(marker_names, positions, frequency, frames, time, metadata).check_units(path, strict=check_units)
+
+
+def _frames_and_time(data: np.ndarray, line_numbers: list[int], path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Frame numbers, times and marker coordinates of rows that start with Frame and Time (both must increase)."""
+    if np.isnan(data[:, :2]).any():
+        bad = line_numbers[int(np.nonzero(np.isnan(data[:, :2]).any(axis=1))[0][0])]
+        raise MocapFormatError(f"{path}, line {bad}: Frame or Time is missing")
+    frames_f = data[:, 0]
+    if np.any(frames_f != np.round(frames_f)):
+        bad = line_numbers[int(np.nonzero(frames_f != np.round(frames_f))[0][0])]
+        raise MocapFormatError(f"{path}, line {bad}: Frame is not an integer")
+    frames = frames_f.astype(int)
+    time = data[:, 1]
+    if len(frames) > 1 and np.any(np.diff(frames) <= 0):
+        bad = line_numbers[int(np.nonzero(np.diff(frames) <= 0)[0][0]) + 1]
+        raise MocapFormatError(f"{path}, line {bad}: Frame numbers must increase")
+    if len(time) > 1 and np.any(np.diff(time) <= 0):
+        bad = line_numbers[int(np.nonzero(np.diff(time) <= 0)[0][0]) + 1]
+        raise MocapFormatError(f"{path}, line {bad}: Time must increase")
+    return frames, time, data[:, 2:]
+
+
+def _check_declared_frames(metadata: dict, n_rows: int, path: Path) -> None:
+    """NO_OF_FRAMES, where given, must be an integer and not below the rows read (fewer rows is a truncated file)."""
+    if "NO_OF_FRAMES" not in metadata:
+        return
+    try:
+        declared_frames = int(metadata["NO_OF_FRAMES"])
+    except ValueError:
+        raise MocapFormatError(f"{path}: NO_OF_FRAMES is not an integer: {metadata['NO_OF_FRAMES']!r}") from None
+    if declared_frames < n_rows:
+        raise MocapFormatError(
+            f"{path}: NO_OF_FRAMES says {declared_frames} but the file has {n_rows} data rows"
+        )
 
 
 def _fmt_header_value(value) -> str:
