@@ -124,74 +124,97 @@ def apply_rules(result: SegmentationResult, speed: np.ndarray, frequency: float,
     models = list(getattr(result, "segment_models", None) or ["movement"] * (len(edges) - 1))
     if len(models) != len(edges) - 1:
         raise ValueError(f"{len(models)} segment models for {len(edges) - 1} segments")
-
-    def peak(i: int) -> float:
-        return float(speed[edges[i]:edges[i + 1] + 1].max())
-
-    # 1. rests at the recording's ends belong to the first / last segment
     if rules.merge_end_rests:
-        if len(models) > 1 and models[0] == "rest":
-            del edges[1], models[0]
-        if len(models) > 1 and models[-1] == "rest":
-            del edges[-2], models[-1]
-    # 2. a pause (speed below pause_speed for pause_s or longer) is a rest segment
+        _merge_end_rests(edges, models)
     if rules.pause_s > 0:
         edges, models = _insert_pauses(edges, models, speed, frequency, rules)
-    # 3. no border without a real dip between two movements
     if rules.dip_ratio > 0:
-        i = 1
-        while i < len(edges) - 1:
-            if models[i - 1] == models[i] == "movement" and speed[edges[i]] > rules.dip_ratio * min(peak(i - 1), peak(i)):
-                del edges[i], models[i]
-            else:
-                i += 1
-    # 4. a short pause is one border, at its speed minimum
+        _drop_borders_without_dip(edges, models, speed, rules.dip_ratio)
     if rules.min_rest_s > 0:
-        lim = rules.min_rest_s * frequency
-        i = 1
-        while i < len(models) - 1:
-            a, b = edges[i], edges[i + 1]
-            if models[i] == "rest" and b - a < lim:
-                m = a + int(np.argmin(speed[a:b + 1]))
-                edges[i:i + 2] = [m]
-                del models[i]
-            else:
-                i += 1
-    # 5. borders between movements at the nearest speed minimum
+        _collapse_short_rests(edges, models, speed, rules.min_rest_s * frequency)
     if rules.snap_s > 0:
-        w = int(round(rules.snap_s * frequency))
-        for i in range(1, len(edges) - 1):
-            if models[i - 1] == models[i] == "movement":
-                lo, hi = max(edges[i - 1] + 1, edges[i] - w), min(edges[i + 1] - 1, edges[i] + w)
-                if hi >= lo:
-                    edges[i] = lo + int(np.argmin(speed[lo:hi + 1]))
-    # 6. movement ends / starts at a fraction of the movement's peak speed
+        _snap_to_minima(edges, models, speed, int(round(rules.snap_s * frequency)))
+    _borders_at_levels(edges, models, speed, rules)
+    borders, models = _increasing(np.array(edges[1:-1], dtype=int), models, n)
+    out = replace(result, borders=borders, n_samples=n)
+    if hasattr(out, "segment_models"):
+        out.segment_models = models
+    return out
+
+
+def _peak(speed: np.ndarray, edges: list[int], i: int) -> float:
+    """Peak speed of segment ``i``."""
+    return float(speed[edges[i]:edges[i + 1] + 1].max())
+
+
+def _merge_end_rests(edges: list[int], models: list[str]) -> None:
+    """Rule 1: rests at the recording's ends belong to the first / last segment (in place)."""
+    if len(models) > 1 and models[0] == "rest":
+        del edges[1], models[0]
+    if len(models) > 1 and models[-1] == "rest":
+        del edges[-2], models[-1]
+
+
+def _drop_borders_without_dip(edges: list[int], models: list[str], speed: np.ndarray, dip_ratio: float) -> None:
+    """Rule 3: no border between two movements without a real dip (speed there below ``dip_ratio`` of the smaller
+    peak; in place)."""
+    i = 1
+    while i < len(edges) - 1:
+        if models[i - 1] == models[i] == "movement" and speed[edges[i]] > dip_ratio * min(_peak(speed, edges, i - 1), _peak(speed, edges, i)):
+            del edges[i], models[i]
+        else:
+            i += 1
+
+
+def _collapse_short_rests(edges: list[int], models: list[str], speed: np.ndarray, min_samples: float) -> None:
+    """Rule 4: a rest shorter than ``min_samples`` becomes one border, at its speed minimum (in place)."""
+    i = 1
+    while i < len(models) - 1:
+        a, b = edges[i], edges[i + 1]
+        if models[i] == "rest" and b - a < min_samples:
+            m = a + int(np.argmin(speed[a:b + 1]))
+            edges[i:i + 2] = [m]
+            del models[i]
+        else:
+            i += 1
+
+
+def _snap_to_minima(edges: list[int], models: list[str], speed: np.ndarray, w: int) -> None:
+    """Rule 5: a border between two movements moves to the speed minimum within ``w`` samples (in place)."""
+    for i in range(1, len(edges) - 1):
+        if models[i - 1] == models[i] == "movement":
+            lo, hi = max(edges[i - 1] + 1, edges[i] - w), min(edges[i + 1] - 1, edges[i] + w)
+            if hi >= lo:
+                edges[i] = lo + int(np.argmin(speed[lo:hi + 1]))
+
+
+def _borders_at_levels(edges: list[int], models: list[str], speed: np.ndarray, rules: BorderRules) -> None:
+    """Rule 6: a movement ends / starts where its speed crosses ``end_level`` / ``start_level`` of its peak, searched
+    over the half of the segment next to the border (in place)."""
     for i in range(1, len(edges) - 1):
         left, right = models[i - 1], models[i]
         if left == "movement" and right == "rest" and rules.end_level > 0:
             a, b = edges[i - 1], edges[i]
-            thr = rules.end_level * peak(i - 1)
+            thr = rules.end_level * _peak(speed, edges, i - 1)
             j, stop = b, max(a + 1, b - (b - a) // 2)
             while j > stop and speed[j - 1] < thr:
                 j -= 1
             edges[i] = j
         elif left == "rest" and right == "movement" and rules.start_level > 0:
             b, c = edges[i], edges[i + 1]
-            thr = rules.start_level * peak(i)
+            thr = rules.start_level * _peak(speed, edges, i)
             j, stop = b, min(c - 1, b + (c - b) // 2)
             while j < stop and speed[j] < thr:
                 j += 1
             edges[i] = j
-    borders = np.array(edges[1:-1], dtype=int)
-    order_ok = np.all(np.diff(np.r_[0, borders, n - 1]) > 0)
-    if not order_ok:  # a rule made two borders cross: keep the unique increasing ones
-        keep = np.r_[True, np.diff(borders) > 0] if len(borders) else np.array([], bool)
-        borders = borders[keep]
-        models = [models[0], *[m for m, k in zip(models[1:], keep) if k]]
-    out = replace(result, borders=borders, n_samples=n)
-    if hasattr(out, "segment_models"):
-        out.segment_models = models
-    return out
+
+
+def _increasing(borders: np.ndarray, models: list[str], n: int) -> tuple[np.ndarray, list[str]]:
+    """Where a rule made two borders cross, keep the unique increasing ones (and their segments' models)."""
+    if np.all(np.diff(np.r_[0, borders, n - 1]) > 0):
+        return borders, models
+    keep = np.r_[True, np.diff(borders) > 0] if len(borders) else np.array([], bool)
+    return borders[keep], [models[0], *[m for m, k in zip(models[1:], keep) if k]]
 
 
 def _low_runs(low: np.ndarray) -> list[tuple[int, int]]:
