@@ -151,6 +151,31 @@ def _require(rec: MocapRecording, names) -> None:
         raise PreprocessError(f"marker(s) {never} are never visible in the recording")
 
 
+def _check_arguments(rec: MocapRecording, hand_markers: tuple, back_markers: tuple, max_gap_s: float) -> None:
+    """The arguments of :func:`preprocess` make sense and the recording has the markers they name."""
+    if not np.isfinite(max_gap_s) or max_gap_s < 0:
+        raise PreprocessError(f"the longest gap to fill must be a number of seconds >= 0, got {max_gap_s}")
+    if len(back_markers) != 3:
+        raise PreprocessError(f"the back frame needs three markers (top, right, left), got {back_markers}")
+    if len(hand_markers) < 1:
+        raise PreprocessError("at least one hand marker is needed")
+    if rec.n_frames < 3:
+        raise PreprocessError(f"the recording has {rec.n_frames} frames; at least 3 are needed")
+    _require(rec, hand_markers + back_markers)
+
+
+def _require_filled(rec: MocapRecording, missing: np.ndarray, markers: tuple, max_gap_s: float) -> None:
+    """Every marker of ``markers`` is visible (or filled) in every frame after gap filling."""
+    for j in (rec.marker_index(n) for n in markers):
+        if missing[:, j].any():
+            bad = rec.frames[missing[:, j]]
+            raise PreprocessError(
+                f"marker {rec.marker_names[j]!r} is missing at {len(bad)} frames "
+                f"(first {int(bad[0])}, last {int(bad[-1])}) in gaps longer than {max_gap_s} s "
+                "or at the recording's ends; crop the recording or raise max_gap_s"
+            )
+
+
 def preprocess(
     rec: MocapRecording,
     hand_markers=HAND_MARKERS,
@@ -166,15 +191,7 @@ def preprocess(
             inside the recording (the message names the marker and the frames).
     """
     hand_markers, back_markers = tuple(hand_markers), tuple(back_markers)
-    if not np.isfinite(max_gap_s) or max_gap_s < 0:
-        raise PreprocessError(f"the longest gap to fill must be a number of seconds >= 0, got {max_gap_s}")
-    if len(back_markers) != 3:
-        raise PreprocessError(f"the back frame needs three markers (top, right, left), got {back_markers}")
-    if len(hand_markers) < 1:
-        raise PreprocessError("at least one hand marker is needed")
-    if rec.n_frames < 3:
-        raise PreprocessError(f"the recording has {rec.n_frames} frames; at least 3 are needed")
-    _require(rec, hand_markers + back_markers)
+    _check_arguments(rec, hand_markers, back_markers, max_gap_s)
     rec, warnings = reject_outliers(rec)  # a single 10 m glitch would otherwise become a segment
     filled = fill_gaps(rec, max_gap_s)  # short gaps by a local cubic spline; long and edge gaps stay NaN
     pos, interp = filled.recording.positions, filled.filled_mask
@@ -182,15 +199,7 @@ def preprocess(
     for j, name in enumerate(rec.marker_names):
         if interp[:, j].any():
             warnings.append(f"{name}: {int(interp[:, j].sum())} samples interpolated")
-    needed = [rec.marker_index(n) for n in hand_markers + back_markers]
-    for j in needed:
-        if missing[:, j].any():
-            bad = rec.frames[missing[:, j]]
-            raise PreprocessError(
-                f"marker {rec.marker_names[j]!r} is missing at {len(bad)} frames "
-                f"(first {int(bad[0])}, last {int(bad[-1])}) in gaps longer than {max_gap_s} s "
-                "or at the recording's ends; crop the recording or raise max_gap_s"
-            )
+    _require_filled(rec, missing, hand_markers + back_markers, max_gap_s)
     top, right, left = (pos[:, rec.marker_index(n), :] for n in back_markers)
     origin, rot = back_frame(top, right, left)
     if not np.isfinite(rot).all():
