@@ -29,8 +29,7 @@ def run(args: argparse.Namespace) -> int:
     from besdrake.mocap.preprocess import PreprocessError, preprocess
     from besdrake.mocap.qualisys import read_recording
     from besdrake.mocap.recording import MocapFormatError
-    from besdrake.segmentation import VMCI, SegmentationError, ZeroVelocitySegmenter
-    from besdrake.segmentation.classification import ClassificationError, SegmentClassifier, extract_segment
+    from besdrake.segmentation import SegmentationError
 
     if not args.file.is_file():
         raise UserError(f"{args.file}: no such file")
@@ -38,49 +37,14 @@ def run(args: argparse.Namespace) -> int:
         raise UserError("give either --classifier or --train, not both")
     if args.segmenter and args.method != "vmci":
         raise UserError("--segmenter is a tuned vMCI; it cannot be used with --method zvc")
-    tuned = None
-    if args.segmenter:
-        from besdrake.segmentation import TunedVMCI
-
-        try:
-            tuned = TunedVMCI.from_dict(json.loads(args.segmenter.read_text())).segmenter()
-        except (OSError, ValueError) as err:
-            raise UserError(f"--segmenter {args.segmenter}: {err}") from None
+    seg = _segmenter(args)
     try:
         rec = read_recording(args.file)
         pre = preprocess(rec, max_gap_s=args.max_gap)
-        seg = tuned or (VMCI() if args.method == "vmci" else ZeroVelocitySegmenter())
         seg.fit(pre)
     except (MocapFormatError, PreprocessError, SegmentationError) as err:
         raise UserError(f"{args.file}: {err}") from None
-    clf = None
-    try:
-        if args.classifier:
-            clf = SegmentClassifier.from_json(json.loads(args.classifier.read_text()))
-        elif args.train:
-            from besdrake.segmentation.evaluation import labelled_recordings, labelled_segments
-
-            clf = SegmentClassifier().fit(*labelled_segments(labelled_recordings(args.train)))
-    except (OSError, ValueError) as err:
-        raise UserError(f"classifier: {err}") from None
-    out = []
-    models = getattr(seg.result_, "segment_models", None) or [None] * len(seg.segments_)
-    for (a, b), model in zip(seg.segments_, models):
-        item = {
-            "start_frame": int(pre.frames[a]),
-            "end_frame": int(pre.frames[b]),
-            "start_time": float(pre.time[a]),
-            "end_time": float(pre.time[b]),
-        }
-        if model is not None:
-            item["model"] = model
-        if clf is not None:
-            try:
-                item["label"] = str(clf.predict([extract_segment(pre, a, b)])[0])
-            except ClassificationError as err:
-                item["label"] = None
-                item["label_error"] = str(err)
-        out.append(item)
+    out = _segments(seg, pre, _classifier(args))
     report = {
         "file": str(args.file),
         "frequency_hz": pre.frequency,
@@ -101,3 +65,55 @@ def run(args: argparse.Namespace) -> int:
             print(f"{i:3d}  frames {item['start_frame']:6d}-{item['end_frame']:6d}  "
                   f"{item['start_time']:8.3f}-{item['end_time']:8.3f} s{label}")
     return 0
+
+
+def _segmenter(args: argparse.Namespace):
+    """The segmenter the arguments ask for: a tuned vMCI from --segmenter, vMCI or the zero-velocity baseline."""
+    from besdrake.cli import UserError
+    from besdrake.segmentation import VMCI, ZeroVelocitySegmenter
+
+    if args.segmenter:
+        from besdrake.segmentation import TunedVMCI
+
+        try:
+            return TunedVMCI.from_dict(json.loads(args.segmenter.read_text())).segmenter()
+        except (OSError, ValueError) as err:
+            raise UserError(f"--segmenter {args.segmenter}: {err}") from None
+    return VMCI() if args.method == "vmci" else ZeroVelocitySegmenter()
+
+
+def _classifier(args: argparse.Namespace):
+    """The 1-NN classifier from --classifier (JSON) or trained on --train's labelled recordings; None without both."""
+    from besdrake.cli import UserError
+    from besdrake.segmentation.classification import SegmentClassifier
+
+    try:
+        if args.classifier:
+            return SegmentClassifier.from_json(json.loads(args.classifier.read_text()))
+        if args.train:
+            from besdrake.segmentation.evaluation import labelled_recordings, labelled_segments
+
+            return SegmentClassifier().fit(*labelled_segments(labelled_recordings(args.train)))
+    except (OSError, ValueError) as err:
+        raise UserError(f"classifier: {err}") from None
+    return None
+
+
+def _segments(seg, pre, clf) -> list[dict]:
+    """One JSON row per segment: frames, times, the segment model and (with a classifier) its label."""
+    from besdrake.segmentation.classification import ClassificationError, extract_segment
+
+    out = []
+    models = getattr(seg.result_, "segment_models", None) or [None] * len(seg.segments_)
+    for (a, b), model in zip(seg.segments_, models):
+        item = {"start_frame": int(pre.frames[a]), "end_frame": int(pre.frames[b]), "start_time": float(pre.time[a]), "end_time": float(pre.time[b])}
+        if model is not None:
+            item["model"] = model
+        if clf is not None:
+            try:
+                item["label"] = str(clf.predict([extract_segment(pre, a, b)])[0])
+            except ClassificationError as err:
+                item["label"] = None
+                item["label_error"] = str(err)
+        out.append(item)
+    return out
