@@ -186,49 +186,13 @@ def scenario_from_dict(data: Any, path: Path | None = None) -> Scenario:
     if "time_step" not in data:
         raise ScenarioError(f"scenario{where} is missing time_step")
     time_step = _number("<top>", "time_step", data["time_step"], 1e-5, 0.02)
-
-    contact = _section(data, "contact", required=False)
-    _check_keys("contact", contact, {"approximation"})
-    approx = str(contact.get("approximation", "lagged"))
-    if approx not in CONTACT_APPROXIMATIONS:
-        extra = " (TAMSI ignores the joint PD gains: the arm falls)" if approx == "tamsi" else ""
-        raise ScenarioError(f"contact.approximation {approx!r} is not one of {CONTACT_APPROXIMATIONS}{extra}")
-
+    approx = _contact(data)
     robot = _robot(data, path)
-    models = _section(data, "models", required=False)
-    for key in models:
-        file = resolve_model_uri(str(models[key]))
-        if not file.is_file():
-            raise ScenarioError(f"model file for {key!r} not found: {models[key]} -> {file}")
-
-    base_sec = _section(data, "base", required=False)
-    _check_keys("base", base_sec, {"x", "y", "z", "yaw"})
-    base = BasePose(
-        x=_number("base", "x", base_sec.get("x", 0.0), -5, 5),
-        y=_number("base", "y", base_sec.get("y", 0.0), -5, 5),
-        z=_number("base", "z", base_sec.get("z", 0.5), 0.0, 3.0),
-        yaw=_number("base", "yaw", base_sec.get("yaw", 0.0), -np.pi, np.pi),
-    )
-
+    models = _models(data)
+    base = _base(data)
     controller = _controller(_section(data, "controller", required=False), robot)
-
-    rel_sec = _section(data, "release", required=False)
-    _check_keys("release", rel_sec, {"check_interval", "margin", "min_speed", "tail"})
-    d = ReleaseConfig()
-    release = ReleaseConfig(
-        check_interval=_number("release", "check_interval", rel_sec.get("check_interval", d.check_interval), time_step, 1.0),
-        margin=_number("release", "margin", rel_sec.get("margin", d.margin), 0.0, 0.5),
-        min_speed=_number("release", "min_speed", rel_sec.get("min_speed", d.min_speed), 0.0, 20.0),
-        tail=_number("release", "tail", rel_sec.get("tail", d.tail), 0.0, 5.0),
-    )
-
-    effects = _section(data, "effects", required=False)
-    from besdrake.sim.effects import normalize_effects  # late import: effects may be user-registered
-
-    try:
-        effects = normalize_effects(effects)
-    except ValueError as err:
-        raise ScenarioError(f"scenario{where} effects: {err}") from err
+    release = _release(data, time_step)
+    effects = _effects(data, where)
     return Scenario(
         name=name,
         description=str(data.get("description", "")),
@@ -236,13 +200,67 @@ def scenario_from_dict(data: Any, path: Path | None = None) -> Scenario:
         contact_approximation=approx,
         robot=robot,
         task=_task(data, where),
-        models={k: str(v) for k, v in models.items()},
+        models=models,
         base=base,
         controller=controller,
         release=release,
         effects=effects,
         path=path,
     )
+
+
+def _contact(data: dict) -> str:
+    """The contact approximation (TAMSI refused: it ignores the joint PD gains)."""
+    contact = _section(data, "contact", required=False)
+    _check_keys("contact", contact, {"approximation"})
+    approx = str(contact.get("approximation", "lagged"))
+    if approx not in CONTACT_APPROXIMATIONS:
+        extra = " (TAMSI ignores the joint PD gains: the arm falls)" if approx == "tamsi" else ""
+        raise ScenarioError(f"contact.approximation {approx!r} is not one of {CONTACT_APPROXIMATIONS}{extra}")
+    return approx
+
+
+def _models(data: dict) -> dict[str, str]:
+    """The scene's model files by key; each must resolve to an existing file."""
+    models = _section(data, "models", required=False)
+    for key in models:
+        file = resolve_model_uri(str(models[key]))
+        if not file.is_file():
+            raise ScenarioError(f"model file for {key!r} not found: {models[key]} -> {file}")
+    return {k: str(v) for k, v in models.items()}
+
+
+def _base(data: dict) -> BasePose:
+    base_sec = _section(data, "base", required=False)
+    _check_keys("base", base_sec, {"x", "y", "z", "yaw"})
+    return BasePose(
+        x=_number("base", "x", base_sec.get("x", 0.0), -5, 5),
+        y=_number("base", "y", base_sec.get("y", 0.0), -5, 5),
+        z=_number("base", "z", base_sec.get("z", 0.5), 0.0, 3.0),
+        yaw=_number("base", "yaw", base_sec.get("yaw", 0.0), -np.pi, np.pi),
+    )
+
+
+def _release(data: dict, time_step: float) -> ReleaseConfig:
+    rel_sec = _section(data, "release", required=False)
+    _check_keys("release", rel_sec, {"check_interval", "margin", "min_speed", "tail"})
+    d = ReleaseConfig()
+    return ReleaseConfig(
+        check_interval=_number("release", "check_interval", rel_sec.get("check_interval", d.check_interval), time_step, 1.0),
+        margin=_number("release", "margin", rel_sec.get("margin", d.margin), 0.0, 0.5),
+        min_speed=_number("release", "min_speed", rel_sec.get("min_speed", d.min_speed), 0.0, 20.0),
+        tail=_number("release", "tail", rel_sec.get("tail", d.tail), 0.0, 5.0),
+    )
+
+
+def _effects(data: dict, where: str) -> dict:
+    effects = _section(data, "effects", required=False)
+    from besdrake.sim.effects import normalize_effects  # late import: effects may be user-registered
+
+    try:
+        return normalize_effects(effects)
+    except ValueError as err:
+        raise ScenarioError(f"scenario{where} effects: {err}") from err
 
 
 def _task(data: dict, where: str) -> str:
