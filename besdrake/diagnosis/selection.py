@@ -252,7 +252,7 @@ def refine_rivals(prob: fitting.Problem, fits: list[fitting.CandidateFit], best_
         # answer needs every single effect fitted with rollouts.
         rivals += [f for f in fits if not f.refined and len(f.effects) == 1 and f.effects != best_fit.effects and f not in rivals]
     for f in rivals:
-        fitting.refine(prob, f, lambda e: sim.one(e), iterations=iterations)
+        fitting.refine(prob, f, lambda e: sim.one(e), iterations=iterations, chi2_floor=best_fit.chi2)
     fits.remove(best_fit)
     fits.sort(key=lambda f: (f.bic if f.refined else np.inf, f.bic))
     fits.insert(0, best_fit)

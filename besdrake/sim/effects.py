@@ -290,8 +290,15 @@ class ActuatorLag(Effect):
     Applied to the commanded trajectory: q_cmd(t) = LowPass_tau[q_plan(t - delay)], computed exactly on a
     1 ms grid (zero-order-hold discretisation of 1/(tau s + 1)), held at the plan's start before the delay.
     The plan is extended by the delay so the motion completes. No rebuild. A lag slows the effective swing,
-    delays every event of the task (e.g. a release) and changes the outcome.
+    delays every event of the task (e.g. a release) and changes the outcome. The commanded plan keeps every
+    :attr:`KNOT_STRIDE`-th sample of that grid (with its velocity): the simulation's cost grows with the knots (a
+    1 ms plan took 2.3x as long to simulate as a 5 ms one), while the outcomes differ by well under a micrometre.
     """
+
+    #: Samples of the 1 ms filter grid per knot of the commanded plan (5: 5 ms knots; measured on the learn run's 25
+    #: diagnosis plans at delay 10 ms, tau 20 ms: touchdowns within 0.4 um and joint paths within 1e-8 rad of the
+    #: 1 ms plan's, 204 -> 90 ms per rollout).
+    KNOT_STRIDE = 5
 
     name = "actuator_lag"
     applied_via = "plan"
@@ -317,7 +324,8 @@ class ActuatorLag(Effect):
             a = np.exp(-dt / tau)
             q = q[0] + lfilter([0.0, 1.0 - a], [1.0, -a], q - q[0], axis=0)
         qd = np.gradient(q, t, axis=0)
-        setup.plan = MotionPlan(t=t, q=q, qd=qd, meta=dict(p.meta), joint_names=p.joint_names)
+        keep = np.unique(np.r_[np.arange(0, t.size, max(1, self.KNOT_STRIDE)), t.size - 1])
+        setup.plan = MotionPlan(t=t[keep], q=q[keep], qd=qd[keep], meta=dict(p.meta), joint_names=p.joint_names)
 
 
 @register_effect
