@@ -35,6 +35,9 @@ import time
 from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+# The checkout this script belongs to comes first (run as ``python3 scripts/...``, Python puts only scripts/ on the path
+# and ``besdrake`` would be the installed editable copy, perhaps another worktree's).
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np  # noqa: E402
 
