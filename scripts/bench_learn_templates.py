@@ -48,12 +48,12 @@ def _context(run_root: Path, overrides: list[str], workers: int):
     """learn's Context on ``run_root`` (its configuration as saved) with the ``templates.*`` ``overrides`` applied."""
     import yaml
 
-    from besdrake.pipeline.config import ConfigError, deep_merge, parse_override
+    from besdrake.pipeline.config import ConfigError, deep_merge, load_config, parse_override
     from besdrake.pipeline.learn import Context, run_scenario
     from besdrake.pipeline.run import RunFolder
 
     saved = yaml.safe_load((run_root / "config.yaml").read_text())
-    config = saved
+    config = deep_merge(load_config(), saved)  # settings added since the run started take their defaults
     for text in overrides:
         extra = parse_override(text)
         if set(extra) != {"templates"}:
