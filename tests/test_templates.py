@@ -17,6 +17,7 @@ from besdrake.search.templates import (
     MetaDMP,
     TemplateError,
     TemplatePool,
+    SCALE_SLOWEST,
     default_meta_bounds,
     evaluate_template,
     touchdowns,
@@ -272,9 +273,14 @@ def test_scale_mode_plays_the_base_path_slower_and_raw_mode_changes_it(moving_ba
 def test_scale_mode_bounds_keep_slow_throws_within_the_limits(moving_base):
     b = default_meta_bounds(moving_base, COMPI, time_mode="scale")
     m = MetaDMP(moving_base, COMPI, time_mode="scale")
-    assert b[0, 1] == pytest.approx(2.0 * moving_base.execution_time)
+    assert b[0, 1] == pytest.approx(SCALE_SLOWEST * moving_base.execution_time)
     for tau in np.linspace(*b[0], 5):
         assert m.plan([tau, moving_base.goal[0]]).check_limits(COMPI.limits).ok
+    wide = default_meta_bounds(moving_base, COMPI, time_mode="scale", slowest=4.0)
+    assert wide[0, 1] == pytest.approx(4.0 * moving_base.execution_time)
+    assert wide[0, 0] == pytest.approx(b[0, 0], abs=0.011)  # the same fastest safe time (bisection to 5 ms)
+    with pytest.raises(TemplateError, match="slowest"):
+        default_meta_bounds(moving_base, COMPI, time_mode="scale", slowest=1.0)
 
 
 def test_reach_probe_models_range_and_rotation():

@@ -78,6 +78,12 @@ METHODS = ("es", "ucb", "aces", "creps")
 JOINT1_MODES = ("rotate", "goal")
 TIME_MODES = ("scale", "raw")
 META_NAMES = ("execution_time", "goal.joint1")
+#: Slowest execution time of a ``time_mode="scale"`` template, x the base's (issue 27). A base refined to reach the far
+#: edge lands at ~1.47 m when 2x slower (subject 0 of a learn run: 2.14 m at 1x, 1.47 at 2x, 1.34 at 3x, 1.25 at 4x),
+#: short of the 1.3 m row; a 4x box fixed that row (subject 0: ES 5.89 -> 4.12 cm) but spreads the 7 probes thinner
+#: where the range changes fastest (subject 1: 4.15 -> 6.60 cm; subject 3 2.04 -> 1.71): no gain over 4 subjects, so the
+#: default stays 2x (session 18, scripts/bench_learn_templates.py).
+SCALE_SLOWEST = 2.0
 #: Paper's results on the real robot after 80 episodes (mean distance over the test contexts, cm).
 PAPER_MEAN_CM = {"es": 9.01, "ucb": 19.74}
 
@@ -87,9 +93,10 @@ class TemplateError(ValueError):
 
 
 def default_meta_bounds(base: DMP, robot: Robot, respect_limits: bool = True, joint1_mode: str = "rotate",
-                        time_mode: str = "scale") -> np.ndarray:
-    """Execution time in [0.7, 1.6] x the base's (``time_mode="raw"``; [0.7, 2.0] x with ``"scale"``, where a slower
-    movement is the same path and stays within the limits), at least 0.95 s, joint-1 goal within +-0.9 rad of the base's.
+                        time_mode: str = "scale", slowest: float = SCALE_SLOWEST) -> np.ndarray:
+    """Execution time in [0.7, 1.6] x the base's (``time_mode="raw"``; [0.7, ``slowest``] x with ``"scale"``, where a
+    slower movement is the same path and stays within the limits), at least 0.95 s, joint-1 goal within +-0.9 rad of
+    the base's.
 
     With ``respect_limits`` the box shrinks to plans within the robot's joint limits: in ``"rotate"`` mode
     the joint-1 goal range keeps the whole rotated joint-1 path inside its limits, and the execution time
@@ -101,7 +108,9 @@ def default_meta_bounds(base: DMP, robot: Robot, respect_limits: bool = True, jo
     tau = float(base.execution_time)
     g1 = float(base.goal[0])
     lo = max(MIN_EXECUTION_TIME, 0.7 * tau)
-    hi = max(lo + 0.1, (2.0 if time_mode == "scale" else 1.6) * tau)
+    if time_mode == "scale" and not slowest > 1.0:
+        raise TemplateError(f"the slowest execution time of a template is > 1 x its base's, got {slowest!r}")
+    hi = max(lo + 0.1, (float(slowest) if time_mode == "scale" else 1.6) * tau)
     jl = robot.position_limits[0]
     bounds = np.array([[lo, hi], [max(jl[0], g1 - 0.9), min(jl[1], g1 + 0.9)]])
     if respect_limits:
@@ -478,6 +487,7 @@ def train_template(
     time_mode: str = "scale",
     probes: int = DEFAULT_PROBES,
     reach_prior: bool = True,
+    slowest: float = SCALE_SLOWEST,
 ) -> TemplateTraining:
     """Learn a behaviour template from ``base`` with ``method`` in ``n_episodes`` rollouts.
 
@@ -489,7 +499,8 @@ def train_template(
     contextual episodes. With ``out_dir`` the search is resumable (episodes and optimizer state on disk). At each
     episode in ``checkpoints`` (counted with the probes) the current policy is evaluated on ``eval_contexts`` (extra
     rollouts that are not training episodes). ``progress(episode, reward)`` is called after every episode.
-    ``robot``: the robot of the plans (default: that of the executor's scenario).
+    ``robot``: the robot of the plans (default: that of the executor's scenario). ``slowest``: the box's slowest
+    execution time, x the base's (``"scale"`` mode, :func:`default_meta_bounds`).
     """
     from besdrake.search.loop import run_contextual_search
 
@@ -502,7 +513,8 @@ def train_template(
     if robot is None:
         raise TemplateError("train_template needs robot= (the executor has no scenario to take it from)")
     meta = MetaDMP(base, robot, joint1_mode, time_mode=time_mode)
-    bounds = default_meta_bounds(base, robot, joint1_mode=joint1_mode, time_mode=time_mode) if meta_bounds is None else np.asarray(meta_bounds, dtype=float)
+    bounds = (default_meta_bounds(base, robot, joint1_mode=joint1_mode, time_mode=time_mode, slowest=slowest) if meta_bounds is None
+              else np.asarray(meta_bounds, dtype=float))
     _check_meta_bounds(bounds)
     probe, bounds = _probe_reach(meta, executor, bounds, n_probes, fixed_bounds=meta_bounds is not None)
     optimizer = _template_optimizer(method, bounds, seed, probe if reach_prior else None, optimizer_kwargs)
@@ -568,16 +580,17 @@ def _probe_reach(meta: MetaDMP, executor, bounds: np.ndarray, n_probes: int, fix
 
 
 def reach_floor(base: DMP, executor, robot: Robot | None = None, probes: int = DEFAULT_PROBES,
-                contexts: np.ndarray = TEST_CONTEXTS) -> float:
+                contexts: np.ndarray = TEST_CONTEXTS, slowest: float = SCALE_SLOWEST) -> float:
     """Mean distance (m) over ``contexts`` that no template of ``base`` avoids (``"rotate"``/``"scale"`` modes), from
     ``probes`` simulated probes of it over the box within the joint limits
-    (:func:`~besdrake.search.template_reach.model_floor`): a measure of a base's reach; inf when fewer than two landed."""
+    (:func:`~besdrake.search.template_reach.model_floor`; ``slowest`` as in :func:`default_meta_bounds`): a measure of
+    a base's reach; inf when fewer than two landed."""
     from besdrake.search.template_reach import model_floor
 
     robot = robot or getattr(getattr(executor, "scenario", None), "robot", None)
     if robot is None:
         raise TemplateError("reach_floor needs robot= (the executor has no scenario to take it from)")
-    bounds = default_meta_bounds(base, robot)
+    bounds = default_meta_bounds(base, robot, slowest=slowest)
     probe, _ = _probe_reach(MetaDMP(base, robot), executor, bounds, max(2, int(probes)), fixed_bounds=True)
     return float("inf") if probe is None else float(np.mean(model_floor(probe, bounds, contexts)))
 
@@ -625,5 +638,5 @@ __all__ = [
     "CONTEXT_BOUNDS", "TEST_CONTEXTS", "METHODS", "JOINT1_MODES", "META_NAMES", "PAPER_MEAN_CM",
     "TemplateError", "MetaDMP", "BehaviorTemplate", "TemplatePool", "TemplateEvaluation", "TemplateTraining",
     "default_meta_bounds", "limit_safe_execution_times", "evaluate_template", "train_template", "touchdowns",
-    "TIME_MODES", "DEFAULT_PROBES", "reach_floor",
+    "TIME_MODES", "DEFAULT_PROBES", "reach_floor", "SCALE_SLOWEST",
 ]

@@ -573,21 +573,27 @@ def _best_throw(ctx: Context) -> Path:
 
 
 def template_reach_settings(config: dict[str, Any]) -> dict[str, Any]:
-    """The templates section's reach refinement, checked (:class:`~besdrake.pipeline.config.ConfigError`): ``target``
-    (m, or None: off) and ``evaluations`` (episodes)."""
+    """The templates section's reach settings, checked (:class:`~besdrake.pipeline.config.ConfigError`): the reach
+    refinement's ``target`` (m, or None: off) and ``evaluations`` (episodes), and ``slowest`` (the template's slowest
+    execution time, x its base's)."""
     from besdrake.pipeline.config import ConfigError
+    from besdrake.search.templates import SCALE_SLOWEST
 
     cfg = config["templates"]
     target, budget = cfg.get("reach_target"), cfg.get("reach_evaluations", 0)
     try:
         target = None if target is None else tuple(float(v) for v in target)
         budget = int(budget)
+        slowest = float(cfg.get("slowest", SCALE_SLOWEST))
     except (TypeError, ValueError) as err:
-        raise ConfigError(f"templates: reach_target must be [x, y] in m or null and reach_evaluations an integer ({err})") from None
+        raise ConfigError(f"templates: reach_target must be [x, y] in m or null, reach_evaluations an integer and slowest "
+                          f"a number ({err})") from None
     if target is not None and (len(target) != 2 or not np.isfinite(target).all()) or budget < 0:
         raise ConfigError(f"templates: reach_target must be two finite numbers (m) or null and reach_evaluations >= 0, "
                           f"got {cfg.get('reach_target')!r}, {cfg.get('reach_evaluations')!r}")
-    return {"target": target if budget > 0 else None, "evaluations": budget}
+    if not (1.0 < slowest <= 10.0):
+        raise ConfigError(f"templates: slowest must be within (1, 10] (x the base's execution time), got {cfg.get('slowest')!r}")
+    return {"target": target if budget > 0 else None, "evaluations": budget, "slowest": slowest}
 
 
 def _template_base(ctx: Context, scenario: str, out: Path) -> tuple[Path, dict[str, Any]]:
@@ -613,7 +619,8 @@ def _template_base(ctx: Context, scenario: str, out: Path) -> tuple[Path, dict[s
     if result["runs"][0].get("stop_reason") == "start" or result["best_distance_within_limits_m"] is None:
         return base_file, record | {"kept": False}
     with _executor(ctx, scenario) as executor:
-        floors = [reach_floor(load_dmp(f), executor, ctx.robot(scenario)) for f in (base_file, out / result["best_dmp"])]
+        floors = [reach_floor(load_dmp(f), executor, ctx.robot(scenario), slowest=settings["slowest"])
+                  for f in (base_file, out / result["best_dmp"])]
     kept = floors[1] < floors[0]
     record |= {"floor_m": floors, "kept": bool(kept)}
     return (out / result["best_dmp"] if kept else base_file), record
@@ -626,13 +633,14 @@ def stage_template(ctx: Context, out: Path) -> dict[str, Any]:
     from besdrake.search.templates import TEST_CONTEXTS, evaluate_template, train_template
 
     cfg = ctx.config["templates"]
+    slowest = template_reach_settings(ctx.config)["slowest"]
     method = {"entropy_search": "es", "ucb": "ucb"}.get(cfg["acquisition"], cfg["acquisition"])
     scenario = _refined_scenario(ctx)
     base_file, reach = _template_base(ctx, scenario, out / "reach")
     with _executor(ctx, scenario) as executor:
         training = train_template(
             load_dmp(base_file), executor, method=method, n_episodes=int(cfg["episodes"]), seed=int(cfg["seed"]),
-            name="throw", out_dir=out / "training",
+            name="throw", out_dir=out / "training", slowest=slowest,
             provenance={"base": str(base_file), "scenario": scenario, "lab": ctx.config["lab"], "demonstrations": ctx.config["demonstrations"]},
         )
         sim_eval = evaluate_template(training.template, executor)
