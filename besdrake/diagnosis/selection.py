@@ -37,14 +37,12 @@ def _forward_pairs(prob: fitting.Problem, fits: list[fitting.CandidateFit], sens
         return []
     lead_e = lead.effects[0]
     lead_theta = {s_.key: v for s_, v in zip(lead.specs, lead.theta)}
-    sd_full = prob.sd[prob.mask]
     local, dy = [], []
     for i, s_ in enumerate(sens.specs):
         d = sens.dy[i]
         if s_.key in lead_theta:  # centred on the lead's fit, with its refined (Broyden) Jacobian column
             j = [x.key for x in lead.specs].index(s_.key)
-            d = np.zeros_like(prob.y_meas)
-            d[prob.mask] = lead.jac[:, j] * sd_full
+            d = prob.unweighted(lead.jac[:, j])
             s_ = replace(s_, nominal=lead_theta[s_.key])
         local.append(s_)
         dy.append(d)

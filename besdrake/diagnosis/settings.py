@@ -10,6 +10,13 @@ are the task's :class:`~besdrake.diagnosis.trials.TrialModel`'s.
 from __future__ import annotations
 
 
+#: Noise model of a trial's features (issue 25): one trial's unmodelled perturbation (where the object sits, the
+#: lab's trial-to-trial jitter) moves several of its features together, so per trial a covariance block (the base SDs
+#: with the repeats' significant within-trial correlations, :func:`~besdrake.diagnosis.noise.base_correlation`, plus
+#: the placement scatter's simulated covariance) whitens residuals and Jacobians (generalised least squares,
+#: :class:`~besdrake.diagnosis.fitting.Problem`); chi2, BIC, the lack-of-fit and the nested tests all see it.
+#: False: every feature independent (the diagonal model, for comparison).
+WITHIN_TRIAL_COVARIANCE = True
 #: Lack-of-fit test level: "not explained" when the best candidate's residual is this improbable.
 ALPHA = 0.01
 #: Candidates whose BIC is within this of the best cannot be told apart by the data ("positive evidence" < 6).
@@ -85,6 +92,9 @@ HIGH_MARGIN_DBIC = 10.0
 #: need" are excluded from the margin above, but a second effect that the plan-level nested test could not claim may
 #: still be real (issue 25's benchmark: a hidden pair named as one effect with "high", the pair 2.2 BIC behind).
 HIGH_EXTRA_P = 0.05
+#: ... judged against F(dk, pure-error dof of the repeats) instead of chi2(dk) (:func:`~besdrake.diagnosis.verdict.strongest_extra`):
+#: the noise SDs come from a few repeated plans and are uncertain themselves (issue 25). False: known noise.
+SCALED_EXTRA_TEST = True
 #: ... and the named cause may move at most HIGH_MAX_MOVED parameters materially (by more than MOVED_FRACTION of the
 #: realistic range on that side of nominal): a realistic deviation moves one or two (one joint's encoder zero, a base
 #: tilt and a joint), and a cause that needs more is likely absorbing an effect the fit left out or chose wrongly. Issue 25: an object 4 mm smaller

@@ -118,8 +118,22 @@ def _extra_effect_bootstrap_p(prob: fitting.Problem, sub: fitting.CandidateFit, 
     effect's direction the per-plan scores scatter 4.6-8.7x the model's variance), so the likelihood ratio p (1e-11 for
     a pair named on a single joint offset) is far too small. The sign-flipped plan scores carry that scatter (and the correlation within a trial). NaN with fewer than
     NESTED_TEST_MIN_PLANS plans or no fitted predictions."""
-    if sub.y_fit is None or big.y_fit is None:
+    sc = _extra_effect_scores(prob, sub, big, keys)
+    if sc is None:
         return float("nan")
+    scores, uu = sc
+    t_obs = float(scores.sum()) ** 2 / uu
+    signs = np.random.default_rng(seed).choice([-1.0, 1.0], size=(draws, len(scores)))
+    t_boot = (signs @ scores) ** 2 / uu
+    return float((1 + np.sum(t_boot >= t_obs)) / (1 + draws))
+
+
+def _extra_effect_scores(prob: fitting.Problem, sub: fitting.CandidateFit, big: fitting.CandidateFit, keys: Sequence[str]) -> tuple[np.ndarray, float] | None:
+    """Per plan, the score of ``sub``'s residuals along what ``big`` adds (made orthogonal to ``sub``'s parameters), and
+    the model's variance of their sum (|u|^2): sum(scores^2) / |u|^2 is how much more the plans scatter along that
+    direction than the noise model says (1 when it is right). None with too few plans or no fitted predictions."""
+    if sub.y_fit is None or big.y_fit is None:
+        return None
     r = prob.weighted(sub.y_fit)
     u = r - prob.weighted(big.y_fit)  # (y_big - y_sub) / sd on the usable entries
     A = sub.jac
@@ -129,9 +143,5 @@ def _extra_effect_bootstrap_p(prob: fitting.Problem, sub: fitting.CandidateFit, 
     plans = list(dict.fromkeys(entry_key.tolist()))
     uu = float(u @ u)
     if len(plans) < NESTED_TEST_MIN_PLANS or not np.isfinite(uu) or uu <= 0.0:
-        return float("nan")
-    scores = np.array([float(u[entry_key == k] @ r[entry_key == k]) for k in plans])
-    t_obs = float(scores.sum()) ** 2 / uu
-    signs = np.random.default_rng(seed).choice([-1.0, 1.0], size=(draws, len(plans)))
-    t_boot = (signs @ scores) ** 2 / uu
-    return float((1 + np.sum(t_boot >= t_obs)) / (1 + draws))
+        return None
+    return np.array([float(u[entry_key == k] @ r[entry_key == k]) for k in plans]), uu
