@@ -93,3 +93,24 @@ def test_added_effect_judged_against_the_repeats_dof():
     p_known, _ = strongest_extra(causes)
     p_scaled, _ = strongest_extra(causes, nu=8)
     assert p_known < 1e-4 < p_scaled < 0.05  # 20 chi2 for one parameter: chi2(1) p 8e-6, F(1, 8) p 0.002
+
+
+def test_repeat_scale_measures_the_noise_along_a_direction():
+    from besdrake.diagnosis.stats import _repeat_scale
+
+    rng = np.random.default_rng(6)
+    plans, per, F = 40, 2, 3
+    keys = [f"p{j}" for j in range(plans) for _ in range(per)]
+    y0 = np.repeat(rng.normal(size=(plans, F)), per, axis=0)
+    sd = np.ones(F)
+    noise_ = rng.normal(size=y0.shape)
+    noise_[:, 0] *= 3.0  # the model says 1, the lab scatters 3x along feature 0
+    prob = fitting.Problem(y0 + noise_, y0, sd)
+    u0 = np.zeros((len(keys), F))
+    u0[:, 0] = 1.0
+    u1 = np.zeros((len(keys), F))
+    u1[:, 1] = 1.0
+    s0, nu0 = _repeat_scale(prob, u0[prob.mask], keys)
+    s1, nu1 = _repeat_scale(prob, u1[prob.mask], keys)
+    assert nu0 == pytest.approx(plans) and 5.0 < s0 < 14.0 and 0.5 < s1 < 1.6
+    assert _repeat_scale(prob, u0[prob.mask], [f"q{i}" for i in range(len(keys))]) == (1.0, 0.0)  # no repeats
