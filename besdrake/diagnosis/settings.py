@@ -59,6 +59,11 @@ LOCAL_PLACEMENT = True
 #: least NESTED_TEST_MIN_PLANS distinct plans.
 ROBUST_NESTED_TEST = True
 NESTED_TEST_MIN_PLANS = 6
+#: ... and (NESTED_BOOTSTRAP) by the wild cluster bootstrap over the plans as well (:func:`~besdrake.diagnosis.stats._extra_effect_bootstrap_p`),
+#: for a material second effect too. Session 18: with the whitened noise model the Wald test alone let a single
+#: base offset become "base + joint-6 offset" (benchmark trial 67; the cluster Wald test is anti-conservative with 17
+#: plans, session 17: 59's spurious extra at p 1.8e-6 where the bootstrap gave 0.021).
+NESTED_BOOTSTRAP = True
 #: An added effect that changes the predictions by less than MATERIAL is still claimed (the pair named) when it is
 #: significant with the plans as the units by a calibrated test (:func:`~besdrake.diagnosis.stats._extra_effect_bootstrap_p`,
 #: a wild cluster bootstrap with EXTRA_BOOTSTRAP_DRAWS sign draws, at ALPHA / the number of candidates it was chosen
