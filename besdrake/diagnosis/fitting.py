@@ -28,6 +28,7 @@ from dataclasses import dataclass, field, replace
 from typing import Callable, Sequence
 
 import numpy as np
+from scipy import sparse
 from scipy.linalg import solve_triangular
 from scipy.optimize import lsq_linear
 
@@ -215,17 +216,27 @@ class Problem:
         self.mask = mask & keep[:, None]
         self.n = int(self.mask.sum())
         self.cov = cov
-        self._chol: list[tuple[int, np.ndarray, np.ndarray]] = []  # (trial, its usable columns, Cholesky factor of their correlation)
+        self._L = self._W = None  # block-diagonal Cholesky factors of the trials' correlations and their inverses
+        self._group_W: dict[tuple[int, int], sparse.csr_matrix] = {}
         if cov is not None:
-            for i in np.nonzero(self.mask.any(axis=1))[0]:
-                cols = np.nonzero(self.mask[i])[0]
-                self._chol.append((int(i), cols, _chol_corr(cov[i], self.sd[i], cols)))
+            self._L, self._W = self._blocks(slice(0, y_meas.shape[1]))
+
+    def _blocks(self, s: slice) -> tuple[sparse.csr_matrix, sparse.csr_matrix]:
+        """Block-diagonal (one block per trial, in the order of the usable entries) Cholesky factors of the correlation
+        of each trial's usable entries among the columns ``s``, and their inverses."""
+        Ls, Ws = [], []
+        for i in np.nonzero(self.mask[:, s].any(axis=1))[0]:
+            cols = np.arange(s.start, s.stop)[self.mask[i, s]]
+            L = _chol_corr(self.cov[i], self.sd[i], cols)
+            Ls.append(L)
+            Ws.append(solve_triangular(L, np.eye(len(cols)), lower=True))
+        return sparse.block_diag(Ls, format="csr"), sparse.block_diag(Ws, format="csr")
 
     def _whiten(self, z: np.ndarray) -> np.ndarray:
         """Standardised entries (N, F) -> the weighted vector (whitened per trial when ``cov`` is set)."""
         if self.cov is None:
             return z[self.mask]
-        return np.concatenate([solve_triangular(L, z[i, cols], lower=True) for i, cols, L in self._chol]) if self._chol else np.zeros(0)
+        return self._W @ z[self.mask] if self.n else np.zeros(0)
 
     def weighted(self, y_sim: np.ndarray) -> np.ndarray:
         """Weighted residuals (measured - simulated) / sd on the usable entries (whitened per trial with ``cov``); NaN
@@ -236,18 +247,15 @@ class Problem:
 
     def weighted_jac(self, dy: np.ndarray) -> np.ndarray:
         """Weighted Jacobian of the residual entries (n, P) from feature derivatives (P, N, F)."""
-        return np.stack([self._whiten(d / self.sd) for d in dy], axis=1) if len(dy) else np.zeros((self.n, 0))
+        if not len(dy):
+            return np.zeros((self.n, 0))
+        Z = np.stack([(d / self.sd)[self.mask] for d in dy], axis=1)
+        return Z if self.cov is None else self._W @ Z
 
     def unweighted(self, v: np.ndarray) -> np.ndarray:
         """The feature-space array (N, F; 0 off the usable entries) of a weighted vector (the inverse of :meth:`weighted_jac`'s map)."""
         out = np.zeros(self.y_meas.shape)
-        if self.cov is None:
-            out[self.mask] = v * self.sd[self.mask]
-            return out
-        j = 0
-        for i, cols, L in self._chol:
-            out[i, cols] = (L @ v[j:j + len(cols)]) * self.sd[i, cols]
-            j += len(cols)
+        out[self.mask] = (v if self.cov is None else self._L @ v) * self.sd[self.mask]
         return out
 
     def group_chi2(self, z: np.ndarray, cols_of: slice) -> float:
@@ -257,12 +265,11 @@ class Problem:
         if self.cov is None:
             v = z[:, cols_of][m]
             return float(np.sum(v * v))
-        out = 0.0
-        for i in np.nonzero(m.any(axis=1))[0]:
-            cols = np.arange(cols_of.start, cols_of.stop)[m[i]]
-            w = solve_triangular(_chol_corr(self.cov[i], self.sd[i], cols), z[i, cols], lower=True)
-            out += float(w @ w)
-        return out
+        key = (cols_of.start, cols_of.stop)
+        if key not in self._group_W:
+            self._group_W[key] = self._blocks(cols_of)[1]
+        w = self._group_W[key] @ z[:, cols_of][m]
+        return float(w @ w)
 
 
 def _chol_corr(cov: np.ndarray, sd: np.ndarray, cols: np.ndarray) -> np.ndarray:
