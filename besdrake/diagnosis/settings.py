@@ -20,7 +20,7 @@ from __future__ import annotations
 #: 1.03x its variance, was 1.9x with the diagonal model; 85: 1.8x), the benchmark answers unchanged on 7 of the 8
 #: trials run with it alone (trial 67 turned into a false pair: NESTED_BOOTSTRAP), rollouts -5..+14 %. The
 #: likelihood-ratio evidence for a second effect on single-effect logs stays strong (59: 1.7e-12): its cause is
-#: mostly between plans (the simulated expected throw of a plan is off by more than the noise, the same for every
+#: mostly between plans (the simulated expected trial of a plan is off by more than the noise, the same for every
 #: repeat of it), which no within-trial covariance can see; the plan-level tests stay needed.
 WITHIN_TRIAL_COVARIANCE = True
 #: Lack-of-fit test level: "not explained" when the best candidate's residual is this improbable.
