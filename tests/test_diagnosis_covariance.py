@@ -91,7 +91,15 @@ def test_added_effect_judged_against_the_repeats_dof():
 
     causes = [cause(["joint_offset"], 120.0, 1), cause(["joint_offset", "ball"], 100.0, 2)]
     p_known, _ = strongest_extra(causes)
-    p_scaled, _ = strongest_extra(causes, nu=8)
+    old = settings.SCALED_EXTRA_TEST
+    try:
+        settings.SCALED_EXTRA_TEST = True
+        p_scaled, _ = strongest_extra(causes, nu=8)
+        assert strongest_extra(causes, nu=8, scale=4.0)[0] > p_scaled  # more noise along the direction: weaker evidence
+        settings.SCALED_EXTRA_TEST = False
+        assert strongest_extra(causes, nu=8)[0] == p_known
+    finally:
+        settings.SCALED_EXTRA_TEST = old
     assert p_known < 1e-4 < p_scaled < 0.05  # 20 chi2 for one parameter: chi2(1) p 8e-6, F(1, 8) p 0.002
 
 
