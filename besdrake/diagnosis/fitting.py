@@ -28,6 +28,8 @@ from dataclasses import dataclass, field, replace
 from typing import Callable, Sequence
 
 import numpy as np
+from scipy import sparse
+from scipy.linalg import solve_triangular
 from scipy.optimize import lsq_linear
 
 from besdrake.sim.effects import EffectError, get_effect
@@ -197,9 +199,15 @@ class CandidateFit:
 
 
 class Problem:
-    """The data of a fit: measured features, nominal features, weights, and which entries are usable."""
+    """The data of a fit: measured features, nominal features, weights, and which entries are usable.
 
-    def __init__(self, y_meas: np.ndarray, y0: np.ndarray, sd: np.ndarray, rows: np.ndarray | None = None) -> None:
+    ``cov``: per trial the covariance of its features (N, F, F, :meth:`~besdrake.diagnosis.noise.NoiseModel.covariances`;
+    its diagonal ``sd**2``): residuals and Jacobians are then whitened per trial with the Cholesky factor of the
+    correlation of its usable entries (generalised least squares), so that chi2 is -2 log-likelihood of correlated
+    noise; None: every entry independent (the diagonal model). The weighted vector keeps one entry per usable entry,
+    trial by trial (``np.nonzero(mask)[0]`` names each entry's trial in both models)."""
+
+    def __init__(self, y_meas: np.ndarray, y0: np.ndarray, sd: np.ndarray, rows: np.ndarray | None = None, cov: np.ndarray | None = None) -> None:
         self.y_meas = y_meas
         self.y0 = y0
         sd = np.asarray(sd, float)
@@ -211,17 +219,72 @@ class Problem:
         keep[self.rows] = True
         self.mask = mask & keep[:, None]
         self.n = int(self.mask.sum())
+        self.cov = cov
+        self._L = self._W = None  # block-diagonal Cholesky factors of the trials' correlations and their inverses
+        self._group_W: dict[tuple[int, int], sparse.csr_matrix] = {}
+        if cov is not None:
+            self._L, self._W = self._blocks(slice(0, y_meas.shape[1]))
+
+    def _blocks(self, s: slice) -> tuple[sparse.csr_matrix, sparse.csr_matrix]:
+        """Block-diagonal (one block per trial, in the order of the usable entries) Cholesky factors of the correlation
+        of each trial's usable entries among the columns ``s``, and their inverses."""
+        Ls, Ws = [], []
+        for i in np.nonzero(self.mask[:, s].any(axis=1))[0]:
+            cols = np.arange(s.start, s.stop)[self.mask[i, s]]
+            L = _chol_corr(self.cov[i], self.sd[i], cols)
+            Ls.append(L)
+            Ws.append(solve_triangular(L, np.eye(len(cols)), lower=True))
+        return sparse.block_diag(Ls, format="csr"), sparse.block_diag(Ws, format="csr")
+
+    def _whiten(self, z: np.ndarray) -> np.ndarray:
+        """Standardised entries (N, F) -> the weighted vector (whitened per trial when ``cov`` is set)."""
+        if self.cov is None:
+            return z[self.mask]
+        return self._W @ z[self.mask] if self.n else np.zeros(0)
 
     def weighted(self, y_sim: np.ndarray) -> np.ndarray:
-        """Weighted residuals (measured - simulated) / sd on the usable entries; NaN sims count as huge."""
-        r = (self.y_meas - y_sim) / self.sd
-        r = r[self.mask]
-        r[~np.isfinite(r)] = 1e3
-        return r
+        """Weighted residuals (measured - simulated) / sd on the usable entries (whitened per trial with ``cov``); NaN
+        sims count as huge."""
+        z = (self.y_meas - y_sim) / self.sd
+        z = np.where(np.isfinite(z), z, 1e3)
+        return self._whiten(z)
 
     def weighted_jac(self, dy: np.ndarray) -> np.ndarray:
         """Weighted Jacobian of the residual entries (n, P) from feature derivatives (P, N, F)."""
-        return np.stack([(d / self.sd)[self.mask] for d in dy], axis=1) if len(dy) else np.zeros((self.n, 0))
+        if not len(dy):
+            return np.zeros((self.n, 0))
+        Z = np.stack([(d / self.sd)[self.mask] for d in dy], axis=1)
+        return Z if self.cov is None else self._W @ Z
+
+    def unweighted(self, v: np.ndarray) -> np.ndarray:
+        """The feature-space array (N, F; 0 off the usable entries) of a weighted vector (the inverse of :meth:`weighted_jac`'s map)."""
+        out = np.zeros(self.y_meas.shape)
+        out[self.mask] = (v if self.cov is None else self._L @ v) * self.sd[self.mask]
+        return out
+
+    def group_chi2(self, z: np.ndarray, cols_of: slice) -> float:
+        """chi2 of the standardised residuals ``z`` (N, F) on one group's columns: with ``cov``, each trial's entries
+        whitened by the group's own block (its marginal covariance)."""
+        m = self.mask[:, cols_of]
+        if self.cov is None:
+            v = z[:, cols_of][m]
+            return float(np.sum(v * v))
+        key = (cols_of.start, cols_of.stop)
+        if key not in self._group_W:
+            self._group_W[key] = self._blocks(cols_of)[1]
+        w = self._group_W[key] @ z[:, cols_of][m]
+        return float(w @ w)
+
+
+def _chol_corr(cov: np.ndarray, sd: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """Lower Cholesky factor of the correlation of ``cov`` on ``cols`` (eigenvalues clipped at 1e-6 if it is not positive definite)."""
+    s = sd[cols]
+    R = cov[np.ix_(cols, cols)] / np.outer(s, s)
+    try:
+        return np.linalg.cholesky(R)
+    except np.linalg.LinAlgError:
+        ev, V = np.linalg.eigh((R + R.T) / 2)
+        return np.linalg.cholesky((V * np.clip(ev, 1e-6, None)) @ V.T)
 
 
 def _prior_rows(specs: list[ParamSpec], theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -255,15 +318,10 @@ def stderr_from(A: np.ndarray, specs: list[ParamSpec]) -> np.ndarray:
 
 
 def chi2_by_group(prob: Problem, y_sim: np.ndarray, slices: dict[str, slice]) -> dict[str, float]:
-    r = (prob.y_meas - y_sim) / prob.sd
-    out = {}
-    for g, s in slices.items():
-        m = prob.mask[:, s]
-        if m.any():
-            v = r[:, s][m]
-            v[~np.isfinite(v)] = 1e3
-            out[g] = float(np.sum(v * v))
-    return out
+    """chi2 per group (each group's entries whitened by its own covariance block when the problem has one)."""
+    z = (prob.y_meas - y_sim) / prob.sd
+    z = np.where(np.isfinite(z), z, 1e3)
+    return {g: prob.group_chi2(z, s) for g, s in slices.items() if prob.mask[:, s].any()}
 
 
 def selection_penalty(specs: Sequence[ParamSpec], n_params: dict[str, int]) -> float:

@@ -50,7 +50,7 @@ def _fold_disparity(ev: Any, sens: fitting.Sensitivity, best_fit: fitting.Candid
     start at the all-data optimum (its simulated features of the training trials are known), then Gauss-Newton."""
     td = ev.model.slices()[ev.model.outcome]
     sim = ev.sim
-    prob_k = fitting.Problem(ev.y_meas, ev.y0, ev.nm.matrix(len(ev.y_meas)), rows=train)
+    prob_k = fitting.Problem(ev.y_meas, ev.y0, ev.nm.matrix(len(ev.y_meas)), rows=train, cov=ev.nm.covariances(len(ev.y_meas)))
     fit_k = fitting.linear_fit(prob_k, sens, best_fit.effects, select=settings.SELECT_PARAMETERS)
     th0 = np.array([best_fit.theta[best_fit.specs.index(s_)] if s_ in best_fit.specs else s_.nominal for s_ in fit_k.specs])
     starts = [(th0, best_fit.y_fit)] if best_fit.y_fit is not None else []

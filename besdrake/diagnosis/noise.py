@@ -48,6 +48,14 @@ class NoiseModel:
     #: Factor on ``place_var`` per feature (the lab's placement scatter against the simulated one), from the repeats.
     place_scale: np.ndarray | None = None
     model: TrialModel | None = field(default=None, repr=False, compare=False)
+    #: Within-trial correlation of the features beyond the placement (F, F; :func:`base_correlation`), None: the features
+    #: of a trial are taken as independent apart from the placement's part (or wholly, without ``place_cov``).
+    base_corr: np.ndarray | None = None
+    #: Covariance of a trial's features over the placement scatter (N, F, F; :attr:`_Sim.place_cov`).
+    place_cov: np.ndarray | None = field(default=None, repr=False)
+    #: Pure-error degrees of freedom of the repeats (one per extra trial of a repeated plan): how many independent
+    #: looks at the noise along any one direction of a trial's features the log holds.
+    repeat_dof: int = 0
 
     def __post_init__(self) -> None:
         if self.model is None:
@@ -74,6 +82,42 @@ class NoiseModel:
         scale = np.ones_like(self.feature_sd) if self.place_scale is None else self.place_scale
         out[:, have] = np.sqrt(self.feature_sd[have] ** 2 + scale[have] * pv[:, have])
         return out
+
+    def floor_vector(self) -> np.ndarray:
+        """The simulation floor per feature (:attr:`~besdrake.diagnosis.trials.Observable.floor`)."""
+        out = np.empty(self.model.n_features)
+        for o, s in zip(self.model.observables, self.model.slices().values()):
+            out[s] = o.floor
+        return out
+
+    def covariances(self, n: int) -> np.ndarray | None:
+        """Per trial the covariance of its features (n, F, F) with :meth:`matrix`'s SDs on the diagonal: the base part
+        (base SDs, :attr:`base_corr`) plus the scaled placement covariance, its correlation applied to what lies above
+        the simulation floor (the floor part of every feature stays independent, so that no combination of features is
+        trusted beyond what the simulation reproduces). None when the diagonal model is asked for
+        (``settings.WITHIN_TRIAL_COVARIANCE``) or nothing correlates."""
+        from besdrake.diagnosis import settings
+
+        have_place = self.place_cov is not None and len(self.place_cov) == n and self.feature_sd is not None
+        if not settings.WITHIN_TRIAL_COVARIANCE or (self.base_corr is None and not have_place):
+            return None
+        sd = self.matrix(n)
+        base = self.vector()
+        if self.feature_sd is not None:
+            base = np.where(np.isfinite(self.feature_sd), self.feature_sd, base)
+        R_b = np.eye(len(base)) if self.base_corr is None else self.base_corr
+        cov = np.broadcast_to(R_b * np.outer(base, base), (n, len(base), len(base))).copy()
+        if have_place:
+            scale = np.where(np.isfinite(self.feature_sd), self.place_scale if self.place_scale is not None else 1.0, 0.0)
+            cov += self.place_cov * np.sqrt(np.outer(scale, scale))[None]
+        d = np.sqrt(np.clip(np.einsum("nii->ni", cov), 1e-300, None))
+        R = cov / d[:, :, None] / d[:, None, :]
+        phi = np.clip((self.floor_vector()[None, :] / sd) ** 2, 0.0, 1.0)
+        q = np.sqrt(1.0 - phi)
+        R = R * q[:, :, None] * q[:, None, :]
+        idx = np.arange(R.shape[1])
+        R[:, idx, idx] = 1.0
+        return R * sd[:, :, None] * sd[:, None, :]
 
     def scale_group(self, g: str, factor: float) -> None:
         """Scale group ``g``'s SDs (group and per-feature) by ``factor``."""
@@ -176,8 +220,50 @@ def _class_fit(features: np.ndarray, keys: list[str], place_var: np.ndarray | No
     return float(np.sqrt(theta[0])), float(theta[1]), dof
 
 
+def base_correlation(features: np.ndarray, keys: list[str], sd: np.ndarray, floor: np.ndarray, alpha: float) -> np.ndarray | None:
+    """Within-trial correlation of the features from the repeats (F, F; None without two repeated plans).
+
+    The within-plan deviations of every repeated plan, each feature in units of that trial's SD (``sd``, N x F), give
+    a pooled sample correlation; with a handful of repeats most entries are noise (8 pairs: an SD of 0.35 about a
+    true zero), and Ledoit-Wolf shrinkage, optimal over all entries at once, then shrinks the few strong ones too
+    (benchmark log: intensity 0.88, a touchdown-path correlation of 1.00 kept as 0.12). So an entry is kept only
+    where it is significant (t test of a correlation with the pure-error dof, at ``alpha`` Bonferroni over the pairs
+    of features above the floor), else 0; features whose SD is the simulation floor (``floor``) stay independent.
+    The result is made positive definite (eigenvalues at least 1e-3, unit diagonal)."""
+    from scipy import stats as st
+
+    dev = []
+    for idx in repeat_groups(keys):
+        block = features[idx]
+        dev.append((block - block.mean(axis=0)) / sd[idx])
+    if len(dev) < 2:
+        return None
+    Z = np.concatenate(dev)
+    dof = sum(len(x) - 1 for x in dev)
+    live = np.all(np.isfinite(Z), axis=0) & (np.nanmedian(sd, axis=0) > 1.05 * floor)
+    F = features.shape[1]
+    R = np.eye(F)
+    m = int(live.sum())
+    if m < 2 or dof < MIN_DOF:
+        return None
+    Zl = Z[:, live]
+    C = Zl.T @ Zl / dof
+    dd = np.sqrt(np.clip(np.diag(C), 1e-300, None))
+    r = np.clip(C / np.outer(dd, dd), -1.0, 1.0)
+    t = np.abs(r) * np.sqrt(max(dof - 2, 1)) / np.sqrt(np.clip(1.0 - r * r, 1e-12, None))
+    p = 2.0 * st.t.sf(t, max(dof - 2, 1))
+    keep = p < alpha / max(m * (m - 1) / 2, 1)
+    r = np.where(keep, r, 0.0)
+    np.fill_diagonal(r, 1.0)
+    ev, V = np.linalg.eigh(r)
+    r = (V * np.clip(ev, 1e-3, None)) @ V.T
+    d = np.sqrt(np.diag(r))
+    R[np.ix_(live, live)] = r / np.outer(d, d)
+    return R if np.any(keep & ~np.eye(m, dtype=bool)) else None
+
+
 def estimate_noise(features: np.ndarray, keys: list[str], signal: SignalNoise | None = None, place_var: np.ndarray | None = None,
-                   model: TrialModel | None = None) -> NoiseModel:
+                   model: TrialModel | None = None, place_cov: np.ndarray | None = None) -> NoiseModel:
     """Noise per group from repeated plans where possible, else the outcome's prior, what the log's ``signal`` shows,
     or the group's typical figure; with repeats, also the per-axis-class base SDs beyond the predicted placement
     variance ``place_var`` (N, F) of each trial."""
@@ -203,8 +289,14 @@ def estimate_noise(features: np.ndarray, keys: list[str], signal: SignalNoise | 
     feature_sd = place_scale = None
     if n_rep:
         feature_sd, place_scale = _axis_fits(features, keys, place_var, model, source, signal)
-    return NoiseModel(sd=sd, dof=dof, source=source, n_repeat_groups=n_rep, notes=notes, feature_sd=feature_sd, place_var=place_var,
-                      place_scale=place_scale, model=model)
+    nm = NoiseModel(sd=sd, dof=dof, source=source, n_repeat_groups=n_rep, notes=notes, feature_sd=feature_sd, place_var=place_var,
+                    place_scale=place_scale, model=model, place_cov=place_cov,
+                    repeat_dof=sum(len(idx) - 1 for idx in repeat_groups(keys)))
+    if n_rep >= 2:
+        from besdrake.diagnosis import settings
+
+        nm.base_corr = base_correlation(features, keys, nm.matrix(len(features)), nm.floor_vector(), settings.ALPHA)
+    return nm
 
 
 def _axis_fits(features: np.ndarray, keys: list[str], place_var: np.ndarray | None, model: TrialModel, source: dict[str, str],

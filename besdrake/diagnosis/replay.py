@@ -66,7 +66,7 @@ def replay(used: list, keys: list[str], ex, cache: dict | None, scen: Scenario, 
     sim.full_cache[sim.key({})] = np.array([model.simulated_features(o, lay) for o, lay in zip(nominal, sim.full_layouts)]) + sim.full_shift
     measured_groups = [g for g, s in model.slices().items() if np.isfinite(y_meas[:, s]).all(axis=1).sum() >= 2]
     signal = model.signal_noise(used, layouts, rms)
-    nm = noise.estimate_noise(y_meas, keys, signal, place_var=sim.place_var, model=model)
+    nm = noise.estimate_noise(y_meas, keys, signal, place_var=sim.place_var, model=model, place_cov=sim.place_cov)
     return Evidence(used, plans, keys, sim, y_meas, y0, nm, measured_groups, signal, placement_summary)
 
 
@@ -115,7 +115,7 @@ def fit_linear(ev: Evidence, sens: fitting.Sensitivity, cands: list[str], pairs:
 
 
 def _fit_all(ev: Evidence, sens: fitting.Sensitivity, cands: list[str], pairs: bool) -> tuple[fitting.Problem, list[fitting.CandidateFit]]:
-    prob = fitting.Problem(ev.y_meas, ev.y0, ev.nm.matrix(len(ev.y_meas)))
+    prob = fitting.Problem(ev.y_meas, ev.y0, ev.nm.matrix(len(ev.y_meas)), cov=ev.nm.covariances(len(ev.y_meas)))
     fits = [fitting.linear_fit(prob, sens, c, select=settings.SELECT_PARAMETERS) for c in fitting.candidate_sets(cands, pairs)]
     fits.sort(key=lambda f: f.bic)
     return prob, fits

@@ -37,14 +37,12 @@ def _forward_pairs(prob: fitting.Problem, fits: list[fitting.CandidateFit], sens
         return []
     lead_e = lead.effects[0]
     lead_theta = {s_.key: v for s_, v in zip(lead.specs, lead.theta)}
-    sd_full = prob.sd[prob.mask]
     local, dy = [], []
     for i, s_ in enumerate(sens.specs):
         d = sens.dy[i]
         if s_.key in lead_theta:  # centred on the lead's fit, with its refined (Broyden) Jacobian column
             j = [x.key for x in lead.specs].index(s_.key)
-            d = np.zeros_like(prob.y_meas)
-            d[prob.mask] = lead.jac[:, j] * sd_full
+            d = prob.unweighted(lead.jac[:, j])
             s_ = replace(s_, nominal=lead_theta[s_.key])
         local.append(s_)
         dy.append(d)
@@ -213,6 +211,11 @@ def _drop(prob: fitting.Problem, best_fit: fitting.CandidateFit, by_effects: dic
         if not sig:
             return (sub_fit.bic, e, sub_fit, f"{best_fit.name} fits better by BIC ({sub_fit.bic - best_fit.bic:.1f}) but {e} is not significant "
                     f"with the {nm.model.noun}s' plans as the independent units (cluster-robust Wald test p = {p_w:.2g} >= {alpha_extra:.2g}): not claimed")
+        p_b = _extra_effect_bootstrap_p(prob, sub_fit, best_fit, keys) if settings.NESTED_BOOTSTRAP else 0.0
+        if not p_b < alpha_extra:
+            return (sub_fit.bic, e, sub_fit, f"{best_fit.name} fits better by BIC ({sub_fit.bic - best_fit.bic:.1f}) and {e} passes the cluster-robust "
+                    f"Wald test (p = {p_w:.2g}), but its gain is within what the {nm.model.noun}s' own scatter over the plans gives (wild cluster "
+                    f"bootstrap p = {p_b:.2g} >= {alpha_extra:.2g}): not claimed")
     return None
 
 

@@ -32,8 +32,10 @@ class _Sim:
         # Expected-placement corrections (N, F) added to every simulated feature vector (zeros: none).
         self.shift = np.zeros((len(plans), self.model.n_features))
         self.full_shift = np.zeros((len(plans), self.model.n_features))
-        # Predicted placement variance per trial and feature (None: the lab's placement does not scatter).
+        # Predicted placement variance per trial and feature (None: the lab's placement does not scatter), and the
+        # covariance between a trial's features over the same placements (N, F, F; NaN-free, its diagonal place_var).
         self.place_var: np.ndarray | None = None
+        self.place_cov: np.ndarray | None = None
         # Placement draws (K, 2) around the scenario's placement (``placement_habit``), clipped to the bounds.
         self.placement_draws: np.ndarray | None = None
         self.expand_all = False  # every candidate (not only those that set the placement) averaged over the draws
@@ -134,6 +136,18 @@ class _Sim:
         return out[0], out[1]
 
 
+def _placement_cov(dev: np.ndarray, ww: np.ndarray, place_var: np.ndarray) -> np.ndarray:
+    """Per trial, the covariance of its features over the quadrature's placements (N, F, F): the weighted sum of the
+    deviations' outer products (``dev`` (K, N, F), weights ``ww`` (K, N, F), a placement whose rollout failed carrying
+    no weight for that feature), scaled so that its diagonal is ``place_var``; zero where that is unknown."""
+    w = np.sqrt(np.clip(np.nan_to_num(ww), 0.0, None)) * dev
+    cov = np.einsum("kni,knj->nij", w, w)
+    d = np.sqrt(np.clip(np.einsum("nii->ni", cov), 0.0, None))
+    pv = np.sqrt(np.where(np.isfinite(place_var), np.clip(place_var, 0.0, None), 0.0))
+    f = np.divide(pv, d, out=np.zeros_like(pv), where=d > 0)  # 1 where the weights agree (no failed placement)
+    return cov * f[:, :, None] * f[:, None, :]
+
+
 def _placement_correction(sim: _Sim, scen: Scenario, sd: float) -> dict[str, Any]:
     """Expected-placement correction: per trial, the mean features of its plan over the placements of the task's
     scatter (:meth:`~besdrake.diagnosis.trials.PlacementScatter.points`, the same for every plan, around the scenario's
@@ -169,6 +183,7 @@ def _placement_correction(sim: _Sim, scen: Scenario, sd: float) -> dict[str, Any
         mean = np.sum(ww * g0, axis=0)
         place_var = np.sum(ww * np.where(ok, (g0 - mean) ** 2, 0.0), axis=0)
     sim.place_var = np.where(np.isfinite(place_var), place_var, np.nan)
+    sim.place_cov = _placement_cov(np.where(ok, g0 - mean, 0.0), ww, place_var)
     sim.shift = np.where(np.isfinite(shift), shift, 0.0)
     sim.full_shift = np.where(np.isfinite(full_shift), full_shift, 0.0)
     sim.placement_draws, sim.placement_habit = d, habit

@@ -118,20 +118,65 @@ def _extra_effect_bootstrap_p(prob: fitting.Problem, sub: fitting.CandidateFit, 
     effect's direction the per-plan scores scatter 4.6-8.7x the model's variance), so the likelihood ratio p (1e-11 for
     a pair named on a single joint offset) is far too small. The sign-flipped plan scores carry that scatter (and the correlation within a trial). NaN with fewer than
     NESTED_TEST_MIN_PLANS plans or no fitted predictions."""
-    if sub.y_fit is None or big.y_fit is None:
+    sc = _extra_effect_scores(prob, sub, big, keys)
+    if sc is None:
         return float("nan")
-    r = prob.weighted(sub.y_fit)
-    u = r - prob.weighted(big.y_fit)  # (y_big - y_sub) / sd on the usable entries
+    scores, uu = sc
+    t_obs = float(scores.sum()) ** 2 / uu
+    signs = np.random.default_rng(seed).choice([-1.0, 1.0], size=(draws, len(scores)))
+    t_boot = (signs @ scores) ** 2 / uu
+    return float((1 + np.sum(t_boot >= t_obs)) / (1 + draws))
+
+
+def _extra_direction(prob: fitting.Problem, sub: fitting.CandidateFit, big: fitting.CandidateFit) -> np.ndarray:
+    """The weighted change of prediction from ``sub`` to ``big`` (both fitted), made orthogonal to ``sub``'s parameters."""
+    u = prob.weighted(sub.y_fit) - prob.weighted(big.y_fit)
     A = sub.jac
     if A is not None and A.shape[0] == prob.n and A.shape[1]:
         u = u - A @ np.linalg.lstsq(A, u, rcond=None)[0]
+    return u
+
+
+def _extra_effect_scores(prob: fitting.Problem, sub: fitting.CandidateFit, big: fitting.CandidateFit, keys: Sequence[str]) -> tuple[np.ndarray, float] | None:
+    """Per plan, the score of ``sub``'s residuals along what ``big`` adds (made orthogonal to ``sub``'s parameters), and
+    the model's variance of their sum (|u|^2): sum(scores^2) / |u|^2 is how much more the plans scatter along that
+    direction than the noise model says (1 when it is right). None with too few plans or no fitted predictions."""
+    if sub.y_fit is None or big.y_fit is None:
+        return None
+    r = prob.weighted(sub.y_fit)
+    u = _extra_direction(prob, sub, big)
     entry_key = np.array([keys[i] for i in np.nonzero(prob.mask)[0]])
     plans = list(dict.fromkeys(entry_key.tolist()))
     uu = float(u @ u)
     if len(plans) < NESTED_TEST_MIN_PLANS or not np.isfinite(uu) or uu <= 0.0:
-        return float("nan")
-    scores = np.array([float(u[entry_key == k] @ r[entry_key == k]) for k in plans])
-    t_obs = float(scores.sum()) ** 2 / uu
-    signs = np.random.default_rng(seed).choice([-1.0, 1.0], size=(draws, len(plans)))
-    t_boot = (signs @ scores) ** 2 / uu
-    return float((1 + np.sum(t_boot >= t_obs)) / (1 + draws))
+        return None
+    return np.array([float(u[entry_key == k] @ r[entry_key == k]) for k in plans]), uu
+
+
+def _repeat_scale(prob: fitting.Problem, u: np.ndarray, keys: Sequence[str]) -> tuple[float, float]:
+    """The noise variance along the weighted direction ``u`` (one entry per usable entry) as the repeats show it, in
+    units of the noise model's (1 when the model is right there), and its degrees of freedom.
+
+    The trials of a repeated plan share every simulated prediction, so their weighted residuals differ by noise alone:
+    per plan, the deviations of its trials from their mean projected on the plan's part of ``u`` (its trials' parts
+    averaged) give (m - 1) |u_plan|^2 in expectation. Pooled over the plans: s2 = sum of squared projections / sum of
+    expectations, with Satterthwaite's dof. (1.0, 0.0) without repeats."""
+    rows = np.nonzero(prob.mask)[0]
+    per = {i: np.nonzero(rows == i)[0] for i in np.unique(rows)}
+    w0 = prob.weighted(prob.y0)
+    num = den = den2 = 0.0
+    for idx in noise.repeat_groups(list(keys)):
+        trials = [i for i in idx if i in per]
+        if len(trials) < 2 or len({len(per[i]) for i in trials}) != 1 or not all(np.array_equal(prob.mask[trials[0]], prob.mask[i]) for i in trials):
+            continue
+        # r of the measured data alone: the predictions are the same for every trial of the plan
+        e = np.array([w0[per[i]] for i in trials])
+        e = e - e.mean(axis=0)
+        ub = np.mean([u[per[i]] for i in trials], axis=0)
+        a = (len(trials) - 1) * float(ub @ ub)
+        num += float(np.sum((e @ ub) ** 2))
+        den += a
+        den2 += a * a / (len(trials) - 1)
+    if den <= 0.0:
+        return 1.0, 0.0
+    return num / den, den * den / den2
