@@ -10,6 +10,12 @@ from besdrake.diagnosis.verdict import strongest_extra
 from besdrake.tasks.throwing.diagnosis.observables import N_FEATURES, group_slices
 
 
+@pytest.fixture(autouse=True)
+def _covariance_model_on(monkeypatch):
+    """These tests exercise the within-trial covariance model, off by default until the whole benchmark has run it."""
+    monkeypatch.setattr(settings, "WITHIN_TRIAL_COVARIANCE", True)
+
+
 def _repeats(rng: np.random.Generator, plans: int = 10, per: int = 2, shared: float = 0.05) -> tuple[np.ndarray, list[str]]:
     """Features of repeated plans whose touchdown x and horizontal ball position x share one perturbation per trial
     (the path's x moves by half the touchdown's), everything else independent."""

@@ -415,6 +415,25 @@ def refine(
         fit.chi2, fit.refined, fit.y_fit = float(r @ r), True, y
         return fit
     specs = fit.specs
+    A, theta, y, r = _best_start(prob, fit, simulate_one, starts, try_linear, nominal_secants)
+    ranges = np.array([s.high - s.low for s in specs])
+    for _ in range(iterations):
+        delta = _solve_step(A, r, specs, theta)
+        if np.max(np.abs(delta) / ranges) < 1e-7:
+            break
+        A, theta, y, r, improved = _halving_step(prob, specs, simulate_one, A, theta, y, r, delta, min_gain, chi2_floor)
+        if not improved:
+            break
+    fit.theta, fit.chi2, fit.refined, fit.y_fit, fit.jac = theta, float(r @ r), True, y, A
+    fit.stderr = stderr_from(A, specs)
+    return fit
+
+
+def _best_start(prob: Problem, fit: CandidateFit, simulate_one: Callable[[dict], np.ndarray],
+                starts: Sequence[tuple[np.ndarray, np.ndarray]], try_linear: bool, nominal_secants: bool):
+    """:func:`refine`'s start: the Jacobian with the secants from the nominal to every start point, and the start point
+    (theta, y, weighted residual) of the smallest chi2 among the nominal, the linear solution and ``starts``."""
+    specs = fit.specs
     A = fit.jac.copy()
     theta_nom = np.array([s.nominal for s in specs])
     r_nom = prob.weighted(prob.y0)
@@ -430,31 +449,27 @@ def refine(
         if np.any(dth):
             A = A + np.outer((r_nom - r_p) - A @ dth, dth) / (dth @ dth)
     theta, y, r = min(points, key=lambda p: float(p[2] @ p[2]))
-    theta = theta.copy()
-    ranges = np.array([s.high - s.low for s in specs])
-    for _ in range(iterations):
-        delta = _solve_step(A, r, specs, theta)
-        if np.max(np.abs(delta) / ranges) < 1e-7:
-            break
-        improved = False
-        for _half in range(3):
-            cand = theta + delta
-            y_c = simulate_one(effects_from(specs, cand))
-            r_c = prob.weighted(y_c)
-            # Broyden rank-one update with the observed change of the residuals.
-            A = A + np.outer((r - r_c) - A @ delta, delta) / (delta @ delta)
-            if r_c @ r_c < r @ r:
-                gain = float(r @ r - r_c @ r_c)
-                theta, r, y = cand, r_c, y_c
-                gap = 0.0 if chi2_floor is None else max(0.0, float(r @ r) - chi2_floor)
-                improved = gain >= max(min_gain, FLOOR_GAIN_FRACTION * gap)
-                break
-            delta = 0.5 * delta
-        if not improved:
-            break
-    fit.theta, fit.chi2, fit.refined, fit.y_fit, fit.jac = theta, float(r @ r), True, y, A
-    fit.stderr = stderr_from(A, specs)
-    return fit
+    return A, theta.copy(), y, r
+
+
+def _halving_step(prob: Problem, specs: list[ParamSpec], simulate_one: Callable[[dict], np.ndarray], A: np.ndarray,
+                  theta: np.ndarray, y: np.ndarray, r: np.ndarray, delta: np.ndarray, min_gain: float,
+                  chi2_floor: float | None):
+    """One Gauss-Newton step of :func:`refine` with up to three halvings, the Jacobian Broyden-updated after every
+    rollout; returns (A, theta, y, r, improved): improved when a step gained at least ``min_gain`` (and, with a
+    ``chi2_floor``, FLOOR_GAIN_FRACTION of the gap above it)."""
+    for _half in range(3):
+        cand = theta + delta
+        y_c = simulate_one(effects_from(specs, cand))
+        r_c = prob.weighted(y_c)
+        # Broyden rank-one update with the observed change of the residuals.
+        A = A + np.outer((r - r_c) - A @ delta, delta) / (delta @ delta)
+        if r_c @ r_c < r @ r:
+            gain = float(r @ r - r_c @ r_c)
+            gap = 0.0 if chi2_floor is None else max(0.0, float(r_c @ r_c) - chi2_floor)
+            return A, cand, y_c, r_c, gain >= max(min_gain, FLOOR_GAIN_FRACTION * gap)
+        delta = 0.5 * delta
+    return A, theta, y, r, False
 
 
 def jacobian_at(prob: Problem, fit: CandidateFit, simulate: Callable[[list[dict]], np.ndarray]) -> CandidateFit:
