@@ -620,3 +620,30 @@ def test_noise_model_weighs_each_throw_by_its_placement_scatter_and_axis():
     assert nm0.feature_sd is None and np.allclose(nm0.matrix(n), nm0.vector()[None, :])
     nm.scale_group("ball_pos", 2.0)
     assert nm.feature_sd[pos.start + 2] == pytest.approx(2 * v) and nm.place_scale[pos.start + 2] == pytest.approx(4 * scale)
+
+
+def test_refine_stops_a_hopeless_rival_early_and_leaves_a_close_one_alone():
+    """``chi2_floor``: a rival whose chi2 stays far above the chosen cause's stops once its steps close less than
+    FLOOR_GAIN_FRACTION of that gap; refined against a floor near its own optimum it runs as without one."""
+    specs, sens, prob = _linear_problem("air_drag", 0.5, seed=3)
+    # The log holds a large effect the rival cannot produce (a lag), plus the rival's own nonlinear drag.
+    prob.y_meas = sens.y0 + 0.5 * sens.dy[2] + 0.3 * 0.5**2 * sens.dy[2] + 0.08 * sens.dy[1]
+    calls = {"n": 0}
+
+    def simulate_one(effects):
+        calls["n"] += 1
+        cd = effects.get("air_drag", {}).get("cd", 0.0)
+        return sens.y0 + cd * sens.dy[2] + 0.3 * cd**2 * sens.dy[2]
+
+    def run(floor):
+        calls["n"] = 0
+        fit = fitting.refine(prob, fitting.linear_fit(prob, sens, ("air_drag",)), simulate_one, iterations=8, min_gain=1e-9, chi2_floor=floor)
+        return fit, calls["n"]
+
+    free, n_free = run(None)
+    assert free.chi2 > 1e3  # the rival cannot explain the lag: a hopeless rival
+    hopeless, n_hopeless = run(0.0)
+    assert n_hopeless < n_free
+    assert hopeless.chi2 - free.chi2 <= fitting.FLOOR_GAIN_FRACTION * free.chi2 * 10
+    close, n_close = run(free.chi2)
+    assert n_close == n_free and close.chi2 == pytest.approx(free.chi2)

@@ -196,3 +196,33 @@ def test_scoop_mount_frame_is_the_welds_parent_frame(sim):
     assert frame.body().name() != sim.handles.scene.scoop_body.name()
     X = frame.GetPoseInParentFrame(sim.handles.plant.CreateDefaultContext())
     assert np.allclose(X.GetAsMatrix4(), np.eye(4))
+
+
+def test_actuator_lag_plan_keeps_every_stride_th_sample_of_the_exact_filter():
+    """The lag is filtered exactly on a 1 ms grid; the commanded plan keeps every KNOT_STRIDE-th sample (and the last)
+    and, between its knots, stays within a few microradians of the 1 ms filter (a plan that starts and ends at rest, as
+    the task's plans do)."""
+    from types import SimpleNamespace
+
+    from besdrake.plan import MotionPlan
+
+    lag = get_effect("actuator_lag")
+    t = np.linspace(0.0, 1.0, 11)
+    q = np.column_stack([0.5 * (1.0 - np.cos(np.pi * t)), 0.2 * np.sin(np.pi * t) ** 2])
+    qd = np.column_stack([0.5 * np.pi * np.sin(np.pi * t), 0.2 * np.pi * np.sin(2.0 * np.pi * t)])
+    setup = SimpleNamespace(plan=MotionPlan(t=t, q=q, qd=qd))
+    delay, tau = 0.01, 0.02
+    lag.apply(setup, {"delay": delay, "tau": tau})
+    cmd = setup.plan
+    assert np.allclose(np.diff(cmd.t)[:-1], lag.KNOT_STRIDE * 1e-3)
+    assert cmd.t[-1] == pytest.approx(1.0 + delay + 5.0 * tau)
+    # The same filter by a plain loop over the 1 ms grid, from the (delayed) plan.
+    grid = np.arange(0.0, cmd.t[-1] + 5e-4, 1e-3)
+    x = MotionPlan(t=t, q=q, qd=qd).sample(np.clip(grid - delay, 0.0, 1.0))
+    a, y = np.exp(-1e-3 / tau), np.empty_like(x)
+    y[0] = x[0]
+    for k in range(1, len(grid)):
+        y[k] = a * y[k - 1] + (1.0 - a) * x[k - 1]
+    at_knots = np.searchsorted(grid, cmd.t - 1e-9)
+    assert np.allclose(cmd.q, y[at_knots], atol=1e-12)
+    assert np.max(np.abs(cmd.sample(grid) - y)) < 5e-6
