@@ -64,20 +64,6 @@ def _context(run_root: Path, overrides: list[str], workers: int):
     return Context(run, dict(config, scenario=run_scenario(config, run.root)), progress=lambda msg: print(f"    {msg}", file=sys.stderr, flush=True))
 
 
-def _lab_scatter(stage_dir: Path) -> float | None:
-    """Mean |lab - simulated| touchdown (cm) over the stage's 16 test plans, the simulation re-read from the template's
-    evaluation (None where either is missing)."""
-    from besdrake.transfer.log import LabLog
-
-    sim = stage_dir / "sim_touchdowns.json"
-    if not sim.is_file() or not (stage_dir / "lab_log").is_dir():
-        return None
-    lab_td = np.array([m.touchdown if m.touchdown is not None else [np.nan, np.nan]
-                       for m in LabLog.open(stage_dir / "lab_log").measurements()], dtype=float)[:, :2]
-    sim_td = np.asarray(json.loads(sim.read_text()), dtype=float)
-    return 100.0 * float(np.nanmean(np.linalg.norm(lab_td - sim_td, axis=1)))
-
-
 def _one(run_root: Path, method: str, args) -> dict:
     """learn's template stage for ``run_root`` with ``method``; its summary and the bench's figures."""
     from besdrake.pipeline.learn import executor_stats
@@ -106,7 +92,7 @@ def _one(run_root: Path, method: str, args) -> dict:
         "model_floor_cm": None if summary.get("model_floor_mean_m") is None else 100.0 * summary["model_floor_mean_m"],
         "base_reach_m": summary.get("base_reach_m"), "meta_bounds": summary.get("meta_bounds"),
         "sim_cm": 100.0 * summary["sim_mean_distance_m"], "lab_cm": 100.0 * summary["lab_mean_distance_m"],
-        "lab_about_sim_cm": _lab_scatter(out), "rollouts": stats.get("rollouts"), "seconds": seconds,
+        "lab_about_sim_cm": None if summary.get("lab_about_sim_mean_m") is None else 100.0 * summary["lab_about_sim_mean_m"], "rollouts": stats.get("rollouts"), "seconds": seconds,
         "scenario": summary.get("scenario"), "stage_summary": summary,
     }
 
@@ -130,28 +116,6 @@ def _table(rows: list[dict], methods: list[str]) -> str:
     return "\n".join(lines)
 
 
-def _patch_sim_touchdowns() -> None:
-    """Save the template's simulated test touchdowns beside the stage's files (for the lab-about-sim figure), by
-    wrapping learn's ``evaluate_template`` reference (the stage itself is unchanged)."""
-    import besdrake.search.templates as templates
-
-    original = templates.evaluate_template
-    if getattr(original, "_bench_wrapped", False):
-        return
-
-    def evaluate(template, executor, contexts=templates.TEST_CONTEXTS):
-        ev = original(template, executor, contexts)
-        if _patch_sim_touchdowns.folder is not None:
-            (_patch_sim_touchdowns.folder / "sim_touchdowns.json").write_text(json.dumps(np.nan_to_num(ev.touchdowns, nan=1e9).tolist()))
-        return ev
-
-    evaluate._bench_wrapped = True
-    templates.evaluate_template = evaluate
-
-
-_patch_sim_touchdowns.folder = None
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--run", nargs="+", required=True, help="learn run folders (stages up to transfer_refined done)")
@@ -162,12 +126,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", default=None, help="also write the figures here")
     args = parser.parse_args(argv)
     logging.getLogger("drake").setLevel(logging.ERROR)
-    _patch_sim_touchdowns()
     rows = []
     for root in map(Path, args.run):
         for method in args.methods:
             print(f"{root.name} {method}", file=sys.stderr, flush=True)
-            _patch_sim_touchdowns.folder = Path(args.out) / root.name / method
             row = _one(root, method, args)
             rows.append(row)
             print(_table([row], []).splitlines()[1], file=sys.stderr, flush=True)

@@ -133,10 +133,7 @@ def extra_effect_p_plans(prob: fitting.Problem, fits: list[fitting.CandidateFit]
     :func:`strongest_extra` picks (None: no such rival, or too few plans)."""
     from besdrake.diagnosis.stats import _extra_effect_bootstrap_p
 
-    _p, extra = strongest_extra(causes)
-    if extra is None or not fits[0].effects:
-        return None
-    big = next((f for f, c in zip(fits, causes) if c is extra), None)
+    big = _extra_fit(fits, causes)
     p = _extra_effect_bootstrap_p(prob, fits[0], big, keys) if big is not None else float("nan")
     return float(p) if np.isfinite(p) else None
 
@@ -257,7 +254,7 @@ def judge(prob: fitting.Problem, sens: fitting.Sensitivity, fits: list[fitting.C
     # for the benchmark's sweep, the rule above still uses the likelihood ratio).
     basis["extra_effect_p_plans"] = extra_effect_p_plans(prob, fits, causes, ev.keys)
     basis["extra_effect_scatter"] = extra_effect_scatter(prob, fits, causes, ev.keys)
-    basis["noise_model"] = "within-trial covariance" if getattr(prob, "cov", None) is not None else "diagonal"
+    basis["noise_model"] = "within-trial covariance" if prob.cov is not None else "diagonal"
     confidence = "high" if is_high(basis) else "low"
     v = Verdict(explained, confidence, "", causes, fits, best, best_fit, indist, basis=basis)
     if not best.effects or (none_c.p_value >= ALPHA and none_c.delta_bic < INDISTINGUISHABLE_DBIC):

@@ -667,8 +667,14 @@ def stage_template(ctx: Context, out: Path) -> dict[str, Any]:
         "sim_mean_distance_m": float(sim_eval.mean_distance),
         "lab_mean_distance_m": float(np.nanmean(lab_dist)),
         "lab_not_measured": int(np.isnan(lab_dist).sum()),
+        # what the lab adds to the simulation's touchdowns (its own scatter and what the refined scenario misses)
+        "lab_about_sim_mean_m": _nanmean_or_none(np.linalg.norm(lab_td - sim_eval.touchdowns, axis=1)),
         "training_wall_time_s": training.wall_time,
     }
+
+
+def _nanmean_or_none(x: np.ndarray) -> float | None:
+    return float(np.nanmean(x)) if np.isfinite(x).any() else None
 
 
 def _base_reach(probe: dict | None) -> list[float] | None:
