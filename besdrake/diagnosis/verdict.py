@@ -254,7 +254,7 @@ def judge(prob: fitting.Problem, sens: fitting.Sensitivity, fits: list[fitting.C
     # for the benchmark's sweep, the rule above still uses the likelihood ratio).
     basis["extra_effect_p_plans"] = extra_effect_p_plans(prob, fits, causes, ev.keys)
     basis["extra_effect_scatter"] = extra_effect_scatter(prob, fits, causes, ev.keys)
-    basis["noise_model"] = "within-trial covariance" if prob.cov is not None else "diagonal"
+    basis["noise_model"] = "within-trial covariance" if getattr(prob, "cov", None) is not None else "diagonal"
     confidence = "high" if is_high(basis) else "low"
     v = Verdict(explained, confidence, "", causes, fits, best, best_fit, indist, basis=basis)
     if not best.effects or (none_c.p_value >= ALPHA and none_c.delta_bic < INDISTINGUISHABLE_DBIC):
