@@ -43,23 +43,13 @@ def _dmp_files(paths: list[Path]) -> list[Path]:
     return files
 
 
-def run(args: argparse.Namespace) -> int:
-    import numpy as np
-
+def _load_seeds(args: argparse.Namespace):
+    """The seed DMP files, the lab's configuration, the seed DMPs and the scenario's robot; UserError on bad input."""
     from besdrake.cli import UserError
-    from besdrake.imitation import DMPParameterization
     from besdrake.imitation.io import load_dmp
-    from besdrake.search.refinement import ParameterScaling
-    from besdrake.sim.cliutil import executor_from_args
-    from besdrake.sim.effects import EffectError
-    from besdrake.sim.executors import ExecutorError
-    from besdrake.sim.scenario import ScenarioError
-    from besdrake.transfer.lab import SafetyGate
-    from besdrake.transfer.log import LabLog, LogError
     from besdrake.plugins import PluginError, load_plugins
-    from besdrake.transfer.transferability import TransferabilityApproach, TransferabilityConfig
     from besdrake.sim.scenario import load_scenario
-    from besdrake.tasks.throwing.lab import LabConfigError, VirtualLab, load_lab_config
+    from besdrake.tasks.throwing.lab import LabConfigError, load_lab_config
 
     files = _dmp_files(args.seeds)
     if not files:
@@ -76,11 +66,16 @@ def run(args: argparse.Namespace) -> int:
         raise UserError("all seed DMPs must have the same number of joints and weights")
     if template.n_dims != robot.n_joints:
         raise UserError(f"the seed DMPs have {template.n_dims} joints, the scenario's robot {robot.name!r} {robot.n_joints}")
-    param = DMPParameterization(template, robot.joint_names)
-    scaling = ParameterScaling.for_dmp(template, robot.position_limits)
-    seeds = np.array([param.to_vector(d) for d in dmps])
+    return files, cfg, dmps, robot
+
+
+def _search_config(args: argparse.Namespace):
+    """The Transferability Approach's settings from the command line; UserError on a bad value."""
+    from besdrake.cli import UserError
+    from besdrake.transfer.transferability import TransferabilityConfig
+
     try:
-        config = TransferabilityConfig(
+        return TransferabilityConfig(
             target=tuple(args.target), population=args.population, max_transfers=args.max_transfers,
             stop_on_success=not args.keep_going,
             **({"transfer_choice": args.transfer_choice} if args.transfer_choice else {}),
@@ -88,6 +83,22 @@ def run(args: argparse.Namespace) -> int:
         )
     except ValueError as err:
         raise UserError(str(err)) from None
+
+
+def _run_search(args: argparse.Namespace, cfg, param, scaling, seeds, config):
+    """Run the Transferability Approach against the (gated) virtual lab, logging every lab trial in OUT/lab_log."""
+    import numpy as np
+
+    from besdrake.cli import UserError
+    from besdrake.sim.cliutil import executor_from_args
+    from besdrake.sim.effects import EffectError
+    from besdrake.sim.executors import ExecutorError
+    from besdrake.sim.scenario import ScenarioError
+    from besdrake.tasks.throwing.lab import VirtualLab
+    from besdrake.transfer.lab import SafetyGate
+    from besdrake.transfer.log import LabLog, LogError
+    from besdrake.transfer.transferability import TransferabilityApproach
+
     lab = SafetyGate(VirtualLab(cfg))
     args.out.mkdir(parents=True, exist_ok=True)
     log_dir = args.out / "lab_log"
@@ -100,9 +111,23 @@ def run(args: argparse.Namespace) -> int:
                 np.random.default_rng(args.seed), config, log=log, out_dir=args.out,
                 progress=(lambda msg: print(msg, file=sys.stderr)) if not args.json else None,
             )
-            result = search.run()
+            return search.run()
     except (LogError, EffectError, ScenarioError, ExecutorError) as err:
         raise UserError(str(err)) from None
+
+
+def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from besdrake.imitation import DMPParameterization
+    from besdrake.search.refinement import ParameterScaling
+
+    files, cfg, dmps, robot = _load_seeds(args)
+    param = DMPParameterization(dmps[0], robot.joint_names)
+    scaling = ParameterScaling.for_dmp(dmps[0], robot.position_limits)
+    seeds = np.array([param.to_vector(d) for d in dmps])
+    config = _search_config(args)
+    result = _run_search(args, cfg, param, scaling, seeds, config)
     summary = result.summary() | {"scenario": args.scenario, "lab": cfg.name, "seeds": [str(f) for f in files], "out": str(args.out)}
     if result.best_theta is not None:
         best = param.from_vector(result.best_theta)
