@@ -73,9 +73,11 @@ class Scoop:
     def distance(self, p_S: np.ndarray) -> np.ndarray | float:
         """Distance (m) from point(s) (3,) or (K, 3) to the nearest scoop surface (a ball of radius r touches
         the scoop when this is < r)."""
-        origins, u, w, ext, lo_u = self._rectangles
         pts = np.asarray(p_S, dtype=float)
         single = pts.ndim == 1
+        if single and pts.shape == (3,):
+            return self._point_distance(float(pts[0]), float(pts[1]), float(pts[2]))
+        origins, u, w, ext, lo_u = self._rectangles
         pts = np.atleast_2d(pts)
         rel = pts[:, None, :] - origins[None, :, :]  # (K, 5, 3)
         cu = np.clip(np.einsum("kij,ij->ki", rel, u), lo_u, ext[:, 0])
@@ -83,3 +85,21 @@ class Scoop:
         closest = origins[None] + cu[..., None] * u[None] + cw[..., None] * w[None]
         d = np.min(np.linalg.norm(pts[:, None, :] - closest, axis=2), axis=1)
         return float(d[0]) if single else d
+
+    @cached_property
+    def _rectangle_floats(self) -> tuple[tuple[float, ...], ...]:
+        origins, u, w, ext, lo_u = self._rectangles
+        return tuple(tuple(float(v) for v in (*origins[k], *u[k], *w[k], lo_u[k], ext[k, 0], ext[k, 1])) for k in range(len(origins)))
+
+    def _point_distance(self, x: float, y: float, z: float) -> float:
+        """:meth:`distance` of one point in plain float arithmetic (about 10x faster than the array path for the
+        rollout's per-chunk check; the same formula)."""
+        best = np.inf
+        for ox, oy, oz, ux, uy, uz, wx, wy, wz, lo, hi_u, hi_w in self._rectangle_floats:
+            rx, ry, rz = x - ox, y - oy, z - oz
+            cu = min(max(rx * ux + ry * uy + rz * uz, lo), hi_u)
+            cw = min(max(rx * wx + ry * wy + rz * wz, -hi_w), hi_w)
+            dx, dy, dz = rx - cu * ux - cw * wx, ry - cu * uy - cw * wy, rz - cu * uz - cw * wz
+            best = min(best, dx * dx + dy * dy + dz * dz)
+        return float(np.sqrt(best))
+
