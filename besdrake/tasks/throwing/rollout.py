@@ -48,13 +48,16 @@ DIVERGENCE_SPEED = 50.0
 class ThrowRollout:
     """One Diagram, reused for many throws: ``ThrowRollout("nominal").rollout(plan, effects)``."""
 
+    #: The plant's output ports are computed when read (Drake's ``use_sampled_output_ports`` off): the same dynamics bit
+    #: for bit, and a step does not compute reaction forces and contact results that nothing reads; the contact results
+    #: are read only when the ball is off the scoop's surfaces (:meth:`_ball_outside`), where each read costs a solve.
+    sampled_output_ports = False
+
     def __init__(self, scenario: Scenario | str = "nominal", meshcat=None) -> None:
         from pydrake.systems.analysis import Simulator
 
         self.scenario = load_scenario(scenario) if not isinstance(scenario, Scenario) else scenario
-        # Output ports computed when read (the contact results: read only when the ball is off the scoop's surfaces):
-        # the same dynamics bit for bit, and a step does not compute reaction forces and contact results it does not need.
-        self.handles: SimHandles = build_diagram(self.scenario, meshcat=meshcat, sampled_output_ports=False)
+        self.handles: SimHandles = build_diagram(self.scenario, meshcat=meshcat, sampled_output_ports=self.sampled_output_ports)
         h = self.handles
         self.robot = self.scenario.robot
         self.scoop = Scoop.of(self.robot)
