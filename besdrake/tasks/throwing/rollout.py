@@ -183,9 +183,10 @@ class ThrowRollout:
         balls = p + np.outer(taus, v) + 0.5 * np.outer(taus * taus, self._gravity)
         self._scratch.SetTimeStateAndParametersFrom(self.plant_context)
         local = np.empty_like(balls)
+        world, scoop = plant.world_frame(), h.scene.scoop_frame
         for i, q in enumerate(qs):
             plant.SetPositions(self._scratch, h.arm, q)
-            local[i] = plant.CalcRelativeTransform(self._scratch, h.scene.scoop_frame, plant.world_frame()).multiply(balls[i])
+            local[i] = plant.CalcPointsPositions(self._scratch, world, balls[i].reshape(3, 1), scoop)[:, 0]
         return bool(np.all(self.scoop.distance(local) >= radius + self.scenario.release.margin))
 
     # ------------------------------------------------------------------ main
