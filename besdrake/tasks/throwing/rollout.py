@@ -159,7 +159,9 @@ class ThrowRollout:
 
     def _near_scoop(self, p: np.ndarray, radius: float) -> bool:
         """True when the ball centred at ``p`` (world) is within 1 mm of touching a scoop surface (or inside it)."""
-        return self.scoop.distance(self._scoop_pose().inverse().multiply(p)) < radius + 1e-3
+        h = self.handles
+        x, y, z = h.plant.CalcPointsPositions(self.plant_context, h.plant.world_frame(), p.reshape(3, 1), h.scene.scoop_frame)[:, 0]
+        return self.scoop.distance_to_point(float(x), float(y), float(z)) < radius + 1e-3
 
     def _ball_touching(self) -> bool:
         """True when the ball is in contact with anything now: the plant's contact results for the current state (an

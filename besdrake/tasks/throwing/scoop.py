@@ -76,7 +76,7 @@ class Scoop:
         pts = np.asarray(p_S, dtype=float)
         single = pts.ndim == 1
         if single and pts.shape == (3,):
-            return self._point_distance(float(pts[0]), float(pts[1]), float(pts[2]))
+            return self.distance_to_point(float(pts[0]), float(pts[1]), float(pts[2]))
         origins, u, w, ext, lo_u = self._rectangles
         pts = np.atleast_2d(pts)
         rel = pts[:, None, :] - origins[None, :, :]  # (K, 5, 3)
@@ -91,9 +91,9 @@ class Scoop:
         origins, u, w, ext, lo_u = self._rectangles
         return tuple(tuple(float(v) for v in (*origins[k], *u[k], *w[k], lo_u[k], ext[k, 0], ext[k, 1])) for k in range(len(origins)))
 
-    def _point_distance(self, x: float, y: float, z: float) -> float:
-        """:meth:`distance` of one point in plain float arithmetic (about 10x faster than the array path for the
-        rollout's per-chunk check; the same formula)."""
+    def distance_to_point(self, x: float, y: float, z: float) -> float:
+        """:meth:`distance` of the point (x, y, z) in plain float arithmetic (about 10x faster than the array path, for
+        the rollout's per-chunk check; the same formula)."""
         best = np.inf
         for ox, oy, oz, ux, uy, uz, wx, wy, wz, lo, hi_u, hi_w in self._rectangle_floats:
             rx, ry, rz = x - ox, y - oy, z - oz
