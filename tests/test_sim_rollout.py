@@ -169,3 +169,26 @@ def test_diverging_state_is_a_flagged_outcome(sim, monkeypatch):
     assert o.flags["sim_failed"] and "diverged" in o.message and not o.ok
     monkeypatch.undo()
     assert sim.rollout(default_throw()).ok
+
+
+def test_release_check_stops_where_the_contact_results_of_every_step_did(sim, monkeypatch):
+    """The rollout's plant computes its output ports only when read and its release check reads the contact results
+    only off the scoop's surfaces; a rollout whose plant samples them at every step (the contact results of the last
+    step, free to read) stops at the same step with the same outcome, and the cheap rollout reads the contact results
+    at a few of its checks only."""
+    from besdrake.tasks.throwing.rollout import ThrowRollout
+
+    class SampledPorts(ThrowRollout):
+        sampled_output_ports = True
+
+    ref, reads = SampledPorts("nominal"), []
+    touching = sim._ball_touching
+    monkeypatch.setattr(sim, "_ball_touching", lambda: reads.append(1) or touching())
+    for plan, effects in ((default_throw(amplitude=0.2), None), (default_throw(amplitude=0.5), {"ball_placement": {"x": 0.004}}),
+                          (default_throw(amplitude=0.1), None)):
+        reads.clear()
+        o, r = sim.rollout(plan, effects), ref.rollout(plan, effects)
+        assert o.flags == r.flags and o.sim_time == r.sim_time
+        assert np.array_equal(o.touchdown, r.touchdown) and np.array_equal(o.q_measured, r.q_measured)
+        checks = round(o.sim_time / sim.scenario.release.check_interval)
+        assert 0 < len(reads) <= max(3, checks // 4), (len(reads), checks)

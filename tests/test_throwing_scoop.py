@@ -31,6 +31,14 @@ def test_distance_to_scoop_surfaces():
     assert many.shape == (2,) and many[1] == pytest.approx(0.1)
 
 
+def test_one_point_distance_is_the_array_formula():
+    """The plain-float path for one point (the rollout's per-chunk check) gives the array path's distances."""
+    pts = np.random.default_rng(0).uniform(-0.1, 0.1, (500, 3))
+    one = np.array([SCOOP.distance(p) for p in pts])
+    assert isinstance(SCOOP.distance(pts[0]), float)
+    assert np.allclose(one, SCOOP.distance(pts), rtol=0.0, atol=1e-15)
+
+
 def test_a_robot_without_scoop_geometry_is_refused(tmp_path):
     import dataclasses
 

@@ -98,9 +98,12 @@ def base_transform(scenario: Scenario):
     return RigidTransform(RollPitchYaw(0.0, 0.0, b.yaw), [b.x, b.y, b.z])
 
 
-def build_diagram(scenario: Scenario | str = "nominal", meshcat=None) -> SimHandles:
+def build_diagram(scenario: Scenario | str = "nominal", meshcat=None, sampled_output_ports: bool = True) -> SimHandles:
     """Build the Diagram for ``scenario`` (a Scenario or a name/path) with its task's scene; optionally visualise in
-    ``meshcat``."""
+    ``meshcat``. ``sampled_output_ports`` (Drake's ``MultibodyPlantConfig.use_sampled_output_ports``): True, the
+    plant's output ports (contact results, reaction forces, ...) hold the values of the last step, computed at every
+    step; False, they are computed only when read, from the current state (the dynamics are the same, bit for bit,
+    and a step is cheaper: the reaction forces and contact results are not computed per step)."""
     from besdrake.task import get_task
 
     from pydrake.geometry import MeshcatVisualizer, MeshcatVisualizerParams, Role
@@ -117,6 +120,7 @@ def build_diagram(scenario: Scenario | str = "nominal", meshcat=None) -> SimHand
         time_step=scenario.time_step,
         discrete_contact_approximation=scenario.contact_approximation,
         contact_model="point",
+        use_sampled_output_ports=sampled_output_ports,
     )
     plant, scene_graph = AddMultibodyPlant(config, builder)
     plant.set_name("plant")

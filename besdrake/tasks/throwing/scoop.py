@@ -73,9 +73,11 @@ class Scoop:
     def distance(self, p_S: np.ndarray) -> np.ndarray | float:
         """Distance (m) from point(s) (3,) or (K, 3) to the nearest scoop surface (a ball of radius r touches
         the scoop when this is < r)."""
-        origins, u, w, ext, lo_u = self._rectangles
         pts = np.asarray(p_S, dtype=float)
         single = pts.ndim == 1
+        if single and pts.shape == (3,) and np.isfinite(pts).all():
+            return self.distance_to_point(float(pts[0]), float(pts[1]), float(pts[2]))
+        origins, u, w, ext, lo_u = self._rectangles
         pts = np.atleast_2d(pts)
         rel = pts[:, None, :] - origins[None, :, :]  # (K, 5, 3)
         cu = np.clip(np.einsum("kij,ij->ki", rel, u), lo_u, ext[:, 0])
@@ -83,3 +85,24 @@ class Scoop:
         closest = origins[None] + cu[..., None] * u[None] + cw[..., None] * w[None]
         d = np.min(np.linalg.norm(pts[:, None, :] - closest, axis=2), axis=1)
         return float(d[0]) if single else d
+
+    @cached_property
+    def _rectangle_floats(self) -> tuple[tuple[float, ...], ...]:
+        origins, u, w, ext, lo_u = self._rectangles
+        return tuple(tuple(float(v) for v in (*origins[k], *u[k], *w[k], lo_u[k], ext[k, 0], ext[k, 1])) for k in range(len(origins)))
+
+    def distance_to_point(self, x: float, y: float, z: float) -> float:
+        """:meth:`distance` of the finite point (x, y, z) in plain float arithmetic (4 us against 120 us for the array
+        path: the rollout's per-chunk check; the same formula)."""
+        best = np.inf
+        for ox, oy, oz, ux, uy, uz, wx, wy, wz, lo, hi_u, hi_w in self._rectangle_floats:
+            rx, ry, rz = x - ox, y - oy, z - oz
+            cu = rx * ux + ry * uy + rz * uz
+            cu = lo if cu < lo else (hi_u if cu > hi_u else cu)  # clipped to the rectangle (no builtin calls: hot path)
+            cw = rx * wx + ry * wy + rz * wz
+            cw = -hi_w if cw < -hi_w else (hi_w if cw > hi_w else cw)
+            dx, dy, dz = rx - cu * ux - cw * wx, ry - cu * uy - cw * wy, rz - cu * uz - cw * wz
+            d2 = dx * dx + dy * dy + dz * dz
+            best = d2 if d2 < best else best
+        return float(np.sqrt(best))
+
