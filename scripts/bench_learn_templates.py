@@ -93,8 +93,18 @@ def _one(run_root: Path, method: str, args) -> dict:
         "base_reach_m": summary.get("base_reach_m"), "meta_bounds": summary.get("meta_bounds"),
         "sim_cm": 100.0 * summary["sim_mean_distance_m"], "lab_cm": 100.0 * summary["lab_mean_distance_m"],
         "lab_about_sim_cm": None if summary.get("lab_about_sim_mean_m") is None else 100.0 * summary["lab_about_sim_mean_m"], "rollouts": stats.get("rollouts"), "seconds": seconds,
+        "sim_row_cm": _rows_cm(summary.get("sim_distances_m")),
+        "lab_not_measured": summary.get("lab_not_measured"),  # refused or lost trials: the lab mean is over the others
         "scenario": summary.get("scenario"), "stage_summary": summary,
     }
+
+
+def _rows_cm(distances: list | None) -> dict[str, float] | None:
+    """Mean sim distance (cm) per row of the test grid: forward 1.3 / 1.6 / 1.9 / 2.2 m (four lateral targets each)."""
+    if distances is None:
+        return None
+    d = 100.0 * np.asarray(distances, dtype=float).reshape(4, 4)
+    return {f"x={x}": round(float(v), 2) for x, v in zip((1.3, 1.6, 1.9, 2.2), d.mean(axis=1))}
 
 
 def _fmt(v, spec: str = ".2f") -> str:
@@ -133,6 +143,10 @@ def main(argv: list[str] | None = None) -> int:
             row = _one(root, method, args)
             rows.append(row)
             print(_table([row], []).splitlines()[1], file=sys.stderr, flush=True)
+            print(f"    sim cm per forward row: {row['sim_row_cm']}", file=sys.stderr, flush=True)
+            if row["lab_not_measured"]:
+                print(f"    WARNING: {row['lab_not_measured']} of 16 lab trials not measured (refused or lost): lab cm is "
+                      f"the mean over the others", file=sys.stderr, flush=True)
     result = {"settings": args.set, "methods": args.methods, "rows": rows,
               "mean_sim_cm": {m: float(np.mean([r["sim_cm"] for r in rows if r["method"] == m])) for m in args.methods},
               "mean_lab_cm": {m: float(np.mean([r["lab_cm"] for r in rows if r["method"] == m])) for m in args.methods},

@@ -329,3 +329,21 @@ def test_creps_starts_from_the_probes_policy(base):
     probed = evaluate_template(tr.template, PolarStandIn()).mean_distance
     plain = evaluate_template(train_template(base, PolarStandIn(), "creps", 8, seed=0, probes=0).template, PolarStandIn()).mean_distance
     assert probed < plain - 0.1  # a linear fit of the probes' policy instead of the box centre
+
+
+def test_template_plans_keep_the_robots_knot_spacing(base):
+    """An execution time just past a multiple of the plan's step gives the rollout a last step of microseconds: the
+    plan drops the knot before it (ends at the execution time, last step a little longer), so the lab's safety gate
+    does not refuse it."""
+    from besdrake.transfer.safety import SafetyLimits
+
+    meta = MetaDMP(base, COMPI)
+    limits = SafetyLimits.of(COMPI)
+    tau = round(float(base.execution_time) / meta.dt) * meta.dt + 9.4e-6
+    plan = meta.plan(np.array([tau, base.goal[0]]))
+    raw = meta.dmp(np.array([tau, base.goal[0]])).open_loop(meta.dt)
+    assert raw.t[-1] - raw.t[-2] < COMPI.safety.min_knot_spacing  # what the gate refused
+    assert limits.problems(plan) == [] and plan.t[-1] == pytest.approx(tau) and len(plan.t) == len(raw.t) - 1
+    assert np.allclose(plan.q[-1], raw.y[-1]) and np.all(np.diff(plan.t) >= COMPI.safety.min_knot_spacing)
+    ordinary = meta.plan(np.array([float(base.execution_time) + 0.004, base.goal[0]]))
+    assert len(ordinary.t) == len(meta.dmp(np.array([float(base.execution_time) + 0.004, base.goal[0]])).open_loop(meta.dt).t)

@@ -665,6 +665,7 @@ def stage_template(ctx: Context, out: Path) -> dict[str, Any]:
         "base_reach_m": _base_reach(prov.get("reach_probe")),
         "model_floor_mean_m": _model_floor(training.template),
         "sim_mean_distance_m": float(sim_eval.mean_distance),
+        "sim_distances_m": [round(float(d), 5) for d in sim_eval.distances],  # per test context (TEST_CONTEXTS' order)
         "lab_mean_distance_m": float(np.nanmean(lab_dist)),
         "lab_not_measured": int(np.isnan(lab_dist).sum()),
         # what the lab adds to the simulation's touchdowns (its own scatter and what the refined scenario misses)
