@@ -213,6 +213,29 @@ def test_json_roundtrip_and_corrupt_file(tmp_path) -> None:
         DMP.load(path)
 
 
+def test_rollout_never_ends_with_a_step_of_microseconds() -> None:
+    """A run time just past a multiple of dt: the last sample moves to the run time (one step of dt + remainder from
+    the sample before) instead of a step a controller cannot follow; a remainder of 0.1 dt or more keeps its own step."""
+    from besdrake.imitation.dmp import MIN_LAST_STEP_FRACTION
+
+    t, q = throw_demo()
+    dmp = DMP(6, 6).fit(t, q)
+    dt = 0.002
+    for remainder in (9.4e-6, 0.5 * MIN_LAST_STEP_FRACTION * dt):
+        dmp.execution_time = 600 * dt + remainder
+        traj = dmp.open_loop(dt)
+        assert traj.t[-1] == pytest.approx(dmp.execution_time, abs=1e-12) and len(traj.t) == 601
+        assert traj.t[-1] - traj.t[-2] == pytest.approx(dt + remainder)
+        y, yd = dmp.step(traj.t[-2], traj.y[-2], traj.yd[-2], dt + remainder)
+        np.testing.assert_allclose(y, traj.y[-1], atol=1e-12)
+        fine = dmp.open_loop(dt / 4)  # the end state agrees with a finer rollout's (as the samples do: 2e-3 rad)
+        assert fine.t[-1] == pytest.approx(traj.t[-1], abs=1e-12)
+        np.testing.assert_allclose(traj.y[-1], fine.y[-1], atol=2e-3)
+    dmp.execution_time = 600 * dt + 2 * MIN_LAST_STEP_FRACTION * dt
+    traj = dmp.open_loop(dt)
+    assert len(traj.t) == 602 and traj.t[-1] - traj.t[-2] == pytest.approx(2 * MIN_LAST_STEP_FRACTION * dt)
+
+
 def test_rollout_ends_exactly_at_an_arbitrary_execution_time() -> None:
     t, q = throw_demo()
     dmp = DMP(6, 6).fit(t, q)

@@ -64,8 +64,29 @@ TIME_TOLERANCE = 1e-9
 #: A rollout whose run time exceeds its last multiple of ``dt`` by more than this (s) gets a final,
 #: shorter step so that it ends exactly at the run time.
 END_TOLERANCE = 1e-7
+#: That final step, where shorter than this fraction of ``dt``, is merged into the step before it (the sample before
+#: it dropped, the end state integrated over ``dt + remainder`` from the sample before that): a robot's controller
+#: cannot follow knots microseconds apart (a safety gate refuses knots closer than the control period, 0.1 ms on
+#: COMPI), and refined execution times fell into that window for 20 of 400 plans at dt = 2 ms (issue 27, session 19).
+MIN_LAST_STEP_FRACTION = 0.1
 #: Largest number of integration sub-steps of one rollout (a guard against absurd run times).
 MAX_SUBSTEPS = 20_000_000
+
+
+def end_at_run_time(step, t_out: np.ndarray, y_out: np.ndarray, yd_out: np.ndarray, run_time: float, dt: float):
+    """End a rollout sampled every ``dt`` exactly at ``run_time``: one shorter last step, or, where that step would be
+    shorter than :data:`MIN_LAST_STEP_FRACTION` of ``dt``, the last sample moved to ``run_time`` (integrated over
+    ``dt + remainder`` from the sample before it). ``step(t, y, yd, dt)`` integrates one step."""
+    remainder = run_time - t_out[-1]
+    if remainder <= END_TOLERANCE:
+        return t_out, y_out, yd_out
+    if remainder < MIN_LAST_STEP_FRACTION * dt and len(t_out) > 1:
+        y_end, yd_end = step(t_out[-2], y_out[-2], yd_out[-2], dt + remainder)
+        t_out, y_out, yd_out = t_out.copy(), y_out.copy(), yd_out.copy()
+        t_out[-1], y_out[-1], yd_out[-1] = run_time, y_end, yd_end
+        return t_out, y_out, yd_out
+    y_end, yd_end = step(t_out[-1], y_out[-1], yd_out[-1], remainder)
+    return np.append(t_out, run_time), np.vstack((y_out, y_end)), np.vstack((yd_out, yd_end))
 
 
 @dataclass
@@ -327,12 +348,7 @@ class DMP(_WeightedDMP):
         yd_out[0] = (y[2] - y[0]) / (2.0 * h)
         later = nodes[1:]
         yd_out[1:] = (3.0 * y[later] - 4.0 * y[later - 1] + y[later - 2]) / (2.0 * h)
-        remainder = run_time - t_out[-1]
-        if remainder > END_TOLERANCE:  # end exactly at run_time with one shorter step
-            y_end, yd_end = self.step(t_out[-1], y_out[-1], yd_out[-1], remainder)
-            t_out = np.append(t_out, run_time)
-            y_out, yd_out = np.vstack((y_out, y_end)), np.vstack((yd_out, yd_end))
-        return DMPTrajectory(t_out, y_out, yd_out)
+        return DMPTrajectory(*end_at_run_time(self.step, t_out, y_out, yd_out, run_time, dt))
 
     def step(
         self, t: float, y: np.ndarray, yd: np.ndarray, dt: float, goal: np.ndarray | None = None

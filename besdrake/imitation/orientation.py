@@ -36,7 +36,7 @@ import numpy as np
 from besdrake.imitation import quaternion as quat
 from besdrake.imitation._validation import DMPParameterError, demonstration, finite_array, positive_float
 from besdrake.imitation.basis import RadialBasis, phase
-from besdrake.imitation.dmp import DEFAULT_ALPHA_Y, DEFAULT_BETA_Y, DEFAULT_INT_DT, END_TOLERANCE, MAX_SUBSTEPS, _WeightedDMP, substeps
+from besdrake.imitation.dmp import DEFAULT_ALPHA_Y, DEFAULT_BETA_Y, DEFAULT_INT_DT, MAX_SUBSTEPS, _WeightedDMP, end_at_run_time, substeps
 
 
 @dataclass
@@ -193,12 +193,7 @@ class QuaternionDMP(_WeightedDMP):
             raise DMPParameterError(f"rollout of {run_time:g} s needs more than {MAX_SUBSTEPS} sub-steps")
         q, w = self._integrate(0.0, self._start, np.zeros(3), dt / n_sub, (n_out - 1) * n_sub, n_sub)
         t_out, q_out, w_out = np.arange(n_out) * dt, np.vstack((self._start, q)), np.vstack((np.zeros(3), w))
-        remainder = run_time - t_out[-1]
-        if remainder > END_TOLERANCE:  # end exactly at run_time with one shorter step
-            q_end, w_end = self.step(t_out[-1], q_out[-1], w_out[-1], remainder)
-            t_out = np.append(t_out, run_time)
-            q_out, w_out = np.vstack((q_out, q_end)), np.vstack((w_out, w_end))
-        return OrientationTrajectory(t_out, q_out, w_out)
+        return OrientationTrajectory(*end_at_run_time(self.step, t_out, q_out, w_out, run_time, dt))
 
     def step(self, t: float, q: np.ndarray, omega: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """One step of ``dt`` s from orientation ``q`` and angular velocity ``omega`` at DMP time ``t``."""

@@ -227,17 +227,11 @@ class MetaDMP:
         return d
 
     def plan(self, theta: np.ndarray) -> MotionPlan:
-        """The motion plan of ``theta``. The rollout ends exactly at the execution time with one shorter step; where
-        that step is shorter than the robot's control period (``safety.min_knot_spacing``), the knot before it is
-        dropped, so the last step is a little longer instead: the lab's safety gate refuses knots closer than that
-        (a learn template at its fastest execution time, 3.0384 s, ended 9.4 us after its previous knot; its six far
-        contexts were refused in the lab, session 19)."""
+        """The motion plan of ``theta`` (its rollout ends exactly at the execution time, never with a step of microseconds
+        that the lab's safety gate would refuse: :data:`besdrake.imitation.dmp.MIN_LAST_STEP_FRACTION`)."""
         traj = self.dmp(theta).open_loop(self.dt)
-        t, q, qd = traj.t, traj.y, traj.yd
-        if len(t) > 2 and t[-1] - t[-2] < float(self.robot.safety.min_knot_spacing):
-            t, q, qd = np.delete(t, -2), np.delete(q, -2, axis=0), np.delete(qd, -2, axis=0)
         meta = {"source": "behavior_template", "execution_time": float(theta[0]), "goal_joint1": float(theta[1])}
-        return MotionPlan(t=t, q=q, qd=qd, meta=meta, joint_names=self.robot.joint_names)
+        return MotionPlan(t=traj.t, q=traj.y, qd=traj.yd, meta=meta, joint_names=self.robot.joint_names)
 
 
 def _make_optimizer(method: str, meta_bounds: np.ndarray, seed: int, creps_spread: float = 4.0, **kwargs: Any):
