@@ -703,6 +703,9 @@ def main(argv=None) -> int:
                     "after_over_floor": (d.gain.median_disparity_after_m / floor) if d.gain and floor > 0 else None,
                     "wall_s": wall, "rollouts": d.n_rollouts,
                     "confidence_basis": d.confidence_basis, "timings_s": d.timings,
+                    # The ranked candidates (effects, delta BIC, chi2, refined with rollouts): which rivals were fitted at all.
+                    "ranked": [[list(c.effects), float(c.delta_bic), float(c.chi2), bool(c.refined)] for c in d.causes[:16]],
+                    "additions_listed": [a["effect"] for a in d.indistinguishable if a.get("addition")],
                 }
                 if unknown and d.residual is not None:
                     row.update(_residual_row(d))

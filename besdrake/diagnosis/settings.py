@@ -122,3 +122,12 @@ SCALED_EXTRA_TEST = False
 #: (session 16) had the same shape once more (a hidden object radius + joint-3 offset named as offsets of four joints).
 HIGH_MAX_MOVED = 2
 MOVED_FRACTION = 0.15
+#: A second effect the log cannot exclude beside a named single cause is listed as "cannot tell whether X is present
+#: too" (:mod:`~besdrake.diagnosis.additions`: the pair as consistent with the log as the single, the recording that
+#: would separate them), on logs of the outcome alone (issue 25: touchdown-only answers named one part of a hidden pair
+#: and listed the pair nowhere; such a log rarely excludes a second effect). Listed: the effects whose allowed
+#: deviation beside the cause reaches ADDITION_MIN_FRACTION of the realistic range, at most ADDITIONS_MAX of them (the
+#: widest first). None: off.
+ADDITIONS_OUTCOME_ONLY: bool | None = True
+ADDITION_MIN_FRACTION = 0.1
+ADDITIONS_MAX = 99
