@@ -21,6 +21,7 @@ import numpy as np
 from scipy import stats
 
 from besdrake.diagnosis import fitting
+from besdrake.diagnosis import settings
 from besdrake.diagnosis.settings import ALPHA, EXCLUDE_FRACTION, UNCONSTRAINED_COVER
 
 
@@ -36,6 +37,9 @@ class Addition:
     max_fraction: float
     gain: float
     unconstrained: bool
+    #: per parameter: its allowed fraction of the range, chi-square gain, and the share of its signature the named cause's
+    #: parameters absorb (1 - |a_perp|^2 / |a|^2; near 1: the cause takes it for a change of its own parameters)
+    per_param: dict[str, dict[str, float]] | None = None
 
     @property
     def excluded(self) -> bool:
@@ -44,7 +48,7 @@ class Addition:
     def to_dict(self) -> dict:
         return {"effect": self.effect, "allowed": {k: [float(a), float(b)] for k, (a, b) in self.allowed.items()}, "units": dict(self.units),
                 "max_allowed_fraction_of_range": self.max_fraction, "chi2_gain": self.gain, "unconstrained": self.unconstrained,
-                "excluded": self.excluded}
+                "excluded": self.excluded, "per_param": self.per_param or {}}
 
     def describe(self) -> str:
         if self.unconstrained:
@@ -72,7 +76,7 @@ def additions_beside(prob: fitting.Problem, sens: fitting.Sensitivity, best: fit
         specs = [sens.specs[j] for j in idx]
         A = prob.weighted_jac(sens.dy[idx])
         P, _ = fitting._prior_rows(specs, np.array([s_.nominal for s_ in specs]))
-        allowed, units, fracs, gains, covers = {}, {}, [], [], []
+        allowed, units, fracs, gains, covers, per = {}, {}, [], [], [], {}
         for j, s_ in enumerate(specs):
             a = np.concatenate([A[:, j], np.zeros(M.shape[0] - prob.n)])
             a_perp = a - Q @ (Q.T @ a)  # the named cause's parameters re-fitted along with it
@@ -88,6 +92,26 @@ def additions_beside(prob: fitting.Problem, sens: fitting.Sensitivity, best: fit
             gains.append(score * score / info)
             covers.append(hi - lo >= UNCONSTRAINED_COVER * rng_)
             allowed[s_.name], units[s_.name] = (float(lo), float(hi)), s_.unit
-        out.append(Addition(e, allowed, units, float(max(fracs)), float(max(gains)), all(covers)))
+            a2 = float(a @ a)
+            per[s_.name] = {"fraction": fracs[-1], "gain": gains[-1], "absorbed": 1.0 - float(a_perp @ a_perp) / a2 if a2 > 0 else 0.0,
+                            "covers": bool(covers[-1])}
+        out.append(Addition(e, allowed, units, float(max(fracs)), float(max(gains)), all(covers), per))
     out.sort(key=lambda x: -x.max_fraction)
     return out
+
+
+def listed(additions: Sequence[dict], min_fraction: float | None = None, min_gain: float | None = None,
+           unconstrained: bool | None = None, at_most: int | None = None) -> list[str]:
+    """The effects of :func:`additions_beside` (as dicts, :meth:`Addition.to_dict`) that the answer lists as "cannot
+    tell whether it is present too": not excluded (allowed beyond ``min_fraction`` of the range) and either leaned
+    towards by the data (the chi-square gain of its best parameter at least ``min_gain``) or not constrained by the log
+    at all (``unconstrained``); at most ``at_most``, the largest gain first. Thresholds default to the settings'
+    ADDITION_MIN_FRACTION, ADDITION_MIN_GAIN, ADDITION_UNCONSTRAINED and ADDITIONS_MAX (a benchmark passes others)."""
+    min_fraction = settings.ADDITION_MIN_FRACTION if min_fraction is None else min_fraction
+    min_gain = settings.ADDITION_MIN_GAIN if min_gain is None else min_gain
+    unconstrained = settings.ADDITION_UNCONSTRAINED if unconstrained is None else unconstrained
+    at_most = settings.ADDITIONS_MAX if at_most is None else at_most
+    ok = [a for a in additions if a["max_allowed_fraction_of_range"] >= min_fraction
+          and (a["chi2_gain"] >= min_gain or (unconstrained and a["unconstrained"]))]
+    ok.sort(key=lambda a: -a["chi2_gain"])
+    return [a["effect"] for a in ok[:at_most]]

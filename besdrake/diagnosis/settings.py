@@ -125,9 +125,13 @@ MOVED_FRACTION = 0.15
 #: A second effect the log cannot exclude beside a named single cause is listed as "cannot tell whether X is present
 #: too" (:mod:`~besdrake.diagnosis.additions`: the pair as consistent with the log as the single, the recording that
 #: would separate them), on logs of the outcome alone (issue 25: touchdown-only answers named one part of a hidden pair
-#: and listed the pair nowhere; such a log rarely excludes a second effect). Listed: the effects whose allowed
-#: deviation beside the cause reaches ADDITION_MIN_FRACTION of the realistic range, at most ADDITIONS_MAX of them (the
-#: widest first). None: off.
+#: and listed the pair nowhere; such a log rarely excludes a second effect). Listed
+#: (:func:`~besdrake.diagnosis.additions.listed`): the effects allowed beside the cause beyond ADDITION_MIN_FRACTION of
+#: their realistic range that the data lean towards (the chi-square gain of their best parameter at least
+#: ADDITION_MIN_GAIN) or that the log does not constrain at all (ADDITION_UNCONSTRAINED), at most ADDITIONS_MAX.
+#: None: off.
 ADDITIONS_OUTCOME_ONLY: bool | None = True
 ADDITION_MIN_FRACTION = 0.1
+ADDITION_MIN_GAIN = 0.0
+ADDITION_UNCONSTRAINED = True
 ADDITIONS_MAX = 99

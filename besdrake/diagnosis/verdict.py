@@ -11,7 +11,7 @@ import numpy as np
 from besdrake.diagnosis import fitting, noise
 from besdrake.diagnosis.advice import _separation_advice
 from besdrake.diagnosis.identifiability import Identifiability, StructuralClass
-from besdrake.diagnosis.additions import additions_beside
+from besdrake.diagnosis.additions import additions_beside, listed as listed_additions
 from besdrake.diagnosis.allowed import _allowed_effects, _recommendation
 from besdrake.diagnosis.results import AllowedEffect, Cause
 from besdrake.diagnosis import settings
@@ -300,11 +300,12 @@ def possible_seconds(v: Verdict, prob: fitting.Problem, sens: fitting.Sensitivit
     """Beside a named single cause, the effects the log cannot exclude as a second one (:mod:`~besdrake.diagnosis.additions`):
     each listed among the causes it cannot tell apart (``addition``: True; the pair "cause + effect"), with the recording or
     the trials that would show it; all of them recorded in the basis (``additions``). The confidence is not touched."""
-    if len(v.best.effects) != 1 or v.best_fit.jac is None:
+    if prob is None or sens is None or len(v.best.effects) != 1 or getattr(v.best_fit, "jac", None) is None:
         return
     adds = additions_beside(prob, sens, v.best_fit, cands)
     v.basis["additions"] = [a.to_dict() for a in adds]
-    listed = [a for a in adds if a.max_fraction >= settings.ADDITION_MIN_FRACTION][:settings.ADDITIONS_MAX]
+    names = listed_additions(v.basis["additions"])
+    listed = sorted([a for a in adds if a.effect in names], key=lambda a: names.index(a.effect))
     named = {tuple(sorted(a["b"].split(" + "))) for a in v.indist}
     recs = []
     for a in listed:
