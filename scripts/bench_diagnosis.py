@@ -235,7 +235,9 @@ def with_additions_rule(rows: list[dict], **thresholds) -> list[dict]:
         b = r["best"][0]
         added = {tuple(sorted((b, x))) for x in r.get("additions_listed", [])}
         alt = [list(a) for a in r["alternatives"] if tuple(a) not in added]
-        for x in listed(adds, **thresholds):
+        near = r.get("confidence_basis", {}).get("additions_refined_dbic") or {
+            next(e for e in c[0] if e != b): c[1] for c in r.get("ranked", []) if c[3] and len(c[0]) == 2 and b in c[0]}
+        for x in listed(adds, refined_dbic=near, **thresholds):
             pair = sorted((b, x))
             if pair not in alt:
                 alt.append(pair)
@@ -265,8 +267,8 @@ SWEEP_ADD_GAIN = (0.0, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0, float("inf"))
 
 def additions_sweep(known: list[dict]) -> list[dict]:
     """The touchdown table (:func:`touchdown_table`) of the rows under other listing thresholds of the additions."""
-    return [{"min_gain": g, "unconstrained": u, **touchdown_table(with_additions_rule(known, min_gain=g, unconstrained=u))}
-            for g in SWEEP_ADD_GAIN for u in (True, False)]
+    return [{"min_gain": g, "unconstrained": u, "pair_dbic": pd, **touchdown_table(with_additions_rule(known, min_gain=g, unconstrained=u, pair_dbic=pd))}
+            for g in SWEEP_ADD_GAIN for u in (True, False) for pd in (None, 6.0)]
 
 
 #: Thresholds the confidence sweep tries: the BIC lead over the nearest real rival and the p-value an added effect must

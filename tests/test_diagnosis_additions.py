@@ -80,3 +80,19 @@ def test_an_outcome_only_answer_lists_the_pairs_it_cannot_exclude(monkeypatch):
     monkeypatch.setattr(settings, "ADDITION_MIN_FRACTION", 0.1)
     verdict.possible_seconds(v, prob, sens, ev, ["base_offset", "scoop_mount", "air_drag", "joint_offset"])
     assert [a["b"] for a in v.indist if a.get("addition")] == ["air_drag + base_offset"]
+
+
+def test_the_listing_rule_keeps_what_the_data_lean_to_what_they_leave_free_and_near_pairs():
+    from besdrake.diagnosis.additions import listed
+
+    def add(e, frac, gain, free=False):
+        return {"effect": e, "max_allowed_fraction_of_range": frac, "chi2_gain": gain, "unconstrained": free}
+
+    adds = [add("ball", 0.6, 3.0), add("air_drag", 1.0, 0.0, True), add("base_offset", 0.4, 0.2), add("joint_offset", 0.05, 5.0)]
+    # The excluded joint offset (allowed only within 5 % of its range) is never listed, whatever it gains.
+    assert listed(adds, min_gain=1.0, unconstrained=True, pair_dbic=None) == ["ball", "air_drag"]
+    assert listed(adds, min_gain=1.0, unconstrained=False, pair_dbic=None) == ["ball"]
+    assert listed(adds, min_gain=0.0, unconstrained=False, pair_dbic=None) == ["ball", "base_offset"]
+    # A pair fitted with rollouts within the "cannot tell" margin of the named cause is listed as well.
+    assert listed(adds, min_gain=1.0, unconstrained=False, pair_dbic=6.0, refined_dbic={"base_offset": 3.9, "air_drag": 7.0}) == ["ball", "base_offset"]
+    assert listed(adds, min_gain=float("inf"), unconstrained=False, pair_dbic=None) == []

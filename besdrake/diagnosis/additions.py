@@ -101,17 +101,23 @@ def additions_beside(prob: fitting.Problem, sens: fitting.Sensitivity, best: fit
 
 
 def listed(additions: Sequence[dict], min_fraction: float | None = None, min_gain: float | None = None,
-           unconstrained: bool | None = None, at_most: int | None = None) -> list[str]:
+           unconstrained: bool | None = None, at_most: int | None = None, refined_dbic: dict[str, float] | None = None,
+           pair_dbic: float | None = -1.0) -> list[str]:
     """The effects of :func:`additions_beside` (as dicts, :meth:`Addition.to_dict`) that the answer lists as "cannot
     tell whether it is present too": not excluded (allowed beyond ``min_fraction`` of the range) and either leaned
     towards by the data (the chi-square gain of its best parameter at least ``min_gain``) or not constrained by the log
-    at all (``unconstrained``); at most ``at_most``, the largest gain first. Thresholds default to the settings'
-    ADDITION_MIN_FRACTION, ADDITION_MIN_GAIN, ADDITION_UNCONSTRAINED and ADDITIONS_MAX (a benchmark passes others)."""
+    at all (``unconstrained``), or whose pair with the cause, fitted with rollouts, is within ``pair_dbic`` of it by BIC
+    (``refined_dbic``: effect -> the pair's delta BIC; the rivals' "cannot tell" margin, without the exception for "the
+    best plus an effect it does not need"); at most ``at_most``, the largest gain first. Thresholds default to the
+    settings' ADDITION_MIN_FRACTION, ADDITION_MIN_GAIN, ADDITION_UNCONSTRAINED, ADDITIONS_MAX and ADDITION_PAIR_DBIC (a
+    benchmark passes others; ``pair_dbic`` None: no refined pair listed for its BIC alone)."""
     min_fraction = settings.ADDITION_MIN_FRACTION if min_fraction is None else min_fraction
     min_gain = settings.ADDITION_MIN_GAIN if min_gain is None else min_gain
     unconstrained = settings.ADDITION_UNCONSTRAINED if unconstrained is None else unconstrained
     at_most = settings.ADDITIONS_MAX if at_most is None else at_most
-    ok = [a for a in additions if a["max_allowed_fraction_of_range"] >= min_fraction
-          and (a["chi2_gain"] >= min_gain or (unconstrained and a["unconstrained"]))]
+    pair_dbic = settings.ADDITION_PAIR_DBIC if pair_dbic == -1.0 else pair_dbic
+    near = {e for e, d in (refined_dbic or {}).items() if pair_dbic is not None and d < pair_dbic}
+    ok = [a for a in additions if (a["max_allowed_fraction_of_range"] >= min_fraction
+          and (a["chi2_gain"] >= min_gain or (unconstrained and a["unconstrained"]))) or a["effect"] in near]
     ok.sort(key=lambda a: -a["chi2_gain"])
     return [a["effect"] for a in ok[:at_most]]

@@ -304,7 +304,10 @@ def possible_seconds(v: Verdict, prob: fitting.Problem, sens: fitting.Sensitivit
         return
     adds = additions_beside(prob, sens, v.best_fit, cands)
     v.basis["additions"] = [a.to_dict() for a in adds]
-    names = listed_additions(v.basis["additions"])
+    b = v.best.effects[0]
+    v.basis["additions_refined_dbic"] = {next(e for e in c.effects if e != b): float(c.delta_bic) for f, c in zip(v.fits[1:], v.causes[1:])
+                                         if f.refined and len(c.effects) == 2 and b in c.effects}
+    names = listed_additions(v.basis["additions"], refined_dbic=v.basis["additions_refined_dbic"])
     listed = sorted([a for a in adds if a.effect in names], key=lambda a: names.index(a.effect))
     named = {tuple(sorted(a["b"].split(" + "))) for a in v.indist}
     recs = []
