@@ -224,7 +224,7 @@ def with_additions_rule(rows: list[dict], **thresholds) -> list[dict]:
     additions (``confidence_basis["additions"]``, :func:`besdrake.diagnosis.additions.listed` at ``thresholds``, default
     the settings'): alternatives, honest_cannot_tell and answer_set_size as a diagnosis run with that rule gives them.
     Rows without recorded additions (earlier versions, full logs, no single cause) are returned unchanged."""
-    from besdrake.diagnosis.additions import listed
+    from besdrake.diagnosis.additions import aliases, listed
 
     out = []
     for r in rows:
@@ -233,11 +233,15 @@ def with_additions_rule(rows: list[dict], **thresholds) -> list[dict]:
             out.append(r)
             continue
         b = r["best"][0]
-        added = {tuple(sorted((b, x))) for x in r.get("additions_listed", [])}
+        added = {tuple(sorted((b, x))) for x in r.get("additions_listed", [])} | {(x,) for x in r.get("aliases_listed", [])}
         alt = [list(a) for a in r["alternatives"] if tuple(a) not in added]
+        singles = {c[0][0]: c[1] for c in r.get("ranked", []) if c[3] and len(c[0]) == 1 and c[0] != [b]}
+        for x in aliases(adds, singles, **{k: v for k, v in thresholds.items() if k in ("max_dbic", "min_absorbed")}):
+            if [x] not in alt:
+                alt.append([x])
         near = r.get("confidence_basis", {}).get("additions_refined_dbic") or {
             next(e for e in c[0] if e != b): c[1] for c in r.get("ranked", []) if c[3] and len(c[0]) == 2 and b in c[0]}
-        for x in listed(adds, refined_dbic=near, **thresholds):
+        for x in listed(adds, refined_dbic=near, **{k: v for k, v in thresholds.items() if k not in ("max_dbic", "min_absorbed")}):
             pair = sorted((b, x))
             if pair not in alt:
                 alt.append(pair)
@@ -267,8 +271,9 @@ SWEEP_ADD_GAIN = (0.0, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0, float("inf"))
 
 def additions_sweep(known: list[dict]) -> list[dict]:
     """The touchdown table (:func:`touchdown_table`) of the rows under other listing thresholds of the additions."""
-    return [{"min_gain": g, "unconstrained": u, "pair_dbic": pd, **touchdown_table(with_additions_rule(known, min_gain=g, unconstrained=u, pair_dbic=pd))}
-            for g in SWEEP_ADD_GAIN for u in (True, False) for pd in (None, 6.0)]
+    return [{"min_gain": g, "unconstrained": u, "pair_dbic": pd, "alias_dbic": ad,
+             **touchdown_table(with_additions_rule(known, min_gain=g, unconstrained=u, pair_dbic=pd, max_dbic=ad))}
+            for g in SWEEP_ADD_GAIN for u in (True, False, "any") for pd in (None, 6.0) for ad in (0.0, 10.0)]
 
 
 #: Thresholds the confidence sweep tries: the BIC lead over the nearest real rival and the p-value an added effect must
@@ -773,6 +778,7 @@ def main(argv=None) -> int:
                     # The ranked candidates (effects, delta BIC, chi2, refined with rollouts): which rivals were fitted at all.
                     "ranked": [[list(c.effects), float(c.delta_bic), float(c.chi2), bool(c.refined)] for c in d.causes[:16]],
                     "additions_listed": [a["effect"] for a in d.indistinguishable if a.get("addition")],
+                    "aliases_listed": [a["b"] for a in d.indistinguishable if a.get("alias")],
                 }
                 if unknown and d.residual is not None:
                     row.update(_residual_row(d))

@@ -101,7 +101,7 @@ def additions_beside(prob: fitting.Problem, sens: fitting.Sensitivity, best: fit
 
 
 def listed(additions: Sequence[dict], min_fraction: float | None = None, min_gain: float | None = None,
-           unconstrained: bool | None = None, at_most: int | None = None, refined_dbic: dict[str, float] | None = None,
+           unconstrained: bool | str | None = None, at_most: int | None = None, refined_dbic: dict[str, float] | None = None,
            pair_dbic: float | None = -1.0) -> list[str]:
     """The effects of :func:`additions_beside` (as dicts, :meth:`Addition.to_dict`) that the answer lists as "cannot
     tell whether it is present too": not excluded (allowed beyond ``min_fraction`` of the range) and either leaned
@@ -117,7 +117,24 @@ def listed(additions: Sequence[dict], min_fraction: float | None = None, min_gai
     at_most = settings.ADDITIONS_MAX if at_most is None else at_most
     pair_dbic = settings.ADDITION_PAIR_DBIC if pair_dbic == -1.0 else pair_dbic
     near = {e for e, d in (refined_dbic or {}).items() if pair_dbic is not None and d < pair_dbic}
+    def free(a: dict) -> bool:  # "any": one of its parameters may be anywhere in its range beside the cause
+        return bool(a["unconstrained"] if unconstrained != "any" else any(p["covers"] for p in a.get("per_param", {}).values()))
+
     ok = [a for a in additions if (a["max_allowed_fraction_of_range"] >= min_fraction
-          and (a["chi2_gain"] >= min_gain or (unconstrained and a["unconstrained"]))) or a["effect"] in near]
+          and (a["chi2_gain"] >= min_gain or (unconstrained and free(a)))) or a["effect"] in near]
     ok.sort(key=lambda a: -a["chi2_gain"])
     return [a["effect"] for a in ok[:at_most]]
+
+
+def aliases(additions: Sequence[dict], single_dbic: dict[str, float], max_dbic: float | None = None, min_absorbed: float | None = None) -> list[str]:
+    """Near aliases of the named cause: the single effects, fitted with rollouts within ``max_dbic`` of it by BIC
+    (``single_dbic``: effect -> delta BIC), one of whose parameters moves the signals (nearly) as a change of the
+    cause's own parameters would (the share the cause absorbs, :func:`additions_beside`'s ``per_param``, at least
+    ``min_absorbed``): the log cannot tell which of the two it is beyond that margin. Defaults: the settings'
+    ALIAS_DBIC and ALIAS_ABSORBED (None: off)."""
+    max_dbic = settings.ALIAS_DBIC if max_dbic is None else max_dbic
+    min_absorbed = settings.ALIAS_ABSORBED if min_absorbed is None else min_absorbed
+    if max_dbic is None or min_absorbed is None:
+        return []
+    absorbed = {a["effect"]: max((p["absorbed"] for p in a.get("per_param", {}).values()), default=0.0) for a in additions}
+    return [e for e, d in sorted(single_dbic.items(), key=lambda x: x[1]) if d < max_dbic and absorbed.get(e, 0.0) >= min_absorbed]

@@ -11,7 +11,7 @@ import numpy as np
 from besdrake.diagnosis import fitting, noise
 from besdrake.diagnosis.advice import _separation_advice
 from besdrake.diagnosis.identifiability import Identifiability, StructuralClass
-from besdrake.diagnosis.additions import additions_beside, listed as listed_additions
+from besdrake.diagnosis.additions import additions_beside, aliases as alias_effects, listed as listed_additions
 from besdrake.diagnosis.allowed import _allowed_effects, _recommendation
 from besdrake.diagnosis.results import AllowedEffect, Cause
 from besdrake.diagnosis import settings
@@ -320,6 +320,15 @@ def possible_seconds(v: Verdict, prob: fitting.Problem, sens: fitting.Sensitivit
         # delta BIC of the pair, linearised: the chi-square its best parameter gains against one more parameter's penalty
         v.indist.append({"a": v.best_fit.name, "b": " + ".join(pair), "structural": False, "addition": True, "effect": a.effect,
                          "allowed": a.to_dict()["allowed"], "recommendation": rec, "delta_bic": float(np.log(max(prob.n, 1)) - a.gain)})
+    singles = {c.effects[0]: (f, float(c.delta_bic)) for f, c in zip(v.fits[1:], v.causes[1:]) if f.refined and len(c.effects) == 1 and c.effects != (b,)}
+    v.basis["aliases_single_dbic"] = {e: d for e, (_f, d) in singles.items()}
+    for e in alias_effects(v.basis["additions"], v.basis["aliases_single_dbic"]):
+        if (e,) in named:
+            continue
+        adv = _separation_advice(v.best_fit, singles[e][0], ev.sim, ev.measured_groups, [p.meta for p in ev.plans])
+        v.indist.append({**adv, "structural": False, "alias": True, "delta_bic": singles[e][1]})
+        v.text += (f"; nor from {e} ({singles[e][1]:.1f} BIC behind), whose signature is largely a change of {b}'s own parameters "
+                   f"(to tell: {adv.get('recommendation', '')})")
     if listed:
         v.text += "; nor can the log exclude a second effect beside it: " + ", ".join(a.describe() for a in listed)
         if recs:
