@@ -139,6 +139,6 @@ ADDITION_PAIR_DBIC: float | None = 6.0
 #: ... and a near alias of the named single cause (:func:`~besdrake.diagnosis.additions.aliases`): a single effect fitted
 #: with rollouts within ALIAS_DBIC of it (the margin a "high" answer needs, HIGH_MARGIN_DBIC) one of whose parameters the
 #: cause's own parameters absorb for at least ALIAS_ABSORBED of its signature, listed as "cannot tell it from" (issue 25:
-#: a joint-4 offset named a scoop mount tilt, the joint offset itself 6.5 BIC behind and not listed). None: off.
+#: a joint-4 offset named a tilt of the tool on the flange, the joint offset itself 6.5 BIC behind and not listed). None: off.
 ALIAS_DBIC: float | None = 10.0
 ALIAS_ABSORBED: float | None = 0.9
