@@ -96,3 +96,16 @@ def test_the_listing_rule_keeps_what_the_data_lean_to_what_they_leave_free_and_n
     # A pair fitted with rollouts within the "cannot tell" margin of the named cause is listed as well.
     assert listed(adds, min_gain=1.0, unconstrained=False, pair_dbic=6.0, refined_dbic={"base_offset": 3.9, "air_drag": 7.0}) == ["ball", "base_offset"]
     assert listed(adds, min_gain=float("inf"), unconstrained=False, pair_dbic=None) == []
+
+
+def test_a_near_alias_is_one_the_cause_absorbs_within_the_high_margin():
+    from besdrake.diagnosis.additions import aliases
+
+    adds = [{"effect": "joint_offset", "per_param": {"joint4": {"absorbed": 0.94}, "joint2": {"absorbed": 0.1}}},
+            {"effect": "ball", "per_param": {"mass": {"absorbed": 0.3}}}]
+    singles = {"joint_offset": 6.5, "ball": 2.0, "base_offset": 7.0}
+    # The joint offset is 6.5 BIC behind (beyond "cannot tell") but its joint-4 signature is nearly the cause's own:
+    # listed; the ball is closer but moves the signals otherwise (a rival by the usual margin, not an alias).
+    assert aliases(adds, singles, max_dbic=10.0, min_absorbed=0.9) == ["joint_offset"]
+    assert aliases(adds, singles, max_dbic=6.0, min_absorbed=0.9) == []
+    assert aliases(adds, singles, max_dbic=10.0, min_absorbed=0.95) == []
