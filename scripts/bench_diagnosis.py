@@ -48,6 +48,15 @@ Session 17 completed the full-log trials (all 88; two device runs of 16 single-w
 effects never "high" (0 / 8), the residual model lower on held-out throws in 4 of the 4 trials where offered;
 touchdown-only logs 63 of 88 trials. Wall on the otherwise idle 2 cores, trials 0-3, ``--workers 2``: 61-89 s.
 
+Touchdown-only answers (session 19): a second effect the log cannot exclude beside a named single cause, and near
+aliases of it, are listed among the causes the answer cannot tell apart (:mod:`besdrake.diagnosis.additions`); each row
+records the additions (``confidence_basis["additions"]``, the refined pairs' and singles' delta BIC in ``ranked``), and
+the summary gives ``table_as_recorded``, ``table_additions_rule_now`` (the listing re-decided by today's settings from
+those records) and ``additions_sweep`` (other thresholds): right, right or honest, signature-aware, confident-wrong and
+the mean answer-set size. ``--signatures-from`` copies the noise-free signature figures of an earlier run's rows (the
+same trial and mode) instead of recomputing them. Re-runs of touchdown trials:
+``python3 scripts/bench_diagnosis.py --trials 80 --unknown 8 --modes touchdown --only 18,24 --workers 2 --signatures-from /work/notes/s17/merged.json --out F``.
+
 Residual model (issue 25 item 5; ``--fresh``: each unknown-effect trial also throws 15 new plans in the same lab, which
 no part of the diagnosis saw). Session 14, ``PYTHONPATH=. python3 scripts/bench_diagnosis.py --seed 1 --trials 0 --unknown 5
 --modes full --workers 2`` (shared 2 cores, load 4 -> 0.3): all 5 "not explained", low; the cross-validated model offered
