@@ -48,6 +48,15 @@ Session 17 completed the full-log trials (all 88; two device runs of 16 single-w
 effects never "high" (0 / 8), the residual model lower on held-out throws in 4 of the 4 trials where offered;
 touchdown-only logs 63 of 88 trials. Wall on the otherwise idle 2 cores, trials 0-3, ``--workers 2``: 61-89 s.
 
+Touchdown-only answers (session 19): a second effect the log cannot exclude beside a named single cause, and near
+aliases of it, are listed among the causes the answer cannot tell apart (:mod:`besdrake.diagnosis.additions`); each row
+records the additions (``confidence_basis["additions"]``, the refined pairs' and singles' delta BIC in ``ranked``), and
+the summary gives ``table_as_recorded``, ``table_additions_rule_now`` (the listing re-decided by today's settings from
+those records) and ``additions_sweep`` (other thresholds): right, right or honest, signature-aware, confident-wrong and
+the mean answer-set size. ``--signatures-from`` copies the noise-free signature figures of an earlier run's rows (the
+same trial and mode) instead of recomputing them. Re-runs of touchdown trials:
+``python3 scripts/bench_diagnosis.py --trials 80 --unknown 8 --modes touchdown --only 18,24 --workers 2 --signatures-from /work/notes/s17/merged.json --out F``.
+
 Residual model (issue 25 item 5; ``--fresh``: each unknown-effect trial also throws 15 new plans in the same lab, which
 no part of the diagnosis saw). Session 14, ``PYTHONPATH=. python3 scripts/bench_diagnosis.py --seed 1 --trials 0 --unknown 5
 --modes full --workers 2`` (shared 2 cores, load 4 -> 0.3): all 5 "not explained", low; the cross-validated model offered
@@ -217,6 +226,63 @@ def with_rule_now(rows: list[dict]) -> list[dict]:
     from besdrake.diagnosis.verdict import is_high
 
     return [{**r, "confidence": ("high" if is_high(b) else "low")} if (b := _basis(r)) else r for r in rows]
+
+
+def with_additions_rule(rows: list[dict], **thresholds) -> list[dict]:
+    """The rows with the second effects listed beside a named single cause re-decided from each row's recorded
+    additions (``confidence_basis["additions"]``, :func:`besdrake.diagnosis.additions.listed` at ``thresholds``, default
+    the settings'): alternatives, honest_cannot_tell and answer_set_size as a diagnosis run with that rule gives them.
+    Rows without recorded additions (earlier versions, full logs, no single cause) are returned unchanged."""
+    from besdrake.diagnosis.additions import aliases, listed
+
+    out = []
+    for r in rows:
+        adds = (r.get("confidence_basis") or {}).get("additions")
+        if adds is None or len(r["best"]) != 1:
+            out.append(r)
+            continue
+        b = r["best"][0]
+        added = {tuple(sorted((b, x))) for x in r.get("additions_listed", [])} | {(x,) for x in r.get("aliases_listed", [])}
+        alt = [list(a) for a in r["alternatives"] if tuple(a) not in added]
+        singles = {c[0][0]: c[1] for c in r.get("ranked", []) if c[3] and len(c[0]) == 1 and c[0] != [b]}
+        for x in aliases(adds, singles, **{k: v for k, v in thresholds.items() if k in ("max_dbic", "min_absorbed")}):
+            if [x] not in alt:
+                alt.append([x])
+        near = r.get("confidence_basis", {}).get("additions_refined_dbic") or {
+            next(e for e in c[0] if e != b): c[1] for c in r.get("ranked", []) if c[3] and len(c[0]) == 2 and b in c[0]}
+        for x in listed(adds, refined_dbic=near, **{k: v for k, v in thresholds.items() if k not in ("max_dbic", "min_absorbed")}):
+            pair = sorted((b, x))
+            if pair not in alt:
+                alt.append(pair)
+        truth = sorted(r["hidden"])
+        honest = truth in alt or bool(r.get("honest_undetected"))
+        out.append({**r, "alternatives": alt, "honest_cannot_tell": honest, "answer_set_size": (len(r["cannot_tell"]) if r.get("cannot_tell") else (1 + len(alt) if alt else 1))})
+    return out
+
+
+def touchdown_table(known: list[dict]) -> dict:
+    """Right, right or honest, signature-aware right or honest, confident-wrong and the mean answer-set size of rows."""
+    def holds(r):
+        return bool(r.get("cannot_tell")) and all(e in r["cannot_tell"] for e in r["hidden"])
+
+    n = len(known)
+    return {"n": n, "right": int(sum(r["correct"] for r in known)), "right_or_honest": int(sum(r["correct"] or r["honest_cannot_tell"] for r in known)),
+            "right_or_honest_signature_aware": int(sum(r["correct"] or r["honest_cannot_tell"] or (("detectable" in r) and not r["detectable"] and holds(r)) for r in known)),
+            "confident_wrong": int(sum(r["confidence"] == "high" and not r.get("correct_structural", r["correct"]) for r in known)),
+            "mean_answer_set_size": float(np.mean([r["answer_set_size"] for r in known])) if n else None,
+            "mean_answer_set_size_named_single": float(np.mean([r["answer_set_size"] for r in known if len(r["best"]) == 1])) if any(len(r["best"]) == 1 for r in known) else None}
+
+
+#: Listing thresholds the additions sweep tries (:func:`with_additions_rule`): the chi-square gain an added effect needs
+#: and whether an effect the log does not constrain is listed regardless.
+SWEEP_ADD_GAIN = (0.0, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0, float("inf"))
+
+
+def additions_sweep(known: list[dict]) -> list[dict]:
+    """The touchdown table (:func:`touchdown_table`) of the rows under other listing thresholds of the additions."""
+    return [{"min_gain": g, "unconstrained": u, "pair_dbic": pd, "alias_dbic": ad,
+             **touchdown_table(with_additions_rule(known, min_gain=g, unconstrained=u, pair_dbic=pd, max_dbic=ad))}
+            for g in SWEEP_ADD_GAIN for u in (True, False, "any") for pd in (None, 6.0) for ad in (0.0, 10.0)]
 
 
 #: Thresholds the confidence sweep tries: the BIC lead over the nearest real rival and the p-value an added effect must
@@ -543,6 +609,11 @@ def _summarize(results: list[dict], modes: list[str], args, t_bench: float, regi
             "confident_wrong": int(sum(r["confidence"] == "high" and not r.get("correct_structural", r["correct"]) for r in known)
                                    + sum(r["explained"] and r["confidence"] == "high" and bool(r["best"]) for r in unk)),
             "confidence_sweep": confidence_sweep(known, unk),
+            # Issue 25, touchdown-only logs: the second effects listed beside a named single cause, re-decided by today's
+            # rule from every row's recorded additions (rows of earlier versions unchanged), and other listing thresholds.
+            "table_as_recorded": touchdown_table(known),
+            "table_additions_rule_now": touchdown_table(with_additions_rule(known)),
+            "additions_sweep": additions_sweep(known),
             # The same two figures with every row's confidence re-decided by today's rule (rows of earlier versions).
             "reliability_rule_now": reliability(with_rule_now(known) + [{**r, "correct": False, "correct_structural": False, "honest_cannot_tell": not r["explained"]} for r in with_rule_now(unk)]),
             "confident_wrong_rule_now": int(sum(r["confidence"] == "high" and not r.get("correct_structural", r["correct"]) for r in with_rule_now(known))
@@ -583,6 +654,8 @@ def main(argv=None) -> int:
     ap.add_argument("--progress", action="store_true", help="one line per diagnosis on stderr")
     ap.add_argument("--out", default=None, help="also (re)write the summary JSON to this file after every diagnosis")
     ap.add_argument("--resummarize", default=None, help="print the summary of the trials in this earlier output JSON (no new diagnoses)")
+    ap.add_argument("--signatures-from", default=None, help="an earlier output JSON: its rows' signature figures are copied for the same trial, "
+                                                              "mode and hidden effect instead of being recomputed (re-runs of a changed diagnosis)")
     args = ap.parse_args(argv)
     if args.resummarize:
         from besdrake.task import effects_for
@@ -604,6 +677,10 @@ def main(argv=None) -> int:
     from besdrake.sim.executors import make_executor
     from besdrake.tasks.throwing.lab import VirtualLab
 
+    old_sig = {}
+    if args.signatures_from:
+        with open(args.signatures_from) as fh:
+            old_sig = {(r["trial"], r["mode"]): r for r in json.load(fh)["trials"] if "signature_over_limit_expected" in r}
     registry = effects_for("throwing")  # before the bench's unknown effects are registered (plugins join it)
     only = None if args.only is None else {int(x) for x in args.only.split(",") if x.strip()}
     dkw = {} if args.placement_sd is None else {"placement_sd": args.placement_sd}
@@ -653,11 +730,15 @@ def main(argv=None) -> int:
                         shift2 += float(np.sum((o.touchdown - o0.touchdown) ** 2))
             floor = float(np.median(floor_d)) if floor_d else float("nan")
             td_detectable = shift2 / 0.054**2 > 20.0
-            sig = None if unknown else _signature(hidden, 1000 * args.seed + i, ms, plans, truth_roll)
-            sig_exp = None if unknown else _expected_signature(hidden, ms, plans, truth_roll, lab.config.noise.ball_placement_sd, seed=1000 * args.seed + i)
+            # Signature fields of an earlier run of the same trial and mode (--signatures-from): the same lab, log and noise
+            # model, so the same figures; skips the noise-free rollouts.
+            prev_sig = {m: old_sig[(i, m)] for m in modes if (i, m) in old_sig and old_sig[(i, m)]["hidden"] == hidden}
+            unknown_sig = unknown or len(prev_sig) == len(modes)
+            sig = None if unknown_sig else _signature(hidden, 1000 * args.seed + i, ms, plans, truth_roll)
+            sig_exp = None if unknown_sig else _expected_signature(hidden, ms, plans, truth_roll, lab.config.noise.ball_placement_sd, seed=1000 * args.seed + i)
             k_hidden = sum(len(v) for v in hidden.values())
             # Each effect of a hidden pair on top of the other: a diagnosis can name only the ones that show.
-            marginal = {} if unknown or len(hidden) < 2 else {
+            marginal = {} if unknown_sig or len(hidden) < 2 else {
                 e: _expected_signature(hidden, ms, plans, truth_roll, lab.config.noise.ball_placement_sd, seed=1000 * args.seed + i,
                                        base={o: v for o, v in hidden.items() if o != e}) for e in hidden}
             cache: dict = {}
@@ -703,6 +784,10 @@ def main(argv=None) -> int:
                     "after_over_floor": (d.gain.median_disparity_after_m / floor) if d.gain and floor > 0 else None,
                     "wall_s": wall, "rollouts": d.n_rollouts,
                     "confidence_basis": d.confidence_basis, "timings_s": d.timings,
+                    # The ranked candidates (effects, delta BIC, chi2, refined with rollouts): which rivals were fitted at all.
+                    "ranked": [[list(c.effects), float(c.delta_bic), float(c.chi2), bool(c.refined)] for c in d.causes[:16]],
+                    "additions_listed": [a["effect"] for a in d.indistinguishable if a.get("addition")],
+                    "aliases_listed": [a["b"] for a in d.indistinguishable if a.get("alias")],
                 }
                 if unknown and d.residual is not None:
                     row.update(_residual_row(d))
@@ -714,6 +799,12 @@ def main(argv=None) -> int:
                             row.update(_fresh_residual_check(d, fresh_ms, ex, cache, dkw) or {})
                         except Exception as err:  # noqa: BLE001 - a benchmark records failures
                             row["fresh_error"] = f"{type(err).__name__}: {err}"
+                if mode in prev_sig and sig is None:
+                    row.update({k: v for k, v in prev_sig[mode].items() if k.startswith("signature_") or k.startswith("detect")
+                                or k in ("marginal_over_limit",)})
+                    row["signature_copied_from"] = args.signatures_from
+                    if "marginal_over_limit" in row or len(hidden) < 2:
+                        row["correct_detectable"] = _correct_detectable(row, d)
                 if sig is not None:
                     row.update(_signature_size(sig, d, k_hidden))
                     row.update({k + "_expected": v for k, v in _signature_size(sig_exp, d, k_hidden).items()})

@@ -139,6 +139,9 @@ class Diagnosis:
     out; ``confidence`` is "high" only if every candidate is excluded. Both lists are empty when a cause was named.
     A named cause has ``confidence`` "high" when it passes the lack-of-fit test at :data:`CONFIDENT_P`, no rival fits
     about as well, and the log records more than the trials' outcome (on outcomes alone an unknown effect can pass).
+    ``indistinguishable``: the rivals the log cannot tell from the named cause, each with what would separate them; on
+    outcome-only logs also the pairs "cause + X" for a second effect X the log cannot exclude beside a single cause
+    (``addition``: True, :mod:`~besdrake.diagnosis.additions`) and near aliases of it (``alias``: True).
     """
 
     explained: bool

@@ -122,3 +122,23 @@ SCALED_EXTRA_TEST = False
 #: (session 16) had the same shape once more (a hidden object radius + joint-3 offset named as offsets of four joints).
 HIGH_MAX_MOVED = 2
 MOVED_FRACTION = 0.15
+#: A second effect the log cannot exclude beside a named single cause is listed as "cannot tell whether X is present
+#: too" (:mod:`~besdrake.diagnosis.additions`: the pair as consistent with the log as the single, the recording that
+#: would separate them), on logs of the outcome alone (issue 25: touchdown-only answers named one part of a hidden pair
+#: and listed the pair nowhere; such a log rarely excludes a second effect). Listed
+#: (:func:`~besdrake.diagnosis.additions.listed`): the effects allowed beside the cause beyond ADDITION_MIN_FRACTION of
+#: their realistic range that the data lean towards (the chi-square gain of their best parameter at least
+#: ADDITION_MIN_GAIN) or that the log does not constrain at all (ADDITION_UNCONSTRAINED), at most ADDITIONS_MAX.
+#: None: off.
+ADDITIONS_OUTCOME_ONLY: bool | None = True
+ADDITION_MIN_FRACTION = 0.1
+ADDITION_MIN_GAIN = 1.0
+ADDITION_UNCONSTRAINED = True
+ADDITIONS_MAX = 99
+ADDITION_PAIR_DBIC: float | None = 6.0
+#: ... and a near alias of the named single cause (:func:`~besdrake.diagnosis.additions.aliases`): a single effect fitted
+#: with rollouts within ALIAS_DBIC of it (the margin a "high" answer needs, HIGH_MARGIN_DBIC) one of whose parameters the
+#: cause's own parameters absorb for at least ALIAS_ABSORBED of its signature, listed as "cannot tell it from" (issue 25:
+#: a joint-4 offset named a tilt of the tool on the flange, the joint offset itself 6.5 BIC behind and not listed). None: off.
+ALIAS_DBIC: float | None = 10.0
+ALIAS_ABSORBED: float | None = 0.9
