@@ -66,8 +66,8 @@ TIME_TOLERANCE = 1e-9
 END_TOLERANCE = 1e-7
 #: That final step, where shorter than this fraction of ``dt``, is merged into the step before it (the sample before
 #: it dropped, the end state integrated over ``dt + remainder`` from the sample before that): a robot's controller
-#: cannot follow knots microseconds apart (a safety gate refuses knots closer than the control period, 0.1 ms on
-#: COMPI), and refined execution times fell into that window for 20 of 400 plans at dt = 2 ms (issue 27, session 19).
+#: cannot follow knots microseconds apart (a safety gate refuses knots closer than the robot's control period, e.g.
+#: 0.1 ms), and refined execution times fell into that window for 20 of 400 plans at dt = 2 ms (issue 27, session 19).
 MIN_LAST_STEP_FRACTION = 0.1
 #: Largest number of integration sub-steps of one rollout (a guard against absurd run times).
 MAX_SUBSTEPS = 20_000_000
