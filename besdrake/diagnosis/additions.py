@@ -70,12 +70,10 @@ def additions_beside(prob: fitting.Problem, sens: fitting.Sensitivity, best: fit
     for e in cands:
         if e in best.effects:
             continue
-        idx = [j for j, s_ in enumerate(sens.specs) if s_.effect == e]
-        if not idx:
+        cols = fitting.effect_columns(prob, sens, e)
+        if cols is None:
             continue
-        specs = [sens.specs[j] for j in idx]
-        A = prob.weighted_jac(sens.dy[idx])
-        P, _ = fitting._prior_rows(specs, np.array([s_.nominal for s_ in specs]))
+        specs, A, P = cols
         allowed, units, fracs, gains, covers, per = {}, {}, [], [], [], {}
         for j, s_ in enumerate(specs):
             a = np.concatenate([A[:, j], np.zeros(M.shape[0] - prob.n)])

@@ -117,12 +117,10 @@ def _linear_intervals(prob: fitting.Problem, sens: fitting.Sensitivity, effects:
     encoder offsets would allow almost anything through their trade-offs and tell nothing) ..."""
     lin: dict[str, _Line] = {}
     for e in effects:
-        idx = [j for j, s_ in enumerate(sens.specs) if s_.effect == e]
-        if not idx:
+        cols = fitting.effect_columns(prob, sens, e)
+        if cols is None:
             continue
-        specs = [sens.specs[j] for j in idx]
-        A = prob.weighted_jac(sens.dy[idx])
-        P, _ = fitting._prior_rows(specs, np.array([s_.nominal for s_ in specs]))
+        specs, A, P = cols
         for j, s_ in enumerate(specs):
             a = A[:, j]
             info = float(a @ a)

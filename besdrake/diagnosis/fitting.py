@@ -293,6 +293,17 @@ def _prior_rows(specs: list[ParamSpec], theta: np.ndarray) -> tuple[np.ndarray, 
     return np.diag(1.0 / sd), (nominal - theta) / sd
 
 
+def effect_columns(prob: "Problem", sens: "Sensitivity", effect: str):
+    """The parameters of ``effect`` in ``sens``, their whitened sensitivity columns and prior rows at nominal
+    (``(specs, A, P)``), or None where ``sens`` has none of them."""
+    idx = [j for j, s_ in enumerate(sens.specs) if s_.effect == effect]
+    if not idx:
+        return None
+    specs = [sens.specs[j] for j in idx]
+    P, _ = _prior_rows(specs, np.array([s_.nominal for s_ in specs]))
+    return specs, prob.weighted_jac(sens.dy[idx]), P
+
+
 def _solve_step(A: np.ndarray, r: np.ndarray, specs: list[ParamSpec], theta: np.ndarray) -> np.ndarray:
     """Bounded least-squares step delta minimising |r - A delta|^2 + prior, theta + delta within bounds."""
     P, b = _prior_rows(specs, theta)
