@@ -506,20 +506,44 @@ def train_template(
     """
     from besdrake.search.loop import run_contextual_search
 
-    if method not in METHODS:
-        raise TemplateError(f"unknown method {method!r}; choose one of {METHODS}")
-    if n_episodes < 1:
-        raise TemplateError(f"n_episodes must be >= 1, got {n_episodes}")
+    _check_request(method, n_episodes)
     n_probes = _n_probes(probes, n_episodes, joint1_mode, time_mode)
-    robot = robot or getattr(getattr(executor, "scenario", None), "robot", None)
-    if robot is None:
-        raise TemplateError("train_template needs robot= (the executor has no scenario to take it from)")
+    robot = _robot_of(robot, executor)
     meta = MetaDMP(base, robot, joint1_mode, time_mode=time_mode)
     bounds = (default_meta_bounds(base, robot, joint1_mode=joint1_mode, time_mode=time_mode, slowest=slowest) if meta_bounds is None
               else np.asarray(meta_bounds, dtype=float))
     _check_meta_bounds(bounds)
     probe, bounds = _probe_reach(meta, executor, bounds, n_probes, fixed_bounds=meta_bounds is not None)
     optimizer = _template_optimizer(method, bounds, seed, probe if reach_prior else None, optimizer_kwargs)
+    evaluate = _episode_reward(meta, bounds, executor)
+    curve: dict[int, float] = {}
+    callback = _episode_callback(name, meta, bounds, executor, n_probes, checkpoints, eval_contexts, progress, curve)
+    t0 = time.perf_counter()
+    loop = run_contextual_search(optimizer, evaluate, n_episodes - n_probes, CONTEXT_BOUNDS, out_dir=out_dir, callback=callback)
+    wall = time.perf_counter() - t0
+    prov = _provenance(method, loop, n_probes, seed, meta, probe, reach_prior, executor) | dict(provenance or {})
+    template = BehaviorTemplate(name, meta, bounds, loop.optimizer, prov)
+    return TemplateTraining(template, loop, curve, wall)
+
+
+def _check_request(method: str, n_episodes: int) -> None:
+    """TemplateError for an unknown method or no episodes."""
+    if method not in METHODS:
+        raise TemplateError(f"unknown method {method!r}; choose one of {METHODS}")
+    if n_episodes < 1:
+        raise TemplateError(f"n_episodes must be >= 1, got {n_episodes}")
+
+
+def _robot_of(robot: Robot | None, executor) -> Robot:
+    """``robot``, else the executor's scenario's robot; TemplateError where neither is known."""
+    robot = robot or getattr(getattr(executor, "scenario", None), "robot", None)
+    if robot is None:
+        raise TemplateError("train_template needs robot= (the executor has no scenario to take it from)")
+    return robot
+
+
+def _episode_reward(meta: MetaDMP, bounds: np.ndarray, executor) -> Callable[[np.ndarray, np.ndarray], float]:
+    """The contextual reward: minus the squared distance of the touchdown of ``theta``'s plan from the context."""
 
     def evaluate(context: np.ndarray, theta: np.ndarray) -> float:
         # C-REPS samples from a Gaussian: execute the nearest parameters inside the box
@@ -528,7 +552,12 @@ def train_template(
             raise RuntimeError("no touchdown (never released or simulation failed)")
         return -float(np.sum((td - context) ** 2))
 
-    curve: dict[int, float] = {}
+    return evaluate
+
+
+def _episode_callback(name: str, meta: MetaDMP, bounds: np.ndarray, executor, n_probes: int, checkpoints: tuple[int, ...],
+                      eval_contexts: np.ndarray, progress, curve: dict[int, float]):
+    """After every episode: report progress and, at a checkpoint, evaluate the current policy into ``curve``."""
 
     def callback(info) -> bool:
         if progress is not None:
@@ -538,12 +567,7 @@ def train_template(
             curve[n_probes + info.n_evaluations] = evaluate_template(tmp, executor, eval_contexts).mean_distance
         return False
 
-    t0 = time.perf_counter()
-    loop = run_contextual_search(optimizer, evaluate, n_episodes - n_probes, CONTEXT_BOUNDS, out_dir=out_dir, callback=callback)
-    wall = time.perf_counter() - t0
-    prov = _provenance(method, loop, n_probes, seed, meta, probe, reach_prior, executor) | dict(provenance or {})
-    template = BehaviorTemplate(name, meta, bounds, loop.optimizer, prov)
-    return TemplateTraining(template, loop, curve, wall)
+    return callback
 
 
 def _provenance(method: str, loop, n_probes: int, seed: int, meta: MetaDMP, probe, reach_prior: bool, executor) -> dict[str, Any]:
