@@ -22,7 +22,12 @@ from scipy import stats
 
 from besdrake.diagnosis import fitting
 from besdrake.diagnosis import settings
+from besdrake.diagnosis.allowed import allowed_range
 from besdrake.diagnosis.settings import ALPHA, EXCLUDE_FRACTION, UNCONSTRAINED_COVER
+
+
+#: "Use the setting" for an argument whose None means "off" (:func:`listed`'s ``pair_dbic``).
+SETTING = object()
 
 
 @dataclass
@@ -82,11 +87,9 @@ def additions_beside(prob: fitting.Problem, sens: fitting.Sensitivity, best: fit
             score = float(a_perp @ r)
             est = s_.nominal + score / info
             half = float(np.sqrt(q / info))
-            lo, hi = max(s_.low, est - half), min(s_.high, est + half)
-            if lo > hi:
-                lo = hi = s_.low if est < s_.low else s_.high
+            lo, hi, frac = allowed_range(s_, est, max(s_.low, est - half), min(s_.high, est + half))
             rng_ = s_.high - s_.low
-            fracs.append(max(abs(lo - s_.nominal), abs(hi - s_.nominal)) / rng_)
+            fracs.append(frac)
             gains.append(score * score / info)
             covers.append(hi - lo >= UNCONSTRAINED_COVER * rng_)
             allowed[s_.name], units[s_.name] = (float(lo), float(hi)), s_.unit
@@ -100,7 +103,7 @@ def additions_beside(prob: fitting.Problem, sens: fitting.Sensitivity, best: fit
 
 def listed(additions: Sequence[dict], min_fraction: float | None = None, min_gain: float | None = None,
            unconstrained: bool | str | None = None, at_most: int | None = None, refined_dbic: dict[str, float] | None = None,
-           pair_dbic: float | None = -1.0) -> list[str]:
+           pair_dbic: float | None | object = SETTING) -> list[str]:
     """The effects of :func:`additions_beside` (as dicts, :meth:`Addition.to_dict`) that the answer lists as "cannot
     tell whether it is present too": not excluded (allowed beyond ``min_fraction`` of the range) and either leaned
     towards by the data (the chi-square gain of its best parameter at least ``min_gain``) or not constrained by the log
@@ -113,7 +116,7 @@ def listed(additions: Sequence[dict], min_fraction: float | None = None, min_gai
     min_gain = settings.ADDITION_MIN_GAIN if min_gain is None else min_gain
     unconstrained = settings.ADDITION_UNCONSTRAINED if unconstrained is None else unconstrained
     at_most = settings.ADDITIONS_MAX if at_most is None else at_most
-    pair_dbic = settings.ADDITION_PAIR_DBIC if pair_dbic == -1.0 else pair_dbic
+    pair_dbic = settings.ADDITION_PAIR_DBIC if pair_dbic is SETTING else pair_dbic
     near = {e for e, d in (refined_dbic or {}).items() if pair_dbic is not None and d < pair_dbic}
     def free(a: dict) -> bool:  # "any": one of its parameters may be anywhere in its range beside the cause
         return bool(a["unconstrained"] if unconstrained != "any" else any(p["covers"] for p in a.get("per_param", {}).values()))

@@ -131,17 +131,23 @@ def _linear_intervals(prob: fitting.Problem, sens: fitting.Sensitivity, effects:
     return lin
 
 
+def allowed_range(s_: fitting.ParamSpec, est: float, lo: float, hi: float) -> tuple[float, float, float]:
+    """An allowed interval ``[lo, hi]`` already clipped to the realistic bounds (where the estimate lies beyond a bound,
+    only the bound itself), and its largest deviation from nominal as a fraction of the range."""
+    if lo > hi:
+        lo = hi = s_.low if est < s_.low else s_.high
+    return lo, hi, max(abs(lo - s_.nominal), abs(hi - s_.nominal)) / (s_.high - s_.low)
+
+
 def _allowed_effect(e: str, specs: list[fitting.ParamSpec], lin: dict[str, _Line], checked: dict[str, tuple[float, float]], sim: _Sim,
                     measured: list[str], n_trials: int, q: float) -> AllowedEffect:
     """One effect's allowed values (from the checked intervals), whether it is excluded, and what would show it."""
     allowed, nominal, units, fracs, needed = {}, {}, {}, [], []
     for s_ in specs:
         est, info = lin[s_.key].est, lin[s_.key].info
-        lo, hi = checked[s_.key]
-        if lo > hi:  # the estimate lies beyond a bound: only the bound itself is allowed
-            lo = hi = s_.low if est < s_.low else s_.high
+        lo, hi, frac = allowed_range(s_, est, *checked[s_.key])
         rng_ = s_.high - s_.low
-        fracs.append(max(abs(lo - s_.nominal), abs(hi - s_.nominal)) / rng_)
+        fracs.append(frac)
         allowed[s_.name], nominal[s_.name], units[s_.name] = (float(lo), float(hi)), float(s_.nominal), s_.unit
         if fracs[-1] >= EXCLUDE_FRACTION:  # trials to exclude this parameter: the half-width shrinks as 1/sqrt(trials)
             needed.append(n_trials * q / info / (EXCLUDE_FRACTION * rng_) ** 2 if info > 0 else np.inf)

@@ -299,27 +299,46 @@ def judge(prob: fitting.Problem, sens: fitting.Sensitivity, fits: list[fitting.C
 def possible_seconds(v: Verdict, prob: fitting.Problem, sens: fitting.Sensitivity, ev: Any, cands: list[str]) -> None:
     """Beside a named single cause, the effects the log cannot exclude as a second one (:mod:`~besdrake.diagnosis.additions`):
     each listed among the causes it cannot tell apart (``addition``: True; the pair "cause + effect"), with the recording or
-    the trials that would show it; all of them recorded in the basis (``additions``). The confidence is not touched."""
+    the trials that would show it, and its near aliases (``alias``: True); all of them recorded in the basis (``additions``).
+    The confidence is not touched."""
     if prob is None or sens is None or len(v.best.effects) != 1 or getattr(v.best_fit, "jac", None) is None:
         return
     adds = additions_beside(prob, sens, v.best_fit, cands)
     v.basis["additions"] = [a.to_dict() for a in adds]
+    named = {tuple(sorted(a["b"].split(" + "))) for a in v.indist}
+    listed, recs = _list_additions(v, adds, prob.n, sens, ev, named)
+    _list_aliases(v, ev, named)
+    if listed:
+        v.text += "; nor can the log exclude a second effect beside it: " + ", ".join(a.describe() for a in listed)
+        if recs:
+            v.text += f" (to tell, e.g. for {listed[0].effect}: {recs[0]})"
+
+
+def _list_additions(v: Verdict, adds: list, n: int, sens: fitting.Sensitivity, ev: Any, named: set) -> tuple[list, list[str]]:
+    """The additions :func:`~besdrake.diagnosis.additions.listed` keeps, appended to ``v.indist`` as pairs (unless the pair
+    is listed already); returns them and the recordings that would show them."""
     b = v.best.effects[0]
     v.basis["additions_refined_dbic"] = {next(e for e in c.effects if e != b): float(c.delta_bic) for f, c in zip(v.fits[1:], v.causes[1:])
                                          if f.refined and len(c.effects) == 2 and b in c.effects}
     names = listed_additions(v.basis["additions"], refined_dbic=v.basis["additions_refined_dbic"])
     listed = sorted([a for a in adds if a.effect in names], key=lambda a: names.index(a.effect))
-    named = {tuple(sorted(a["b"].split(" + "))) for a in v.indist}
     recs = []
     for a in listed:
-        pair = tuple(sorted((v.best.effects[0], a.effect)))
+        pair = tuple(sorted((b, a.effect)))
         if pair in named:
             continue
         rec = _recommendation(a.effect, [s_ for s_ in sens.specs if s_.effect == a.effect], ev.sim, ev.measured_groups, None)
         recs.append(rec)
         # delta BIC of the pair, linearised: the chi-square its best parameter gains against one more parameter's penalty
         v.indist.append({"a": v.best_fit.name, "b": " + ".join(pair), "structural": False, "addition": True, "effect": a.effect,
-                         "allowed": a.to_dict()["allowed"], "recommendation": rec, "delta_bic": float(np.log(max(prob.n, 1)) - a.gain)})
+                         "allowed": a.to_dict()["allowed"], "recommendation": rec, "delta_bic": float(np.log(max(n, 1)) - a.gain)})
+    return listed, recs
+
+
+def _list_aliases(v: Verdict, ev: Any, named: set) -> None:
+    """The near aliases of the named single cause (:func:`~besdrake.diagnosis.additions.aliases`), appended to ``v.indist``
+    with what would separate them, and said in the verdict."""
+    b = v.best.effects[0]
     singles = {c.effects[0]: (f, float(c.delta_bic)) for f, c in zip(v.fits[1:], v.causes[1:]) if f.refined and len(c.effects) == 1 and c.effects != (b,)}
     v.basis["aliases_single_dbic"] = {e: d for e, (_f, d) in singles.items()}
     for e in alias_effects(v.basis["additions"], v.basis["aliases_single_dbic"]):
@@ -329,10 +348,6 @@ def possible_seconds(v: Verdict, prob: fitting.Problem, sens: fitting.Sensitivit
         v.indist.append({**adv, "structural": False, "alias": True, "delta_bic": singles[e][1]})
         v.text += (f"; nor from {e} ({singles[e][1]:.1f} BIC behind), whose signature is largely a change of {b}'s own parameters "
                    f"(to tell: {adv.get('recommendation', '')})")
-    if listed:
-        v.text += "; nor can the log exclude a second effect beside it: " + ", ".join(a.describe() for a in listed)
-        if recs:
-            v.text += f" (to tell, e.g. for {listed[0].effect}: {recs[0]})"
 
 
 def _nothing_wrong(v: Verdict, prob: fitting.Problem, sens: fitting.Sensitivity, none_c: Cause, ev: Any, cands: list[str]) -> None:
