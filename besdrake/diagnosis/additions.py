@@ -61,9 +61,12 @@ class Addition:
         return f"{self.effect} (" + "; ".join(f"{k} {a:.3g}..{b:.3g} {self.units.get(k, '')}".rstrip() for k, (a, b) in self.allowed.items()) + ")"
 
 
-def additions_beside(prob: fitting.Problem, sens: fitting.Sensitivity, best: fitting.CandidateFit, cands: Sequence[str]) -> list[Addition]:
+def additions_beside(prob: fitting.Problem, sens: fitting.Sensitivity, best: fitting.CandidateFit, cands: Sequence[str],
+                     keys: Sequence[str] | None = None) -> list[Addition]:
     """Per candidate effect not in ``best`` (a refined fit with a Jacobian at its optimum), what the log allows of it
-    on top of ``best`` (see the module); sorted by the largest allowed fraction of the range."""
+    on top of ``best`` (see the module); sorted by the largest allowed fraction of the range. Per parameter also its
+    signature on top of the cause (the chi-square it adds, linearised) at the estimate and at the farthest allowed end,
+    and, with ``keys`` (the trials' plan keys), its score z with the plans as the units (:func:`_plan_z`)."""
     if best.y_fit is None or best.jac is None:
         return []
     q = float(stats.chi2.ppf(1.0 - ALPHA, 1))
@@ -94,11 +97,26 @@ def additions_beside(prob: fitting.Problem, sens: fitting.Sensitivity, best: fit
             covers.append(hi - lo >= UNCONSTRAINED_COVER * rng_)
             allowed[s_.name], units[s_.name] = (float(lo), float(hi)), s_.unit
             a2 = float(a @ a)
+            ap2 = float(a_perp[:prob.n] @ a_perp[:prob.n])
             per[s_.name] = {"fraction": fracs[-1], "gain": gains[-1], "absorbed": 1.0 - float(a_perp @ a_perp) / a2 if a2 > 0 else 0.0,
-                            "covers": bool(covers[-1])}
+                            "covers": bool(covers[-1]), "z": score / np.sqrt(info) if info > 0 else 0.0,
+                            "signature_est": ap2 * (est - s_.nominal) ** 2,
+                            "signature_max": ap2 * max(abs(lo - s_.nominal), abs(hi - s_.nominal)) ** 2,
+                            "z_plans": _plan_z(prob, a_perp[:prob.n], r[:prob.n], keys)}
         out.append(Addition(e, allowed, units, float(max(fracs)), float(max(gains)), all(covers), per))
     out.sort(key=lambda x: -x.max_fraction)
     return out
+
+
+def _plan_z(prob: fitting.Problem, a: np.ndarray, r: np.ndarray, keys: Sequence[str] | None) -> float | None:
+    """The score of the residuals ``r`` along ``a`` over the cluster-robust SD with the plans as the units (the per-plan
+    scores' root sum of squares): the noise model is not trusted between plans (issue 25). None without ``keys``."""
+    if keys is None:
+        return None
+    entry_key = np.array([keys[i] for i in np.nonzero(prob.mask)[0]])
+    per = np.array([float(a[entry_key == k] @ r[entry_key == k]) for k in dict.fromkeys(entry_key.tolist())])
+    den = float(np.sqrt(np.sum(per ** 2)))
+    return float(per.sum() / den) if den > 0 else 0.0
 
 
 def listed(additions: Sequence[dict], min_fraction: float | None = None, min_gain: float | None = None,

@@ -142,3 +142,10 @@ ADDITION_PAIR_DBIC: float | None = 6.0
 #: a joint-4 offset named a tilt of the tool on the flange, the joint offset itself 6.5 BIC behind and not listed). None: off.
 ALIAS_DBIC: float | None = 10.0
 ALIAS_ABSORBED: float | None = 0.9
+#: ... and no second effect beside the named cause may be allowed by the log with a signature above the detection limit
+#: (:func:`~besdrake.diagnosis.verdict.second_allowed`, linearised around the cause's fit, every parameter of every other
+#: candidate, no rollouts): a parameter whose signature on top of the cause at its estimate is at least HIGH_SECOND_OVER
+#: times the limit and whose score is at least HIGH_SECOND_Z_PLANS with the plans as the units. Issue 25: a scoop roll
+#: 1.3x the limit beside a gain scale, never fitted as a pair, named gain_scale "high". None: off.
+HIGH_SECOND_OVER: float | None = None
+HIGH_SECOND_Z_PLANS = 0.0

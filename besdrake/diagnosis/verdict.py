@@ -217,6 +217,36 @@ def confidence_basis(fits: list[fitting.CandidateFit], causes: list[Cause], indi
             "moved_parameters": sum(moved_per_effect(_values(causes[0])).values())}
 
 
+def seconds_basis(prob: fitting.Problem, sens: fitting.Sensitivity, best: fitting.CandidateFit, cands: list[str], keys: list[str]) -> dict:
+    """What the log cannot exclude beside the named cause, for its confidence (:func:`~besdrake.diagnosis.additions.additions_beside`,
+    linearised, no rollouts): per parameter of every other candidate effect its score z (noise model, and with the plans
+    as the units) and its signature on top of the cause at the estimate and at the farthest allowed end, in units of the
+    detection limit (INDISTINGUISHABLE_DBIC + ln n: what one parameter must gain to be named). Empty without a Jacobian."""
+    if sens is None or getattr(best, "jac", None) is None or best.y_fit is None:
+        return {}
+    limit = INDISTINGUISHABLE_DBIC + np.log(max(prob.n, 1))
+    rows = []
+    for a in additions_beside(prob, sens, best, cands, keys):
+        for name, q in (a.per_param or {}).items():
+            rows.append({"effect": a.effect, "parameter": name, "z": q["z"], "z_plans": q["z_plans"], "absorbed": q["absorbed"],
+                         "est_over_limit": q["signature_est"] / limit, "max_over_limit": q["signature_max"] / limit})
+    rows.sort(key=lambda x: -x["est_over_limit"])
+    return {"seconds": rows, "seconds_limit_chi2": float(limit)}
+
+
+def second_allowed(basis: dict, over: float | None = None, z_plans: float | None = None) -> bool:
+    """Whether a second effect beside the named cause is allowed by the log with a signature above the detection limit
+    (:func:`seconds_basis`): some parameter whose signature at its estimate is at least ``over`` times the limit and
+    whose score with the plans as the units is at least ``z_plans`` (defaults: the settings' HIGH_SECOND_OVER and
+    HIGH_SECOND_Z_PLANS; ``over`` None: not checked)."""
+    over = settings.HIGH_SECOND_OVER if over is None else over
+    z_plans = settings.HIGH_SECOND_Z_PLANS if z_plans is None else z_plans
+    if over is None:
+        return False
+    return any(r["est_over_limit"] >= over and abs(r["z_plans"] if r["z_plans"] is not None else np.inf) >= z_plans
+               for r in basis.get("seconds", []))
+
+
 def is_high(basis: dict, margin_dbic: float | None = None, extra_p: float | None = None, max_moved: int | None = None) -> bool:
     """"high" confidence for a named cause, from its :func:`confidence_basis` (the thresholds default to the settings'
     HIGH_MARGIN_DBIC, HIGH_EXTRA_P and HIGH_MAX_MOVED; a benchmark passes others to calibrate them; switched off with
@@ -226,7 +256,8 @@ def is_high(basis: dict, margin_dbic: float | None = None, extra_p: float | None
     max_moved = HIGH_MAX_MOVED if max_moved is None else max_moved
     margin = np.inf if basis["rival_margin_dbic"] is None else basis["rival_margin_dbic"]
     strict = not settings.VERIFY_SINGLES or (margin >= margin_dbic and basis["extra_effect_p"] >= extra_p
-                                             and basis.get("moved_parameters", 0) <= max_moved and not basis.get("immaterial_extra", False))
+                                             and basis.get("moved_parameters", 0) <= max_moved and not basis.get("immaterial_extra", False)
+                                             and not second_allowed(basis))
     return bool(basis["explained"] and not basis["separable_rival"] and basis["p_value"] >= CONFIDENT_P and not basis["outcome_only"] and strict)
 
 
@@ -256,6 +287,8 @@ def judge(prob: fitting.Problem, sens: fitting.Sensitivity, fits: list[fitting.C
     basis["extra_effect_p_plans"] = extra_effect_p_plans(prob, fits, causes, ev.keys)
     basis["extra_effect_scatter"] = extra_effect_scatter(prob, fits, causes, ev.keys)
     basis["noise_model"] = "within-trial covariance" if getattr(prob, "cov", None) is not None else "diagonal"
+    if explained and not outcome_only:
+        basis.update(seconds_basis(prob, sens, fits[0], cands, ev.keys))
     confidence = "high" if is_high(basis) else "low"
     v = Verdict(explained, confidence, "", causes, fits, best, best_fit, indist, basis=basis)
     if not best.effects or (none_c.p_value >= ALPHA and none_c.delta_bic < INDISTINGUISHABLE_DBIC):
