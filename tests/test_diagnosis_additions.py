@@ -109,3 +109,31 @@ def test_a_near_alias_is_one_the_cause_absorbs_within_the_high_margin():
     assert aliases(adds, singles, max_dbic=10.0, min_absorbed=0.9) == ["joint_offset"]
     assert aliases(adds, singles, max_dbic=6.0, min_absorbed=0.9) == []
     assert aliases(adds, singles, max_dbic=10.0, min_absorbed=0.95) == []
+
+
+def test_a_second_effect_above_the_detection_limit_beside_the_cause_vetoes_high(monkeypatch):
+    """Full-log rule (issue 25, benchmark trial 8): "high" needs that no other effect is allowed beside the named cause
+    with a signature above the detection limit; a scoop roll hidden beside the base height is seen by its score, the
+    clean world passes, and the plan-level z is recorded per parameter."""
+    from besdrake.diagnosis.verdict import is_high, second_allowed, seconds_basis
+
+    cands = ["base_offset", "scoop_mount", "air_drag", "joint_offset"]
+    keys = [f"plan{i % 5}" for i in range(N_TRIALS)]
+    prob, sens, fit = _world()
+    clean = seconds_basis(prob, sens, fit, cands, keys)
+    roll = next(r for r in clean["seconds"] if r["effect"] == "scoop_mount")
+    assert roll["z_plans"] is not None and roll["max_over_limit"] >= roll["est_over_limit"] >= 0.0
+    # the hidden roll: 0.01 rad moves the touchdowns by 3 cm per unit of the signature's SD direction
+    prob2 = fitting.Problem(prob.y_meas + 0.01 * np.nan_to_num(sens.dy[1]), prob.y0, prob.sd)
+    fit2 = fitting.linear_fit(prob2, sens, ("base_offset",))
+    fit2.y_fit, fit2.refined = prob2.y0 + np.nan_to_num(sens.dy[0]) * fit2.theta[0], True
+    dirty = seconds_basis(prob2, sens, fit2, cands, keys)
+    assert dirty["seconds"][0]["effect"] == "scoop_mount" and dirty["seconds"][0]["est_over_limit"] > 1.0
+    monkeypatch.setattr(settings, "HIGH_SECOND_Z_ALPHA", 1.645)
+    monkeypatch.setattr(settings, "HIGH_SECOND_PLANS", False)
+    assert second_allowed(dirty) and not second_allowed(clean)
+    base = {"explained": True, "separable_rival": False, "p_value": 0.5, "outcome_only": False, "rival_margin_dbic": 50.0,
+            "extra_effect_p": 0.8, "moved_parameters": 1}
+    assert is_high({**base, **clean}) and not is_high({**base, **dirty})
+    monkeypatch.setattr(settings, "HIGH_SECOND_Z_ALPHA", None)
+    assert is_high({**base, **dirty})  # the rule switched off

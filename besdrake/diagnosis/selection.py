@@ -33,7 +33,8 @@ def _forward_pairs(prob: fitting.Problem, fits: list[fitting.CandidateFit], sens
         if sh is not None:
             local_shift[lead.effects] = sh
             fitting.refine(prob, lead, lambda e: sim.one(e, shift=sh), iterations=iterations, nominal_secants=False)
-    if _lack_of_fit_p(prob, lead.y_fit, lead.k, nm, groups)[0] >= ALPHA:
+    lead_fits = _lack_of_fit_p(prob, lead.y_fit, lead.k, nm, groups)[0] >= ALPHA
+    if lead_fits and settings.FORWARD_PAIRS_EVIDENCE_DBIC is None:
         return []
     lead_e = lead.effects[0]
     lead_theta = {s_.key: v for s_, v in zip(lead.specs, lead.theta)}
@@ -57,7 +58,9 @@ def _forward_pairs(prob: fitting.Problem, fits: list[fitting.CandidateFit], sens
                                    n=lf.n, k=lf.k, unobservable=lf.unobservable, jac=lf.jac, selection_penalty=lf.selection_penalty, inactive=lf.inactive)
         fits[i] = new
         proposals.append(new)
-    proposals = [f for f in proposals if f.bic < lead.bic]
+    # A lead that fits is still extended where a pair's linear fit around it is clearly better (a second effect
+    # whose signature the lack-of-fit test over the whole log is too weak to see).
+    proposals = [f for f in proposals if f.bic < lead.bic - (settings.FORWARD_PAIRS_EVIDENCE_DBIC if lead_fits else 0.0)]
     proposals.sort(key=lambda f: f.bic)
     done = []
     for f in proposals[:FORWARD_TOP]:

@@ -234,17 +234,18 @@ def seconds_basis(prob: fitting.Problem, sens: fitting.Sensitivity, best: fittin
     return {"seconds": rows, "seconds_limit_chi2": float(limit)}
 
 
-def second_allowed(basis: dict, over: float | None = None, z_plans: float | None = None) -> bool:
-    """Whether a second effect beside the named cause is allowed by the log with a signature above the detection limit
-    (:func:`seconds_basis`): some parameter whose signature at its estimate is at least ``over`` times the limit and
-    whose score with the plans as the units is at least ``z_plans`` (defaults: the settings' HIGH_SECOND_OVER and
-    HIGH_SECOND_Z_PLANS; ``over`` None: not checked)."""
-    over = settings.HIGH_SECOND_OVER if over is None else over
-    z_plans = settings.HIGH_SECOND_Z_PLANS if z_plans is None else z_plans
-    if over is None:
+def second_allowed(basis: dict, z_alpha: float | None | object = None, plans: bool | None = None) -> bool:
+    """Whether the log leaves a second effect beside the named cause possible with a signature at the detection limit
+    (:func:`seconds_basis`): some parameter whose score z is within ``z_alpha`` of the z such a signature would give
+    (|z| >= sqrt(limit) - z_alpha: a signature of the limit is not excluded at the one-sided level of ``z_alpha``),
+    with the plans as the units when ``plans``. Defaults: the settings' HIGH_SECOND_Z_ALPHA (None: not checked) and
+    HIGH_SECOND_PLANS."""
+    z_alpha = settings.HIGH_SECOND_Z_ALPHA if z_alpha is None else z_alpha
+    plans = settings.HIGH_SECOND_PLANS if plans is None else plans
+    if z_alpha is None or not basis.get("seconds"):
         return False
-    return any(r["est_over_limit"] >= over and abs(r["z_plans"] if r["z_plans"] is not None else np.inf) >= z_plans
-               for r in basis.get("seconds", []))
+    cut = float(np.sqrt(basis["seconds_limit_chi2"])) - float(z_alpha)
+    return any(abs((r["z_plans"] if plans else r["z"]) or 0.0) >= cut for r in basis["seconds"])
 
 
 def is_high(basis: dict, margin_dbic: float | None = None, extra_p: float | None = None, max_moved: int | None = None) -> bool:
