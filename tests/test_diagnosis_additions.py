@@ -137,3 +137,22 @@ def test_a_second_effect_above_the_detection_limit_beside_the_cause_vetoes_high(
     assert is_high({**base, **clean}) and not is_high({**base, **dirty})
     monkeypatch.setattr(settings, "HIGH_SECOND_Z_ALPHA", None)
     assert is_high({**base, **dirty})  # the rule switched off
+
+
+def test_sensitivity_at_steps_each_parameter_on_top_of_the_fitted_cause():
+    """The other effects' sensitivities where the cause has put the robot: each rollout holds the cause's effects and
+    one stepped parameter of another effect, the derivative is taken against the cause's own prediction."""
+    specs = [fitting.ParamSpec("scoop_mount", "roll", 0.0, -0.1, 0.1, 0.01, "rad"),
+             fitting.ParamSpec("air_drag", "cd", 0.0, 0.0, 1.0, 0.1, "1")]
+    base = {"gain_scale": {"kp_scale": 0.5}}
+    seen = []
+
+    def simulate(effs):
+        seen.extend(effs)
+        # a roll whose effect doubles when the gain is halved, a drag that ignores it
+        return np.array([[[1.0 + e.get("scoop_mount", {}).get("roll", 0.0) / e["gain_scale"]["kp_scale"] + e.get("air_drag", {}).get("cd", 0.0)]]
+                         for e in effs])
+
+    sens = fitting.sensitivity_at(specs, base, np.array([[1.0]]), simulate)
+    assert all(e["gain_scale"] == base["gain_scale"] for e in seen) and len(seen) == 2
+    assert np.allclose(sens.dy[:, 0, 0], [2.0, 1.0])

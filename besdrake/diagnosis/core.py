@@ -173,7 +173,10 @@ def _diagnose_evidence(ev: Evidence, cands: list[str], pairs: bool, folds: int, 
     best_shift = local_shift.get(best_fit.effects)
     fitting.jacobian_at(prob, best_fit, lambda effs: ev.sim.features(effs, shift=best_shift))
     causes = rank_causes(prob, fits, best_fit, ev.nm, ev.measured_groups)
-    v = judge(prob, sens, fits, causes, ev, cands, ident)
+    others = [s_ for s_ in sens.specs if s_.effect not in best_fit.effects]
+    local = (lambda: fitting.sensitivity_at(others, best_fit.parameters(), best_fit.y_fit, lambda effs: ev.sim.features(effs, shift=best_shift))) \
+        if best_fit.y_fit is not None else None
+    v = judge(prob, sens, fits, causes, ev, cands, ident, local_sens=local)
     t0 = time.perf_counter()
     gain, per_trial_after = heldout_gain(ev, sens, v.best_fit, best_shift, folds, iterations, rng)
     timings["heldout"] = time.perf_counter() - t0

@@ -141,6 +141,18 @@ def compute_sensitivity(specs: list[ParamSpec], y0: np.ndarray, simulate: Callab
     return Sensitivity(specs=specs, y0=y0, dy=dy)
 
 
+def sensitivity_at(specs: list[ParamSpec], base: dict[str, dict[str, float]], y_base: np.ndarray,
+                   simulate: Callable[[list[dict]], np.ndarray]) -> Sensitivity:
+    """As :func:`compute_sensitivity`, but each parameter stepped from nominal on top of the effects ``base`` (a fitted
+    cause; its simulated features ``y_base``): the sensitivities of the other effects where the cause has put the robot
+    (one batch of rollouts per parameter). ``specs`` must not belong to an effect of ``base``."""
+    effs = [{**base, **effects_from([s], [s.nominal + s.step])} for s in specs]
+    ys = simulate(effs) if effs else np.zeros((0,) + y_base.shape)
+    dy = (ys - y_base[None]) / np.array([s.step for s in specs])[:, None, None]
+    dy[~np.isfinite(dy)] = 0.0
+    return Sensitivity(specs=specs, y0=y_base, dy=dy)
+
+
 @dataclass
 class CandidateFit:
     """The fit of one candidate (a set of effects) to the data."""

@@ -154,3 +154,7 @@ ALIAS_ABSORBED: float | None = 0.9
 #: gain_scale "high" (benchmark trial 8). None: off.
 HIGH_SECOND_Z_ALPHA: float | None = None
 HIGH_SECOND_PLANS = False
+#: ... with the other effects' sensitivities taken where the named cause has put the robot (one batch of rollouts per
+#: parameter, only where "high" is otherwise granted: :func:`~besdrake.diagnosis.fitting.sensitivity_at`) instead of
+#: at nominal: a cause far from nominal (an arm at 0.42x its gain) changes how a second effect shows.
+SECONDS_LOCAL = True

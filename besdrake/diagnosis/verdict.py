@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -245,10 +245,11 @@ def second_allowed(basis: dict, z_alpha: float | None | object = None, plans: bo
     if z_alpha is None or not basis.get("seconds"):
         return False
     cut = float(np.sqrt(basis["seconds_limit_chi2"])) - float(z_alpha)
-    return any(abs((r["z_plans"] if plans else r["z"]) or 0.0) >= cut for r in basis["seconds"])
+    rows = basis.get("seconds_local") if settings.SECONDS_LOCAL and basis.get("seconds_local") else basis["seconds"]
+    return any(abs((r["z_plans"] if plans else r["z"]) or 0.0) >= cut for r in rows)
 
 
-def is_high(basis: dict, margin_dbic: float | None = None, extra_p: float | None = None, max_moved: int | None = None) -> bool:
+def is_high(basis: dict, margin_dbic: float | None = None, extra_p: float | None = None, max_moved: int | None = None, second: bool = True) -> bool:
     """"high" confidence for a named cause, from its :func:`confidence_basis` (the thresholds default to the settings'
     HIGH_MARGIN_DBIC, HIGH_EXTRA_P and HIGH_MAX_MOVED; a benchmark passes others to calibrate them; switched off with
     VERIFY_SINGLES)."""
@@ -258,12 +259,12 @@ def is_high(basis: dict, margin_dbic: float | None = None, extra_p: float | None
     margin = np.inf if basis["rival_margin_dbic"] is None else basis["rival_margin_dbic"]
     strict = not settings.VERIFY_SINGLES or (margin >= margin_dbic and basis["extra_effect_p"] >= extra_p
                                              and basis.get("moved_parameters", 0) <= max_moved and not basis.get("immaterial_extra", False)
-                                             and not second_allowed(basis))
+                                             and not (second and second_allowed(basis)))
     return bool(basis["explained"] and not basis["separable_rival"] and basis["p_value"] >= CONFIDENT_P and not basis["outcome_only"] and strict)
 
 
 def judge(prob: fitting.Problem, sens: fitting.Sensitivity, fits: list[fitting.CandidateFit], causes: list[Cause], ev: Any,
-          cands: list[str], ident: Identifiability | None = None) -> Verdict:
+          cands: list[str], ident: Identifiability | None = None, local_sens: Callable[[], fitting.Sensitivity] | None = None) -> Verdict:
     """Explained or not, with what confidence, and why (see :class:`~besdrake.diagnosis.results.Diagnosis`). A rival
     structurally identical to the best (``ident``) is stated as such and does not lower the confidence: the answer is
     the class, and either fix gives the same robot."""
@@ -290,6 +291,9 @@ def judge(prob: fitting.Problem, sens: fitting.Sensitivity, fits: list[fitting.C
     basis["noise_model"] = "within-trial covariance" if getattr(prob, "cov", None) is not None else "diagonal"
     if explained and not outcome_only:
         basis.update(seconds_basis(prob, sens, fits[0], cands, ev.keys))
+        if local_sens is not None and settings.SECONDS_LOCAL and is_high(basis, second=False):
+            # the other effects' sensitivities where the cause has put the robot (rollouts, only where "high" is at stake)
+            basis["seconds_local"] = seconds_basis(prob, local_sens(), fits[0], cands, ev.keys).get("seconds", [])
     confidence = "high" if is_high(basis) else "low"
     v = Verdict(explained, confidence, "", causes, fits, best, best_fit, indist, basis=basis)
     if not best.effects or (none_c.p_value >= ALPHA and none_c.delta_bic < INDISTINGUISHABLE_DBIC):
