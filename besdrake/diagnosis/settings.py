@@ -95,7 +95,7 @@ SELECT_PARAMETERS = True
 FORWARD_PAIRS = True
 FORWARD_TOP = 2
 #: ... and when the lead single does fit, still refine the pairs whose linear fit around the lead is at least this much
-#: better by BIC (issue 25: a scoop roll 3.8x the detection limit beside an object placement habit was never fitted as
+#: better by BIC (issue 25: a tool tilt 3.8x the detection limit beside an object placement habit was never fitted as
 #: a pair: the lack-of-fit test over the whole log has no power for one parameter's signature). None: off.
 FORWARD_PAIRS_EVIDENCE_DBIC: float | None = None
 #: "high" confidence (issue 25: a nonlinear effect was once named a joint offset with "high"): before a cause is named
@@ -150,8 +150,8 @@ ALIAS_ABSORBED: float | None = 0.9
 #: (INDISTINGUISHABLE_DBIC + ln n, what one parameter must gain to be named): linearised around the cause's fit, every
 #: parameter of every other candidate, no rollouts (:func:`~besdrake.diagnosis.verdict.second_allowed`): its score z must
 #: stay below sqrt(limit) - HIGH_SECOND_Z_ALPHA (one-sided exclusion at that normal quantile; with the plans as the units
-#: when HIGH_SECOND_PLANS). Issue 25: a scoop roll 1.3x the limit beside a gain scale, never fitted as a pair, named
-#: gain_scale "high" (benchmark trial 8). None: off. Session 20 (CALIBRATION.md): trial 8's roll has z 2.32, the largest
+#: when HIGH_SECOND_PLANS). Issue 25: a tool tilt 1.3x the limit beside a gain scale, never fitted as a pair, named
+#: gain_scale "high" (benchmark trial 8). None: off. Session 20 (CALIBRATION.md): trial 8's tilt has z 2.32, the largest
 #: of 22 parameters but at chance level; the right "high" answers re-run reach max |z| 1.84-3.46 (nominal), so the cut
 #: that catches 8 (z_alpha 1.33) drops 1 of 5 right "high" in the calibration half and 3 of 4 out of sample.
 HIGH_SECOND_Z_ALPHA: float | None = None
@@ -159,5 +159,5 @@ HIGH_SECOND_PLANS = False
 #: ... with the other effects' sensitivities taken where the named cause has put the robot (one batch of rollouts per
 #: parameter, only where "high" is otherwise granted: :func:`~besdrake.diagnosis.fitting.sensitivity_at`) instead of
 #: at nominal: a cause far from nominal (an arm at 0.42x its gain) changes how a second effect shows. Off: it did not
-#: separate trial 8 from chance either (scoop roll z 2.32 -> 2.46) and costs ~+15 % rollouts (trial 8: 2782 -> 3275).
+#: separate trial 8 from chance either (tool tilt z 2.32 -> 2.46) and costs ~+15 % rollouts (trial 8: 2782 -> 3275).
 SECONDS_LOCAL = False
