@@ -582,10 +582,10 @@ REACH_OBJECTIVES = ("point", "range")
 def template_reach_settings(config: dict[str, Any]) -> dict[str, Any]:
     """The templates section's reach settings, checked (:class:`~besdrake.pipeline.config.ConfigError`): the reach
     refinement's ``target`` (m, or None: off), ``evaluations`` (episodes), ``objective`` (:data:`REACH_OBJECTIVES`) and
-    ``sigma`` (its CMA-ES's initial step),
+    ``sigma`` (its CMA-ES's initial step), ``extend_probes`` (the template's probes beyond its slowest time),
     and ``slowest`` (the template's slowest execution time, x its base's)."""
     from besdrake.pipeline.config import ConfigError
-    from besdrake.search.templates import SCALE_SLOWEST
+    from besdrake.search.templates import EXTEND_PROBES, SCALE_SLOWEST
 
     cfg = config["templates"]
     target, budget, objective = cfg.get("reach_target"), cfg.get("reach_evaluations", 0), cfg.get("reach_objective", "point")
@@ -593,6 +593,7 @@ def template_reach_settings(config: dict[str, Any]) -> dict[str, Any]:
         target = None if target is None else tuple(float(v) for v in target)
         budget = int(budget)
         sigma = float(cfg.get("reach_sigma", 1.0))
+        extend = int(cfg.get("extend_probes", EXTEND_PROBES))
         slowest = float(cfg.get("slowest", SCALE_SLOWEST))
     except (TypeError, ValueError) as err:
         raise ConfigError(f"templates: reach_target must be [x, y] in m or null, reach_evaluations an integer and slowest "
@@ -600,6 +601,8 @@ def template_reach_settings(config: dict[str, Any]) -> dict[str, Any]:
     if target is not None and (len(target) != 2 or not np.isfinite(target).all()) or budget < 0:
         raise ConfigError(f"templates: reach_target must be two finite numbers (m) or null and reach_evaluations >= 0, "
                           f"got {cfg.get('reach_target')!r}, {cfg.get('reach_evaluations')!r}")
+    if not 0 <= extend <= 10:
+        raise ConfigError(f"templates: extend_probes must be an integer within [0, 10], got {cfg.get('extend_probes')!r}")
     if not (np.isfinite(sigma) and 0.0 < sigma <= 5.0):
         raise ConfigError(f"templates: reach_sigma must be within (0, 5] (CMA-ES's initial step), got {cfg.get('reach_sigma')!r}")
     if objective not in REACH_OBJECTIVES:
@@ -607,7 +610,7 @@ def template_reach_settings(config: dict[str, Any]) -> dict[str, Any]:
     if not (1.0 < slowest <= 10.0):
         raise ConfigError(f"templates: slowest must be within (1, 10] (x the base's execution time), got {cfg.get('slowest')!r}")
     return {"target": target if budget > 0 else None, "evaluations": budget, "slowest": slowest, "objective": objective,
-            "sigma": sigma}
+            "sigma": sigma, "extend_probes": extend}
 
 
 def _template_base(ctx: Context, scenario: str, out: Path) -> tuple[Path, dict[str, Any]]:
@@ -648,14 +651,14 @@ def stage_template(ctx: Context, out: Path) -> dict[str, Any]:
     from besdrake.search.templates import TEST_CONTEXTS, evaluate_template, train_template
 
     cfg = ctx.config["templates"]
-    slowest = template_reach_settings(ctx.config)["slowest"]
+    reach_settings = template_reach_settings(ctx.config)
     method = {"entropy_search": "es", "ucb": "ucb"}.get(cfg["acquisition"], cfg["acquisition"])
     scenario = _refined_scenario(ctx)
     base_file, reach = _template_base(ctx, scenario, out / "reach")
     with _executor(ctx, scenario) as executor:
         training = train_template(
             load_dmp(base_file), executor, method=method, n_episodes=int(cfg["episodes"]), seed=int(cfg["seed"]),
-            name="throw", out_dir=out / "training", slowest=slowest,
+            name="throw", out_dir=out / "training", slowest=reach_settings["slowest"], extend_probes=reach_settings["extend_probes"],
             provenance={"base": str(base_file), "scenario": scenario, "lab": ctx.config["lab"], "demonstrations": ctx.config["demonstrations"]},
         )
         sim_eval = evaluate_template(training.template, executor)
