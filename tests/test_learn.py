@@ -74,7 +74,7 @@ def test_unknown_stage_is_refused(tmp_path, capsys):
                                       "diagnosis.sideways=99", "diagnosis.sideways=some", "refinement.stop_distance=0.5",
                                       "refinement.robust_sd=0.01", "refinement.robust_sd=lots", "refinement.robust_radius=0",
                                       "templates.reach_target=far", "templates.reach_target=[1]", "templates.reach_evaluations=-5",
-                                      "templates.slowest=0.5", "templates.slowest=fast"])
+                                      "templates.slowest=0.5", "templates.slowest=fast", "templates.reach_objective=sideways"])
 def test_a_bad_refinement_transfer_or_diagnosis_setting_is_refused_before_any_stage_runs(tmp_path, capsys, override):
     code = main(["learn", "--quick", "--set", override, "--out", str(tmp_path / "run")])
     err = capsys.readouterr().err

@@ -342,3 +342,34 @@ def test_template_plans_keep_the_robots_knot_spacing(base):
     plan = meta.plan(np.array([tau, base.goal[0]]))
     assert SafetyLimits.of(COMPI).problems(plan) == [] and plan.t[-1] == pytest.approx(tau)
     assert np.all(np.diff(plan.t) >= COMPI.safety.min_knot_spacing)
+
+
+def test_extension_probes_reach_slower_where_the_slowest_probe_lands_beyond_the_nearest_target(base):
+    """Issue 27: where the box's slowest throw still lands beyond the context box's nearest target, two more probes (out
+    of the budget) go up to twice as slow and the box follows them to where the nearest target is reached; without
+    them the box ends at ``slowest``."""
+    tau = float(base.execution_time)
+    ex = PolarStandIn()  # range 3.3 m - duration
+    t = train_template(base, ex, "es", 24, seed=0, slowest=1.2).template
+    assert ex.calls == 24 and t.provenance["n_probe_rollouts"] == 6 + 2
+    taus = np.array(t.provenance["reach_probe"]["taus"])
+    assert taus.size == 8 and taus[-1] == pytest.approx(2.4 * tau, rel=1e-3)
+    near = 3.3 - (1.0 - 0.05)  # the duration whose range is the nearest target's, less the margin
+    assert t.meta_bounds[0, 1] > 1.2 * tau + 0.1 and t.meta_bounds[0, 1] >= min(near, 2.4 * tau) - 1e-6
+    fixed = train_template(base, PolarStandIn(), "es", 24, seed=0, slowest=1.2, extend_probes=0).template
+    assert fixed.provenance["n_probe_rollouts"] == 6 and fixed.meta_bounds[0, 1] <= 1.2 * tau + 1e-6
+
+
+def test_radial_reward_scores_the_range_in_any_direction():
+    """The template reach's objective "range": the touchdown's distance from the robot against the target's."""
+    from besdrake.tasks.throwing.reward import ThrowReward
+
+    flags = {k: False for k in FLAG_NAMES}
+    plan = MotionPlan(np.linspace(0.0, 1.0, 11), np.zeros((11, 6)))
+    sideways = Outcome(flags=flags, touchdown=np.array([0.0, 2.2]))
+    radial = ThrowReward(target=(2.35, 0.0), radial=True)
+    assert radial(plan, sideways, COMPI.limits).distance == pytest.approx(0.15)
+    assert ThrowReward(target=(2.35, 0.0))(plan, sideways, COMPI.limits).distance == pytest.approx(np.hypot(2.35, 2.2))
+    assert ThrowReward.from_dict(radial.to_dict()).radial and "radial" not in ThrowReward().to_dict()
+    with pytest.raises(ValueError, match="radial"):
+        ThrowReward(radial="yes")

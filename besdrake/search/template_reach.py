@@ -9,6 +9,7 @@ alone (at the base's joint-1 goal) describe the whole meta-parameter box: a rang
 ``yaw(tau)`` per execution time, interpolated between the probes (:class:`ReachProbe`).
 
 * :func:`probe_reach` simulates the probes (``n`` execution times, geometric grid).
+* :func:`extend_probe` adds probes beyond the slowest one where that still lands beyond the nearest target.
 * :func:`reach_meta_bounds` derives the box from them: execution times from the fastest within the joint limits
   down to the slowest that still reaches the context box's nearest target (the probes outside are cut), joint-1
   goals that turn the movement to every direction of the context box (within joint 1's limits).
@@ -96,6 +97,25 @@ def probe_reach(meta, executor, tau_lo: float, tau_hi: float, n: int = 7) -> Rea
     plans = [meta.plan(np.array([t, g1])) for t in taus]
     within = [bool(p.check_limits(meta.robot.limits).ok) for p in plans]
     return ReachProbe(taus, touchdowns(plans, executor), g1, np.array(within))
+
+
+def extend_probe(probe: ReachProbe, meta, executor, context_bounds: np.ndarray, factor: float, n: int) -> ReachProbe:
+    """``probe`` with ``n`` more probes beyond its slowest execution time, up to ``factor`` x it (geometric grid), where
+    its slowest probe still lands beyond the context box's nearest target (less :data:`RANGE_MARGIN`): a throw that
+    still lands far when played slower needs a slower end of the box for the near targets, while the probes within
+    the first range keep their spacing (issue 27). Slower plays of a ``"scale"`` base stay within the joint limits."""
+    from besdrake.search.templates import touchdowns
+
+    r_near = context_polar_box(np.asarray(context_bounds, dtype=float))[0]
+    slowest = float(probe.taus[-1])
+    ranges = np.linalg.norm(probe.touchdowns, axis=1)
+    if n < 1 or factor <= 1.0 or not np.isfinite(ranges[-1]) or ranges[-1] < r_near - RANGE_MARGIN:
+        return probe
+    taus = np.geomspace(slowest, factor * slowest, int(n) + 1)[1:]
+    plans = [meta.plan(np.array([t, probe.goal1])) for t in taus]
+    within = [bool(p.check_limits(meta.robot.limits).ok) for p in plans]
+    return ReachProbe(np.concatenate([probe.taus, taus]), np.vstack([probe.touchdowns, touchdowns(plans, executor)]), probe.goal1,
+                      np.concatenate([probe.within_limits, within]))
 
 
 def context_polar_box(context_bounds: np.ndarray, n: int = 21) -> tuple[float, float, float, float]:
@@ -205,5 +225,5 @@ class PriorMeanGP(GaussianProcess):
         return mean + self.prior(X), cov
 
 
-__all__ = ["ReachProbe", "ReachPrior", "PriorMeanGP", "prior_from_dict", "model_floor", "probe_reach", "reach_meta_bounds", "prior_policy",
+__all__ = ["ReachProbe", "extend_probe", "ReachPrior", "PriorMeanGP", "prior_from_dict", "model_floor", "probe_reach", "reach_meta_bounds", "prior_policy",
            "context_polar_box", "RANGE_MARGIN", "YAW_MARGIN"]

@@ -468,6 +468,10 @@ class TemplateTraining:
 
 #: Probe rollouts of the base (:func:`besdrake.search.template_reach.probe_reach`) a template spends by default.
 DEFAULT_PROBES = 7
+#: Extension probes (:func:`besdrake.search.template_reach.extend_probe`) beyond the box's slowest execution time, up
+#: to :data:`EXTEND_FACTOR` x it, where the slowest probe still lands beyond the context box's nearest target (issue 27).
+EXTEND_PROBES = 2
+EXTEND_FACTOR = 2.0
 
 
 def train_template(
@@ -490,6 +494,8 @@ def train_template(
     probes: int = DEFAULT_PROBES,
     reach_prior: bool = True,
     slowest: float = SCALE_SLOWEST,
+    extend_probes: int = EXTEND_PROBES,
+    extend_factor: float = EXTEND_FACTOR,
 ) -> TemplateTraining:
     """Learn a behaviour template from ``base`` with ``method`` in ``n_episodes`` rollouts.
 
@@ -502,7 +508,10 @@ def train_template(
     episode in ``checkpoints`` (counted with the probes) the current policy is evaluated on ``eval_contexts`` (extra
     rollouts that are not training episodes). ``progress(episode, reward)`` is called after every episode.
     ``robot``: the robot of the plans (default: that of the executor's scenario). ``slowest``: the box's slowest
-    execution time, x the base's (``"scale"`` mode, :func:`default_meta_bounds`).
+    execution time, x the base's (``"scale"`` mode, :func:`default_meta_bounds`). Where the slowest probe still lands
+    beyond the context box's nearest target and the box is not given, ``extend_probes`` more probes (out of
+    ``n_episodes``) go up to ``extend_factor`` x that slowest time and the box follows them
+    (:func:`~besdrake.search.template_reach.extend_probe`).
     """
     from besdrake.search.loop import run_contextual_search
 
@@ -513,7 +522,9 @@ def train_template(
     bounds = (default_meta_bounds(base, robot, joint1_mode=joint1_mode, time_mode=time_mode, slowest=slowest) if meta_bounds is None
               else np.asarray(meta_bounds, dtype=float))
     _check_meta_bounds(bounds)
-    probe, bounds = _probe_reach(meta, executor, bounds, n_probes, fixed_bounds=meta_bounds is not None)
+    extend = (extend_probes, extend_factor) if n_probes and n_episodes - n_probes > 4 * extend_probes else (0, 1.0)
+    probe, bounds = _probe_reach(meta, executor, bounds, n_probes, fixed_bounds=meta_bounds is not None, extend=extend)
+    n_probes = 0 if probe is None else max(n_probes, len(probe.taus))
     optimizer = _template_optimizer(method, bounds, seed, probe if reach_prior else None, optimizer_kwargs)
     evaluate = _episode_reward(meta, bounds, executor)
     curve: dict[int, float] = {}
@@ -588,19 +599,22 @@ def _provenance(method: str, loop, n_probes: int, seed: int, meta: MetaDMP, prob
     }
 
 
-def _probe_reach(meta: MetaDMP, executor, bounds: np.ndarray, n_probes: int, fixed_bounds: bool):
+def _probe_reach(meta: MetaDMP, executor, bounds: np.ndarray, n_probes: int, fixed_bounds: bool, extend: tuple[int, float] = (0, 1.0)):
     """The reach probes of :func:`train_template` (None without probes, or when fewer than two landed) and the
-    meta-parameter box they set (``bounds`` unchanged when the caller fixed it)."""
+    meta-parameter box they set (``bounds`` unchanged when the caller fixed it); ``extend``: (probes, factor) of
+    :func:`~besdrake.search.template_reach.extend_probe` where the box is not fixed."""
     if not n_probes:
         return None, bounds
-    from besdrake.search.template_reach import probe_reach, reach_meta_bounds
+    from besdrake.search.template_reach import extend_probe, probe_reach, reach_meta_bounds
 
     try:
         probe = probe_reach(meta, executor, bounds[0, 0], bounds[0, 1], n_probes)
     except ValueError:  # fewer than two probes landed: no model, the box as it is
         return None, bounds
     if not fixed_bounds:
-        bounds = reach_meta_bounds(probe, bounds, CONTEXT_BOUNDS)
+        probe = extend_probe(probe, meta, executor, CONTEXT_BOUNDS, extend[1], extend[0])
+        safe = np.array([[bounds[0, 0], max(bounds[0, 1], float(probe.taus[-1]))], bounds[1]])
+        bounds = reach_meta_bounds(probe, safe, CONTEXT_BOUNDS)
         _check_meta_bounds(bounds)
     return probe, bounds
 
@@ -664,5 +678,5 @@ __all__ = [
     "CONTEXT_BOUNDS", "TEST_CONTEXTS", "METHODS", "JOINT1_MODES", "META_NAMES", "PAPER_MEAN_CM",
     "TemplateError", "MetaDMP", "BehaviorTemplate", "TemplatePool", "TemplateEvaluation", "TemplateTraining",
     "default_meta_bounds", "limit_safe_execution_times", "evaluate_template", "train_template", "touchdowns",
-    "TIME_MODES", "DEFAULT_PROBES", "reach_floor", "SCALE_SLOWEST",
+    "TIME_MODES", "DEFAULT_PROBES", "reach_floor", "SCALE_SLOWEST", "EXTEND_PROBES", "EXTEND_FACTOR",
 ]

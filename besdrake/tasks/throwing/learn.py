@@ -277,11 +277,13 @@ def _imitation_jobs(ctx: Context) -> list:
 # 4. refinement in simulation
 # --------------------------------------------------------------------------------------------
 def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int, tag: str, scouting: bool = True,
-                 target: tuple[float, float] | None = None, plans: int | None = None) -> dict[str, Any]:
+                 target: tuple[float, float] | None = None, plans: int | None = None,
+                 reward_settings: dict[str, Any] | None = None, sigma0: float = 1.0) -> dict[str, Any]:
     """CMA-ES from the best of ``dmps`` (the paper uses all available plans) in ``scenario``. The default search's scouts
     (short first attempts from the best throws) run only with ``scouting`` and where they take at most half of
     ``budget``: a re-refinement from throws refined already goes straight to CMA-ES from the best of them.
-    ``target`` and ``plans`` (runs): the refinement section's unless given."""
+    ``target`` and ``plans`` (runs): the refinement section's unless given; ``reward_settings``: more settings of the
+    task's reward (e.g. the template reach's ``radial``); ``sigma0``: CMA-ES's initial step (normalised units)."""
     from besdrake.search.refinement import (DEFAULT_SCOUTS, SUCCESS_DISTANCE, RefinementProblem, plot_learning_curves, rank_starts,
                                             refine, scout_start_points, scouting_episodes)
     from besdrake.search.refinement.run import stops_at
@@ -290,7 +292,7 @@ def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int
 
     cfg = ctx.config["refinement"]
     task = str(ctx.config.get("task") or DEFAULT_TASK)
-    reward = get_task(task).reward(target=tuple(cfg["target"] if target is None else target))
+    reward = get_task(task).reward(target=tuple(cfg["target"] if target is None else target), **(reward_settings or {}))
     n_runs = int(cfg["plans"] if plans is None else plans)
     robot = ctx.robot(scenario)
     settings = refinement_settings(ctx.config)
@@ -309,7 +311,7 @@ def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int
             """CMA-ES run ``k`` (its own seed and resumable folder) on the shared executor ``ex``."""
             def job(ex):
                 ctx.progress(f"{tag}: CMA-ES run {k + 1}/{n_runs} from throw {index} ({start.distance:.2f} m from the target)")
-                return refine(problem, ex, n_episodes=int(budget), seed=int(cfg["seed"]) + k, out_dir=out / f"run{k}",
+                return refine(problem, ex, n_episodes=int(budget), seed=int(cfg["seed"]) + k, out_dir=out / f"run{k}", sigma0=sigma0,
                               popsize=int(cfg["population"]), stop_on_success=settings["stop_on_success"],
                               stop_distance=settings["stop_distance"], starts=starts, scouts=scouts)
             return job
@@ -572,18 +574,26 @@ def _best_throw(ctx: Context) -> Path:
     return ctx.run.root / "04_refine" / ctx.run.done(4, "refine")["summary"]["best_dmp"]
 
 
+#: What the template's reach refinement scores: "point" the touchdown's distance to ``reach_target``, "range" its
+#: distance from the robot against the target's (any direction: the template's joint-1 goal turns the throw).
+REACH_OBJECTIVES = ("point", "range")
+
+
 def template_reach_settings(config: dict[str, Any]) -> dict[str, Any]:
     """The templates section's reach settings, checked (:class:`~besdrake.pipeline.config.ConfigError`): the reach
-    refinement's ``target`` (m, or None: off) and ``evaluations`` (episodes), and ``slowest`` (the template's slowest
-    execution time, x its base's)."""
+    refinement's ``target`` (m, or None: off), ``evaluations`` (episodes), ``objective`` (:data:`REACH_OBJECTIVES`) and
+    ``sigma`` (its CMA-ES's initial step), ``extend_probes`` (the template's probes beyond its slowest time),
+    and ``slowest`` (the template's slowest execution time, x its base's)."""
     from besdrake.pipeline.config import ConfigError
-    from besdrake.search.templates import SCALE_SLOWEST
+    from besdrake.search.templates import EXTEND_PROBES, SCALE_SLOWEST
 
     cfg = config["templates"]
-    target, budget = cfg.get("reach_target"), cfg.get("reach_evaluations", 0)
+    target, budget, objective = cfg.get("reach_target"), cfg.get("reach_evaluations", 0), cfg.get("reach_objective", "point")
     try:
         target = None if target is None else tuple(float(v) for v in target)
         budget = int(budget)
+        sigma = float(cfg.get("reach_sigma", 1.0))
+        extend = int(cfg.get("extend_probes", EXTEND_PROBES))
         slowest = float(cfg.get("slowest", SCALE_SLOWEST))
     except (TypeError, ValueError) as err:
         raise ConfigError(f"templates: reach_target must be [x, y] in m or null, reach_evaluations an integer and slowest "
@@ -591,9 +601,16 @@ def template_reach_settings(config: dict[str, Any]) -> dict[str, Any]:
     if target is not None and (len(target) != 2 or not np.isfinite(target).all()) or budget < 0:
         raise ConfigError(f"templates: reach_target must be two finite numbers (m) or null and reach_evaluations >= 0, "
                           f"got {cfg.get('reach_target')!r}, {cfg.get('reach_evaluations')!r}")
+    if not 0 <= extend <= 10:
+        raise ConfigError(f"templates: extend_probes must be an integer within [0, 10], got {cfg.get('extend_probes')!r}")
+    if not (np.isfinite(sigma) and 0.0 < sigma <= 5.0):
+        raise ConfigError(f"templates: reach_sigma must be within (0, 5] (CMA-ES's initial step), got {cfg.get('reach_sigma')!r}")
+    if objective not in REACH_OBJECTIVES:
+        raise ConfigError(f"templates: reach_objective must be one of {REACH_OBJECTIVES}, got {objective!r}")
     if not (1.0 < slowest <= 10.0):
         raise ConfigError(f"templates: slowest must be within (1, 10] (x the base's execution time), got {cfg.get('slowest')!r}")
-    return {"target": target if budget > 0 else None, "evaluations": budget, "slowest": slowest}
+    return {"target": target if budget > 0 else None, "evaluations": budget, "slowest": slowest, "objective": objective,
+            "sigma": sigma, "extend_probes": extend}
 
 
 def _template_base(ctx: Context, scenario: str, out: Path) -> tuple[Path, dict[str, Any]]:
@@ -613,8 +630,9 @@ def _template_base(ctx: Context, scenario: str, out: Path) -> tuple[Path, dict[s
     if settings["target"] is None:
         return base_file, {}
     result = _refine_from(ctx, [load_dmp(base_file)], scenario, out, settings["evaluations"], "template reach", scouting=False,
-                          target=settings["target"], plans=1)
-    record = {"target_m": list(settings["target"]), "start_distance_m": result["start_distance_m"],
+                          target=settings["target"], plans=1, reward_settings={"radial": True} if settings["objective"] == "range" else None,
+                          sigma0=settings["sigma"])
+    record = {"target_m": list(settings["target"]), "objective": settings["objective"], "start_distance_m": result["start_distance_m"],
               "best_distance_m": result["best_distance_within_limits_m"], "episodes": int(sum(r["n_episodes"] for r in result["runs"]))}
     if result["runs"][0].get("stop_reason") == "start" or result["best_distance_within_limits_m"] is None:
         return base_file, record | {"kept": False}
@@ -633,14 +651,14 @@ def stage_template(ctx: Context, out: Path) -> dict[str, Any]:
     from besdrake.search.templates import TEST_CONTEXTS, evaluate_template, train_template
 
     cfg = ctx.config["templates"]
-    slowest = template_reach_settings(ctx.config)["slowest"]
+    reach_settings = template_reach_settings(ctx.config)
     method = {"entropy_search": "es", "ucb": "ucb"}.get(cfg["acquisition"], cfg["acquisition"])
     scenario = _refined_scenario(ctx)
     base_file, reach = _template_base(ctx, scenario, out / "reach")
     with _executor(ctx, scenario) as executor:
         training = train_template(
             load_dmp(base_file), executor, method=method, n_episodes=int(cfg["episodes"]), seed=int(cfg["seed"]),
-            name="throw", out_dir=out / "training", slowest=slowest,
+            name="throw", out_dir=out / "training", slowest=reach_settings["slowest"], extend_probes=reach_settings["extend_probes"],
             provenance={"base": str(base_file), "scenario": scenario, "lab": ctx.config["lab"], "demonstrations": ctx.config["demonstrations"]},
         )
         sim_eval = evaluate_template(training.template, executor)

@@ -49,6 +49,9 @@ class ThrowReward:
     violation_offset: float = 1.0
     never_released_penalty: float = 1.0
     dropped_penalty: float = DROPPED_PENALTY
+    #: score the touchdown's distance from the robot against the target's (``| |touchdown| - |target| |``): the direction
+    #: is free, e.g. for a behaviour template's base, whose joint-1 goal turns the throw to any direction (issue 27)
+    radial: bool = False
 
     def __post_init__(self) -> None:
         try:
@@ -62,6 +65,15 @@ class ThrowReward:
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= 0):
                 raise RefinementError(f"{name} must be a finite number >= 0, got {v!r}")
+        if not isinstance(self.radial, (bool, np.bool_)):
+            raise RefinementError(f"radial must be true or false, got {self.radial!r}")
+        self.radial = bool(self.radial)
+
+    def _distance(self, point: np.ndarray) -> float:
+        """Distance (m) of a floor ``point`` (x, y) from the target, or from the target's circle about the robot (``radial``)."""
+        if self.radial:
+            return abs(float(np.hypot(*point)) - float(np.hypot(*self.target)))
+        return float(np.linalg.norm(point - np.asarray(self.target)))
 
     def penalty(self, plan: MotionPlan, limits: JointLimits) -> float:
         """Limit penalty (m) of ``plan`` against the robot's ``limits``: weighted sum of the violations, plus the
@@ -80,10 +92,9 @@ class ThrowReward:
         if outcome.flags.get("sim_failed"):
             return RewardBreakdown(np.nan, np.nan, np.nan, None, flags, outcome.message or "simulation failed")
         penalty = self.penalty(plan, limits)
-        target = np.asarray(self.target)
         if outcome.touchdown is not None and np.isfinite(outcome.touchdown).all():
             td = np.asarray(outcome.touchdown, dtype=float)[:2]
-            distance = float(np.linalg.norm(td - target))
+            distance = self._distance(td)
             dropped = self.dropped_penalty if outcome.flags.get("dropped_early") else 0.0
             return RewardBreakdown(-distance - penalty - dropped, distance, penalty, (float(td[0]), float(td[1])), flags, outcome.message)
         # never released: shaped by where the ball is at the end of the simulation
@@ -91,7 +102,7 @@ class ThrowReward:
         path = path[np.isfinite(path).all(axis=1)]
         if path.size == 0:
             return RewardBreakdown(np.nan, np.nan, np.nan, None, flags, "no ball position recorded")
-        distance = float(np.linalg.norm(path[-1, :2] - target))
+        distance = self._distance(path[-1, :2])
         reward = -distance - penalty - self.never_released_penalty
         return RewardBreakdown(reward, distance, penalty, None, flags, outcome.message or "never released")
 
@@ -99,12 +110,14 @@ class ThrowReward:
         d = {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(self).items()}
         if d["dropped_penalty"] == 0.0:
             del d["dropped_penalty"]  # off: the record of earlier runs (resume checks compare it)
+        if not d["radial"]:
+            del d["radial"]
         return d
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "ThrowReward":
         try:
-            return cls(**{k: (tuple(v) if k == "target" else float(v)) for k, v in d.items()})
+            return cls(**{k: (tuple(v) if k == "target" else v if k == "radial" else float(v)) for k, v in d.items()})
         except TypeError as err:
             raise RefinementError(f"bad reward settings {d!r}: {err}") from err
 
