@@ -70,7 +70,7 @@ def main(argv: list[str] | None = None) -> int:
     from besdrake.search.refinement import MIN_EXECUTION_TIME, ParameterScaling, RefinementProblem, rank_starts, refine, restart_points, scout_start_points, DEFAULT_RETIME, DEFAULT_SCOUT_STARTS
     from besdrake.tasks.throwing.reward import ThrowReward
     from besdrake.search.refinement import DEFAULT_CMA_OPTIONS, DEFAULT_POPSIZE_GROWTH, DEFAULT_RESTART_REGIMES, DEFAULT_STAGNATION_GENERATIONS, STAGNATION_TOL
-    from besdrake.search.refinement import DEFAULT_PATIENCE, DEFAULT_SCOUT_GENERATIONS, DEFAULT_SCOUT_HALVING, DEFAULT_SCOUTS
+    from besdrake.search.refinement import DEFAULT_PATIENCE, DEFAULT_SIGMA0, DEFAULT_SCOUT_GENERATIONS, DEFAULT_SCOUT_HALVING, DEFAULT_SCOUTS
     from besdrake.sim import make_executor
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
@@ -83,7 +83,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--first-seed", type=int, default=0)
     parser.add_argument("--popsize", type=int, default=10, help="CMA-ES population (the paper: 20)")
-    parser.add_argument("--sigma0", type=float, default=1.0)
+    parser.add_argument("--sigma0", type=float, default=DEFAULT_SIGMA0, help="initial CMA-ES step (normalised units; default: refinement.DEFAULT_SIGMA0)")
     parser.add_argument("--penalty-scale", type=float, default=1.0, help="multiply the limit-penalty weights of ThrowReward")
     parser.add_argument("--violation-offset", type=float, default=None, help="reward offset (m) of a throw beyond a limit (default: ThrowReward's, times --penalty-scale)")
     parser.add_argument("--dropped-penalty", type=float, default=None, help="reward penalty (m) of a dropped ball (default: ThrowReward's)")

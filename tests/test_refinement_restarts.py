@@ -418,6 +418,22 @@ def test_scouting_refine_resumes_and_a_default_run_is_another_run(base, tmp_path
             refine(RefinementProblem(COMPI, base), StandIn(), n_episodes=12, **(kw | bad))
 
 
+def test_default_step_is_the_measured_sigma0_and_small_restarts_scale_with_it(base):
+    """The scouts and large restarts start with DEFAULT_SIGMA0, the small restarts below it; an explicit sigma0 rules."""
+    from besdrake.search.refinement import DEFAULT_SIGMA0
+
+    assert 0.0 < DEFAULT_SIGMA0 <= 1.0
+    kw = dict(seed=1, popsize=6, stagnation_generations=2, stagnation_tol=0.5, stop_on_success=False, scout_generations=2)
+    default = refine(RefinementProblem(COMPI, base), StandIn(), n_episodes=150, **kw)
+    large = [a for a in default.attempts if a["regime"] == "large"]
+    small = [a for a in default.attempts if a["regime"] == "small"]
+    assert large and small, default.attempts
+    assert all(a["sigma0"] == DEFAULT_SIGMA0 for a in large)
+    assert all(a["sigma0"] < DEFAULT_SIGMA0 for a in small)
+    other = refine(RefinementProblem(COMPI, base), StandIn(), n_episodes=60, sigma0=0.4, **kw)
+    assert all(a["sigma0"] == 0.4 for a in other.attempts if a["regime"] == "large")
+
+
 def test_meta_stage_and_restarts_do_not_combine(base):
     with pytest.raises(RefinementError, match="do not combine"):
         refine(RefinementProblem(COMPI, base), StandIn(), n_episodes=8, meta_episodes=4, stagnation_generations=3)
@@ -460,7 +476,7 @@ def test_bipop_small_restart_refines_a_near_miss(tmp_path):
                 for f in collect_imitated(["synthetic:5"], tmp_path)]
     with make_executor("serial") as ex:
         index, _ = best_start(problems, ex)
-        result = refine(problems[index], ex, n_episodes=500, seed=1, scouts=0)
+        result = refine(problems[index], ex, n_episodes=500, seed=1, scouts=0, sigma0=1.0)  # the step of that screening
     assert result.success, result.summary()
     # the first (large) attempt stalled; the goal came in a later attempt, and the next after the first is small
     first = result.attempts[0]

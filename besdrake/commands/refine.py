@@ -30,7 +30,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--runs", type=int, default=1, help="independent CMA-ES runs (seeds SEED, SEED+1, ...); the paper: 6")
     parser.add_argument("--episodes", type=int, default=2000, help="episode budget per run (the paper: at most 10000)")
     parser.add_argument("--popsize", type=int, default=10, help="CMA-ES population (default 10, measured better here; the paper: 20)")
-    parser.add_argument("--sigma0", type=float, default=1.0, help="initial step size in normalised units")
+    parser.add_argument("--sigma0", type=float, default=None, help="initial step size in normalised units (default: the refinement's DEFAULT_SIGMA0)")
     parser.add_argument("--meta-episodes", type=int, default=0,
                         help="episodes of a first CMA-ES stage over meta-parameters (joint offsets, goals, execution time) before all 49 (0: none)")
     parser.add_argument("--meta-sigma", type=float, default=1.0, help="initial step size of the meta-parameter stage")
@@ -163,6 +163,10 @@ def _check_args(args: argparse.Namespace) -> None:
     for name, v, lo in (("--runs", args.runs, 1), ("--episodes", args.episodes, 1), ("--popsize", args.popsize, 2), ("--workers", args.workers, 1)):
         if v < lo:
             raise UserError(f"{name} must be >= {lo}, got {v}")
+    if args.sigma0 is None:
+        from besdrake.search.refinement.settings import DEFAULT_SIGMA0
+
+        args.sigma0 = DEFAULT_SIGMA0
     if not (np.isfinite(args.sigma0) and args.sigma0 > 0):
         raise UserError(f"--sigma0 must be > 0, got {args.sigma0}")
     if args.meta_episodes < 0 or not (np.isfinite(args.meta_sigma) and args.meta_sigma > 0):

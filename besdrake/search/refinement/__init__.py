@@ -45,7 +45,7 @@ from besdrake.search.refinement.scaling import ParameterScaling
 from besdrake.search.refinement.settings import (ACCELERATION_UNIT, DEFAULT_CMA_OPTIONS, DEFAULT_PATIENCE, DEFAULT_POPSIZE,
                                                  DEFAULT_POPSIZE_GROWTH, DEFAULT_RESTART_REGIMES, DEFAULT_RETIME,
                                                  DEFAULT_SCOUT_GENERATIONS, DEFAULT_SCOUT_HALVING, DEFAULT_SCOUT_STARTS,
-                                                 DEFAULT_SCOUTS, DEFAULT_STAGNATION_GENERATIONS, DETAILS_FILE,
+                                                 DEFAULT_SCOUTS, DEFAULT_SIGMA0, DEFAULT_STAGNATION_GENERATIONS, DETAILS_FILE,
                                                  MAX_EXECUTION_TIME, META_OFFSET_UNIT, MIN_EXECUTION_TIME, PAPER_MAX_EPISODES,
                                                  PAPER_POPSIZE, PLAIN_SEARCH, PLAN_DT, POSITION_UNIT, PROBLEM_FILE,
                                                  RESTART_REGIMES, RETIME_MARGIN, RETIME_ROUNDS, STAGNATION_TOL,
@@ -54,7 +54,7 @@ from besdrake.search.refinement.starts import (best_start, rank_starts, restart_
                                                scout_starts_checked)
 
 __all__ = [
-    "SUCCESS_DISTANCE", "DEFAULT_POPSIZE", "MIN_EXECUTION_TIME", "MAX_EXECUTION_TIME", "PAPER_POPSIZE",
+    "SUCCESS_DISTANCE", "DEFAULT_POPSIZE", "DEFAULT_SIGMA0", "MIN_EXECUTION_TIME", "MAX_EXECUTION_TIME", "PAPER_POPSIZE",
     "RefinementError", "RewardBreakdown", "ParameterScaling", "RefinementProblem",
     "RefinementResult", "best_start", "rank_starts", "restart_points", "scout_start_points", "scout_points",
     "scout_starts_checked", "scouting_episodes", "make_optimizer", "refine", "read_details", "params_key",

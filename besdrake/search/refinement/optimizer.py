@@ -11,7 +11,7 @@ import numpy as np
 from besdrake.search.refinement.problem import RefinementProblem
 from besdrake.search.refinement.settings import (DEFAULT_CMA_OPTIONS, DEFAULT_PATIENCE, DEFAULT_POPSIZE, DEFAULT_POPSIZE_GROWTH,
                                                  DEFAULT_RESTART_REGIMES, DEFAULT_SCOUT_GENERATIONS, DEFAULT_SCOUT_HALVING,
-                                                 DEFAULT_SCOUTS, DEFAULT_STAGNATION_GENERATIONS, META_OFFSET_UNIT,
+                                                 DEFAULT_SCOUTS, DEFAULT_SIGMA0, DEFAULT_STAGNATION_GENERATIONS, META_OFFSET_UNIT,
                                                  RESTART_REGIMES, STAGNATION_TOL, RefinementError)
 
 
@@ -90,7 +90,7 @@ def scouting_episodes(popsize: int = DEFAULT_POPSIZE, scouts: int | None = None,
 def make_optimizer(
     problem: RefinementProblem,
     seed: int = 0,
-    sigma0: float = 1.0,
+    sigma0: float = DEFAULT_SIGMA0,
     popsize: int = DEFAULT_POPSIZE,
     x0: np.ndarray | None = None,
     *,

@@ -17,7 +17,7 @@ from besdrake._io import write_json
 from besdrake.search.refinement.optimizer import _scouting_defaults, _search_defaults, make_optimizer
 from besdrake.search.refinement.problem import RefinementProblem
 from besdrake.search.refinement.records import params_key, read_details
-from besdrake.search.refinement.settings import (DEFAULT_PATIENCE, DEFAULT_POPSIZE, DETAILS_FILE, PROBLEM_FILE, STAGNATION_TOL,
+from besdrake.search.refinement.settings import (DEFAULT_PATIENCE, DEFAULT_POPSIZE, DEFAULT_SIGMA0, DETAILS_FILE, PROBLEM_FILE, STAGNATION_TOL,
                                                  SUCCESS_DISTANCE, RefinementError)
 
 
@@ -93,7 +93,7 @@ def refine(
     n_episodes: int = 2000,
     seed: int = 0,
     out_dir: str | Path | None = None,
-    sigma0: float = 1.0,
+    sigma0: float = DEFAULT_SIGMA0,
     popsize: int = DEFAULT_POPSIZE,
     stop_on_success: bool = True,
     progress: Callable[[int, float, float], None] | None = None,
