@@ -350,7 +350,7 @@ def test_extension_probes_reach_slower_where_the_slowest_probe_lands_beyond_the_
     them the box ends at ``slowest``."""
     tau = float(base.execution_time)
     ex = PolarStandIn()  # range 3.3 m - duration
-    t = train_template(base, ex, "es", 24, seed=0, slowest=1.2).template
+    t = train_template(base, ex, "es", 24, seed=0, slowest=1.2, extend_probes=2).template
     assert ex.calls == 24 and t.provenance["n_probe_rollouts"] == 6 + 2
     taus = np.array(t.provenance["reach_probe"]["taus"])
     assert taus.size == 8 and taus[-1] == pytest.approx(2.4 * tau, rel=1e-3)

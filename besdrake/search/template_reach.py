@@ -101,7 +101,7 @@ def probe_reach(meta, executor, tau_lo: float, tau_hi: float, n: int = 7) -> Rea
 
 def extend_probe(probe: ReachProbe, meta, executor, context_bounds: np.ndarray, factor: float, n: int) -> ReachProbe:
     """``probe`` with ``n`` more probes beyond its slowest execution time, up to ``factor`` x it (geometric grid), where
-    its slowest probe still lands beyond the context box's nearest target (less :data:`RANGE_MARGIN`): a throw that
+    its slowest probe still lands beyond the context box's nearest target (less :data:`RANGE_MARGIN`): a base that
     still lands far when played slower needs a slower end of the box for the near targets, while the probes within
     the first range keep their spacing (issue 27). Slower plays of a ``"scale"`` base stay within the joint limits."""
     from besdrake.search.templates import touchdowns
