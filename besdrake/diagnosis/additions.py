@@ -24,6 +24,7 @@ from besdrake.diagnosis import fitting
 from besdrake.diagnosis import settings
 from besdrake.diagnosis.allowed import allowed_range
 from besdrake.diagnosis.settings import ALPHA, EXCLUDE_FRACTION, UNCONSTRAINED_COVER
+from besdrake.diagnosis.stats import plan_of_entries, plan_scores
 
 
 #: "Use the setting" for an argument whose None means "off" (:func:`listed`'s ``pair_dbic``).
@@ -70,6 +71,7 @@ def additions_beside(prob: fitting.Problem, sens: fitting.Sensitivity, best: fit
     if best.y_fit is None or best.jac is None:
         return []
     q = float(stats.chi2.ppf(1.0 - ALPHA, 1))
+    entry_key = None if keys is None else plan_of_entries(prob, keys)
     P_b, b_b = fitting._prior_rows(best.specs, best.theta)
     M = np.vstack([best.jac, P_b]) if best.specs else np.zeros((prob.n, 0))
     r = np.concatenate([prob.weighted(best.y_fit), b_b]) if best.specs else prob.weighted(best.y_fit)
@@ -102,19 +104,19 @@ def additions_beside(prob: fitting.Problem, sens: fitting.Sensitivity, best: fit
                             "covers": bool(covers[-1]), "z": score / np.sqrt(info) if info > 0 else 0.0,
                             "signature_est": ap2 * (est - s_.nominal) ** 2,
                             "signature_max": ap2 * max(abs(lo - s_.nominal), abs(hi - s_.nominal)) ** 2,
-                            "z_plans": _plan_z(prob, a_perp[:prob.n], r[:prob.n], keys)}
+                            "z_plans": _plan_z(a_perp[:prob.n], r[:prob.n], entry_key)}
         out.append(Addition(e, allowed, units, float(max(fracs)), float(max(gains)), all(covers), per))
     out.sort(key=lambda x: -x.max_fraction)
     return out
 
 
-def _plan_z(prob: fitting.Problem, a: np.ndarray, r: np.ndarray, keys: Sequence[str] | None) -> float | None:
+def _plan_z(a: np.ndarray, r: np.ndarray, entry_key: np.ndarray | None) -> float | None:
     """The score of the residuals ``r`` along ``a`` over the cluster-robust SD with the plans as the units (the per-plan
-    scores' root sum of squares): the noise model is not trusted between plans (issue 25). None without ``keys``."""
-    if keys is None:
+    scores' root sum of squares): the noise model is not trusted between plans (issue 25). None without the entries'
+    plans (:func:`~besdrake.diagnosis.stats.plan_of_entries`)."""
+    if entry_key is None:
         return None
-    entry_key = np.array([keys[i] for i in np.nonzero(prob.mask)[0]])
-    per = np.array([float(a[entry_key == k] @ r[entry_key == k]) for k in dict.fromkeys(entry_key.tolist())])
+    per = plan_scores(a, r, entry_key)
     den = float(np.sqrt(np.sum(per ** 2)))
     return float(per.sum() / den) if den > 0 else 0.0
 

@@ -71,6 +71,16 @@ def _lack_of_fit_p(prob: fitting.Problem, y_fit: np.ndarray, k: int, noise_model
     return p, ps
 
 
+def plan_of_entries(prob: fitting.Problem, keys: Sequence[str]) -> np.ndarray:
+    """The plan key of every usable residual entry of ``prob`` (``keys``: one per trial)."""
+    return np.array([keys[i] for i in np.nonzero(prob.mask)[0]])
+
+
+def plan_scores(u: np.ndarray, r: np.ndarray, entry_key: np.ndarray) -> np.ndarray:
+    """Per plan (in order of first appearance), the score ``u . r`` over that plan's entries."""
+    return np.array([float(u[entry_key == k] @ r[entry_key == k]) for k in dict.fromkeys(entry_key.tolist())])
+
+
 def _extra_effect_significant(prob: fitting.Problem, big: fitting.CandidateFit, effect: str, keys: Sequence[str], alpha: float = ALPHA) -> tuple[bool, float]:
     """Whether ``effect``'s parameters in the refined candidate ``big`` differ from nominal significantly when the
     plans, not the residual entries, are the independent units: Wald test with the cluster-robust (sandwich)
@@ -84,7 +94,7 @@ def _extra_effect_significant(prob: fitting.Problem, big: fitting.CandidateFit, 
     if not idx or A is None or big.y_fit is None or A.shape[0] != prob.n:
         return True, float("nan")
     r = prob.weighted(big.y_fit)
-    entry_key = np.array([keys[i] for i in np.nonzero(prob.mask)[0]])
+    entry_key = plan_of_entries(prob, keys)
     plans = list(dict.fromkeys(entry_key.tolist()))
     U = len(plans)
     if U < NESTED_TEST_MIN_PLANS:
@@ -145,12 +155,11 @@ def _extra_effect_scores(prob: fitting.Problem, sub: fitting.CandidateFit, big: 
         return None
     r = prob.weighted(sub.y_fit)
     u = _extra_direction(prob, sub, big)
-    entry_key = np.array([keys[i] for i in np.nonzero(prob.mask)[0]])
-    plans = list(dict.fromkeys(entry_key.tolist()))
+    entry_key = plan_of_entries(prob, keys)
     uu = float(u @ u)
-    if len(plans) < NESTED_TEST_MIN_PLANS or not np.isfinite(uu) or uu <= 0.0:
+    if len(dict.fromkeys(entry_key.tolist())) < NESTED_TEST_MIN_PLANS or not np.isfinite(uu) or uu <= 0.0:
         return None
-    return np.array([float(u[entry_key == k] @ r[entry_key == k]) for k in plans]), uu
+    return plan_scores(u, r, entry_key), uu
 
 
 def _repeat_scale(prob: fitting.Problem, u: np.ndarray, keys: Sequence[str]) -> tuple[float, float]:

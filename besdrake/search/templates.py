@@ -526,7 +526,8 @@ def train_template(
     _check_meta_bounds(bounds)
     extend = (extend_probes, extend_factor) if n_probes and n_episodes - n_probes > 4 * extend_probes else (0, 1.0)
     probe, bounds = _probe_reach(meta, executor, bounds, n_probes, fixed_bounds=meta_bounds is not None, extend=extend)
-    n_probes = 0 if probe is None else max(n_probes, len(probe.taus))
+    if probe is not None:  # extension probes are episodes too
+        n_probes = max(n_probes, len(probe.taus))
     optimizer = _template_optimizer(method, bounds, seed, probe if reach_prior else None, optimizer_kwargs)
     evaluate = _episode_reward(meta, bounds, executor)
     curve: dict[int, float] = {}

@@ -278,13 +278,14 @@ def _imitation_jobs(ctx: Context) -> list:
 # --------------------------------------------------------------------------------------------
 def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int, tag: str, scouting: bool = True,
                  target: tuple[float, float] | None = None, plans: int | None = None,
-                 reward_settings: dict[str, Any] | None = None, sigma0: float = 1.0) -> dict[str, Any]:
+                 reward_settings: dict[str, Any] | None = None, sigma0: float | None = None) -> dict[str, Any]:
     """CMA-ES from the best of ``dmps`` (the paper uses all available plans) in ``scenario``. The default search's scouts
     (short first attempts from the best throws) run only with ``scouting`` and where they take at most half of
     ``budget``: a re-refinement from throws refined already goes straight to CMA-ES from the best of them.
     ``target`` and ``plans`` (runs): the refinement section's unless given; ``reward_settings``: more settings of the
-    task's reward (e.g. the template reach's ``radial``); ``sigma0``: CMA-ES's initial step (normalised units)."""
-    from besdrake.search.refinement import (DEFAULT_SCOUTS, SUCCESS_DISTANCE, RefinementProblem, plot_learning_curves, rank_starts,
+    task's reward (e.g. the template reach's ``radial``); ``sigma0``: CMA-ES's initial step (normalised units; None: the
+    refinement's default)."""
+    from besdrake.search.refinement import (DEFAULT_SCOUTS, DEFAULT_SIGMA0, SUCCESS_DISTANCE, RefinementProblem, plot_learning_curves, rank_starts,
                                             refine, scout_start_points, scouting_episodes)
     from besdrake.search.refinement.run import stops_at
     from besdrake.sim.scheduler import run_concurrently
@@ -311,7 +312,8 @@ def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int
             """CMA-ES run ``k`` (its own seed and resumable folder) on the shared executor ``ex``."""
             def job(ex):
                 ctx.progress(f"{tag}: CMA-ES run {k + 1}/{n_runs} from throw {index} ({start.distance:.2f} m from the target)")
-                return refine(problem, ex, n_episodes=int(budget), seed=int(cfg["seed"]) + k, out_dir=out / f"run{k}", sigma0=sigma0,
+                return refine(problem, ex, n_episodes=int(budget), seed=int(cfg["seed"]) + k, out_dir=out / f"run{k}",
+                              sigma0=DEFAULT_SIGMA0 if sigma0 is None else sigma0,
                               popsize=int(cfg["population"]), stop_on_success=settings["stop_on_success"],
                               stop_distance=settings["stop_distance"], starts=starts, scouts=scouts)
             return job
@@ -586,13 +588,14 @@ def template_reach_settings(config: dict[str, Any]) -> dict[str, Any]:
     and ``slowest`` (the template's slowest execution time, x its base's)."""
     from besdrake.pipeline.config import ConfigError
     from besdrake.search.templates import EXTEND_PROBES, SCALE_SLOWEST
+    from besdrake.search.refinement import DEFAULT_SIGMA0
 
     cfg = config["templates"]
     target, budget, objective = cfg.get("reach_target"), cfg.get("reach_evaluations", 0), cfg.get("reach_objective", "point")
     try:
         target = None if target is None else tuple(float(v) for v in target)
         budget = int(budget)
-        sigma = float(cfg.get("reach_sigma", 1.0))
+        sigma = float(cfg.get("reach_sigma", DEFAULT_SIGMA0))
         extend = int(cfg.get("extend_probes", EXTEND_PROBES))
         slowest = float(cfg.get("slowest", SCALE_SLOWEST))
     except (TypeError, ValueError) as err:
