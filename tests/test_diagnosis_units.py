@@ -647,3 +647,47 @@ def test_refine_stops_a_hopeless_rival_early_and_leaves_a_close_one_alone():
     assert hopeless.chi2 - free.chi2 <= fitting.FLOOR_GAIN_FRACTION * free.chi2 * 10
     close, n_close = run(free.chi2)
     assert n_close == n_free and close.chi2 == pytest.approx(free.chi2)
+
+
+def test_a_pair_warm_started_from_a_single_is_credited_with_its_own_fit_only():
+    """A pair whose parameter selection dropped a parameter its single effect moved must not inherit the single's
+    predictions: its chi2 is that of its own parameters (before the fix it kept the single's chi2 at fewer parameters)."""
+    rng = np.random.default_rng(7)
+    j1 = fitting.ParamSpec("joint_offset", "joint1", 0.0, -0.1, 0.1, 0.01, "rad")
+    j2 = fitting.ParamSpec("joint_offset", "joint2", 0.0, -0.1, 0.1, 0.01, "rad")
+    radius = fitting.ParamSpec("ball", "radius", 0.035, 0.02, 0.05, 0.001, "m")
+    N = 25
+    y0 = rng.normal(0, 1, (N, N_FEATURES))
+    dy = {s.key: rng.normal(0, 1, (N, N_FEATURES)) for s in (j1, j2, radius)}
+    calls = []
+
+    def simulate_one(effects):
+        calls.append(effects)
+        y = y0.copy()
+        for e, params in effects.items():
+            for name, v in params.items():
+                nominal = 0.035 if name == "radius" else 0.0
+                y = y + (v - nominal) * dy[f"{e}.{name}"] / (0.01 if name == "radius" else 0.05)
+        return y
+
+    prob = fitting.Problem(simulate_one({"joint_offset": {"joint1": 0.02, "joint2": -0.03}})
+                           + rng.normal(0, 0.05, y0.shape), y0, np.full(N_FEATURES, 0.05))
+    single_theta = np.array([0.025, -0.03])
+    single = fitting.CandidateFit(effects=("joint_offset",), specs=[j1, j2], theta=single_theta, stderr=np.zeros(2), chi2=0.0, n=prob.n, k=2,
+                                  refined=True, y_fit=simulate_one(fitting.effects_from([j1, j2], single_theta)))
+    calls.clear()
+    # The pair holds both joints: the single's predictions are its start as they are (no rollout).
+    th, y = fitting.warm_start([j1, j2, radius], single, simulate_one)
+    assert not calls and y is single.y_fit and th.tolist() == [0.025, -0.03, 0.035]
+    # The pair's selection kept joint 2 only: the start is simulated at the pair's own parameters.
+    th, y = fitting.warm_start([j2, radius], single, simulate_one)
+    assert len(calls) == 1 and th.tolist() == [-0.03, 0.035]
+    np.testing.assert_allclose(y, simulate_one(fitting.effects_from([j2, radius], th)))
+    J = prob.weighted_jac(np.array([dy[j2.key] / 0.05, dy[radius.key] / 0.01]))
+    pair = fitting.CandidateFit(effects=("ball", "joint_offset"), specs=[j2, radius], theta=np.array([0.0, 0.035]), stderr=np.zeros(2), chi2=0.0,
+                                n=prob.n, k=2, jac=J)
+    fitting.refine(prob, pair, simulate_one, iterations=5, starts=[(th, y)], try_linear=False)
+    r = prob.weighted(simulate_one(fitting.effects_from(pair.specs, pair.theta)))
+    assert pair.chi2 == pytest.approx(float(r @ r), rel=1e-9)
+    r_single = prob.weighted(single.y_fit)
+    assert pair.chi2 > 10 * float(r_single @ r_single)  # without joint 1 the pair cannot fit what the single does

@@ -452,6 +452,27 @@ def refine(
     return fit
 
 
+def warm_start(specs: list[ParamSpec], sub: CandidateFit, simulate_one: Callable[[dict], np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """A start ``(theta, y_sim)`` for a candidate with ``specs`` from the refined candidate ``sub`` it contains: ``sub``'s
+    values where ``specs`` hold its parameters, nominal elsewhere. ``sub``'s own predictions are reused only where they
+    are the start's (every parameter ``sub`` moved is among ``specs``); otherwise the start is simulated (one batch).
+
+    Why: a pair's parameter selection may drop parameters its single effect moved (the single fits six encoder offsets,
+    the pair two of them and the object's size); reusing the single's predictions then pairs a point with a residual it
+    does not have, the pair is credited with the single's chi2 at fewer parameters, and every Broyden update against
+    that residual corrupts its Jacobian (benchmark trial 15: the pair of the hidden ball and joint offset stalled at
+    chi2 830 against the single's 597)."""
+    keys = [s_.key for s_ in specs]
+    th = np.array([s_.nominal for s_ in specs])
+    dropped = False
+    for s_, v in zip(sub.specs, sub.theta):
+        if s_.key in keys:
+            th[keys.index(s_.key)] = v
+        elif v != s_.nominal:
+            dropped = True
+    return th, (simulate_one(effects_from(specs, th)) if dropped else sub.y_fit)
+
+
 def _best_start(prob: Problem, fit: CandidateFit, simulate_one: Callable[[dict], np.ndarray],
                 starts: Sequence[tuple[np.ndarray, np.ndarray]], try_linear: bool, nominal_secants: bool):
     """:func:`refine`'s start: the Jacobian with the secants from the nominal to every start point, and the start point

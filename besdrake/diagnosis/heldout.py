@@ -47,14 +47,18 @@ def heldout_gain(ev: Any, sens: fitting.Sensitivity, best_fit: fitting.Candidate
 def _fold_disparity(ev: Any, sens: fitting.Sensitivity, best_fit: fitting.CandidateFit, best_shift, train: list[int], test: list[int],
                     iterations: int) -> np.ndarray:
     """Outcome disparity of the ``test`` trials under the best cause refitted on the ``train`` trials only: warm
-    start at the all-data optimum (its simulated features of the training trials are known), then Gauss-Newton."""
+    start at the all-data optimum (its simulated features of the training trials are known, or simulated where the fold's
+    parameter selection dropped a parameter the optimum moved: :func:`~besdrake.diagnosis.fitting.warm_start`), then Gauss-Newton."""
     td = ev.model.slices()[ev.model.outcome]
     sim = ev.sim
     prob_k = fitting.Problem(ev.y_meas, ev.y0, ev.nm.matrix(len(ev.y_meas)), rows=train, cov=ev.nm.covariances(len(ev.y_meas)))
     fit_k = fitting.linear_fit(prob_k, sens, best_fit.effects, select=settings.SELECT_PARAMETERS)
-    th0 = np.array([best_fit.theta[best_fit.specs.index(s_)] if s_ in best_fit.specs else s_.nominal for s_ in fit_k.specs])
-    starts = [(th0, best_fit.y_fit)] if best_fit.y_fit is not None else []
-    fitting.refine(prob_k, fit_k, lambda e, tr=train: sim.one(e, rows=tr, shift=best_shift), iterations=iterations, starts=starts, try_linear=False)
+
+    def simulate(effects: dict) -> np.ndarray:
+        return sim.one(effects, rows=train, shift=best_shift)
+
+    starts = [fitting.warm_start(fit_k.specs, best_fit, simulate)] if best_fit.y_fit is not None else []
+    fitting.refine(prob_k, fit_k, simulate, iterations=iterations, starts=starts, try_linear=False)
     y_test = sim.one(fit_k.parameters(), rows=test, shift=best_shift)
     return np.linalg.norm(ev.y_meas[test][:, td] - y_test[test][:, td], axis=1)
 

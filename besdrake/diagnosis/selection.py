@@ -64,11 +64,10 @@ def _forward_pairs(prob: fitting.Problem, fits: list[fitting.CandidateFit], sens
     proposals.sort(key=lambda f: f.bic)
     done = []
     for f in proposals[:FORWARD_TOP]:
-        th = np.array([lead_theta.get(s_.key, s_.nominal) for s_ in f.specs])
-        fitting.refine(prob, f, lambda e: sim.one(e, shift=sh), iterations=iterations, starts=[(th, lead.y_fit)], nominal_secants=False)
+        start = fitting.warm_start(f.specs, lead, lambda e: sim.one(e, shift=sh))
+        fitting.refine(prob, f, lambda e: sim.one(e, shift=sh), iterations=iterations, starts=[start], nominal_secants=False)
         done.append(f.effects)
     return done
-
 
 
 def placement_starts(prob: fitting.Problem, fits: list[fitting.CandidateFit], sim: _Sim, top: list[fitting.CandidateFit],
@@ -112,14 +111,10 @@ def refine_leaders(prob: fitting.Problem, fits: list[fitting.CandidateFit], sens
     refined_singles: dict[str, fitting.CandidateFit] = {}
     for f in to_refine:
         starts = []
-        for e in f.effects:  # warm starts of a pair from its refined single effects (no new rollouts)
+        for e in f.effects:  # warm starts of a pair from its refined single effects
             sf = refined_singles.get(e)
             if sf is not None and len(f.effects) > 1:
-                th = np.array([s.nominal for s in f.specs])
-                for s_, v in zip(sf.specs, sf.theta):
-                    if s_ in f.specs:
-                        th[f.specs.index(s_)] = v
-                starts.append((th, sf.y_fit))
+                starts.append(fitting.warm_start(f.specs, sf, lambda e_: sim.one(e_)))
         starts += extra_starts.get(f.effects, [])
         fitting.refine(prob, f, lambda e: sim.one(e), iterations=iterations, starts=starts)
         if len(f.effects) == 1:
