@@ -24,9 +24,11 @@ PAPER_MAX_EPISODES = 10_000
 DEFAULT_POPSIZE = 10
 #: Initial CMA-ES step (normalised units) of the scouts and the large restarts; the small restarts draw
 #: ``DEFAULT_SIGMA0 * 10**(-2u)``. Session 20 measured that with 1.0 the population stays 0.7-0.9 units wide for 20-40
-#: generations (step-size adaptation in 49 dimensions is slow) and failed runs climb in rare jumps; 0.4 was screened on
-#: two failing learn runs only (subject 0 seed 1: fail 0.264 m -> 0.1 m at episode 335; subject 4 seed 0: fail 0.217 ->
-#: fail 0.211 m), not on the runs that succeed, so the default stays 1.0 (``--sigma0`` in the bench and ``besdrake refine``).
+#: generations (step-size adaptation in 49 dimensions is slow) and failed runs climb in rare jumps. 0.4 on all ten learn
+#: runs (subjects 0-4, seeds 0 and 1; sessions 20-21), episodes to 0.1 m for 1.0 / 0.4: 491 / 420, fail / 335,
+#: 708 / 510, fail / fail, 190 / 247, 177 / 248, 311 / 419, 268 / 302, fail / fail, 632 / fail: 7 of 10 reach it either
+#: way, median 561.5 / 419.5, 0.4 better on 3 runs and worse on 5: within the seeds' scatter, so the default stays 1.0
+#: (``--sigma0`` in the bench and ``besdrake refine``).
 DEFAULT_SIGMA0 = 1.0
 #: Plan sampling step (s) for the DMP rollout that the simulation executes.
 PLAN_DT = 0.01
