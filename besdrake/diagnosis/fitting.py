@@ -460,7 +460,7 @@ def warm_start(specs: list[ParamSpec], sub: CandidateFit, simulate_one: Callable
     Why: a pair's parameter selection may drop parameters its single effect moved (the single fits six encoder offsets,
     the pair two of them and the object's size); reusing the single's predictions then pairs a point with a residual it
     does not have, the pair is credited with the single's chi2 at fewer parameters, and every Broyden update against
-    that residual corrupts its Jacobian (benchmark trial 15: the pair of the hidden ball and joint offset stalled at
+    that residual corrupts its Jacobian (diagnosis benchmark trial 15: the pair of the hidden object size and joint offset stalled at
     chi2 830 against the single's 597)."""
     keys = [s_.key for s_ in specs]
     th = np.array([s_.nominal for s_ in specs])
