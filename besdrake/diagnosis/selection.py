@@ -114,9 +114,9 @@ def refine_leaders(prob: fitting.Problem, fits: list[fitting.CandidateFit], sens
         for e in f.effects:  # warm starts of a pair from its refined single effects
             sf = refined_singles.get(e)
             if sf is not None and len(f.effects) > 1:
-                starts.append(fitting.warm_start(f.specs, sf, lambda e_: sim.one(e_)))
+                starts.append(fitting.warm_start(f.specs, sf, sim.one))
         starts += extra_starts.get(f.effects, [])
-        fitting.refine(prob, f, lambda e: sim.one(e), iterations=iterations, starts=starts)
+        fitting.refine(prob, f, sim.one, iterations=iterations, starts=starts)
         if len(f.effects) == 1:
             refined_singles[f.effects[0]] = f
     local_shift: dict[tuple[str, ...], tuple[np.ndarray, np.ndarray]] = {}
