@@ -61,3 +61,13 @@ def test_thresholds_can_be_swept_and_no_rival_means_no_margin_limit():
     assert is_high(_basis(extra_effect_p=0.02), extra_p=0.01)
     assert not is_high(_basis(rival_margin_dbic=12.0), margin_dbic=15.0)
     assert settings.HIGH_MAX_MOVED >= 1 and 0 < settings.HIGH_EXTRA_P < 1 and math.isfinite(settings.HIGH_MARGIN_DBIC)
+
+
+def test_the_added_effect_may_be_judged_with_the_plans_as_the_units():
+    # A likelihood-ratio gain the plans do not bear out (issue 25: the plans scatter more than the noise model says).
+    b = _basis(extra_effect_p=0.01, extra_effect_p_plans=0.3)
+    assert not is_high(b, plans=False)
+    assert is_high(b, plans=True)
+    # ... and the other way round; without a plan-level p the likelihood ratio is read.
+    assert not is_high(_basis(extra_effect_p=0.5, extra_effect_p_plans=0.001), plans=True)
+    assert not is_high(_basis(extra_effect_p=0.01, extra_effect_p_plans=None), plans=True)

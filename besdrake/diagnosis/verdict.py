@@ -249,18 +249,29 @@ def second_allowed(basis: dict, z_alpha: float | None | object = None, plans: bo
     return any(abs((r["z_plans"] if plans else r["z"]) or 0.0) >= cut for r in rows)
 
 
-def is_high(basis: dict, margin_dbic: float | None = None, extra_p: float | None = None, max_moved: int | None = None, second: bool = True) -> bool:
+def is_high(basis: dict, margin_dbic: float | None = None, extra_p: float | None = None, max_moved: int | None = None, second: bool = True,
+            plans: bool | None = None) -> bool:
     """"high" confidence for a named cause, from its :func:`confidence_basis` (the thresholds default to the settings'
-    HIGH_MARGIN_DBIC, HIGH_EXTRA_P and HIGH_MAX_MOVED; a benchmark passes others to calibrate them; switched off with
-    VERIFY_SINGLES)."""
+    HIGH_MARGIN_DBIC, HIGH_EXTRA_P, HIGH_MAX_MOVED and HIGH_EXTRA_P_PLANS; a benchmark passes others to calibrate them;
+    switched off with VERIFY_SINGLES)."""
     margin_dbic = HIGH_MARGIN_DBIC if margin_dbic is None else margin_dbic
     extra_p = HIGH_EXTRA_P if extra_p is None else extra_p
     max_moved = HIGH_MAX_MOVED if max_moved is None else max_moved
     margin = np.inf if basis["rival_margin_dbic"] is None else basis["rival_margin_dbic"]
-    strict = not settings.VERIFY_SINGLES or (margin >= margin_dbic and basis["extra_effect_p"] >= extra_p
+    strict = not settings.VERIFY_SINGLES or (margin >= margin_dbic and added_effect_p(basis, plans) >= extra_p
                                              and basis.get("moved_parameters", 0) <= max_moved and not basis.get("immaterial_extra", False)
                                              and not (second and second_allowed(basis)))
     return bool(basis["explained"] and not basis["separable_rival"] and basis["p_value"] >= CONFIDENT_P and not basis["outcome_only"] and strict)
+
+
+def added_effect_p(basis: dict, plans: bool | None = None) -> float:
+    """The p-value of the strongest added effect that "high" reads: with the plans as the units where ``plans``
+    (default HIGH_EXTRA_P_PLANS) and the basis has one, else the likelihood ratio's."""
+    plans = settings.HIGH_EXTRA_P_PLANS if plans is None else plans
+    p_plans = basis.get("extra_effect_p_plans")
+    if plans and p_plans is not None:
+        return float(p_plans)
+    return float(basis["extra_effect_p"])
 
 
 def judge(prob: fitting.Problem, sens: fitting.Sensitivity, fits: list[fitting.CandidateFit], causes: list[Cause], ev: Any,
