@@ -296,7 +296,7 @@ def judge(prob: fitting.Problem, sens: fitting.Sensitivity, fits: list[fitting.C
     # "high": the plan-level test was calibrated on a handful of benchmark trials only (CALIBRATION.md).
     basis["immaterial_extra"] = immaterial_extra(fits, ev.nm, ev.measured_groups)
     # The evidence for an added effect with the plans as the units (calibrated where the likelihood ratio is not; recorded
-    # for the benchmark's sweep, the rule above still uses the likelihood ratio).
+    # for the benchmark's sweep; "high" reads it only with HIGH_EXTRA_P_PLANS, off: session 22 measured a new confidently wrong answer).
     basis["extra_effect_p_plans"] = extra_effect_p_plans(prob, fits, causes, ev.keys)
     basis["extra_effect_scatter"] = extra_effect_scatter(prob, fits, causes, ev.keys)
     basis["noise_model"] = "within-trial covariance" if getattr(prob, "cov", None) is not None else "diagonal"
