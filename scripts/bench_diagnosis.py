@@ -294,8 +294,9 @@ SWEEP_MAX_MOVED = (1, 2, 3, 99)
 
 def confidence_sweep(known: list[dict], unknown: list[dict]) -> list[dict]:
     """The "high" level re-decided from each trial's recorded confidence basis under other thresholds: per (margin,
-    extra p, moved parameters, the added effect's p with the plans as the units or the likelihood ratio's) how many answers would be "high", how many of those right (up to structural identity), and how many
-    confidently wrong (an unknown effect named with "high" counts). Trials without a named cause keep their level."""
+    extra p, moved parameters, the added effect's p with the plans as the units or the likelihood ratio's) how many
+    answers would be "high", how many of those right (up to structural identity), and how many confidently wrong
+    (an unknown effect named with "high" counts). Trials without a named cause keep their level."""
     from besdrake.diagnosis.verdict import is_high
 
     out = []

@@ -4,6 +4,7 @@ placement correction at a candidate's own parameters, and parsimony (effects the
 from __future__ import annotations
 
 from dataclasses import replace
+from functools import partial
 
 import numpy as np
 
@@ -30,9 +31,10 @@ def _forward_pairs(prob: fitting.Problem, fits: list[fitting.CandidateFit], sens
     sh = None
     if local_shift is not None and _lack_of_fit_p(prob, lead.y_fit, lead.k, nm, groups)[0] < ALPHA:
         sh = sim.local_shift(lead.parameters())  # the same rollouts the later re-judgement of the lead uses
-        if sh is not None:
-            local_shift[lead.effects] = sh
-            fitting.refine(prob, lead, lambda e: sim.one(e, shift=sh), iterations=iterations, nominal_secants=False)
+    simulate = partial(sim.one, shift=sh)
+    if sh is not None:
+        local_shift[lead.effects] = sh
+        fitting.refine(prob, lead, simulate, iterations=iterations, nominal_secants=False)
     lead_fits = _lack_of_fit_p(prob, lead.y_fit, lead.k, nm, groups)[0] >= ALPHA
     if lead_fits and settings.FORWARD_PAIRS_EVIDENCE_DBIC is None:
         return []
@@ -64,8 +66,8 @@ def _forward_pairs(prob: fitting.Problem, fits: list[fitting.CandidateFit], sens
     proposals.sort(key=lambda f: f.bic)
     done = []
     for f in proposals[:FORWARD_TOP]:
-        start = fitting.warm_start(f.specs, lead, lambda e: sim.one(e, shift=sh))
-        fitting.refine(prob, f, lambda e: sim.one(e, shift=sh), iterations=iterations, starts=[start], nominal_secants=False)
+        start = fitting.warm_start(f.specs, lead, simulate)
+        fitting.refine(prob, f, simulate, iterations=iterations, starts=[start], nominal_secants=False)
         done.append(f.effects)
     return done
 
