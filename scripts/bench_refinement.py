@@ -64,10 +64,23 @@ def _lab_line(lab: dict | None) -> str:
     return f"; lab scatter {f(lab['scatter_m'])} m, floor {f(lab['floor_m'])} m, ratio {f(lab['ratio'])}, {lab['n_missing']} unseen"
 
 
+def _run_starts(problems, ranked, k: int, args):
+    """Run ``k``'s start throw and the start points of its restarts or scouts (``--restart-from``, ``--run-starts``,
+    ``--start-group``)."""
+    from besdrake.search.refinement import restart_points, run_start_order, scout_points
+
+    order = [i for i, r in ranked if np.isfinite(r.reward)]
+    group = args.start_group + (k if args.run_starts == "diverse" else 0)
+    order = run_start_order(order, group, args.scout_starts)
+    if args.restart_from == "ranked":
+        return order[0], restart_points(problems[order[0]], [problems[i] for i in order[: args.n_starts]])
+    return order[0], scout_points(problems, order, args.scout_starts)
+
+
 def main(argv: list[str] | None = None) -> int:
     from besdrake.commands.refine import collect_imitated
     from besdrake.imitation import load_dmp
-    from besdrake.search.refinement import MIN_EXECUTION_TIME, ParameterScaling, RefinementProblem, rank_starts, refine, restart_points, scout_start_points, DEFAULT_RETIME, DEFAULT_SCOUT_STARTS
+    from besdrake.search.refinement import MIN_EXECUTION_TIME, ParameterScaling, RefinementProblem, rank_starts, refine, DEFAULT_RETIME, DEFAULT_SCOUT_STARTS
     from besdrake.tasks.throwing.reward import ThrowReward
     from besdrake.search.refinement import DEFAULT_CMA_OPTIONS, DEFAULT_POPSIZE_GROWTH, DEFAULT_RESTART_REGIMES, DEFAULT_STAGNATION_GENERATIONS, STAGNATION_TOL
     from besdrake.search.refinement import DEFAULT_PATIENCE, DEFAULT_SIGMA0, DEFAULT_SCOUT_GENERATIONS, DEFAULT_SCOUT_HALVING, DEFAULT_SCOUTS
@@ -119,6 +132,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--position-step", type=float, default=None, help="initial step of start/goal parameters, in multiples of --sigma0 (cma's CMA_stds; default: the module's)")
     parser.add_argument("--time-step", type=float, default=None, help="initial step of the execution time, in multiples of --sigma0 (default: as --position-step)")
     parser.add_argument("--plain", action="store_true", help="the search before issue 5 (plain CMA-ES, no restarts): overrides --diagonal --elitist --stagnation")
+    parser.add_argument("--run-starts", choices=("same", "diverse"), default="diverse",
+                        help="'diverse' (default, as besdrake learn's refinement.run_starts): run k scouts from the imitated throws ranked 4(G+k) on; 'same': every run from the best (the tables before session 23)")
+    parser.add_argument("--start-group", type=int, default=0, metavar="G",
+                        help="scout from the imitated throws ranked 4G on (e.g. --first-seed 1 --start-group 1: learn's second run alone)")
     parser.add_argument("--robust-sd", type=float, default=0.0,
                         help="robust refinement (issue 27): candidates near the goal are simulated again at the ball placements "
                              "of the task's scatter quadrature with this SD (m per axis; the lab's: 0.002) and rewarded by their RMS "
@@ -178,14 +195,10 @@ def main(argv: list[str] | None = None) -> int:
             if args.meta_episodes > 0 and args.stagnation is None:
                 stagnation = 0  # the meta-parameter stage does not combine with restarts
             ranked = rank_starts(problems, ex)
-            index, start = ranked[0]
-            starts = None
-            if args.restart_from == "ranked":
-                starts = restart_points(problems[index], [problems[i] for i, _ in ranked[: args.n_starts]])
-            else:
-                starts = scout_start_points(problems, ranked, args.scout_starts)
+            start = ranked[0][1]
             runs = []
             for k in range(args.runs):
+                index, starts = _run_starts(problems, ranked, k, args)
                 out_dir = None if args.out is None else args.out / f"s{s}_run{k}"
                 r = refine(problems[index], ex, args.episodes, seed=args.first_seed + k, popsize=args.popsize, sigma0=args.sigma0,
                            out_dir=out_dir, meta_episodes=args.meta_episodes, meta_sigma=args.meta_sigma,
@@ -195,7 +208,7 @@ def main(argv: list[str] | None = None) -> int:
                            small_share=args.small_share, patience=args.patience,
                            scouts=args.scouts, scout_generations=args.scout_generations, scout_halving=args.scout_halving,
                            stop_distance=args.stop_distance)
-                runs.append({"seed": args.first_seed + k, "success": r.success, "episodes_to_success": r.episodes_to_success,
+                runs.append({"seed": args.first_seed + k, "start_throw": index, "success": r.success, "episodes_to_success": r.episodes_to_success,
                              "best_distance_within_limits_m": r.summary()["best_distance_within_limits_m"],
                              "best_distance_m": r.summary()["best_distance_m"], "n_episodes": r.n_episodes, "n_failed": r.n_failed,
                              "n_restarts": len(r.attempts), "wall_time_s": r.wall_time,
@@ -215,7 +228,7 @@ def main(argv: list[str] | None = None) -> int:
         "subjects_run": args.subjects, "runs_per_subject": args.runs, "episode_budget": args.episodes,
         "population": args.popsize, "sigma0": args.sigma0, "penalty_scale": args.penalty_scale, "violation_offset_m": reward.violation_offset,
         "dropped_penalty_m": reward.dropped_penalty, "meta_episodes": args.meta_episodes, "meta_sigma": args.meta_sigma, "position_unit_rad": args.position_unit, "acceleration_unit": args.acceleration_unit, "time_unit_s": args.time_unit, "no_slower": args.no_slower, "stagnation_generations": stagnation, "stagnation_tol_m": STAGNATION_TOL if args.stagnation_tol is None else args.stagnation_tol,
-        "max_attempt_generations": args.max_attempt_generations, "restart_from": args.restart_from, "n_starts": args.n_starts, "scout_starts": DEFAULT_SCOUT_STARTS if args.scout_starts is None else args.scout_starts,
+        "max_attempt_generations": args.max_attempt_generations, "restart_from": args.restart_from, "run_starts": args.run_starts, "start_group": args.start_group, "n_starts": args.n_starts, "scout_starts": DEFAULT_SCOUT_STARTS if args.scout_starts is None else args.scout_starts,
         "retime": DEFAULT_RETIME if args.retime is None else args.retime, "cma_options": cma_options, "popsize_growth": DEFAULT_POPSIZE_GROWTH if args.popsize_growth is None else args.popsize_growth,
         "restart_regimes": DEFAULT_RESTART_REGIMES if args.regimes is None else args.regimes, "small_share": args.small_share, "patience": args.patience, "scouts": DEFAULT_SCOUTS if args.scouts is None else args.scouts,
         "scout_generations": DEFAULT_SCOUT_GENERATIONS if args.scout_generations is None else args.scout_generations,

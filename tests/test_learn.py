@@ -119,6 +119,27 @@ def test_quick_run_goes_from_demonstrations_to_a_template_pool(tmp_path, capsys)
     assert plan.check_limits(COMPI.limits).ok
 
 
+def test_a_second_refinement_run_scouts_from_other_imitated_throws():
+    """refinement.run_starts "diverse" (the default): run 1 starts from the fifth-best imitated throw and scouts from the
+    throws ranked 5-8, not again from the four best (a stalled run's family is where its scouts settle)."""
+    from types import SimpleNamespace
+
+    from besdrake.pipeline.config import ConfigError
+    from besdrake.tasks.throwing.learn import _run_starts, refinement_settings
+
+    ranking = [(i, SimpleNamespace(reward=-0.1 * r)) for r, i in enumerate([5, 2, 7, 0, 3, 6, 1, 4])]
+    ranking.append((8, SimpleNamespace(reward=float("nan"))))  # a throw that failed in simulation is never a start
+    problems = [SimpleNamespace(n_params=2, scaling=SimpleNamespace(theta0=np.array([i, 0.0]), to_x=lambda t: t)) for i in range(9)]
+    assert _run_starts(problems, ranking, 0, "diverse")[0] == 5 and _run_starts(problems, ranking, 1, "same")[0] == 5
+    index, starts = _run_starts(problems, ranking, 1, "diverse")
+    assert index == 3 and starts[:, 0].tolist() == [3, 6, 1, 4]
+    assert _run_starts(problems, ranking, 2, "diverse")[0] == 5  # eight usable throws: run 2 is run 0's again
+    config = {"refinement": {"run_starts": "diverse"}}
+    assert refinement_settings(config)["run_starts"] == "diverse"
+    with pytest.raises(ConfigError, match="run_starts"):
+        refinement_settings({"refinement": {"run_starts": "random"}})
+
+
 def test_refinement_runs_in_turn_stop_at_the_first_that_succeeds():
     from types import SimpleNamespace
 

@@ -9,7 +9,7 @@ import pytest
 from besdrake.search.base import load_state, save_state
 from besdrake.search.cmaes import StagnationRestartCMAES
 from besdrake.search.refinement import (DEFAULT_SCOUTS, RefinementError, RefinementProblem, rank_starts, refine,
-                                        restart_points, scout_start_points)
+                                        restart_points, run_start_order, scout_start_points)
 from besdrake.tasks.throwing.template_base import fitted_default_throw
 from besdrake.tasks.throwing.reward import ThrowReward
 from tests.test_refinement import StandIn
@@ -504,6 +504,19 @@ def test_scout_start_points_are_the_best_imitated_throws_in_order(base):
         scout_start_points(problems, ranked, 0)
 
 
+def test_later_runs_start_from_the_next_throws_in_the_ranking():
+    order = [7, 3, 9, 1, 0, 4, 8, 2, 6, 5]
+    assert run_start_order(order, 0) == order  # the first run: the best four as before
+    assert run_start_order(order, 1)[:4] == [0, 4, 8, 2]  # the next four, the fifth best first
+    assert run_start_order(order, 2, n=4)[:4] == [6, 5, 7, 3]  # wraps around when the throws run out
+    assert sorted(run_start_order(order, 5, n=3)) == sorted(order)  # a rotation: no throw lost or repeated
+    assert run_start_order([4, 2], 1, n=1) == [2, 4]
+    with pytest.raises(RefinementError):
+        run_start_order([], 1)
+    with pytest.raises(RefinementError):
+        run_start_order(order, 1, n=0)
+
+
 @pytest.mark.slow
 def test_default_search_reaches_the_goal_where_bipop_alone_stalled(tmp_path):
     """Synthetic subject 0, seed 0: BIPOP alone stalled at 0.109 m after 1500 episodes (a throw family that lands
@@ -524,3 +537,32 @@ def test_default_search_reaches_the_goal_where_bipop_alone_stalled(tmp_path):
     assert result.success, result.summary()
     assert [a["end"] for a in result.attempts[:DEFAULT_SCOUTS]] == ["scout"] * DEFAULT_SCOUTS
     assert {a["start"] for a in result.attempts[:DEFAULT_SCOUTS]} == set(range(DEFAULT_SCOUTS))  # one per imitated throw
+
+
+def test_refine_command_runs_scout_from_different_throws(base, tmp_path):
+    """``besdrake refine --runs 2`` (``--run-starts diverse``, the default): run 1 starts from the fifth-best of six
+    imitated throws; ``--run-starts same`` starts both from the best."""
+    import json
+
+    from besdrake.cli import main
+    from besdrake.imitation import save_dmp
+
+    folder = tmp_path / "imitated"
+    folder.mkdir()
+    for k, dz in enumerate((0.0, -0.2, 0.2, -0.4, 0.4, -0.6)):
+        throw = base.copy()
+        throw.goal = throw.goal.copy()
+        throw.goal[1] += dz
+        save_dmp(throw, folder / f"throw{k}.dmp.json")
+    picks = {}
+    for how in ("diverse", "same"):
+        out = tmp_path / how
+        argv = ["refine", str(folder), "--out", str(out), "--episodes", "4", "--popsize", "4", "--runs", "2",
+                "--run-starts", how, "--quiet", "--json", "--no-figures", "--backend", "serial"]
+        assert main(argv) == 0
+        summary = json.loads((out / "summary.json").read_text())
+        picks[how] = summary["start"]["run_start_throws"]
+        assert [r["n_episodes"] for r in summary["runs"]] == [4, 4]
+    ranking = json.loads((tmp_path / "same" / "start.json").read_text())["ranking"]
+    assert picks["same"] == [ranking[0], ranking[0]]
+    assert picks["diverse"] == [ranking[0], ranking[4]]

@@ -58,6 +58,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "... until one is left (default: besdrake.search.refinement.DEFAULT_SCOUT_HALVING)")
     parser.add_argument("--scout-starts", type=int, default=None, metavar="N",
                         help="scout k starts from the (k mod N)-th best imitated throw; 1: every scout from the best (default: DEFAULT_SCOUT_STARTS)")
+    parser.add_argument("--run-starts", choices=("same", "diverse"), default="diverse",
+                        help="with scouts: every run from the best imitated throws (same), or run k from the throws ranked "
+                             "4k to 4k+3 (diverse, the default: a later run searches other throw families)")
     parser.add_argument("--retime", action=argparse.BooleanOptionalAction, default=None,
                         help="stretch each candidate's execution time just enough to keep the velocity and acceleration limits "
                              "(default: besdrake.search.refinement.DEFAULT_RETIME)")
@@ -284,7 +287,7 @@ def run(args: argparse.Namespace) -> int:
     import logging
 
     from besdrake.cli import UserError
-    from besdrake.search.refinement import scout_points
+    from besdrake.search.refinement import run_start_order, scout_points
     from besdrake.sim.cliutil import executor_from_args
     from besdrake.sim.executors import ExecutorError
     from besdrake.sim.scenario import ScenarioError
@@ -306,11 +309,15 @@ def run(args: argparse.Namespace) -> int:
     search = search_options(args)
     with executor:
         start = _start(args, files, problems, executor, scout_starts)
-        problem = problems[int(start["index"])]
-        starts = scout_points(problems, start.get("ranking", []), scout_starts)  # None with one start point
+        order = start.get("ranking") or [int(start["index"])]
+        diverse = args.run_starts == "diverse" and search.get("scouts") != 0 and not args.plain
+        orders = [run_start_order(order, k, scout_starts) if diverse else order for k in range(args.runs)]
+        start["run_start_throws"] = [int(o[0]) for o in orders]
         # The runs are independent: run_concurrently merges their generations into one batch per round (same results).
-        runs = run_concurrently(executor, [partial(_refine_run, k, args, problem, search=search, starts=starts, show=show)
-                                           for k in range(args.runs)])
+        # Each from its start throw, its scouts from the next ones (None with one start point).
+        runs = run_concurrently(executor, [partial(_refine_run, k, args, problems[o[0]], search=search,
+                                                   starts=scout_points(problems, o, scout_starts), show=show)
+                                           for k, o in enumerate(orders)])
     summary = _summary(args, files, start, runs, t_start)
     if args.json:
         print(json.dumps(summary, default=float))

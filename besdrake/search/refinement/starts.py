@@ -48,6 +48,20 @@ def scout_start_points(problems: Sequence[RefinementProblem], ranking: Sequence[
     return scout_points(problems, [i for i, r in ranking if np.isfinite(r.reward)], n)
 
 
+def run_start_order(order: Sequence[int], run: int, n: int | None = None) -> list[int]:
+    """The start order of run ``run`` where independent runs scout from different start points (``run_starts="diverse"``):
+    ``order`` (indices of the imitated movements, best first) rotated by ``run * n`` (``n``: the scouts' start points,
+    default :data:`DEFAULT_SCOUT_STARTS`), so run 0 scouts from the ``n`` best, run 1 from the next ``n``, and so on,
+    wrapping around when the movements run out. Why: a run's fate is mostly set by the family of movements its scouts
+    settle in, so a second run from the same start points tends to end where the first did (measured on the default
+    task: its REFINEMENT.md)."""
+    order = list(order)
+    if not order:
+        raise RefinementError("no imitated movement to start from")
+    shift = (int(run) * scout_starts_checked(n)) % len(order)
+    return order[shift:] + order[:shift]
+
+
 def scout_starts_checked(n: int | None) -> int:
     """The number of scout start points, :data:`DEFAULT_SCOUT_STARTS` where None; :class:`RefinementError` unless >= 1."""
     n = DEFAULT_SCOUT_STARTS if n is None else n

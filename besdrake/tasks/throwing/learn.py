@@ -286,7 +286,7 @@ def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int
     task's reward (e.g. the template reach's ``radial``); ``sigma0``: CMA-ES's initial step (normalised units; None: the
     refinement's default)."""
     from besdrake.search.refinement import (DEFAULT_SCOUTS, DEFAULT_SIGMA0, SUCCESS_DISTANCE, RefinementProblem, plot_learning_curves, rank_starts,
-                                            refine, scout_start_points, scouting_episodes)
+                                            refine, scouting_episodes)
     from besdrake.search.refinement.run import stops_at
     from besdrake.sim.scheduler import run_concurrently
     from besdrake.task import DEFAULT_TASK, get_task
@@ -303,16 +303,18 @@ def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int
         ranking = rank_starts(problems, executor)
         index, start = ranking[0]
         problem = problems[index]
+        records = dict(ranking)
         if settings["stop_on_success"] and stops_at(start, settings["stop_distance"] or SUCCESS_DISTANCE):
             return _keep_start(ctx, problem, robot, index, start, out, tag)
-        starts = scout_start_points(problems, ranking)  # None unless the default search scouts from several throws
         scouts = DEFAULT_SCOUTS if scouting and 2 * scouting_episodes(int(cfg["population"])) <= int(budget) else 0
+        run_starts = [_run_starts(problems, ranking, k, settings["run_starts"] if scouts else "same") for k in range(n_runs)]
 
         def run_job(k: int):
-            """CMA-ES run ``k`` (its own seed and resumable folder) on the shared executor ``ex``."""
+            """CMA-ES run ``k`` (its own seed, start throws and resumable folder) on the shared executor ``ex``."""
             def job(ex):
-                ctx.progress(f"{tag}: CMA-ES run {k + 1}/{n_runs} from throw {index} ({start.distance:.2f} m from the target)")
-                return refine(problem, ex, n_episodes=int(budget), seed=int(cfg["seed"]) + k, out_dir=out / f"run{k}",
+                i, starts = run_starts[k]
+                ctx.progress(f"{tag}: CMA-ES run {k + 1}/{n_runs} from throw {i} ({records[i].distance:.2f} m from the target)")
+                return refine(problems[i], ex, n_episodes=int(budget), seed=int(cfg["seed"]) + k, out_dir=out / f"run{k}",
                               sigma0=DEFAULT_SIGMA0 if sigma0 is None else sigma0,
                               popsize=int(cfg["population"]), stop_on_success=settings["stop_on_success"],
                               stop_distance=settings["stop_distance"], starts=starts, scouts=scouts)
@@ -323,7 +325,9 @@ def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int
             results = _runs_in_turn(jobs, executor, settings["stop_distance"] or SUCCESS_DISTANCE)
         else:  # independent runs: their generations share the pool, one wider batch per round (same results)
             results = run_concurrently(executor, jobs)
-    runs = _save_refined(problem, robot, results, out)
+    runs = _save_refined([problems[run_starts[k][0]] for k in range(len(results))], robot, results, out)
+    for k, run in enumerate(runs):
+        run["start_throw"] = int(run_starts[k][0])
     plot_learning_curves(results, out / "learning_curve.png")
     # The best run is judged by throws within every joint limit: a closer throw that breaks a limit is no plan.
     best = min(runs, key=lambda r: r["best_distance_within_limits_m"] if r["best_distance_within_limits_m"] is not None else np.inf)
@@ -363,10 +367,23 @@ def _keep_start(ctx: Context, problem, robot, index: int, start, out: Path, tag:
             "median_episodes_to_success": 0.0, "best_distance_within_limits_m": start.distance, "best_dmp": run["dmp"]}
 
 
-def _save_refined(problem, robot, results: list, out: Path) -> list[dict[str, Any]]:
-    """Each run's best throw as ``refinedK.dmp.json`` and ``refinedK.plan.json``; the runs' summaries."""
+def _run_starts(problems: list, ranking: list, run: int, how: str) -> tuple[int, Any]:
+    """Run ``run``'s start throw (index into ``problems``) and its scouts' start points: the best imitated throw and the
+    scouts from the best four for every run (``how`` "same"), or run ``k`` from the throws ranked ``4k`` on
+    ("diverse", :func:`~besdrake.search.refinement.run_start_order`)."""
+    from besdrake.search.refinement import run_start_order, scout_points
+
+    order = [i for i, r in ranking if np.isfinite(r.reward)]
+    if how == "diverse":
+        order = run_start_order(order, run)
+    return order[0], scout_points(problems, order)  # start points None unless the default search scouts from several
+
+
+def _save_refined(problems: list, robot, results: list, out: Path) -> list[dict[str, Any]]:
+    """Each run's best throw (of ``problems[k]``, the run's problem) as ``refinedK.dmp.json`` and ``refinedK.plan.json``;
+    the runs' summaries."""
     runs = []
-    for k, result in enumerate(results):
+    for k, (problem, result) in enumerate(zip(problems, results)):
         _save_throw(problem.parameterization.from_vector(result.best_theta), robot, out, k)
         runs.append(result.summary() | {"dmp": f"refined{k}.dmp.json"})
     return runs
@@ -392,12 +409,14 @@ def refinement_settings(config: dict[str, Any]) -> dict[str, Any]:
     try:
         stop = cfg.get("stop_distance")
         out = {"stop_on_success": bool(cfg.get("stop_on_success", True)), "stop_distance": None if stop is None else float(stop),
-               "runs_in_turn": bool(cfg.get("runs_in_turn", False)),
+               "runs_in_turn": bool(cfg.get("runs_in_turn", False)), "run_starts": str(cfg.get("run_starts", "same")),
                "robust_sd": float(cfg.get("robust_sd", 0.0)), "robust_radius": float(cfg.get("robust_radius", ROBUST_RADIUS))}
     except (TypeError, ValueError) as err:
         raise ConfigError(f"refinement: {err}") from None
     if out["stop_distance"] is not None and not (0 < out["stop_distance"] <= SUCCESS_DISTANCE):
         raise ConfigError(f"refinement: stop_distance must be within (0, {SUCCESS_DISTANCE}] m or null, got {stop!r}")
+    if out["run_starts"] not in ("same", "diverse"):
+        raise ConfigError(f"refinement: run_starts must be 'same' or 'diverse', got {out['run_starts']!r}")
     if not (0 <= out["robust_sd"] <= 0.005) or not (out["robust_radius"] > 0):
         raise ConfigError(f"refinement: robust_sd must be within 0..0.005 m and robust_radius > 0 m, "
                           f"got {out['robust_sd']!r}, {out['robust_radius']!r}")
