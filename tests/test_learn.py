@@ -74,6 +74,7 @@ def test_unknown_stage_is_refused(tmp_path, capsys):
                                       "diagnosis.sideways=99", "diagnosis.sideways=some", "refinement.stop_distance=0.5",
                                       "refinement.robust_sd=0.01", "refinement.robust_sd=lots", "refinement.robust_radius=0",
                                       "templates.reach_target=far", "templates.reach_target=[1]", "templates.reach_evaluations=-5",
+                                      "templates.reach_other_evaluations=-1", "refinement.run_starts=random",
                                       "templates.slowest=0.5", "templates.slowest=fast", "templates.reach_objective=sideways"])
 def test_a_bad_refinement_transfer_or_diagnosis_setting_is_refused_before_any_stage_runs(tmp_path, capsys, override):
     code = main(["learn", "--quick", "--set", override, "--out", str(tmp_path / "run")])
@@ -130,14 +131,36 @@ def test_a_second_refinement_run_scouts_from_other_imitated_throws():
     ranking = [(i, SimpleNamespace(reward=-0.1 * r)) for r, i in enumerate([5, 2, 7, 0, 3, 6, 1, 4])]
     ranking.append((8, SimpleNamespace(reward=float("nan"))))  # a throw that failed in simulation is never a start
     problems = [SimpleNamespace(n_params=2, scaling=SimpleNamespace(theta0=np.array([i, 0.0]), to_x=lambda t: t)) for i in range(9)]
-    assert _run_starts(problems, ranking, 0, "diverse")[0] == 5 and _run_starts(problems, ranking, 1, "same")[0] == 5
-    index, starts = _run_starts(problems, ranking, 1, "diverse")
+    index, starts = _run_starts(problems, ranking, 0)
+    assert index == 5 and starts[:, 0].tolist() == [5, 2, 7, 0]
+    index, starts = _run_starts(problems, ranking, 1)
     assert index == 3 and starts[:, 0].tolist() == [3, 6, 1, 4]
-    assert _run_starts(problems, ranking, 2, "diverse")[0] == 5  # eight usable throws: run 2 is run 0's again
+    assert _run_starts(problems, ranking, 2)[0] == 5  # eight usable throws: group 2 is group 0 again
     config = {"refinement": {"run_starts": "diverse"}}
     assert refinement_settings(config)["run_starts"] == "diverse"
     with pytest.raises(ConfigError, match="run_starts"):
         refinement_settings({"refinement": {"run_starts": "random"}})
+
+
+def test_a_reach_refinement_that_stalls_looks_in_another_throw_family(monkeypatch, tmp_path):
+    """templates.reach_other_evaluations: only where the reach refinement ended beyond the goal, a second one from the
+    imitated throws ranked 5-8 (start group 1, with scouts), on its own budget; none where the budget is 0."""
+    from besdrake.tasks.throwing import learn as L
+
+    calls = []
+
+    def fake(ctx, dmps, scenario, out, budget, settings, tag, start_group=0):
+        calls.append((dmps, budget, start_group))
+        return {"start_distance_m": 1.2, "best_distance_within_limits_m": 0.16, "runs": [{"n_episodes": budget}], "best_dmp": "refined0.dmp.json"}
+
+    monkeypatch.setattr(L, "_reach_refinement", fake)
+    monkeypatch.setattr(L, "_imitated", lambda ctx: ["imitated"])
+    settings = {"other_evaluations": 600}
+    assert L._other_family(None, "nominal", tmp_path, settings, 0.08) is None and not calls  # the first reached the goal
+    assert L._other_family(None, "nominal", tmp_path, {"other_evaluations": 0}, 0.3) is None and not calls
+    other = L._other_family(None, "nominal", tmp_path, settings, 0.36)
+    assert calls == [(["imitated"], 600, 1)]
+    assert other == {"start_distance_m": 1.2, "best_distance_m": 0.16, "episodes": 600, "best_dmp": "refined0.dmp.json"}
 
 
 def test_refinement_runs_in_turn_stop_at_the_first_that_succeeds():

@@ -278,13 +278,14 @@ def _imitation_jobs(ctx: Context) -> list:
 # --------------------------------------------------------------------------------------------
 def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int, tag: str, scouting: bool = True,
                  target: tuple[float, float] | None = None, plans: int | None = None,
-                 reward_settings: dict[str, Any] | None = None, sigma0: float | None = None) -> dict[str, Any]:
+                 reward_settings: dict[str, Any] | None = None, sigma0: float | None = None, start_group: int = 0) -> dict[str, Any]:
     """CMA-ES from the best of ``dmps`` (the paper uses all available plans) in ``scenario``. The default search's scouts
     (short first attempts from the best throws) run only with ``scouting`` and where they take at most half of
     ``budget``: a re-refinement from throws refined already goes straight to CMA-ES from the best of them.
     ``target`` and ``plans`` (runs): the refinement section's unless given; ``reward_settings``: more settings of the
     task's reward (e.g. the template reach's ``radial``); ``sigma0``: CMA-ES's initial step (normalised units; None: the
-    refinement's default)."""
+    refinement's default); ``start_group``: the first run starts from the throws ranked ``4 * start_group`` on (later
+    runs from the next groups where ``refinement.run_starts`` is diverse)."""
     from besdrake.search.refinement import (DEFAULT_SCOUTS, DEFAULT_SIGMA0, SUCCESS_DISTANCE, RefinementProblem, plot_learning_curves, rank_starts,
                                             refine, scouting_episodes)
     from besdrake.search.refinement.run import stops_at
@@ -307,7 +308,8 @@ def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int
         if settings["stop_on_success"] and stops_at(start, settings["stop_distance"] or SUCCESS_DISTANCE):
             return _keep_start(ctx, problem, robot, index, start, out, tag)
         scouts = DEFAULT_SCOUTS if scouting and 2 * scouting_episodes(int(cfg["population"])) <= int(budget) else 0
-        run_starts = [_run_starts(problems, ranking, k, settings["run_starts"] if scouts else "same") for k in range(n_runs)]
+        diverse = bool(scouts) and settings["run_starts"] == "diverse"
+        run_starts = [_run_starts(problems, ranking, start_group + (k if diverse else 0)) for k in range(n_runs)]
 
         def run_job(k: int):
             """CMA-ES run ``k`` (its own seed, start throws and resumable folder) on the shared executor ``ex``."""
@@ -367,15 +369,13 @@ def _keep_start(ctx: Context, problem, robot, index: int, start, out: Path, tag:
             "median_episodes_to_success": 0.0, "best_distance_within_limits_m": start.distance, "best_dmp": run["dmp"]}
 
 
-def _run_starts(problems: list, ranking: list, run: int, how: str) -> tuple[int, Any]:
-    """Run ``run``'s start throw (index into ``problems``) and its scouts' start points: the best imitated throw and the
-    scouts from the best four for every run (``how`` "same"), or run ``k`` from the throws ranked ``4k`` on
-    ("diverse", :func:`~besdrake.search.refinement.run_start_order`)."""
+def _run_starts(problems: list, ranking: list, group: int) -> tuple[int, Any]:
+    """A run's start throw (index into ``problems``) and its scouts' start points: start group ``group`` of the ranked
+    throws (0: the best throw, the scouts from the best four; 1: the fifth best and the next four, ...;
+    :func:`~besdrake.search.refinement.run_start_order`)."""
     from besdrake.search.refinement import run_start_order, scout_points
 
-    order = [i for i, r in ranking if np.isfinite(r.reward)]
-    if how == "diverse":
-        order = run_start_order(order, run)
+    order = run_start_order([i for i, r in ranking if np.isfinite(r.reward)], group)
     return order[0], scout_points(problems, order)  # start points None unless the default search scouts from several
 
 
@@ -436,13 +436,17 @@ def _robust_check(task: str, scenario: str, settings: dict[str, Any]):
 
 
 def stage_refine(ctx: Context, out: Path) -> dict[str, Any]:
+    return _refine_from(ctx, _imitated(ctx), ctx.config["scenario"], out, int(ctx.config["refinement"]["evaluations"]), "refine")
+
+
+def _imitated(ctx: Context) -> list:
+    """The imitation stage's DMPs (RuntimeError where it produced none)."""
     from besdrake.imitation import load_dmp
 
     files = sorted((ctx.run.root / "03_imitate").glob("*.dmp.json"))
     if not files:
         raise RuntimeError("no imitated throw to refine (the imitation stage produced no plan)")
-    dmps = [load_dmp(f) for f in files]
-    return _refine_from(ctx, dmps, ctx.config["scenario"], out, int(ctx.config["refinement"]["evaluations"]), "refine")
+    return [load_dmp(f) for f in files]
 
 
 # --------------------------------------------------------------------------------------------
@@ -614,6 +618,7 @@ def template_reach_settings(config: dict[str, Any]) -> dict[str, Any]:
     try:
         target = None if target is None else tuple(float(v) for v in target)
         budget = int(budget)
+        other = int(cfg.get("reach_other_evaluations", 0))
         sigma = float(cfg.get("reach_sigma", DEFAULT_SIGMA0))
         extend = int(cfg.get("extend_probes", EXTEND_PROBES))
         slowest = float(cfg.get("slowest", SCALE_SLOWEST))
@@ -623,6 +628,8 @@ def template_reach_settings(config: dict[str, Any]) -> dict[str, Any]:
     if target is not None and (len(target) != 2 or not np.isfinite(target).all()) or budget < 0:
         raise ConfigError(f"templates: reach_target must be two finite numbers (m) or null and reach_evaluations >= 0, "
                           f"got {cfg.get('reach_target')!r}, {cfg.get('reach_evaluations')!r}")
+    if other < 0:
+        raise ConfigError(f"templates: reach_other_evaluations must be >= 0, got {cfg.get('reach_other_evaluations')!r}")
     if not 0 <= extend <= 10:
         raise ConfigError(f"templates: extend_probes must be an integer within [0, 10], got {cfg.get('extend_probes')!r}")
     if not (np.isfinite(sigma) and 0.0 < sigma <= 5.0):
@@ -632,7 +639,7 @@ def template_reach_settings(config: dict[str, Any]) -> dict[str, Any]:
     if not (1.0 < slowest <= 10.0):
         raise ConfigError(f"templates: slowest must be within (1, 10] (x the base's execution time), got {cfg.get('slowest')!r}")
     return {"target": target if budget > 0 else None, "evaluations": budget, "slowest": slowest, "objective": objective,
-            "sigma": sigma, "extend_probes": extend}
+            "sigma": sigma, "extend_probes": extend, "other_evaluations": other}
 
 
 def _template_base(ctx: Context, scenario: str, out: Path) -> tuple[Path, dict[str, Any]]:
@@ -643,7 +650,9 @@ def _template_base(ctx: Context, scenario: str, out: Path) -> tuple[Path, dict[s
     ones. Refined towards the farthest context, the base covers the context range. The further-refined throw is kept
     only where the template's reach probes of both throws leave it the smaller floor (the test contexts' mean distance
     that no meta-parameters avoid, :func:`~besdrake.search.templates.reach_floor`): a throw family may not reach the
-    target, and one that lands a little farther may turn less far (joint 1's limits)."""
+    target, and one that lands a little farther may turn less far (joint 1's limits). Where that refinement ends short
+    of the goal (0.1 m), a second one from other imitated throws (ranked 5-8, ``templates.reach_other_evaluations``)
+    looks in another throw family, and the floor rule picks among the three."""
     from besdrake.imitation import load_dmp
     from besdrake.search.templates import reach_floor
 
@@ -651,19 +660,43 @@ def _template_base(ctx: Context, scenario: str, out: Path) -> tuple[Path, dict[s
     settings = template_reach_settings(ctx.config)
     if settings["target"] is None:
         return base_file, {}
-    result = _refine_from(ctx, [load_dmp(base_file)], scenario, out, settings["evaluations"], "template reach", scouting=False,
-                          target=settings["target"], plans=1, reward_settings={"radial": True} if settings["objective"] == "range" else None,
-                          sigma0=settings["sigma"])
+    result = _reach_refinement(ctx, [load_dmp(base_file)], scenario, out, settings["evaluations"], settings, "template reach")
     record = {"target_m": list(settings["target"]), "objective": settings["objective"], "start_distance_m": result["start_distance_m"],
               "best_distance_m": result["best_distance_within_limits_m"], "episodes": int(sum(r["n_episodes"] for r in result["runs"]))}
     if result["runs"][0].get("stop_reason") == "start" or result["best_distance_within_limits_m"] is None:
         return base_file, record | {"kept": False}
+    candidates = [base_file, out / result["best_dmp"]]
+    other = _other_family(ctx, scenario, out / "other", settings, result["best_distance_within_limits_m"])
+    if other is not None:
+        record["other_family"] = {k: other[k] for k in ("start_distance_m", "best_distance_m", "episodes")}
+        candidates.append(out / "other" / other["best_dmp"])
     with _executor(ctx, scenario) as executor:
-        floors = [reach_floor(load_dmp(f), executor, ctx.robot(scenario), slowest=settings["slowest"])
-                  for f in (base_file, out / result["best_dmp"])]
-    kept = floors[1] < floors[0]
-    record |= {"floor_m": floors, "kept": bool(kept)}
-    return (out / result["best_dmp"] if kept else base_file), record
+        floors = [reach_floor(load_dmp(f), executor, ctx.robot(scenario), slowest=settings["slowest"]) for f in candidates]
+    pick = int(np.argmin(floors))
+    record |= {"floor_m": floors, "kept": pick > 0, "kept_from": ("refined throw", "reach refinement", "other throws")[pick]}
+    return candidates[pick], record
+
+
+def _reach_refinement(ctx: Context, dmps: list, scenario: str, out: Path, budget: int, settings: dict[str, Any], tag: str,
+                      start_group: int = 0) -> dict[str, Any]:
+    """One CMA-ES run towards the template's reach target (scouts only where the budget allows them)."""
+    return _refine_from(ctx, dmps, scenario, out, budget, tag, scouting=start_group > 0, target=settings["target"], plans=1,
+                        reward_settings={"radial": True} if settings["objective"] == "range" else None, sigma0=settings["sigma"],
+                        start_group=start_group)
+
+
+def _other_family(ctx: Context, scenario: str, out: Path, settings: dict[str, Any], reached: float) -> dict[str, Any] | None:
+    """Where the reach refinement ended ``reached`` m from its target, beyond the goal: a reach refinement from the
+    imitated throws ranked 5-8 (scouts from them: another throw family than the refined throw's); None where the first
+    reached the goal or ``other_evaluations`` is 0."""
+    from besdrake.search.refinement import SUCCESS_DISTANCE
+
+    if reached <= SUCCESS_DISTANCE or settings["other_evaluations"] <= 0:
+        return None
+    result = _reach_refinement(ctx, _imitated(ctx), scenario, out, settings["other_evaluations"], settings,
+                               "template reach (other throws)", start_group=1)
+    return {"start_distance_m": result["start_distance_m"], "best_distance_m": result["best_distance_within_limits_m"],
+            "episodes": int(sum(r.get("n_episodes", 0) for r in result["runs"])), "best_dmp": result["best_dmp"]}
 
 
 def stage_template(ctx: Context, out: Path) -> dict[str, Any]:
