@@ -70,7 +70,8 @@ def _run_starts(problems, ranked, k: int, args):
     from besdrake.search.refinement import restart_points, run_start_order, scout_points
 
     order = [i for i, r in ranked if np.isfinite(r.reward)]
-    group = args.start_group + (k if args.run_starts == "diverse" else 0)
+    diverse = args.run_starts == "diverse" and args.scouts != 0 and not args.plain  # as besdrake learn: only where it scouts
+    group = args.start_group + (k if diverse else 0)
     order = run_start_order(order, group, args.scout_starts)
     if args.restart_from == "ranked":
         return order[0], restart_points(problems[order[0]], [problems[i] for i in order[: args.n_starts]])

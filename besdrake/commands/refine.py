@@ -60,7 +60,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="scout k starts from the (k mod N)-th best imitated throw; 1: every scout from the best (default: DEFAULT_SCOUT_STARTS)")
     parser.add_argument("--run-starts", choices=("same", "diverse"), default="diverse",
                         help="with scouts: every run from the best imitated throws (same), or run k from the throws ranked "
-                             "4k to 4k+3 (diverse, the default: a later run searches other throw families)")
+                             "4k+1 to 4k+4 (diverse, the default: a later run searches other throw families)")
     parser.add_argument("--retime", action=argparse.BooleanOptionalAction, default=None,
                         help="stretch each candidate's execution time just enough to keep the velocity and acceleration limits "
                              "(default: besdrake.search.refinement.DEFAULT_RETIME)")
