@@ -67,15 +67,15 @@ def _lab_line(lab: dict | None) -> str:
 def _run_starts(problems, ranked, k: int, args):
     """Run ``k``'s start throw and the start points of its restarts or scouts (``--restart-from``, ``--run-starts``,
     ``--start-group``)."""
-    from besdrake.search.refinement import restart_points, run_start_order, scout_points
+    from besdrake.search.refinement import restart_points, run_start, run_start_order
 
     order = [i for i, r in ranked if np.isfinite(r.reward)]
     diverse = args.run_starts == "diverse" and args.scouts != 0 and not args.plain  # as besdrake learn: only where it scouts
     group = args.start_group + (k if diverse else 0)
-    order = run_start_order(order, group, args.scout_starts)
     if args.restart_from == "ranked":
+        order = run_start_order(order, group, args.scout_starts)
         return order[0], restart_points(problems[order[0]], [problems[i] for i in order[: args.n_starts]])
-    return order[0], scout_points(problems, order, args.scout_starts)
+    return run_start(problems, order, group, args.scout_starts)
 
 
 def main(argv: list[str] | None = None) -> int:

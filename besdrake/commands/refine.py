@@ -287,7 +287,7 @@ def run(args: argparse.Namespace) -> int:
     import logging
 
     from besdrake.cli import UserError
-    from besdrake.search.refinement import run_start_order, scout_points
+    from besdrake.search.refinement import run_start
     from besdrake.sim.cliutil import executor_from_args
     from besdrake.sim.executors import ExecutorError
     from besdrake.sim.scenario import ScenarioError
@@ -311,13 +311,12 @@ def run(args: argparse.Namespace) -> int:
         start = _start(args, files, problems, executor, scout_starts)
         order = start.get("ranking") or [int(start["index"])]
         diverse = args.run_starts == "diverse" and search.get("scouts") != 0 and not args.plain
-        orders = [run_start_order(order, k, scout_starts) if diverse else order for k in range(args.runs)]
-        start["run_start_throws"] = [int(o[0]) for o in orders]
+        # Each run from its start throw, its scouts from the next ones (None with one start point).
+        starts = [run_start(problems, order, k if diverse else 0, scout_starts) for k in range(args.runs)]
+        start["run_start_throws"] = [int(i) for i, _ in starts]
         # The runs are independent: run_concurrently merges their generations into one batch per round (same results).
-        # Each from its start throw, its scouts from the next ones (None with one start point).
-        runs = run_concurrently(executor, [partial(_refine_run, k, args, problems[o[0]], search=search,
-                                                   starts=scout_points(problems, o, scout_starts), show=show)
-                                           for k, o in enumerate(orders)])
+        runs = run_concurrently(executor, [partial(_refine_run, k, args, problems[i], search=search, starts=points, show=show)
+                                           for k, (i, points) in enumerate(starts)])
     summary = _summary(args, files, start, runs, t_start)
     if args.json:
         print(json.dumps(summary, default=float))

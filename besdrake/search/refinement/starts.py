@@ -62,6 +62,13 @@ def run_start_order(order: Sequence[int], run: int, n: int | None = None) -> lis
     return order[shift:] + order[:shift]
 
 
+def run_start(problems: Sequence[RefinementProblem], order: Sequence[int], group: int, n: int | None = None) -> tuple[int, np.ndarray | None]:
+    """A run's start movement (index into ``problems``) and its scouts' start points (:func:`scout_points`) from start
+    group ``group`` of ``order`` (:func:`run_start_order`: 0 the best ``n``, 1 the next ``n``, ...)."""
+    order = run_start_order(order, group, n)
+    return order[0], scout_points(problems, order, n)
+
+
 def scout_starts_checked(n: int | None) -> int:
     """The number of scout start points, :data:`DEFAULT_SCOUT_STARTS` where None; :class:`RefinementError` unless >= 1."""
     n = DEFAULT_SCOUT_STARTS if n is None else n

@@ -370,13 +370,10 @@ def _keep_start(ctx: Context, problem, robot, index: int, start, out: Path, tag:
 
 
 def _run_starts(problems: list, ranking: list, group: int) -> tuple[int, Any]:
-    """A run's start throw (index into ``problems``) and its scouts' start points: start group ``group`` of the ranked
-    throws (0: the best throw, the scouts from the best four; 1: the fifth best and the next four, ...;
-    :func:`~besdrake.search.refinement.run_start_order`)."""
-    from besdrake.search.refinement import run_start_order, scout_points
+    """:func:`~besdrake.search.refinement.run_start` over the throws of ``ranking`` that could be simulated."""
+    from besdrake.search.refinement import run_start
 
-    order = run_start_order([i for i, r in ranking if np.isfinite(r.reward)], group)
-    return order[0], scout_points(problems, order)  # start points None unless the default search scouts from several
+    return run_start(problems, [i for i, r in ranking if np.isfinite(r.reward)], group)
 
 
 def _save_refined(problems: list, robot, results: list, out: Path) -> list[dict[str, Any]]:
@@ -679,7 +676,8 @@ def _template_base(ctx: Context, scenario: str, out: Path) -> tuple[Path, dict[s
 
 def _reach_refinement(ctx: Context, dmps: list, scenario: str, out: Path, budget: int, settings: dict[str, Any], tag: str,
                       start_group: int = 0) -> dict[str, Any]:
-    """One CMA-ES run towards the template's reach target (scouts only where the budget allows them)."""
+    """One CMA-ES run towards the template's reach target; from a later start group (other imitated throws) with scouts
+    where the budget allows them, from the refined throw without."""
     return _refine_from(ctx, dmps, scenario, out, budget, tag, scouting=start_group > 0, target=settings["target"], plans=1,
                         reward_settings={"radial": True} if settings["objective"] == "range" else None, sigma0=settings["sigma"],
                         start_group=start_group)
