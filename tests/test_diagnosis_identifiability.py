@@ -157,3 +157,26 @@ def test_a_named_cause_with_a_structural_twin_says_so_without_a_rival():
     assert v.text.startswith("explained by joint_offset") and "structurally identical" in v.text and v.confidence == "high"
     v = verdict.judge(None, None, [fit, nfit], [best, none], ev, ["joint_offset"], ident)  # the twin is no candidate
     assert "structurally identical" not in v.text
+
+
+def test_a_rival_tied_to_the_named_effect_by_a_structural_class_is_said_to_be_the_same_rotation(monkeypatch):
+    """Touchdown-only benchmark trial 47: a joint-1 offset fitted as joint 4, base_offset a rival the log cannot tell
+    from it; whatever the fit moved, a base yaw and a joint-1 offset stay one cause, and the verdict says so."""
+    from types import SimpleNamespace
+
+    from besdrake.diagnosis import verdict
+
+    monkeypatch.setattr(verdict, "_separation_advice", lambda *a, **k: {"a": a[0].name, "b": a[1].name, "recommendation": "throw more"})
+    ident = idf.Identifiability([idf.StructuralClass(["base_offset.yaw", "joint_offset.joint1"], "the same rotation", 0.01)], [], 10, [])
+    best = _cause("joint_offset", {"joint4": (0.056, 0.004)})
+    none = _cause("joint_offset", {}, delta_bic=200.0)
+    none.effects, none.p_value = (), 0.0
+    fit = SimpleNamespace(name="joint_offset", refined=True, effects=("joint_offset",))
+    nfit = SimpleNamespace(name="none", refined=True, effects=())
+    ev = SimpleNamespace(measured_groups=["touchdown", "joints"], model=MODEL, nm=None, keys=[], sim=None, plans=[])
+    for rival_effect, params, stated in (("base_offset", {"yaw": (0.05, 0.004)}, True), ("ball", {"radius": (0.03, 0.001)}, False)):
+        rival = _cause(rival_effect, params, delta_bic=1.0)
+        rfit = SimpleNamespace(name=rival_effect, refined=True, effects=(rival_effect,))
+        v = verdict.judge(None, None, [fit, rfit, nfit], [best, rival, none], ev, ["base_offset", "joint_offset", "ball"], ident)
+        assert ("cannot tell it from " + rival_effect) in v.text
+        assert ("structurally identical" in v.text) == stated

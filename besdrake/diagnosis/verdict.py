@@ -274,6 +274,21 @@ def added_effect_p(basis: dict, plans: bool | None = None) -> float:
     return float(basis["extra_effect_p"])
 
 
+def structural_notes(v: Verdict, ident: Identifiability | None, cands: list[str]) -> list[str]:
+    """The structural classes a verdict must state: those of a parameter the named cause moves, whether or not the
+    twin was a rival (joint_offset with joint 1 named while the pair with a base yaw was dropped as not needed), those
+    that tie the named effect to a rival it cannot be told from (joint_offset fitted on joint 4 beside a base_offset
+    rival: whatever the log shows, a base yaw and a joint-1 offset stay one cause), and the structural rivals'."""
+    if not v.best.effects or ident is None:
+        return []
+    keys, named = set(cause_keys(v.best)), set(v.best.effects)
+    rivals = {e for a in v.indist for e in a["b"].split(" + ")} - named
+    twins = [c.statement() for c in ident.classes if c.effects() <= set(cands)
+             and (set(c.members) & keys or (c.effects() & named and c.effects() & rivals))]
+    twins += [a["reason"] for a in v.indist if a.get("structural")]
+    return list(dict.fromkeys(twins))
+
+
 def judge(prob: fitting.Problem, sens: fitting.Sensitivity, fits: list[fitting.CandidateFit], causes: list[Cause], ev: Any,
           cands: list[str], ident: Identifiability | None = None, local_sens: Callable[[], fitting.Sensitivity] | None = None) -> Verdict:
     """Explained or not, with what confidence, and why (see :class:`~besdrake.diagnosis.results.Diagnosis`). A rival
@@ -328,14 +343,9 @@ def judge(prob: fitting.Problem, sens: fitting.Sensitivity, fits: list[fitting.C
         elif extra is not None and p_extra < HIGH_EXTRA_P:
             v.text += (f"; {' + '.join(extra.effects)} fits better than chance allows (p = {p_extra:.2g}"
                        + (f", over the plans p = {p_plans:.2g}" if p_plans is not None else "") + ") but not enough to be claimed: a second effect may be present")
-    if v.best.effects and ident is not None:
-        # The named cause moves a parameter that has a structural twin: say so whether or not the twin was a rival
-        # (e.g. joint_offset with joint 1 named while the pair with a base yaw was dropped as not needed).
-        keys = set(cause_keys(v.best))
-        twins = [c.statement() for c in ident.classes if set(c.members) & keys and {m.split(".")[0] for m in c.members} <= set(cands)]
-        twins += [a["reason"] for a in v.indist if a.get("structural")]
-        if twins:
-            v.text += "; " + "; ".join(dict.fromkeys(twins))
+    twins = structural_notes(v, ident, cands)
+    if twins:
+        v.text += "; " + "; ".join(twins)
     if v.explained and v.best.effects and outcome_only and settings.ADDITIONS_OUTCOME_ONLY:
         possible_seconds(v, prob, sens, ev, cands)
     if v.explained and v.best.effects and outcome_only:
