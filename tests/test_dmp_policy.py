@@ -96,3 +96,20 @@ def test_interpolated_plan_has_the_dmps_accelerations() -> None:
     peak = np.max(np.abs(ref))
     assert np.max(np.abs(plan_acc)) < 1.05 * peak
     assert np.max(np.abs(plan_acc - ref)) < 0.05 * peak
+
+
+def test_a_parameterization_represents_only_dmps_of_its_own_template(param: DMPParameterization) -> None:
+    """Throws refined from two imitated throws differ in their goal velocities, which theta does not hold: one
+    parameterization stands for the other only as a different throw, so a search seeds with the first's kind alone."""
+    from besdrake.imitation import shared_parameterization
+
+    refined = param.from_vector(param.to_vector() + 0.05)
+    assert param.represents(param.template) and param.represents(refined)
+    other = param.template.copy()
+    other.goal_velocity = other.goal_velocity + 0.3
+    assert not param.represents(other)
+    assert param.from_vector(param.to_vector(other)).to_dict() != other.to_dict()  # what the search would have thrown
+    shared, kept = shared_parameterization([refined, other, param.template])
+    assert kept == [0, 2] and shared.represents(refined)
+    with pytest.raises(DMPParameterError):
+        shared_parameterization([])

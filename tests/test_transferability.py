@@ -352,3 +352,42 @@ def test_the_final_evaluation_sends_no_pareto_plan_beyond_the_joint_limits():
     final = search._final_evaluation(P, np.array([0.05, 0.1, 0.3]), D, np.array([[2.0, 0.0], [2.1, 0.0], [2.3, 0.0]]))
     assert len(final) == 1 and [t.plan_hash for t in search.transfers] == [plan_hash(to_plan(ok))]
     assert not any("refused_by_safety_gate" in t.flags for t in search.transfers)
+
+
+class _ShortLab:
+    """A lab that throws every plan ``short`` m shorter than its inner lab (a systematic offset no transfer can make
+    up for with plans that land on the target in simulation)."""
+
+    def __init__(self, lab, short: float) -> None:
+        self.lab, self.short, self.robot = lab, short, lab.robot
+
+    def description(self):
+        return self.lab.description()
+
+    def execute(self, plan, trial=None):
+        import dataclasses
+
+        m = self.lab.execute(plan, trial=trial)
+        return m if m.touchdown is None else dataclasses.replace(m, touchdown=np.asarray(m.touchdown) - [self.short, 0.0])
+
+
+def test_a_futile_search_ends_once_no_plan_is_likely_to_succeed(seed_theta):
+    lab = _ShortLab(SafetyGate(VirtualLab("diagrams/labs/ideal_lab.yaml")), short=0.6)
+    runs = {}
+    with make_executor("serial", scenario="nominal") as executor:
+        for futility_p in (None, 0.01):
+            cfg = TransferabilityConfig(**(SMALL | {"max_transfers": 6, "futility_p": futility_p, "futility_transfers": 2}))
+            runs[futility_p] = TransferabilityApproach(to_plan, seed_theta, SCALES, BOUNDS, executor, lab, np.random.default_rng(0), cfg).run()
+    full, cut = runs[None], runs[0.01]
+    plans = lambda r: [t for t in r.transfers if t.kind == "transfer"]  # noqa: E731
+    assert len(plans(full)) == 6 and not full.stopped_futile and full.transfers_until_success is None
+    assert cut.stopped_futile and 2 <= len(plans(cut)) < 6 and cut.summary()["stopped_futile"]
+    assert plans(cut)[0].p_success > 0.01  # before the lab has shown the offset the seed looked likely
+    assert all(t.p_success < 0.01 for t in plans(cut)[-2:])
+    assert [t.plan_hash for t in plans(cut)] == [t.plan_hash for t in plans(full)][: len(plans(cut))]
+
+
+@pytest.mark.parametrize("value", [0.0, 1.0, float("nan")])
+def test_a_futility_level_outside_0_1_is_refused(value):
+    with pytest.raises(ValueError, match="futility_p"):
+        TransferabilityConfig(futility_p=value)

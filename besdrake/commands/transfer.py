@@ -15,7 +15,8 @@ HELP = "refine throws with the Transferability Approach: search in simulation, t
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--lab", type=Path, required=True, help="virtual lab YAML (diagrams/labs/*.yaml)")
     parser.add_argument("--seeds", type=Path, nargs="+", required=True,
-                        help="DMP files (*.dmp.json) or folders of them: throws refined in simulation")
+                        help="DMP files (*.dmp.json) or folders of them: throws refined in simulation, the best first (the "
+                             "search's parameterization; seeds refined from another imitated throw are left out)")
     parser.add_argument("--scenario", default="nominal", help="simulation scenario (name or YAML, e.g. a refined one from 'besdrake diagnose')")
     parser.add_argument("--target", type=float, nargs=2, default=(2.0, 0.0), metavar=("X", "Y"), help="target on the floor (m)")
     parser.add_argument("--out", type=Path, default=Path("runs/transfer"), help="output folder (resumable): lab log, state, summary")
@@ -33,6 +34,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--placement-sd", type=float, default=None, metavar="M",
                         help="throw-to-throw scatter of the ball's placement in the scoop, m per axis: every plan is simulated at 9 "
                              "placements and judged by its expected throw (default 0.002, the virtual lab's; 0: the nominal placement only)")
+    parser.add_argument("--futility-p", type=float, default=None, metavar="P",
+                        help="end the search early once the last 3 plans transferred were each predicted to pass the 3/3 check "
+                             "with a probability below P (--transfer-choice likely; the lab is off by more than the search can "
+                             "make up: diagnose it); default: never")
     parser.add_argument("--json", action="store_true", help="print the summary as one JSON object")
 
 
@@ -80,6 +85,7 @@ def _search_config(args: argparse.Namespace):
             stop_on_success=not args.keep_going,
             **({"transfer_choice": args.transfer_choice} if args.transfer_choice else {}),
             **({} if args.placement_sd is None else {"placement_sd": args.placement_sd}),
+            futility_p=args.futility_p,
         )
     except ValueError as err:
         raise UserError(str(err)) from None
@@ -119,11 +125,15 @@ def _run_search(args: argparse.Namespace, cfg, param, scaling, seeds, config):
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from besdrake.imitation import DMPParameterization
+    from besdrake.imitation import shared_parameterization
     from besdrake.search.refinement import ParameterScaling
 
     files, cfg, dmps, robot = _load_seeds(args)
-    param = DMPParameterization(dmps[0], robot.joint_names)
+    param, kept = shared_parameterization(dmps, robot.joint_names)
+    for i in sorted(set(range(len(dmps))) - set(kept)):
+        print(f"besdrake: warning: {files[i]} is not a seed: its DMP differs from {files[0]}'s beyond the searched parameters "
+              "(another imitated throw: goal velocity); give the best seed first", file=sys.stderr)
+    files, dmps = [files[i] for i in kept], [dmps[i] for i in kept]
     scaling = ParameterScaling.for_dmp(dmps[0], robot.position_limits)
     seeds = np.array([param.to_vector(d) for d in dmps])
     config = _search_config(args)

@@ -16,7 +16,7 @@ from besdrake.imitation.cartesian import CartesianDMP, CartesianTrajectory
 from besdrake.imitation.dmp import DMP, DMPTrajectory
 from besdrake.imitation.io import load_dmp, save_dmp
 from besdrake.imitation.orientation import OrientationTrajectory, QuaternionDMP
-from besdrake.imitation.policy import MIN_IMITATED_EXECUTION_TIME, WEIGHTS_PER_JOINT, DMPParameterization
+from besdrake.imitation.policy import MIN_IMITATED_EXECUTION_TIME, WEIGHTS_PER_JOINT, DMPParameterization, shared_parameterization
 
 __all__ = [
     "CartesianDMP",
@@ -31,4 +31,5 @@ __all__ = [
     "WEIGHTS_PER_JOINT",
     "load_dmp",
     "save_dmp",
+    "shared_parameterization",
 ]

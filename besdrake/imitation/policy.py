@@ -78,6 +78,17 @@ class DMPParameterization:
         dmp.execution_time = tau
         return dmp
 
+    def represents(self, dmp: DMP) -> bool:
+        """Whether ``theta`` of ``dmp`` gives ``dmp`` back: it differs from the template only in the entries of
+        ``theta`` (two imitated throws differ in their goal velocities too, so one cannot stand for the other)."""
+        import json
+
+        try:
+            back = self.from_vector(self.to_vector(dmp))
+        except DMPParameterError:
+            return False
+        return json.dumps(back.to_dict(), sort_keys=True) == json.dumps(dmp.to_dict(), sort_keys=True)
+
     def motion_plan(self, theta: np.ndarray, dt: float = 0.002, run_time: float | None = None):
         """Roll the DMP of ``theta`` out every ``dt`` s as a :class:`besdrake.plan.MotionPlan`
         (positions and the DMP's velocities; duration: the execution time unless ``run_time``)."""
@@ -91,3 +102,13 @@ class DMPParameterization:
             t=traj.t, q=traj.y, qd=traj.yd, meta={"source": "dmp", "execution_time": dmp.execution_time},
             joint_names=self.joint_names,
         )
+
+
+def shared_parameterization(dmps: list[DMP], joint_names: tuple[str, ...] | None = None) -> tuple[DMPParameterization, list[int]]:
+    """One search space for several seed DMPs: the parameterization of the first (put the best first) and the indices
+    of the seeds it represents (:meth:`DMPParameterization.represents`); a DMP imitated from another throw has other
+    fixed parts (goal velocity) and is no seed of that search."""
+    if not dmps:
+        raise DMPParameterError("no DMPs given")
+    param = DMPParameterization(dmps[0], joint_names)
+    return param, [i for i, d in enumerate(dmps) if param.represents(d)]

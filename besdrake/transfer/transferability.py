@@ -113,10 +113,15 @@ class TransferabilityConfig:
     # m: a lab touchdown this far from the median of its plan's (>= 3) touchdowns is a cliff event (the object left
     # early): a miss of that plan, left out of the lab's scatter and of the offset model (None: every trial counts)
     outlier_radius: float | None = 0.25
+    # A futile search ends early: with transfer_choice "likely", once the last ``futility_transfers`` plans transferred
+    # were each predicted to pass the success check with a probability below ``futility_p`` (the lab is systematically
+    # off from the simulation by more than the search can make up; the diagnosis, not more transfers, helps). None: off.
+    futility_p: float | None = None
+    futility_transfers: int = 3
 
     def __post_init__(self) -> None:
         counts = {"population": 1, "max_transfers": 1, "success_repetitions": 1, "final_repetitions": 1,
-                  "final_best_in_lab": 0, "final_pareto": 0, "diversity_neighbours": 1}
+                  "final_best_in_lab": 0, "final_pareto": 0, "diversity_neighbours": 1, "futility_transfers": 1}
         for name, least in counts.items():
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < least:
@@ -127,6 +132,8 @@ class TransferabilityConfig:
             raise ValueError(f"mutation_sd_min must lie in (0, mutation_sd = {self.mutation_sd}], got {self.mutation_sd_min!r}")
         if self.outlier_radius is not None and not (np.isfinite(self.outlier_radius) and self.outlier_radius > 0):
             raise ValueError(f"outlier_radius must be a distance > 0 (m) or None, got {self.outlier_radius!r}")
+        if self.futility_p is not None and not (np.isfinite(self.futility_p) and 0.0 < self.futility_p < 1.0):
+            raise ValueError(f"futility_p must lie in (0, 1) or be None, got {self.futility_p!r}")
         if not (np.isfinite(self.placement_sd) and 0.0 <= self.placement_sd <= MAX_PLACEMENT_SD):
             raise ValueError(f"placement_sd must be within 0..{MAX_PLACEMENT_SD} m, got {self.placement_sd!r}")
 
@@ -144,6 +151,8 @@ class Transfer:
     disparity: float
     lab_target_distance: float
     flags: list[str] = field(default_factory=list)
+    #: a transferred plan's probability of passing the success check as predicted when it was chosen ("likely")
+    p_success: float | None = None
 
 
 @dataclass
@@ -158,6 +167,7 @@ class TransferabilityResult:
     generations: int
     sim_episodes: int
     wall_time_s: float
+    stopped_futile: bool = False  # ended before max_transfers by the futility rule (TransferabilityConfig.futility_p)
 
     def summary(self) -> dict[str, Any]:
         reliable = [f for f in self.final if f["reliable"]]
@@ -171,6 +181,7 @@ class TransferabilityResult:
             "n_reliable_final_candidates": len(reliable),
             "median_disparity_m": float(np.median([t.disparity for t in self.transfers])) if self.transfers else None,
             "best_lab_target_distance_m": min((t.lab_target_distance for t in self.transfers), default=None),
+            "stopped_futile": self.stopped_futile,
             "wall_time_s": self.wall_time_s,
         }
 
@@ -487,9 +498,11 @@ class TransferabilityApproach:
         return np.where(ranks[a] <= ranks[b], a, b)
 
     # -- the lab --------------------------------------------------------------------------------
-    def _lab_trial(self, theta: np.ndarray, kind: str, sim_touchdown: np.ndarray | None, descriptor: np.ndarray | None) -> Transfer:
+    def _lab_trial(self, theta: np.ndarray, kind: str, sim_touchdown: np.ndarray | None, descriptor: np.ndarray | None,
+                   p_success: float | None = None) -> Transfer:
         """One lab trial of ``theta``; with ``descriptor`` its measurement trains the surrogates
-        (a ``kind == "transfer"`` trial also enters the archive of transferred behaviours)."""
+        (a ``kind == "transfer"`` trial also enters the archive of transferred behaviours); ``p_success``: its predicted
+        chance of passing the success check, recorded with the trial."""
         plan = self.to_plan(theta)
         h = plan_hash(plan)
         trial = len(self.transfers)
@@ -517,7 +530,7 @@ class TransferabilityApproach:
             trial=trial, kind=kind, theta=theta.tolist(), plan_hash=h,
             sim_touchdown=None if sim_touchdown is None else sim_touchdown.tolist(),
             lab_touchdown=None if lab_td is None else lab_td.tolist(),
-            disparity=disparity, lab_target_distance=lab_dist, flags=raised,
+            disparity=disparity, lab_target_distance=lab_dist, flags=raised, p_success=p_success,
         )
         self.transfers.append(t)
         if descriptor is not None and "refused_by_safety_gate" not in raised:
@@ -532,7 +545,9 @@ class TransferabilityApproach:
         return t
 
     def _choose_transfer(self, P: np.ndarray, f1: np.ndarray, F: np.ndarray, D: np.ndarray, sim_td: np.ndarray,
-                         shifts: np.ndarray | None = None) -> int:
+                         shifts: np.ndarray | None = None) -> tuple[int, float | None]:
+        """The population index of the plan to transfer and, with ``"likely"``, its predicted chance of passing the
+        success check (else None)."""
         limits_ok = np.array([self.to_plan(p).check_limits(self.limits).ok for p in P])
         if self.config.transfer_choice in ("predicted", "likely"):
             return self._closest_predicted(limits_ok, f1, D, sim_td, P, shifts)
@@ -540,14 +555,14 @@ class TransferabilityApproach:
         pool = np.flatnonzero((ranks == 0) & (f1 <= self.config.transfer_max_sim_distance) & limits_ok)
         if len(pool) == 0:
             pool = np.flatnonzero(limits_ok) if limits_ok.any() else np.arange(len(P))
-            return int(pool[np.argmin(f1[pool])])
+            return int(pool[np.argmin(f1[pool])]), None
         if len(self.transferred_descriptors) == 0:
-            return int(pool[np.argmin(f1[pool])])
+            return int(pool[np.argmin(f1[pool])]), None
         ref = np.vstack([D, self.transferred_descriptors])
         scale = ref.std(axis=0)
         scale[scale < 1e-9] = 1.0
         d = np.linalg.norm((D[pool, None, :] - self.transferred_descriptors[None, :, :]) / scale, axis=2).min(axis=1)
-        return int(pool[np.argmax(d)])
+        return int(pool[np.argmax(d)]), None
 
     def predicted_lab_touchdowns(self, D: np.ndarray, sim_td: np.ndarray) -> np.ndarray:
         """Simulated touchdowns ``(n, 2)`` plus the offsets the :class:`OffsetSurrogate` predicts (m), learned
@@ -558,18 +573,19 @@ class TransferabilityApproach:
         return np.asarray(sim_td, dtype=float) + self.offsets.predict(np.atleast_2d(D))
 
     def _closest_predicted(self, limits_ok: np.ndarray, f1: np.ndarray, D: np.ndarray, sim_td: np.ndarray,
-                           P: np.ndarray | None = None, shifts: np.ndarray | None = None) -> int:
+                           P: np.ndarray | None = None, shifts: np.ndarray | None = None) -> tuple[int, float | None]:
         landed = limits_ok & np.isfinite(sim_td).all(axis=1)
         if not landed.any():
             pool = np.flatnonzero(limits_ok) if limits_ok.any() else np.arange(len(f1))
-            return int(pool[np.argmin(f1[pool])])
+            return int(pool[np.argmin(f1[pool])]), (0.0 if self.config.transfer_choice == "likely" else None)
         pool = np.flatnonzero(landed)
         predicted = self.predicted_lab_touchdowns(D[pool], sim_td[pool])
         sh, w = (np.zeros((len(pool), 1, 2)), np.ones(1)) if shifts is None else (shifts[pool], self.placement_weights)
         if self.config.transfer_choice != "likely" or P is None:
             dist = np.linalg.norm(predicted[:, None, :] + sh - self.target, axis=2)
-            return int(pool[np.argmin(np.where(np.isfinite(dist), dist, NO_TOUCHDOWN_DISTANCE) @ w)])
-        return int(pool[np.argmax(self._success_probabilities(P[pool], predicted, sh, w))])
+            return int(pool[np.argmin(np.where(np.isfinite(dist), dist, NO_TOUCHDOWN_DISTANCE) @ w)]), None
+        p = self._success_probabilities(P[pool], predicted, sh, w)
+        return int(pool[np.argmax(p)]), float(np.max(p))
 
     def _run_in_lab(self) -> dict[str, list[Transfer]]:
         """The lab trials (transfers and repeats) that landed, by plan hash."""
@@ -714,7 +730,7 @@ class TransferabilityApproach:
             P, f1, D, sim_td, shifts = loaded
             self.progress(f"resumed at generation {self.generation} with {len(self.transfers)} lab trials")
         n_plans = sum(1 for t in self.transfers if t.kind == "transfer")
-        while n_plans < cfg.max_transfers and not (cfg.stop_on_success and self.success_at is not None):
+        while n_plans < cfg.max_transfers and not (cfg.stop_on_success and self.success_at is not None) and not self.futile():
             self.generation += 1
             F = self._objectives(f1, D)
             children = self._mutate(P[self._tournament(F, cfg.population)])
@@ -725,9 +741,9 @@ class TransferabilityApproach:
             F = self._objectives(f1, D)
             keep = self._select(F, cfg.population)
             P, f1, D, sim_td, shifts, F = P[keep], f1[keep], D[keep], sim_td[keep], shifts[keep], F[keep]
-            i = self._choose_transfer(P, f1, F, D, sim_td, shifts)
+            i, p_success = self._choose_transfer(P, f1, F, D, sim_td, shifts)
             td = None if np.isnan(sim_td[i]).any() else sim_td[i]
-            t = self._lab_trial(P[i], "transfer", td, D[i])
+            t = self._lab_trial(P[i], "transfer", td, D[i], p_success)
             n_plans += 1
             if t.lab_target_distance < cfg.success_radius and self.success_at is None:
                 hits = 1
@@ -738,6 +754,10 @@ class TransferabilityApproach:
                     self.success_at = len(self.transfers)
                     self.success_plans = n_plans
             self._save(P, f1, D, sim_td, shifts)
+        futile = n_plans < cfg.max_transfers and self.futile()
+        if futile:
+            self.progress(f"no plan is likely to pass the success check (the last {cfg.futility_transfers} transferred each below "
+                          f"P = {cfg.futility_p:g}): the search ends after {n_plans} transfers")
         final = self._final_evaluation(P, f1, D, sim_td)
         best = None
         if self.transfers:
@@ -751,7 +771,18 @@ class TransferabilityApproach:
             generations=self.generation,
             sim_episodes=self.sim_episodes,
             wall_time_s=time.perf_counter() - t_start,
+            stopped_futile=futile,
         )
+
+    def futile(self) -> bool:
+        """Whether the search is futile (:attr:`TransferabilityConfig.futility_p`): no success yet, and each of the last
+        ``futility_transfers`` plans transferred was predicted to pass the success check with a probability below
+        ``futility_p`` (decided from the trials, so a resumed search decides the same)."""
+        cfg = self.config
+        if cfg.futility_p is None or self.success_at is not None:
+            return False
+        ps = [t.p_success for t in self.transfers if t.kind == "transfer"][-cfg.futility_transfers:]
+        return len(ps) == cfg.futility_transfers and all(p is not None and p < cfg.futility_p for p in ps)
 
     def _final_evaluation(self, P, f1, D, sim_td) -> list[dict[str, Any]]:
         """2 best plans in the lab and 4 of the Pareto front (within every joint limit), each repeated

@@ -477,6 +477,8 @@ def transfer_config(config: dict[str, Any]):
             target=tuple(config["refinement"]["target"]), population=int(cfg["population"]),
             max_transfers=int(cfg["max_transfers"]), final_repetitions=int(cfg["final_repetitions"]),
             transfer_choice=str(cfg.get("transfer_choice", "likely")), placement_sd=float(cfg.get("placement_sd", PLACEMENT_SD)),
+            futility_p=None if cfg.get("futility_p") is None else float(cfg["futility_p"]),
+            futility_transfers=int(cfg.get("futility_transfers", 3)),
         )
     except (TypeError, ValueError) as err:
         raise ConfigError(f"transfer: {err}") from None
@@ -505,15 +507,26 @@ def diagnosis_design(config: dict[str, Any], limits=None) -> list:
         raise ConfigError(f"diagnosis: {err}") from None
 
 
+def _seed_files(folder: Path, best: str | None) -> list[Path]:
+    """The refined throws in ``folder``, the refinement's best (file name ``best``) first: the search's template."""
+    files = sorted(folder.glob("refined*.dmp.json"))
+    return sorted(files, key=lambda f: f.name != best)
+
+
 def _transfer(ctx: Context, seed_files: list[Path], scenario: str, out: Path) -> dict[str, Any]:
-    from besdrake.imitation import DMPParameterization, load_dmp
+    """The Transferability Approach from ``seed_files`` (best first): the seeds the first one's parameterization
+    represents (a throw refined from another imitated throw has another goal velocity and is left out)."""
+    from besdrake.imitation import load_dmp, shared_parameterization
     from besdrake.search.refinement import ParameterScaling
     from besdrake.transfer.transferability import TransferabilityApproach
 
     cfg = ctx.config["transfer"]
-    dmps = [load_dmp(f) for f in seed_files]
     robot = ctx.robot(scenario)
-    param = DMPParameterization(dmps[0], robot.joint_names)
+    param, kept = shared_parameterization([load_dmp(f) for f in seed_files], robot.joint_names)
+    left_out = [f.name for i, f in enumerate(seed_files) if i not in kept]
+    if left_out:
+        ctx.progress(f"transfer seeds: {seed_files[0].name}" + "".join(f", not {n} (refined from another imitated throw)" for n in left_out))
+    dmps = [load_dmp(seed_files[i]) for i in kept]
     scaling = ParameterScaling.for_dmp(dmps[0], robot.position_limits)
     lab = _lab(ctx)
     log = _open_log(out / "lab_log", lab)
@@ -525,7 +538,7 @@ def _transfer(ctx: Context, seed_files: list[Path], scenario: str, out: Path) ->
             log=log, out_dir=out, progress=ctx.progress,
         )
         result = search.run()
-    summary = result.summary() | {"scenario": scenario}
+    summary = result.summary() | {"scenario": scenario, "seeds": [seed_files[i].name for i in kept], "seeds_left_out": left_out}
     if result.best_theta is not None:
         best = param.from_vector(result.best_theta)
         best.save(out / "best.dmp.json")
@@ -536,7 +549,8 @@ def _transfer(ctx: Context, seed_files: list[Path], scenario: str, out: Path) ->
 
 def stage_transfer(ctx: Context, out: Path) -> dict[str, Any]:
     refine_dir = ctx.run.root / "04_refine"
-    return _transfer(ctx, sorted(refine_dir.glob("refined*.dmp.json")), ctx.config["scenario"], out)
+    best = ctx.run.done(4, "refine")["summary"].get("best_dmp")
+    return _transfer(ctx, _seed_files(refine_dir, best), ctx.config["scenario"], out)
 
 
 # --------------------------------------------------------------------------------------------
@@ -582,7 +596,7 @@ def stage_transfer_refined(ctx: Context, out: Path) -> dict[str, Any]:
     seeds = [load_dmp(f) for f in sorted((ctx.run.root / "04_refine").glob("refined*.dmp.json"))]
     budget = max(int(ctx.config["refinement"]["evaluations"]) // 2, 20)
     refined = _refine_from(ctx, seeds, scenario, out / "refine", budget, "re-refine", scouting=False)
-    summary = _transfer(ctx, sorted((out / "refine").glob("refined*.dmp.json")), scenario, out)
+    summary = _transfer(ctx, _seed_files(out / "refine", refined.get("best_dmp")), scenario, out)
     return summary | {"re_refinement": refined}
 
 
