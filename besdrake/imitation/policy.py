@@ -80,7 +80,7 @@ class DMPParameterization:
 
     def represents(self, dmp: DMP) -> bool:
         """Whether ``theta`` of ``dmp`` gives ``dmp`` back: it differs from the template only in the entries of
-        ``theta`` (two imitated throws differ in their goal velocities too, so one cannot stand for the other)."""
+        ``theta`` (two imitated movements differ in their goal velocities too, so one cannot stand for the other)."""
         import json
 
         try:
@@ -106,7 +106,7 @@ class DMPParameterization:
 
 def shared_parameterization(dmps: list[DMP], joint_names: tuple[str, ...] | None = None) -> tuple[DMPParameterization, list[int]]:
     """One search space for several seed DMPs: the parameterization of the first (put the best first) and the indices
-    of the seeds it represents (:meth:`DMPParameterization.represents`); a DMP imitated from another throw has other
+    of the seeds it represents (:meth:`DMPParameterization.represents`); a DMP imitated from another demonstration has other
     fixed parts (goal velocity) and is no seed of that search."""
     if not dmps:
         raise DMPParameterError("no DMPs given")

@@ -55,6 +55,15 @@ within ``success_radius`` of the target, it is repeated until ``success_repetiti
 say whether it does so reliably (the issue's success criterion: 3 of 3). At the end, the 2 best
 plans in the lab and 4 plans of the Pareto front are evaluated ``final_repetitions`` times.
 
+A search may end early as futile (``futility_p``, off by default; ``besdrake learn`` sets 0.01): once each of the last
+``futility_transfers`` plans sent to the lab was predicted (``"likely"``, with the offsets the lab has shown) to pass the
+success check with a probability below ``futility_p``, no plan of the population is likely to succeed: the lab is off by
+more than the search makes up, and lab trials are better spent on a diagnosis. Each transfer records its predicted
+probability (``Transfer.p_success``).
+
+Seeds are parameter vectors of one parameterization: plans refined from different demonstrations (other goal
+velocities) are not seeds of one search (:func:`besdrake.imitation.shared_parameterization`).
+
 Every lab trial goes through the caller's lab (put a :class:`~besdrake.transfer.lab.SafetyGate` in
 front) and, when a :class:`~besdrake.transfer.log.LabLog` is given, is appended to it before it is
 used. The search state is saved after every generation; a rerun with the same output folder
