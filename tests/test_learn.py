@@ -186,3 +186,12 @@ def test_refinement_runs_in_turn_stop_at_the_first_that_succeeds():
     assert len(calls) == 2 and calls == ["ex", "ex"]
     # a success outside the stop distance (its robust distance where checked) does not end the turn
     assert _runs_in_turn([job(robustly_far), job(near)], "ex", 0.05) == [robustly_far, near]
+
+def test_the_transfer_is_seeded_with_the_refinements_best_throw_first(tmp_path):
+    """The first seed is the Transferability search's template (its goal velocity): the refinement's best throw."""
+    from besdrake.tasks.throwing.learn import _seed_files
+
+    for name in ("refined0.dmp.json", "refined1.dmp.json", "refined2.dmp.json", "other.json"):
+        (tmp_path / name).write_text("{}")
+    assert [f.name for f in _seed_files(tmp_path, "refined1.dmp.json")] == ["refined1.dmp.json", "refined0.dmp.json", "refined2.dmp.json"]
+    assert [f.name for f in _seed_files(tmp_path, None)] == ["refined0.dmp.json", "refined1.dmp.json", "refined2.dmp.json"]
