@@ -81,7 +81,7 @@ def _run_starts(problems, ranked, k: int, args):
 def main(argv: list[str] | None = None) -> int:
     from besdrake.commands.refine import collect_imitated
     from besdrake.imitation import load_dmp
-    from besdrake.search.refinement import MIN_EXECUTION_TIME, ParameterScaling, RefinementProblem, rank_starts, refine, DEFAULT_RETIME, DEFAULT_SCOUT_STARTS
+    from besdrake.search.refinement import MIN_EXECUTION_TIME, ParameterScaling, RefinementProblem, rank_starts, refine, StallRule, DEFAULT_RETIME, DEFAULT_SCOUT_STARTS
     from besdrake.tasks.throwing.reward import ThrowReward
     from besdrake.search.refinement import DEFAULT_CMA_OPTIONS, DEFAULT_POPSIZE_GROWTH, DEFAULT_RESTART_REGIMES, DEFAULT_STAGNATION_GENERATIONS, STAGNATION_TOL
     from besdrake.search.refinement import DEFAULT_PATIENCE, DEFAULT_SIGMA0, DEFAULT_SCOUT_GENERATIONS, DEFAULT_SCOUT_HALVING, DEFAULT_SCOUTS
@@ -145,6 +145,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--stop-distance", type=float, default=None,
                         help="stop at the first generation with a throw within every limit closer than this (m; the robust "
                              "distance where checked; default: the success distance 0.1 m)")
+    parser.add_argument("--stall-episodes", type=int, default=None,
+                        help="end a run once its best gained less than --stall-tol over its last this many episodes, not before "
+                             "--stall-after episodes (refinement.StallRule; learn's default 200 / 0.01 / 400); default: never")
+    parser.add_argument("--stall-tol", type=float, default=0.01)
+    parser.add_argument("--stall-after", type=int, default=400)
     parser.add_argument("--lab-repeats", type=int, default=0,
                         help="throw each run's best plan this often in the virtual lab and in its noise floor (the same lab "
                              "with the ball always at its habit; besdrake.tasks.throwing.repeatability): scatter / floor")
@@ -208,11 +213,12 @@ def main(argv: list[str] | None = None) -> int:
                            cma_options=cma_options, popsize_growth=args.popsize_growth, restart_regimes=args.regimes,
                            small_share=args.small_share, patience=args.patience,
                            scouts=args.scouts, scout_generations=args.scout_generations, scout_halving=args.scout_halving,
-                           stop_distance=args.stop_distance)
+                           stop_distance=args.stop_distance,
+                           stall=None if args.stall_episodes is None else StallRule(args.stall_episodes, args.stall_tol, args.stall_after))
                 runs.append({"seed": args.first_seed + k, "start_throw": index, "success": r.success, "episodes_to_success": r.episodes_to_success,
                              "best_distance_within_limits_m": r.summary()["best_distance_within_limits_m"],
                              "best_distance_m": r.summary()["best_distance_m"], "n_episodes": r.n_episodes, "n_failed": r.n_failed,
-                             "n_restarts": len(r.attempts), "wall_time_s": r.wall_time,
+                             "n_restarts": len(r.attempts), "stop_reason": r.stop_reason, "wall_time_s": r.wall_time,
                              "robust_rollouts": r.n_robust_rollouts, "best_robust_distance_m": r.summary().get("best_robust_distance_m")})
                 if args.lab_repeats:
                     runs[-1]["lab"] = _lab_repeats(problems[index], r, args)
@@ -235,6 +241,7 @@ def main(argv: list[str] | None = None) -> int:
         "scout_generations": DEFAULT_SCOUT_GENERATIONS if args.scout_generations is None else args.scout_generations,
         "scout_halving": DEFAULT_SCOUT_HALVING if args.scout_halving is None else args.scout_halving, "plain": args.plain, "target_m": [2.0, 0.0], "backend": args.backend,
         "robust_sd_m": args.robust_sd, "robust_radius_m": args.robust_radius, "stop_distance_m": args.stop_distance, "lab_repeats": args.lab_repeats,
+        "stall": None if args.stall_episodes is None else [args.stall_episodes, args.stall_tol, args.stall_after],
         "success_rate": float(np.mean([r["success"] for r in all_runs])),
         "subjects_with_success_in_every_run": sum(v["success_rate"] == 1.0 for v in subjects.values()),
         "subjects_with_success_in_some_run": sum(v["success_rate"] > 0.0 for v in subjects.values()),

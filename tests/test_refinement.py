@@ -282,3 +282,27 @@ def test_episode_bench_splits_the_episodes_time(base):
     # the instrumentation is gone afterwards
     assert "plan" not in vars(problem) and "motion_plan" not in vars(problem.parameterization)
     assert isinstance(problem.reward, ThrowReward)
+
+
+def test_a_stall_rule_ends_a_run_that_gained_too_little_and_a_resumed_run_ends_alike(base, tmp_path):
+    from besdrake.search.refinement import StallRule
+
+    rule = StallRule(episodes=16, tol=0.01, after=0)
+    assert not rule.stalled([1.0, 0.9] * 8) and rule.stalled([1.0] * 17) and not rule.stalled([1.0] * 16 + [0.9])
+    assert StallRule(16, 0.05, after=0).stalled([1.0] * 8 + [0.98] * 9) and not StallRule(16, 0.05, after=40).stalled([1.0] * 17)
+    assert not StallRule(2, 0.01, after=0).stalled([np.nan, np.nan, 1.0])  # a first finite best is a gain
+    for bad in ({"episodes": 0}, {"tol": -0.01}, {"after": -1}, {"tol": float("nan")}):
+        with pytest.raises(RefinementError):
+            StallRule(**bad)
+
+    never = refine(RefinementProblem(COMPI, base), StandIn(), n_episodes=48, seed=3, popsize=8, stop_on_success=False,
+                   stall=StallRule(episodes=16, tol=0.0, after=24))
+    assert never.n_episodes == 48 and never.stop_reason == "budget"  # a gain below 0 m: never
+    huge = StallRule(episodes=16, tol=10.0, after=24)  # any run "gains too little" once it has 24 episodes
+    whole = refine(RefinementProblem(COMPI, base), StandIn(), n_episodes=80, seed=3, popsize=8, stop_on_success=False, stall=huge)
+    assert whole.n_episodes == 24 and whole.stop_reason == "stalled"
+    refine(RefinementProblem(COMPI, base), StandIn(), n_episodes=16, seed=3, popsize=8, out_dir=tmp_path, stop_on_success=False, stall=huge)
+    ex = StandIn()
+    resumed = refine(RefinementProblem(COMPI, base), ex, n_episodes=80, seed=3, popsize=8, out_dir=tmp_path, stop_on_success=False, stall=huge)
+    assert resumed.resumed and resumed.n_episodes == 24 and ex.calls == 8 and resumed.stop_reason == "stalled"
+    assert np.array_equal(resumed.rewards, whole.rewards)

@@ -319,7 +319,7 @@ def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int
                 return refine(problems[i], ex, n_episodes=int(budget), seed=int(cfg["seed"]) + k, out_dir=out / f"run{k}",
                               sigma0=DEFAULT_SIGMA0 if sigma0 is None else sigma0,
                               popsize=int(cfg["population"]), stop_on_success=settings["stop_on_success"],
-                              stop_distance=settings["stop_distance"], starts=starts, scouts=scouts)
+                              stop_distance=settings["stop_distance"], starts=starts, scouts=scouts, stall=settings["stall"])
             return job
 
         jobs = [run_job(k) for k in range(n_runs)]
@@ -397,7 +397,9 @@ def _save_throw(dmp, robot, out: Path, k: int) -> None:
 def refinement_settings(config: dict[str, Any]) -> dict[str, Any]:
     """The refinement section's stop and robustness settings, checked (:class:`~besdrake.pipeline.config.ConfigError`):
     ``stop_on_success``, ``runs_in_turn`` (the runs one after the other up to the first success), ``stop_distance`` (m;
-    null: the success distance) and ``robust_sd`` (m per axis; 0: no robust check), ``robust_radius`` (m)."""
+    null: the success distance) and ``robust_sd`` (m per axis; 0: no robust check), ``robust_radius`` (m), ``stall`` (a
+    :class:`~besdrake.search.refinement.StallRule` from ``stall_episodes`` / ``stall_tol`` / ``stall_after``; None where
+    ``stall_episodes`` is null)."""
     from besdrake.pipeline.config import ConfigError
     from besdrake.search.refinement import SUCCESS_DISTANCE
     from besdrake.search.refinement.robust import ROBUST_RADIUS
@@ -410,6 +412,7 @@ def refinement_settings(config: dict[str, Any]) -> dict[str, Any]:
                "robust_sd": float(cfg.get("robust_sd", 0.0)), "robust_radius": float(cfg.get("robust_radius", ROBUST_RADIUS))}
     except (TypeError, ValueError) as err:
         raise ConfigError(f"refinement: {err}") from None
+    out["stall"] = _stall_rule(cfg)
     if out["stop_distance"] is not None and not (0 < out["stop_distance"] <= SUCCESS_DISTANCE):
         raise ConfigError(f"refinement: stop_distance must be within (0, {SUCCESS_DISTANCE}] m or null, got {stop!r}")
     if out["run_starts"] not in ("same", "diverse"):
@@ -418,6 +421,19 @@ def refinement_settings(config: dict[str, Any]) -> dict[str, Any]:
         raise ConfigError(f"refinement: robust_sd must be within 0..0.005 m and robust_radius > 0 m, "
                           f"got {out['robust_sd']!r}, {out['robust_radius']!r}")
     return out
+
+
+def _stall_rule(cfg: dict[str, Any]):
+    """The refinement section's stall rule (None: ``stall_episodes`` null or absent)."""
+    from besdrake.pipeline.config import ConfigError
+    from besdrake.search.refinement import RefinementError, StallRule
+
+    if cfg.get("stall_episodes") is None:
+        return None
+    try:
+        return StallRule(int(cfg["stall_episodes"]), float(cfg.get("stall_tol", 0.01)), int(cfg.get("stall_after", 400)))
+    except (TypeError, ValueError, RefinementError) as err:
+        raise ConfigError(f"refinement: {err}") from None
 
 
 def _robust_check(task: str, scenario: str, settings: dict[str, Any]):
