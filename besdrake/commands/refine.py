@@ -71,6 +71,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--plain", action="store_true", help="the search before issue 5: plain CMA-ES, no restarts (overrides the search options above; "
                                                               "'--regimes large' is the default before the BIPOP regimes)")
     parser.add_argument("--dropped-penalty", type=float, default=None, help="reward penalty (m) of a ball that falls out of the scoop (default 0)")
+    parser.add_argument("--stall-episodes", type=int, default=None, metavar="N",
+                        help="end a run once its best gained less than 1 cm over its last N episodes, not before episode 400 "
+                             "(besdrake.search.refinement.StallRule; besdrake learn uses 200); default: never")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--continue-after-success", action="store_true", help="use the whole budget instead of stopping at the first success")
     from besdrake.sim.cliutil import add_backend_arguments
@@ -234,7 +237,7 @@ def _refine_run(k: int, args: argparse.Namespace, problem, executor, *, search: 
     from besdrake.cli import UserError
     from besdrake.imitation import save_dmp
     from besdrake.search.loop import ResumeError
-    from besdrake.search.refinement import RefinementError, refine
+    from besdrake.search.refinement import RefinementError, StallRule, refine
 
     run_dir = args.out / f"run{k}"
     bar = None
@@ -252,7 +255,8 @@ def _refine_run(k: int, args: argparse.Namespace, problem, executor, *, search: 
         result = refine(problem, executor, args.episodes, seed=args.seed + k, out_dir=run_dir, sigma0=args.sigma0,
                         popsize=args.popsize, stop_on_success=not args.continue_after_success, progress=progress,
                         meta_episodes=args.meta_episodes, meta_sigma=args.meta_sigma, **search,
-                        **({} if starts is None else {"starts": starts}))
+                        **({} if starts is None else {"starts": starts}),
+                        stall=None if args.stall_episodes is None else StallRule(args.stall_episodes))
     except (RefinementError, ResumeError) as err:
         raise UserError(str(err)) from None
     finally:
