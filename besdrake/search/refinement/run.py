@@ -192,8 +192,7 @@ def _logged_objectives(out: Path | None) -> list[float]:
     if path is None or not path.is_file():
         return []
     with path.open(newline="") as f:
-        return [-float(r["reward"]) if r.get("failed") in ("0", "False", "") and r.get("reward") not in (None, "") else float("nan")
-                for r in csv.DictReader(f)]
+        return [-float(r["reward"]) if r["failed"] == "0" else float("nan") for r in csv.DictReader(f)]
 
 
 def _checked_settings(n_episodes: int, meta_episodes: int, meta_sigma: float, stagnation_generations: int | None,

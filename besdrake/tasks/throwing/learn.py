@@ -538,11 +538,12 @@ def _transfer(ctx: Context, seed_files: list[Path], scenario: str, out: Path) ->
 
     cfg = ctx.config["transfer"]
     robot = ctx.robot(scenario)
-    param, kept = shared_parameterization([load_dmp(f) for f in seed_files], robot.joint_names)
+    loaded = [load_dmp(f) for f in seed_files]
+    param, kept = shared_parameterization(loaded, robot.joint_names)
     left_out = [f.name for i, f in enumerate(seed_files) if i not in kept]
     if left_out:
         ctx.progress(f"transfer seeds: {seed_files[0].name}" + "".join(f", not {n} (refined from another imitated throw)" for n in left_out))
-    dmps = [load_dmp(seed_files[i]) for i in kept]
+    dmps = [loaded[i] for i in kept]
     scaling = ParameterScaling.for_dmp(dmps[0], robot.position_limits)
     lab = _lab(ctx)
     log = _open_log(out / "lab_log", lab)
