@@ -307,3 +307,6 @@ def test_a_stall_rule_ends_a_run_that_gained_too_little_and_a_resumed_run_ends_a
     resumed = refine(RefinementProblem(COMPI, base), ex, n_episodes=80, seed=3, popsize=8, out_dir=tmp_path, stop_on_success=False, stall=huge)
     assert resumed.resumed and resumed.n_episodes == 24 and ex.calls == 8 and resumed.stop_reason == "stalled"
     assert np.array_equal(resumed.rewards, whole.rewards)
+    ex = StandIn()
+    again = refine(RefinementProblem(COMPI, base), ex, n_episodes=80, seed=3, popsize=8, out_dir=tmp_path, stop_on_success=False, stall=huge)
+    assert again.n_episodes == 24 and ex.calls == 0 and again.stop_reason == "stalled"  # a stalled run stays stopped

@@ -172,12 +172,15 @@ def refine(
     own = read_details(details_path) if details_path is not None else {}
     if stop_on_success and any(stops_at(r, stop) for r in own.values()):
         n_episodes = min(n_episodes, len(own))  # a resumed run that had stopped stays stopped
+    logged = _logged_objectives(out)
+    if stall is not None and stall.stalled(logged):
+        n_episodes = min(n_episodes, len(logged))  # ... and one that had stalled too
     t0 = time.perf_counter()
-    callback = _generation_callback(problem, progress, stop_on_success, t0, stop, stall, _logged_objectives(out))
+    callback = _generation_callback(problem, progress, stop_on_success, t0, stop, stall, logged)
     loop = run_search(opt, problem.batch_evaluator(executor, details_path), n_evaluations=n_episodes, out_dir=out, callback=callback)
     wall = time.perf_counter() - t0
     result = _result(problem, loop, wall)
-    if stall is not None and result.stop_reason == "callback" and not result.reached(stop) and stall.stalled(-result.rewards):
+    if stall is not None and result.stop_reason != "optimizer" and not result.reached(stop) and stall.stalled(-result.rewards):
         result.stop_reason = "stalled"
     return result
 
