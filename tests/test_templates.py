@@ -331,6 +331,17 @@ def test_creps_starts_from_the_probes_policy(base):
     assert probed < plain - 0.1  # a linear fit of the probes' policy instead of the box centre
 
 
+def test_a_creps_template_from_the_probes_ends_near_its_start(base):
+    """Issue 27: C-REPS's 73 episodes cannot improve much on the probes' policy, but must not lose it (with a linear
+    policy, the last 20 episodes per update and 1/4 of the box as exploration, this stand-in went from 24 cm at the
+    start to 35-55 cm after 80 episodes; the learn bases from 19 to 45 cm)."""
+    start = evaluate_template(train_template(base, PolarStandIn(), "creps", 8, seed=0, probes=7).template, PolarStandIn()).mean_distance
+    for seed in (0, 1):
+        tr = train_template(base, PolarStandIn(), "creps", 80, seed=seed, probes=7)
+        assert tr.loop.optimizer.n_updates == 3
+        assert evaluate_template(tr.template, PolarStandIn()).mean_distance < start + 0.02
+
+
 def test_template_plans_keep_the_robots_knot_spacing(base):
     """An execution time just past a multiple of the plan's step (a learn template at 3.0384 s ended 9.4 us after its
     previous knot, and the lab's safety gate refused it): the plan ends at the execution time with a slightly longer

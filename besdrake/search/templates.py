@@ -234,7 +234,19 @@ class MetaDMP:
         return MotionPlan(t=traj.t, q=traj.y, qd=traj.yd, meta=meta, joint_names=self.robot.joint_names)
 
 
-def _make_optimizer(method: str, meta_bounds: np.ndarray, seed: int, creps_spread: float = 4.0, **kwargs: Any):
+#: C-REPS settings of a template (issue 27, session 25): a quadratic policy in the context (the probes' policy fitted
+#: with it starts at 6.7-14.9 cm where a linear one starts at 12.5-21.9 cm, three bases in the nominal simulation), every
+#: episode reused (80: a template's budget) and a KL bound of 0.5. With the settings before (linear, the last 20
+#: episodes, bound 1.0, exploration 1/4 of the box) the updates moved the policy away from its start: 44.7 cm mean over
+#: the three bases after 80 episodes against 18.5 cm at the start (REFINEMENT.md, "Four methods on learn's bases").
+CREPS_SETTINGS: dict[str, Any] = {"n_samples_per_update": 20, "memory": 80, "epsilon": 0.5, "policy_features": "quadratic"}
+#: C-REPS's initial exploration: SD of each meta-parameter = the box's width / this; from the probes' policy
+#: (:func:`_creps_prior_policy`, a start worth keeping) / from the box's centre.
+CREPS_SPREAD = 4.0
+CREPS_PRIOR_SPREAD = 20.0
+
+
+def _make_optimizer(method: str, meta_bounds: np.ndarray, seed: int, creps_spread: float = CREPS_SPREAD, **kwargs: Any):
     from besdrake.search.aces import ACES
     from besdrake.search.bocps import BOCPS
 
@@ -247,7 +259,7 @@ def _make_optimizer(method: str, meta_bounds: np.ndarray, seed: int, creps_sprea
         from besdrake.search.creps import CREPS
 
         width = meta_bounds[:, 1] - meta_bounds[:, 0]
-        settings = {"n_samples_per_update": 20, "context_bounds": CONTEXT_BOUNDS} | kwargs
+        settings = CREPS_SETTINGS | {"context_bounds": CONTEXT_BOUNDS} | kwargs
         return CREPS(meta_bounds.mean(axis=1), len(CONTEXT_BOUNDS), np.diag((width / creps_spread) ** 2), rng, **settings)
     raise TemplateError(f"unknown method {method!r}; choose one of {METHODS}")
 
@@ -647,7 +659,10 @@ def _n_probes(probes: int, n_episodes: int, joint1_mode: str, time_mode: str) ->
 
 def _template_optimizer(method: str, bounds: np.ndarray, seed: int, probe, optimizer_kwargs: dict[str, Any] | None):
     """The upper-level search of ``method``, with the reach ``probe``'s model as prior knowledge where given."""
-    optimizer = _make_optimizer(method, bounds, seed, **_prior_kwargs(method, probe), **(optimizer_kwargs or {}))
+    kwargs = _prior_kwargs(method, probe) | dict(optimizer_kwargs or {})
+    if probe is not None and method == "creps":
+        kwargs.setdefault("creps_spread", CREPS_PRIOR_SPREAD)
+    optimizer = _make_optimizer(method, bounds, seed, **kwargs)
     if probe is not None and method == "creps":
         _creps_prior_policy(optimizer, probe, bounds)
     return optimizer
@@ -668,7 +683,8 @@ def _prior_kwargs(method: str, probe) -> dict[str, Any]:
 
 
 def _creps_prior_policy(optimizer, probe, bounds: np.ndarray, n: int = 9) -> None:
-    """Start C-REPS's linear policy at the least-squares fit of the probes' best meta-parameters on a context grid."""
+    """Start C-REPS's policy (its features of the context) at the least-squares fit of the probes' best meta-parameters
+    on a context grid."""
     from besdrake.search.creps import context_features
     from besdrake.search.template_reach import prior_policy
 
