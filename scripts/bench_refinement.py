@@ -67,9 +67,9 @@ def _lab_line(lab: dict | None) -> str:
 def _run_starts(problems, ranked, k: int, args):
     """Run ``k``'s start throw and the start points of its restarts or scouts (``--restart-from``, ``--run-starts``,
     ``--start-group``)."""
-    from besdrake.search.refinement import restart_points, run_start, run_start_order
+    from besdrake.search.refinement import restart_points, run_start, run_start_order, simulated_order
 
-    order = [i for i, r in ranked if np.isfinite(r.reward)]
+    order = simulated_order(ranked)
     diverse = args.run_starts == "diverse" and args.scouts != 0 and not args.plain  # as besdrake learn: only where it scouts
     group = args.start_group + (k if diverse else 0)
     if args.restart_from == "ranked":

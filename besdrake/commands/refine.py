@@ -214,7 +214,7 @@ def _start(args: argparse.Namespace, files: list[Path], problems: list, executor
     import numpy as np
 
     from besdrake.cli import UserError
-    from besdrake.search.refinement import rank_starts
+    from besdrake.search.refinement import rank_starts, simulated_order
 
     start_file = args.out / "start.json"
     start = None
@@ -227,7 +227,7 @@ def _start(args: argparse.Namespace, files: list[Path], problems: list, executor
         index, rec = ranking[0]
         start = {"files": [str(f) for f in files], "target": list(args.target), "index": index,
                  "start_distance_m": rec.distance, "start_touchdown_m": rec.touchdown, "start_flags": rec.flags,
-                 "ranking": [int(i) for i, r in ranking if np.isfinite(r.reward)]}
+                 "ranking": simulated_order(ranking)}
         _atomic_write_text(start_file, json.dumps(start, indent=1))
     return start
 

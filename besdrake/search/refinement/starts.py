@@ -29,6 +29,12 @@ def rank_starts(problems: Sequence[RefinementProblem], executor) -> list[tuple[i
     return sorted(results, key=lambda ir: -ir[1].reward if np.isfinite(ir[1].reward) else np.inf)
 
 
+def simulated_order(ranking: Sequence[tuple[int, RewardBreakdown]]) -> list[int]:
+    """The indices of :func:`rank_starts`'s ``ranking`` whose movement could be simulated, best first: what run starts,
+    scouts and restarts draw from."""
+    return [int(i) for i, r in ranking if np.isfinite(r.reward)]
+
+
 def restart_points(problem: RefinementProblem, others: Sequence[RefinementProblem]) -> np.ndarray:
     """The imitated movements of ``others`` as candidates of ``problem``'s normalised space, shape
     ``(len(others), n_params)`` (clipped to its bounds): start points of restart attempts."""
@@ -45,7 +51,7 @@ def scout_start_points(problems: Sequence[RefinementProblem], ranking: Sequence[
     """Start points of the scouts (``refine(starts=...)``): the ``n`` best imitated movements of ``ranking`` (from
     :func:`rank_starts`; default :data:`DEFAULT_SCOUT_STARTS`) in the normalised space of the best one, the best first;
     None when ``n`` is 1 (every scout from the start point). A movement that failed in simulation is not a start point."""
-    return scout_points(problems, [i for i, r in ranking if np.isfinite(r.reward)], n)
+    return scout_points(problems, simulated_order(ranking), n)
 
 
 def run_start_order(order: Sequence[int], run: int, n: int | None = None) -> list[int]:

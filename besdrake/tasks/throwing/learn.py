@@ -371,9 +371,9 @@ def _keep_start(ctx: Context, problem, robot, index: int, start, out: Path, tag:
 
 def _run_starts(problems: list, ranking: list, group: int) -> tuple[int, Any]:
     """:func:`~besdrake.search.refinement.run_start` over the throws of ``ranking`` that could be simulated."""
-    from besdrake.search.refinement import run_start
+    from besdrake.search.refinement import run_start, simulated_order
 
-    return run_start(problems, [i for i, r in ranking if np.isfinite(r.reward)], group)
+    return run_start(problems, simulated_order(ranking), group)
 
 
 def _save_refined(problems: list, robot, results: list, out: Path) -> list[dict[str, Any]]:
