@@ -25,6 +25,17 @@ from besdrake._io import write_text as _atomic_write_text
 from besdrake.robot import JointLimits
 
 
+def _speed_profile(at: float, factor: float, window: float):
+    """Speed of :meth:`MotionPlan.slowed_after`'s warp against the plan's own time ``sigma``: 1 before ``at``, then a
+    half cosine to ``factor`` over ``window``, ``factor`` after."""
+
+    def rate(sigma: np.ndarray) -> np.ndarray:
+        u = np.clip((np.asarray(sigma, dtype=float) - at) / window, 0.0, 1.0)
+        return 1.0 + (factor - 1.0) * 0.5 * (1.0 - np.cos(np.pi * u))
+
+    return rate
+
+
 class PlanError(ValueError):
     """A motion plan is malformed (shape, NaN/inf, time) or violates the joint limits."""
 
@@ -176,6 +187,35 @@ class MotionPlan:
         q, qd, qdd = self._hermite(ts, knot_qd)
         _, _, qdd_left = self._hermite(self.t[1:] - 1e-12, knot_qd)
         return q, qd, np.vstack([qdd, qdd_left])
+
+    def slowed_after(self, at: float, factor: float, window: float = 0.3, knot_step: float | None = None) -> "MotionPlan":
+        """The same path, played at ``factor`` x its speed from ``at`` s on (the speed changes smoothly, a half cosine
+        over ``window`` s of the plan's own time; ``factor`` < 1 is slower): a time warp. Up to ``at`` the plan is this
+        one, knot for knot; after it, knots every ``knot_step`` s (default: this plan's median step) hold the positions
+        of the path and its velocities times the local factor, so the Hermite interpolation follows the warped path.
+        What it is for: slowing a movement's follow-through, whose limits would otherwise cap how fast the part
+        that matters may be played (:class:`besdrake.search.templates.MetaDMP`)."""
+        self.validate()
+        for name, v in (("at", at), ("factor", factor), ("window", window)):
+            if not np.isfinite(v):
+                raise PlanError(f"slowed_after: {name} must be finite, got {v!r}")
+        if factor <= 0 or window <= 0 or not 0.0 <= at <= self.duration:
+            raise PlanError(f"slowed_after: need factor > 0, window > 0 s and 0 <= at <= {self.duration:g} s, got {factor}, {window}, {at}")
+        rate = _speed_profile(at, float(factor), float(window))
+        sigma = np.linspace(at, self.duration, max(2, int(np.ceil((self.duration - at) / 5e-4)) + 1))  # the plan's own time
+        inv = 1.0 / rate(sigma)
+        t_new = at + np.concatenate([[0.0], np.cumsum(0.5 * (inv[1:] + inv[:-1]) * np.diff(sigma))])
+        step = float(np.median(np.diff(self.t))) if knot_step is None else float(knot_step)
+        keep = self.t[self.t <= at]
+        n = max(1, int(round((t_new[-1] - keep[-1]) / step)))
+        later = np.linspace(keep[-1], t_new[-1], n + 1)[1:]
+        s_later = np.interp(later, t_new, sigma)
+        s_later[-1] = self.duration
+        qd_keep = self.knot_velocities()[: keep.size]
+        return MotionPlan(t=np.concatenate([keep, later]), q=np.vstack([self.q[: keep.size], self.sample(s_later)]),
+                          qd=np.vstack([qd_keep, self.sample(s_later, 1) * rate(s_later)[:, None]]),
+                          meta=dict(self.meta) | {"slowed_after_s": float(at), "slowed_factor": float(factor)},
+                          joint_names=self.joint_names)
 
     def _limits_for(self, limits: JointLimits) -> JointLimits:
         if not isinstance(limits, JointLimits):

@@ -650,6 +650,8 @@ def template_reach_settings(config: dict[str, Any]) -> dict[str, Any]:
         sigma = float(cfg.get("reach_sigma", DEFAULT_SIGMA0))
         extend = int(cfg.get("extend_probes", EXTEND_PROBES))
         slowest = float(cfg.get("slowest", SCALE_SLOWEST))
+        follow = cfg.get("follow_through")
+        follow = None if follow is None else float(follow)
     except (TypeError, ValueError) as err:
         raise ConfigError(f"templates: reach_target must be [x, y] in m or null, reach_evaluations an integer and slowest "
                           f"a number ({err})") from None
@@ -666,8 +668,26 @@ def template_reach_settings(config: dict[str, Any]) -> dict[str, Any]:
         raise ConfigError(f"templates: reach_objective must be one of {REACH_OBJECTIVES}, got {objective!r}")
     if not (1.0 < slowest <= 10.0):
         raise ConfigError(f"templates: slowest must be within (1, 10] (x the base's execution time), got {cfg.get('slowest')!r}")
+    if follow is not None and not (np.isfinite(follow) and 0.0 <= follow <= 1.0):
+        raise ConfigError(f"templates: follow_through must be a time within [0, 1] s after the release, or null, got {cfg.get('follow_through')!r}")
     return {"target": target if budget > 0 else None, "evaluations": budget, "slowest": slowest, "objective": objective,
-            "sigma": sigma, "extend_probes": extend, "other_evaluations": other}
+            "sigma": sigma, "extend_probes": extend, "other_evaluations": other, "follow_through": follow}
+
+
+def follow_through_phase(base, executor, robot, after: float | None) -> float | None:
+    """Where the throw's follow-through begins, as a phase of ``base`` (0-1): ``after`` s past the ball's release when
+    ``base`` is thrown at its own execution time in ``executor``'s scenario (None: ``after`` is None, or the ball was not
+    released). After the release the arm's movement no longer changes the throw, so a template may play that part
+    slower where the limits need it (:class:`~besdrake.search.templates.MetaDMP`'s ``follow_through``)."""
+    from besdrake.search.templates import MetaDMP
+
+    if after is None:
+        return None
+    plan = MetaDMP(base, robot).plan(np.array([base.execution_time, base.goal[0]]))
+    outcome = executor.evaluate([plan])[0]
+    if outcome.release_time is None or not np.isfinite(outcome.release_time):
+        return None
+    return float(min(1.0, (float(outcome.release_time) + after) / plan.duration))
 
 
 def _template_base(ctx: Context, scenario: str, out: Path) -> tuple[Path, dict[str, Any]]:
@@ -699,7 +719,10 @@ def _template_base(ctx: Context, scenario: str, out: Path) -> tuple[Path, dict[s
         record["other_family"] = {k: other[k] for k in ("start_distance_m", "best_distance_m", "episodes")}
         candidates.append(out / "other" / other["best_dmp"])
     with _executor(ctx, scenario) as executor:
-        floors = [reach_floor(load_dmp(f), executor, ctx.robot(scenario), slowest=settings["slowest"]) for f in candidates]
+        robot = ctx.robot(scenario)
+        dmps = [load_dmp(f) for f in candidates]
+        floors = [reach_floor(d, executor, robot, slowest=settings["slowest"],
+                              follow_through=follow_through_phase(d, executor, robot, settings["follow_through"])) for d in dmps]
     pick = int(np.argmin(floors))
     record |= {"floor_m": floors, "kept": pick > 0, "kept_from": ("refined throw", "reach refinement", "other throws")[pick]}
     return candidates[pick], record
@@ -740,9 +763,12 @@ def stage_template(ctx: Context, out: Path) -> dict[str, Any]:
     scenario = _refined_scenario(ctx)
     base_file, reach = _template_base(ctx, scenario, out / "reach")
     with _executor(ctx, scenario) as executor:
+        base = load_dmp(base_file)
+        follow = follow_through_phase(base, executor, ctx.robot(scenario), reach_settings["follow_through"])
         training = train_template(
-            load_dmp(base_file), executor, method=method, n_episodes=int(cfg["episodes"]), seed=int(cfg["seed"]),
+            base, executor, method=method, n_episodes=int(cfg["episodes"]), seed=int(cfg["seed"]),
             name="throw", out_dir=out / "training", slowest=reach_settings["slowest"], extend_probes=reach_settings["extend_probes"],
+            follow_through=follow,
             provenance={"base": str(base_file), "scenario": scenario, "lab": ctx.config["lab"], "demonstrations": ctx.config["demonstrations"]},
         )
         sim_eval = evaluate_template(training.template, executor)
@@ -762,6 +788,7 @@ def stage_template(ctx: Context, out: Path) -> dict[str, Any]:
         "probe_rollouts": int(prov["n_probe_rollouts"]),
         "base": str(base_file),
         "reach_refinement": reach,
+        "follow_through": follow,
         "scenario": scenario,
         "meta_bounds": training.template.meta_bounds.tolist(),
         "base_reach_m": _base_reach(prov.get("reach_probe")),
