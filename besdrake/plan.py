@@ -25,6 +25,12 @@ from besdrake._io import write_text as _atomic_write_text
 from besdrake.robot import JointLimits
 
 
+#: Slower speeds (x the plan's) tried one after the other for a follow-through that breaks a joint limit
+#: (:meth:`MotionPlan.with_follow_through_within`), and the time (s) over which the speed changes.
+FOLLOW_THROUGH_FACTORS = (0.85, 0.7, 0.55, 0.4)
+FOLLOW_THROUGH_WINDOW = 0.3
+
+
 def _speed_profile(at: float, factor: float, window: float):
     """Speed of :meth:`MotionPlan.slowed_after`'s warp against the plan's own time ``sigma``: 1 before ``at``, then a
     half cosine to ``factor`` over ``window``, ``factor`` after."""
@@ -217,6 +223,19 @@ class MotionPlan:
                           meta=dict(self.meta) | {"slowed_after_s": float(at), "slowed_factor": float(factor)},
                           joint_names=self.joint_names)
 
+    def with_follow_through_within(self, limits: JointLimits, at: float, factors: tuple[float, ...] = FOLLOW_THROUGH_FACTORS,
+                                   window: float = FOLLOW_THROUGH_WINDOW) -> "MotionPlan":
+        """This plan where it keeps ``limits``, else the same path with everything after ``at`` s (a follow-through: the
+        part that no longer changes the outcome) slowed by the first of ``factors`` that keeps them (:meth:`slowed_after`);
+        this plan unchanged when none does (the limit check flags it)."""
+        if self.check_limits(limits).ok:
+            return self
+        for factor in factors:
+            slowed = self.slowed_after(at, factor, window)
+            if slowed.check_limits(limits).ok:
+                return slowed
+        return self
+
     def _limits_for(self, limits: JointLimits) -> JointLimits:
         if not isinstance(limits, JointLimits):
             raise TypeError(f"limits must be a robot's JointLimits, got {type(limits).__name__}")
@@ -262,12 +281,21 @@ class MotionPlan:
             names=limits.names,
         )
 
-    def peak_limit_ratios(self, limits: JointLimits, resolution: float = 0.002) -> tuple[np.ndarray, np.ndarray]:
+    def peak_limit_ratios(self, limits: JointLimits, resolution: float = 0.002, until: float | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Peak |velocity| / velocity limit and peak |acceleration| / acceleration limit per joint (each (6,),
-        dimensionless; > 1 where :meth:`check_limits` reports a violation), sampled as :meth:`check_limits` does.
-        Stretching a plan's time uniformly by ``k`` divides them by ``k`` and ``k**2``."""
+        dimensionless; > 1 where :meth:`check_limits` reports a violation), sampled as :meth:`check_limits` does
+        (``until``: over the first ``until`` s only). Stretching a plan's time uniformly by ``k`` divides them by ``k``
+        and ``k**2``."""
         limits = self._limits_for(limits)
-        _, _, qd_peak, qdd_peak = self._peaks(resolution)
+        if until is None:
+            _, _, qd_peak, qdd_peak = self._peaks(resolution)
+        else:
+            _, qd, qdd = self._sampled(resolution)
+            n = max(2, int(np.ceil(self.duration / resolution)) + 1)
+            ts = np.unique(np.concatenate([np.linspace(0.0, self.duration, n), self.t]))
+            early = np.concatenate([ts, self.t[1:] - 1e-12]) <= until
+            qd_peak = np.max(np.abs(qd[: ts.size][early[: ts.size]]), axis=0, initial=0.0)
+            qdd_peak = np.max(np.abs(qdd[early]), axis=0, initial=0.0)
         return qd_peak / limits.velocity, qdd_peak / limits.acceleration
 
     # ------------------------------------------------------------------ I/O

@@ -156,3 +156,25 @@ def test_a_plan_whose_interpolation_overflows_fails_its_limits_quietly():
             return  # refused as malformed: as good
     assert not report.ok and np.all(np.isfinite(report.position) | np.isinf(report.position))
     assert report.velocity[0] > 0 and report.acceleration[0] > 0
+
+
+def test_slowed_after_keeps_the_path_and_slows_only_what_follows():
+    """The time warp of a template's follow-through (issue 27): the plan up to ``at`` knot for knot, the same path
+    after it, played ``factor`` x as fast once the ``window`` has passed."""
+    t = np.linspace(0.0, 1.0, 101)
+    plan = MotionPlan(t, np.column_stack([t, t**2]), qd=np.column_stack([np.ones_like(t), 2 * t]))
+    slow = plan.slowed_after(0.4, 0.5, window=0.2)
+    before = plan.t <= 0.4
+    assert np.array_equal(slow.t[: before.sum()], plan.t[before]) and np.array_equal(slow.q[: before.sum()], plan.q[before])
+    assert np.allclose(slow.q[:, 1], slow.q[:, 0] ** 2, atol=1e-6)  # still on the path
+    assert slow.q[-1] == pytest.approx(plan.q[-1])
+    sigma = np.linspace(0.4, 0.6, 2001)
+    rate = 1.0 - 0.5 * 0.5 * (1.0 - np.cos(np.pi * (sigma - 0.4) / 0.2))
+    window_time = float(np.sum(0.5 * (1 / rate[1:] + 1 / rate[:-1]) * np.diff(sigma)))
+    assert slow.duration == pytest.approx(0.4 + window_time + 0.4 / 0.5, abs=1e-6)
+    after = slow.t > 0.4 + window_time + 1e-6
+    assert np.allclose(slow.qd[after, 0], 0.5) and np.allclose(slow.sample(slow.t[after], 1)[:, 0], 0.5, atol=1e-6)
+    assert plan.slowed_after(0.4, 1.0).q[-1] == pytest.approx(plan.q[-1])
+    for bad in ((0.4, 0.0), (1.5, 0.5), (np.nan, 0.5)):
+        with pytest.raises(PlanError):
+            plan.slowed_after(*bad)

@@ -342,6 +342,46 @@ def test_a_creps_template_from_the_probes_ends_near_its_start(base):
         assert evaluate_template(tr.template, PolarStandIn()).mean_distance < start + 0.02
 
 
+def _late_sweep_base():
+    """The default throw with a fast joint-1 sweep after it (from 0.9 s): a base whose limits bind only late."""
+    from besdrake.imitation import DMP
+    from besdrake.tasks.throwing.throws import default_throw
+
+    plan = default_throw(0.6)
+    u = np.clip((plan.t - 0.9) / 0.33, 0.0, 1.0)
+    q = plan.q.copy()
+    q[:, 0] += 0.6 * (10 * u**3 - 15 * u**4 + 6 * u**5)
+    return DMP(q.shape[1], 10).fit(plan.t, q)
+
+
+def test_a_template_slows_a_follow_through_that_alone_breaks_a_limit(tmp_path):
+    """Issue 27: where only the movement after the follow-through phase breaks a joint limit, a template plays that
+    part slower instead of the whole movement: its fastest execution time is faster and its plans keep the limits,
+    the same as the uniform plan up to the follow-through; a saved template keeps the phase."""
+    base = _late_sweep_base()
+    g1 = float(base.goal[0])
+    uniform_box = default_meta_bounds(base, COMPI)
+    box = default_meta_bounds(base, COMPI, follow_through=0.55)
+    assert box[0, 0] < uniform_box[0, 0] - 0.05
+    tau = float(box[0, 0])
+    uniform = MetaDMP(base, COMPI).plan([tau, g1])
+    slowed = MetaDMP(base, COMPI, follow_through=0.55).plan([tau, g1])
+    assert not uniform.check_limits(COMPI.limits).ok and slowed.check_limits(COMPI.limits).ok
+    n = int(np.sum(uniform.t <= 0.55 * uniform.duration))
+    assert np.array_equal(slowed.q[:n], uniform.q[:n]) and slowed.duration > uniform.duration
+    assert slowed.q[-1] == pytest.approx(uniform.q[-1])
+    within = MetaDMP(base, COMPI, follow_through=0.55).plan([uniform_box[0, 0] + 0.01, g1])
+    assert np.array_equal(within.q, MetaDMP(base, COMPI).plan([uniform_box[0, 0] + 0.01, g1]).q)  # within the limits: as it was
+    tr = train_template(base, PolarStandIn(), "es", 10, seed=0, name="ft", follow_through=0.55)
+    pool = TemplatePool(tmp_path)
+    pool.add(tr.template)
+    loaded = pool.get("ft")
+    assert loaded.meta.follow_through == 0.55 and tr.template.provenance["follow_through"] == 0.55
+    assert np.array_equal(loaded.instantiate([2.0, 0.3]).q, tr.template.instantiate([2.0, 0.3]).q)
+    with pytest.raises(TemplateError):
+        MetaDMP(base, COMPI, follow_through=1.5)
+
+
 def test_template_plans_keep_the_robots_knot_spacing(base):
     """An execution time just past a multiple of the plan's step (a learn template at 3.0384 s ended 9.4 us after its
     previous knot, and the lab's safety gate refused it): the plan ends at the execution time with a slightly longer

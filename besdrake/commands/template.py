@@ -37,6 +37,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="scale: the execution time plays the base's path slower or faster (default); raw: only the DMP's execution time changes")
     parser.add_argument("--probes", type=int, default=None,
                         help="rollouts of the base that set the meta-parameter box and the reward model's prior (default 7, at most a quarter of --episodes; 0: none)")
+    parser.add_argument("--follow-through", default="0.05", metavar="S",
+                        help="train: s after the base's release (thrown once at its own speed) from which a plan that breaks a joint "
+                             "limit is played slower until it keeps them (the arm's follow-through no longer moves the ball); 'none': "
+                             "the whole throw played uniformly (default 0.05)")
     parser.add_argument("--overwrite", action="store_true", help="train: replace a template of the same name")
     parser.add_argument("--target", "--context", dest="target", nargs=2, type=float, metavar=("X", "Y"), help="instantiate: target (x forward, y lateral), m")
     parser.add_argument("--plan-out", type=Path, default=None, help="instantiate: write the motion plan JSON here")
@@ -109,17 +113,35 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(str(err)) from None
 
 
+def _follow_through_after(value: str) -> float | None:
+    """``--follow-through``: seconds within [0, 1], or None for 'none'."""
+    import numpy as np
+
+    from besdrake.cli import UserError
+
+    if str(value).strip().lower() == "none":
+        return None
+    try:
+        after = float(value)
+    except ValueError:
+        after = float("nan")
+    if not (np.isfinite(after) and 0.0 <= after <= 1.0):
+        raise UserError(f"--follow-through must be a time within [0, 1] s or 'none', got {value!r}")
+    return after
+
+
 def _train(args, pool) -> int:
     from besdrake.cli import UserError
     from besdrake.imitation import DMPParameterError, load_dmp
     from besdrake.search.loop import ResumeError
     from besdrake.search.templates import DEFAULT_PROBES, PAPER_MEAN_CM, evaluate_template, train_template
-    from besdrake.tasks.throwing.template_base import TEMPLATE_BASE_WEIGHTS, default_template_base
+    from besdrake.tasks.throwing.template_base import TEMPLATE_BASE_WEIGHTS, default_template_base, follow_through_phase
 
     if args.episodes < 1:
         raise UserError(f"--episodes must be >= 1, got {args.episodes}")
     if args.probes is not None and args.probes < 0:
         raise UserError(f"--probes must be >= 0, got {args.probes}")
+    after = _follow_through_after(args.follow_through)
     name = args.name or f"{args.method}_seed{args.seed}"
     if name in pool and not args.overwrite:
         raise UserError(f"{args.pool} already holds a template {name!r} (use --overwrite or another --name)")
@@ -147,9 +169,10 @@ def _train(args, pool) -> int:
     checkpoints = tuple(sorted({e for e in (20, 40, 60, args.episodes) if e <= args.episodes}))
     try:
         with _executor(args) as ex:
+            follow = follow_through_phase(base, ex, ex.scenario.robot, after) if args.time_mode == "scale" else None
             training = train_template(base, ex, args.method, args.episodes, args.seed, name, run_dir,
                                       joint1_mode=args.joint1_mode, checkpoints=checkpoints, time_mode=args.time_mode,
-                                      probes=DEFAULT_PROBES if args.probes is None else args.probes,
+                                      probes=DEFAULT_PROBES if args.probes is None else args.probes, follow_through=follow,
                                       provenance={"base_dmp": base_source, "run_dir": str(run_dir)}, progress=progress)
             ev = evaluate_template(training.template, ex)
     except ResumeError as err:

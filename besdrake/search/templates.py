@@ -65,7 +65,7 @@ import numpy as np
 
 from besdrake._io import write_json
 from besdrake.imitation import DMP, DMPParameterError
-from besdrake.plan import MotionPlan
+from besdrake.plan import FOLLOW_THROUGH_FACTORS, FOLLOW_THROUGH_WINDOW, MotionPlan
 from besdrake.robot import Robot, load_robot
 from besdrake.search.base import load_state, save_state
 from besdrake.search.refinement import MIN_EXECUTION_TIME, PLAN_DT
@@ -85,13 +85,11 @@ META_NAMES = ("execution_time", "goal.joint1")
 #: default stays 2x (session 18, scripts/bench_learn_templates.py).
 SCALE_SLOWEST = 2.0
 #: A template's follow-through (:class:`MetaDMP`'s ``follow_through``: the part of the movement after the phase where
-#: the object has left the tool, which no longer changes the outcome) is played slower, by the first of these factors
-#: that keeps the joint limits, where the whole movement played at the chosen execution time would not keep them; the
-#: speed changes over FOLLOW_THROUGH_WINDOW s. Why (issue 27, session 25): on two of learn's five bases the joint limits
+#: the object has left the tool, which no longer changes the outcome) is played slower, by the first of
+#: :data:`~besdrake.plan.FOLLOW_THROUGH_FACTORS` that keeps the joint limits, where the whole movement played at the
+#: chosen execution time would not keep them. Why (issue 27, session 25): on two of learn's five bases the joint limits
 #: bound only after the release (subject 1: peak 0.97 of a limit 0.19 s after it, 0.82-0.91 before it), so playing the
 #: whole throw uniformly faster stopped at 1.96-2.02 m, short of the 2.2 m test row.
-FOLLOW_THROUGH_FACTORS = (0.85, 0.7, 0.55, 0.4)
-FOLLOW_THROUGH_WINDOW = 0.3
 #: Paper's results on the real robot after 80 episodes (mean distance over the test contexts, cm).
 PAPER_MEAN_CM = {"es": 9.01, "ucb": 19.74}
 
@@ -197,7 +195,7 @@ class MetaDMP:
 
     ``follow_through`` (``"scale"`` only; None: off): the phase of the movement (0-1) after which it no longer changes
     the outcome (the object has left the tool). A plan that breaks a joint limit at the chosen execution time is then
-    played slower from there on (:meth:`~besdrake.plan.MotionPlan.slowed_after`, :data:`FOLLOW_THROUGH_FACTORS`), so
+    played slower from there on (:meth:`~besdrake.plan.MotionPlan.with_follow_through_within`), so
     that the limits of the follow-through do not cap how fast the part before it may go.
     """
 
@@ -252,20 +250,9 @@ class MetaDMP:
         traj = self.dmp(theta).open_loop(self.dt)
         meta = {"source": "behavior_template", "execution_time": float(theta[0]), "goal_joint1": float(theta[1])}
         plan = MotionPlan(t=traj.t, q=traj.y, qd=traj.yd, meta=meta, joint_names=self.robot.joint_names)
-        return plan if self.follow_through is None else self._slow_follow_through(plan)
-
-    def _slow_follow_through(self, plan: MotionPlan) -> MotionPlan:
-        """``plan`` where it keeps the robot's limits, else the same path with its follow-through (from phase
-        ``follow_through`` on) slowed by the first of :data:`FOLLOW_THROUGH_FACTORS` that keeps them (``plan`` unchanged
-        when none does: the limit check flags it)."""
-        if plan.check_limits(self.robot.limits).ok:
+        if self.follow_through is None:
             return plan
-        at = float(self.follow_through) * plan.duration
-        for factor in FOLLOW_THROUGH_FACTORS:
-            slowed = plan.slowed_after(at, factor, FOLLOW_THROUGH_WINDOW)
-            if slowed.check_limits(self.robot.limits).ok:
-                return slowed
-        return plan
+        return plan.with_follow_through_within(self.robot.limits, float(self.follow_through) * plan.duration)
 
 
 #: C-REPS settings of a template (issue 27, session 25): a quadratic policy in the context (the probes' policy fitted

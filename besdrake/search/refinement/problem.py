@@ -22,6 +22,17 @@ from besdrake.search.refinement.settings import DEFAULT_RETIME, PLAN_DT, RETIME_
 from besdrake.task import DEFAULT_TASK, get_task
 
 
+def _phase(value: Any) -> float:
+    """A phase of the movement in (0, 1] (:class:`RefinementProblem`'s ``follow_through``), else RefinementError."""
+    try:
+        phase = float(value)
+    except (TypeError, ValueError):
+        phase = float("nan")
+    if not (np.isfinite(phase) and 0.0 < phase <= 1.0):
+        raise RefinementError(f"follow_through must be a phase in (0, 1] of the movement, got {value!r}")
+    return phase
+
+
 class RefinementProblem:
     """Refinement of a template DMP towards a target, in the normalised space of :class:`ParameterScaling`.
 
@@ -33,7 +44,10 @@ class RefinementProblem:
     (anything with ``evaluate(plans) -> list[Outcome]``) and returns one :class:`RewardBreakdown` each.
     Candidates whose DMP cannot be rolled out become failed episodes; an executor that raises fails the batch.
     With ``robust`` (:class:`~besdrake.search.refinement.robust.RobustCheck`) a candidate near the goal is simulated
-    again under the setup's scatter and rewarded by its RMS distance over it.
+    again under the setup's scatter and rewarded by its RMS distance over it. ``follow_through`` (a phase in (0, 1]):
+    the movement after it no longer changes the outcome, so only the part before it sets the retiming and the rest is
+    slowed where it breaks a limit (:meth:`retimed`); the plans are then what a behaviour template with that phase
+    plays (:class:`~besdrake.search.templates.MetaDMP`).
     """
 
     def __init__(
@@ -46,6 +60,7 @@ class RefinementProblem:
         retime: bool | None = None,
         task: str | None = None,
         robust: RobustCheck | None = None,
+        follow_through: float | None = None,
     ) -> None:
         if not isinstance(robot, Robot):
             raise RefinementError(f"robot must be a besdrake.robot.Robot, got {type(robot).__name__}")
@@ -67,6 +82,7 @@ class RefinementProblem:
         if robust is not None and not isinstance(robust, RobustCheck):
             raise RefinementError(f"robust must be a RobustCheck or None, got {type(robust).__name__}")
         self.robust = robust
+        self.follow_through = None if follow_through is None else _phase(follow_through)
         self.records: dict[str, RewardBreakdown] = {}
 
     @property
@@ -88,7 +104,9 @@ class RefinementProblem:
         never beyond the execution-time bound. A stretch is kept only when it mends the plan: what a stretch cannot
         mend (the acceleration of the DMP's final approach to its goal velocity, which a stretch does not lower) is
         left to the reward's penalty, on the plan as it was. A ``theta`` without a valid rollout is returned unchanged
-        (its evaluation fails as before)."""
+        (its evaluation fails as before). With ``follow_through`` only the movement up to that phase sets the stretch,
+        and the rest of the plan is slowed where it breaks a limit (:meth:`~besdrake.plan.MotionPlan.with_follow_through_within`,
+        as a behaviour template with the same phase plays it)."""
         return self._retime(theta)[0]
 
     def _retime(self, theta: np.ndarray) -> tuple[np.ndarray, MotionPlan | None]:
@@ -101,17 +119,24 @@ class RefinementProblem:
         for round_ in range(RETIME_ROUNDS + 1):
             try:
                 plan = self.parameterization.motion_plan(stretched, dt=self.dt)
-                vel, acc = plan.peak_limit_ratios(self.robot.limits)
+                until = None if self.follow_through is None else self.follow_through * plan.duration
+                vel, acc = plan.peak_limit_ratios(self.robot.limits, until=until)
             except (DMPParameterError, PlanError, ValueError):
                 return theta, None
             first = plan if round_ == 0 else first
             k = max(float(vel.max()), float(np.sqrt(acc.max())))
             if k <= 1.0:
-                return stretched, plan
+                return stretched, self._with_follow_through(plan)
             if not np.isfinite(k) or round_ == RETIME_ROUNDS or stretched[-1] >= upper:
-                return theta, first
+                return theta, self._with_follow_through(first)
             stretched[-1] = min(upper, stretched[-1] * k * (1.0 + RETIME_MARGIN))
-        return theta, first
+        return theta, self._with_follow_through(first)
+
+    def _with_follow_through(self, plan: MotionPlan) -> MotionPlan:
+        """``plan`` with its follow-through slowed where that keeps the limits (``follow_through`` set), else ``plan``."""
+        if self.follow_through is None:
+            return plan
+        return plan.with_follow_through_within(self.robot.limits, self.follow_through * plan.duration)
 
     def _theta_and_plan(self, x: np.ndarray) -> tuple[np.ndarray, MotionPlan | None]:
         """DMP parameters of ``x`` and their motion plan where retiming rolled it out already (else None)."""
@@ -122,7 +147,7 @@ class RefinementProblem:
         """Motion plan of normalised candidate ``x`` (raises DMPParameterError/PlanError for a bad one)."""
         theta, plan = self._theta_and_plan(x)
         if plan is None:
-            plan = self.parameterization.motion_plan(theta, dt=self.dt)
+            plan = self._with_follow_through(self.parameterization.motion_plan(theta, dt=self.dt))
         return plan.validate()
 
     def evaluate(self, X: np.ndarray, executor) -> list[RewardBreakdown]:
@@ -201,7 +226,8 @@ class RefinementProblem:
             "dt": self.dt,
             "names": list(self.parameterization.names),
         } | ({"retime": True} if self.retime else {}) | ({"task": self.task} if self.task != DEFAULT_TASK else {}) | (
-            {"robust": self.robust.to_dict()} if self.robust is not None else {})
+            {"robust": self.robust.to_dict()} if self.robust is not None else {}) | (
+            {"follow_through": self.follow_through} if self.follow_through is not None else {})
 
     @classmethod
     def from_description(cls, d: dict[str, Any]) -> "RefinementProblem":
@@ -215,4 +241,5 @@ class RefinementProblem:
         task = str(d.get("task", DEFAULT_TASK))
         return cls(robot, template, get_task(task).reward_from_dict(d["reward"]), ParameterScaling.from_dict(d["scaling"]),
                    float(d["dt"]), retime=bool(d.get("retime", False)), task=task,
-                   robust=RobustCheck.from_dict(d["robust"]) if d.get("robust") is not None else None)
+                   robust=RobustCheck.from_dict(d["robust"]) if d.get("robust") is not None else None,
+                   follow_through=d.get("follow_through"))

@@ -278,19 +278,22 @@ def _imitation_jobs(ctx: Context) -> list:
 # --------------------------------------------------------------------------------------------
 def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int, tag: str, scouting: bool = True,
                  target: tuple[float, float] | None = None, plans: int | None = None,
-                 reward_settings: dict[str, Any] | None = None, sigma0: float | None = None, start_group: int = 0) -> dict[str, Any]:
+                 reward_settings: dict[str, Any] | None = None, sigma0: float | None = None, start_group: int = 0,
+                 follow_through: float | None = None) -> dict[str, Any]:
     """CMA-ES from the best of ``dmps`` (the paper uses all available plans) in ``scenario``. The default search's scouts
     (short first attempts from the best throws) run only with ``scouting`` and where they take at most half of
     ``budget``: a re-refinement from throws refined already goes straight to CMA-ES from the best of them.
     ``target`` and ``plans`` (runs): the refinement section's unless given; ``reward_settings``: more settings of the
     task's reward (e.g. the template reach's ``radial``); ``sigma0``: CMA-ES's initial step (normalised units; None: the
     refinement's default); ``start_group``: the first run starts from the throws ranked ``4 * start_group`` on (later
-    runs from the next groups where ``refinement.run_starts`` is diverse)."""
+    runs from the next groups where ``refinement.run_starts`` is diverse); ``follow_through``: s after each start throw's
+    release from which its plans are slowed where they break a limit, as a template plays them (None: off)."""
     from besdrake.search.refinement import (DEFAULT_SCOUTS, DEFAULT_SIGMA0, SUCCESS_DISTANCE, RefinementProblem, plot_learning_curves, rank_starts,
                                             refine, scouting_episodes)
     from besdrake.search.refinement.run import stops_at
     from besdrake.sim.scheduler import run_concurrently
     from besdrake.task import DEFAULT_TASK, get_task
+    from besdrake.tasks.throwing.template_base import follow_through_phase
 
     cfg = ctx.config["refinement"]
     task = str(ctx.config.get("task") or DEFAULT_TASK)
@@ -299,8 +302,9 @@ def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int
     robot = ctx.robot(scenario)
     settings = refinement_settings(ctx.config)
     robust = _robust_check(task, scenario, settings)
-    problems = [RefinementProblem(robot, d, reward, task=task, robust=robust) for d in dmps]
     with _executor(ctx, scenario) as executor:
+        phases = [follow_through_phase(d, executor, robot, follow_through) for d in dmps] if follow_through is not None else [None] * len(dmps)
+        problems = [RefinementProblem(robot, d, reward, task=task, robust=robust, follow_through=ph) for d, ph in zip(dmps, phases)]
         ranking = rank_starts(problems, executor)
         index, start = ranking[0]
         problem = problems[index]
@@ -674,22 +678,6 @@ def template_reach_settings(config: dict[str, Any]) -> dict[str, Any]:
             "sigma": sigma, "extend_probes": extend, "other_evaluations": other, "follow_through": follow}
 
 
-def follow_through_phase(base, executor, robot, after: float | None) -> float | None:
-    """Where the throw's follow-through begins, as a phase of ``base`` (0-1): ``after`` s past the ball's release when
-    ``base`` is thrown at its own execution time in ``executor``'s scenario (None: ``after`` is None, or the ball was not
-    released). After the release the arm's movement no longer changes the throw, so a template may play that part
-    slower where the limits need it (:class:`~besdrake.search.templates.MetaDMP`'s ``follow_through``)."""
-    from besdrake.search.templates import MetaDMP
-
-    if after is None:
-        return None
-    plan = MetaDMP(base, robot).plan(np.array([base.execution_time, base.goal[0]]))
-    outcome = executor.evaluate([plan])[0]
-    if outcome.release_time is None or not np.isfinite(outcome.release_time):
-        return None
-    return float(min(1.0, (float(outcome.release_time) + after) / plan.duration))
-
-
 def _template_base(ctx: Context, scenario: str, out: Path) -> tuple[Path, dict[str, Any]]:
     """The template's base: the best refined throw, refined further towards ``templates.reach_target`` (issue 27).
 
@@ -703,6 +691,7 @@ def _template_base(ctx: Context, scenario: str, out: Path) -> tuple[Path, dict[s
     looks in another throw family, and the floor rule picks among the three."""
     from besdrake.imitation import load_dmp
     from besdrake.search.templates import reach_floor
+    from besdrake.tasks.throwing.template_base import follow_through_phase
 
     base_file = _best_throw(ctx)
     settings = template_reach_settings(ctx.config)
@@ -731,10 +720,11 @@ def _template_base(ctx: Context, scenario: str, out: Path) -> tuple[Path, dict[s
 def _reach_refinement(ctx: Context, dmps: list, scenario: str, out: Path, budget: int, settings: dict[str, Any], tag: str,
                       start_group: int = 0) -> dict[str, Any]:
     """One CMA-ES run towards the template's reach target; from a later start group (other imitated throws) with scouts
-    where the budget allows them, from the refined throw without."""
+    where the budget allows them, from the refined throw without; its throws played as the template will play them
+    (``templates.follow_through``)."""
     return _refine_from(ctx, dmps, scenario, out, budget, tag, scouting=start_group > 0, target=settings["target"], plans=1,
                         reward_settings={"radial": True} if settings["objective"] == "range" else None, sigma0=settings["sigma"],
-                        start_group=start_group)
+                        start_group=start_group, follow_through=settings["follow_through"])
 
 
 def _other_family(ctx: Context, scenario: str, out: Path, settings: dict[str, Any], reached: float) -> dict[str, Any] | None:
@@ -756,6 +746,7 @@ def stage_template(ctx: Context, out: Path) -> dict[str, Any]:
     reach the farthest context (:func:`_template_base`); tested in simulation and in the lab."""
     from besdrake.imitation import load_dmp
     from besdrake.search.templates import TEST_CONTEXTS, evaluate_template, train_template
+    from besdrake.tasks.throwing.template_base import follow_through_phase
 
     cfg = ctx.config["templates"]
     reach_settings = template_reach_settings(ctx.config)

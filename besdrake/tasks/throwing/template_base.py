@@ -1,7 +1,10 @@
 """Base DMPs fitted to the default throw: stand-ins for a refined throw (tests, benchmarks) and the base of a
-behaviour template when no refined throw is given (:mod:`besdrake.search.templates`)."""
+behaviour template when no refined throw is given (:mod:`besdrake.search.templates`); where a throw's follow-through
+begins (:func:`follow_through_phase`)."""
 
 from __future__ import annotations
+
+import numpy as np
 
 from besdrake.imitation import DMP
 
@@ -33,4 +36,25 @@ def default_template_base() -> DMP:
     return fitted_default_throw(0.6, TEMPLATE_BASE_WEIGHTS)
 
 
-__all__ = ["fitted_default_throw", "default_template_base", "TEMPLATE_BASE_WEIGHTS"]
+__all__ = ["fitted_default_throw", "default_template_base", "TEMPLATE_BASE_WEIGHTS", "FOLLOW_THROUGH_AFTER", "follow_through_phase"]
+
+
+#: Where a template's follow-through begins by default: this long (s) after the ball's release (``besdrake learn``'s
+#: ``templates.follow_through``, ``besdrake template train --follow-through``).
+FOLLOW_THROUGH_AFTER = 0.05
+
+
+def follow_through_phase(base: DMP, executor, robot, after: float | None = FOLLOW_THROUGH_AFTER) -> float | None:
+    """Where the throw's follow-through begins, as a phase of ``base`` (0-1): ``after`` s past the ball's release when
+    ``base`` is thrown at its own execution time in ``executor``'s scenario (None: ``after`` is None, or the ball was not
+    released). After the release the arm's movement no longer changes the throw, so a template may play that part
+    slower where the limits need it (:class:`~besdrake.search.templates.MetaDMP`'s ``follow_through``)."""
+    from besdrake.search.templates import MetaDMP
+
+    if after is None:
+        return None
+    plan = MetaDMP(base, robot).plan(np.array([base.execution_time, base.goal[0]]))
+    outcome = executor.evaluate([plan])[0]
+    if outcome.release_time is None or not np.isfinite(outcome.release_time):
+        return None
+    return float(min(1.0, (float(outcome.release_time) + after) / plan.duration))
