@@ -178,3 +178,15 @@ def test_slowed_after_keeps_the_path_and_slows_only_what_follows():
     for bad in ((0.4, 0.0), (1.5, 0.5), (np.nan, 0.5)):
         with pytest.raises(PlanError):
             plan.slowed_after(*bad)
+
+
+def test_peak_limit_ratios_until_a_time_see_only_the_plan_before_it():
+    t = np.linspace(0.0, 1.0, 101)
+    q = np.column_stack([np.where(t < 0.5, 0.2 * t, 0.1 + 2.0 * (t - 0.5)), np.zeros_like(t)])
+    plan = MotionPlan(t, q)
+    limits = JointLimits(("a", "b"), np.array([[-5.0, 5.0]] * 2), np.array([1.0, 1.0]), np.array([100.0, 100.0]))
+    full_v, full_a = plan.peak_limit_ratios(limits)
+    early_v, early_a = plan.peak_limit_ratios(limits, until=0.4)
+    assert full_v[0] > 1.5 and early_v[0] < 0.3 and np.all(early_a <= full_a + 1e-12)
+    same_v, same_a = plan.peak_limit_ratios(limits, until=plan.duration)
+    assert np.allclose(same_v, full_v) and np.allclose(same_a, full_a)

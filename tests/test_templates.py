@@ -382,6 +382,30 @@ def test_a_template_slows_a_follow_through_that_alone_breaks_a_limit(tmp_path):
         MetaDMP(base, COMPI, follow_through=1.5)
 
 
+def test_the_reach_refinement_plays_a_throw_as_its_template_will():
+    """Issue 27: a refinement problem with a follow-through phase retimes by the movement before it only and slows the
+    rest where it breaks a limit, so the refined base's plan is the one its template (same phase) plays."""
+    from besdrake.search.refinement import RefinementError, RefinementProblem
+    from besdrake.task import get_task
+
+    base = _late_sweep_base()
+    reward = get_task("throwing").reward(target=(2.35, 0.0))
+    uniform = RefinementProblem(COMPI, base, reward, task="throwing")
+    problem = RefinementProblem(COMPI, base, reward, task="throwing", follow_through=0.55)
+    x = np.zeros(problem.n_params)
+    x[-1] = -0.2 * base.execution_time / problem.scaling.scale[-1]  # 20 % faster than the base: beyond its limits
+    assert problem.theta(x)[-1] < uniform.theta(x)[-1] - 0.05
+    plan = problem.plan(x)
+    assert plan.check_limits(COMPI.limits).ok
+    refined = problem.parameterization.from_vector(problem.theta(x))
+    played = MetaDMP(refined, COMPI, follow_through=0.55).plan([refined.execution_time, refined.goal[0]])
+    assert np.allclose(played.t, plan.t) and np.allclose(played.q, plan.q)
+    again = RefinementProblem.from_description(json.loads(json.dumps(problem.describe())))
+    assert again.follow_through == 0.55 and np.array_equal(again.plan(x).q, plan.q)
+    with pytest.raises(RefinementError):
+        RefinementProblem(COMPI, base, reward, task="throwing", follow_through="late")
+
+
 def test_template_plans_keep_the_robots_knot_spacing(base):
     """An execution time just past a multiple of the plan's step (a learn template at 3.0384 s ended 9.4 us after its
     previous knot, and the lab's safety gate refused it): the plan ends at the execution time with a slightly longer
