@@ -208,11 +208,12 @@ class MotionPlan:
         if factor <= 0 or window <= 0 or not 0.0 <= at <= self.duration:
             raise PlanError(f"slowed_after: need factor > 0, window > 0 s and 0 <= at <= {self.duration:g} s, got {factor}, {window}, {at}")
         rate = _speed_profile(at, float(factor), float(window))
-        sigma = np.linspace(at, self.duration, max(2, int(np.ceil((self.duration - at) / 5e-4)) + 1))  # the plan's own time
-        inv = 1.0 / rate(sigma)
-        t_new = at + np.concatenate([[0.0], np.cumsum(0.5 * (inv[1:] + inv[:-1]) * np.diff(sigma))])
-        step = float(np.median(np.diff(self.t))) if knot_step is None else float(knot_step)
         keep = self.t[self.t <= at]
+        # the plan's own time from the last knot kept (the speed is 1 up to ``at``) and the warped time of each instant
+        sigma = np.linspace(keep[-1], self.duration, max(2, int(np.ceil((self.duration - keep[-1]) / 5e-4)) + 1))
+        inv = 1.0 / rate(sigma)
+        t_new = keep[-1] + np.concatenate([[0.0], np.cumsum(0.5 * (inv[1:] + inv[:-1]) * np.diff(sigma))])
+        step = float(np.median(np.diff(self.t))) if knot_step is None else float(knot_step)
         n = max(1, int(round((t_new[-1] - keep[-1]) / step)))
         later = np.linspace(keep[-1], t_new[-1], n + 1)[1:]
         s_later = np.interp(later, t_new, sigma)

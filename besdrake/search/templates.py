@@ -84,12 +84,13 @@ META_NAMES = ("execution_time", "goal.joint1")
 #: where the range changes fastest (subject 1: 4.15 -> 6.60 cm; subject 3 2.04 -> 1.71): no gain over 4 subjects, so the
 #: default stays 2x (session 18, scripts/bench_learn_templates.py).
 SCALE_SLOWEST = 2.0
-#: A template's follow-through (:class:`MetaDMP`'s ``follow_through``: the part of the movement after the phase where
-#: the object has left the tool, which no longer changes the outcome) is played slower, by the first of
-#: :data:`~besdrake.plan.FOLLOW_THROUGH_FACTORS` that keeps the joint limits, where the whole movement played at the
-#: chosen execution time would not keep them. Why (issue 27, session 25): on two of learn's five bases the joint limits
-#: bound only after the release (subject 1: peak 0.97 of a limit 0.19 s after it, 0.82-0.91 before it), so playing the
-#: whole throw uniformly faster stopped at 1.96-2.02 m, short of the 2.2 m test row.
+# A template's follow-through (:class:`MetaDMP`'s ``follow_through``: the part of the movement after the phase where
+# the object has left the tool, which no longer changes the outcome) is played slower, by the first of
+# :data:`~besdrake.plan.FOLLOW_THROUGH_FACTORS` that keeps the joint limits, where the whole movement played at the
+# chosen execution time would not keep them. Why (issue 27, session 25): on two of learn's five bases the joint limits
+# bound only after the release (subject 1: peak 0.97 of a limit 0.19 s after it, 0.82-0.91 before it), so playing the
+# whole movement uniformly faster stopped at 1.96-2.02 m, short of the 2.2 m test row.
+
 #: Paper's results on the real robot after 80 episodes (mean distance over the test contexts, cm).
 PAPER_MEAN_CM = {"es": 9.01, "ucb": 19.74}
 
