@@ -73,6 +73,14 @@ def _lab_mean(template, lab) -> float:
     return 100.0 * float(np.nanmean(np.linalg.norm(np.asarray(td, dtype=float) - TEST_CONTEXTS, axis=1)))
 
 
+def _follow(base, ex, args) -> float | None:
+    """The base's follow-through phase (``--follow-through`` s after its release; None: off or ``--time-mode raw``)."""
+    from besdrake.tasks.throwing.template_base import follow_through_phase
+
+    after = None if args.follow_through.lower() == "none" or args.time_mode != "scale" else float(args.follow_through)
+    return follow_through_phase(base, ex, ex.scenario.robot, after)
+
+
 def _references(base, ex, args) -> dict:
     """Untrained (box centre) and probes-only templates of ``base`` (same box as the trained ones)."""
     from besdrake.search.templates import BehaviorTemplate, MetaDMP, default_meta_bounds, evaluate_template
@@ -80,8 +88,9 @@ def _references(base, ex, args) -> dict:
     from besdrake.search.templates import CONTEXT_BOUNDS
 
     robot = ex.scenario.robot
-    meta = MetaDMP(base, robot, time_mode=args.time_mode)
-    bounds = default_meta_bounds(base, robot, time_mode=args.time_mode)
+    follow = _follow(base, ex, args)
+    meta = MetaDMP(base, robot, time_mode=args.time_mode, follow_through=follow)
+    bounds = default_meta_bounds(base, robot, time_mode=args.time_mode, follow_through=follow)
     out = {}
     probe = None
     if args.probes and args.time_mode == "scale":  # the probes train_template makes (the same rollouts)
@@ -109,7 +118,7 @@ def _run_method(base, ex, method: str, args, lab) -> dict:
     for seed in range(args.first_seed, args.first_seed + args.seeds):
         t0 = time.perf_counter()
         tr = train_template(base, ex, method, args.episodes, seed, time_mode=args.time_mode, probes=args.probes,
-                            reach_prior=not args.no_prior)
+                            reach_prior=not args.no_prior, follow_through=_follow(base, ex, args))
         ev = evaluate_template(tr.template, ex)
         run = {"seed": seed, "mean_distance_cm": 100.0 * ev.mean_distance, "distances_cm": [round(100.0 * float(d), 2) for d in ev.distances],
                "failed_episodes": int(tr.loop.n_failed), "limit_violations": ev.limit_violations, "wall_time_s": time.perf_counter() - t0}
@@ -156,6 +165,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--time-mode", choices=["scale", "raw"], default="scale")
     parser.add_argument("--probes", type=int, default=DEFAULT_PROBES, help="probe rollouts of the base (0: none, the box by the limits)")
     parser.add_argument("--no-prior", action="store_true", help="probes set the box only (no prior mean / initial policy)")
+    parser.add_argument("--follow-through", default="0.05", help="s after the base's release from which a plan that breaks a limit is "
+                        "played slower (as besdrake learn's templates.follow_through); 'none': the whole throw uniformly (before session 25)")
     parser.add_argument("--workers", type=int, default=1, help="simulation processes (1: in this process)")
     parser.add_argument("--scenario", default="nominal", help="simulation scenario of training and the simulated test")
     parser.add_argument("--lab", default=None, help="also throw the trained templates in this virtual lab (YAML or built-in name)")
