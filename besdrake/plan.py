@@ -207,6 +207,8 @@ class MotionPlan:
                 raise PlanError(f"slowed_after: {name} must be finite, got {v!r}")
         if factor <= 0 or window <= 0 or not 0.0 <= at <= self.duration:
             raise PlanError(f"slowed_after: need factor > 0, window > 0 s and 0 <= at <= {self.duration:g} s, got {factor}, {window}, {at}")
+        if at >= self.duration - 1e-9:  # nothing follows
+            return MotionPlan(self.t.copy(), self.q.copy(), None if self.qd is None else self.qd.copy(), dict(self.meta), self.joint_names)
         rate = _speed_profile(at, float(factor), float(window))
         keep = self.t[self.t <= at]
         # the plan's own time from the last knot kept (the speed is 1 up to ``at``) and the warped time of each instant
@@ -229,7 +231,7 @@ class MotionPlan:
         """This plan where it keeps ``limits``, else the same path with everything after ``at`` s (a follow-through: the
         part that no longer changes the outcome) slowed by the first of ``factors`` that keeps them (:meth:`slowed_after`);
         this plan unchanged when none does (the limit check flags it)."""
-        if self.check_limits(limits).ok:
+        if self.check_limits(limits).ok or at >= self.duration - 1e-9:  # within the limits, or nothing follows
             return self
         for factor in factors:
             slowed = self.slowed_after(at, factor, window)

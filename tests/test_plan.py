@@ -175,6 +175,10 @@ def test_slowed_after_keeps_the_path_and_slows_only_what_follows():
     after = slow.t > 0.4 + window_time + 1e-6
     assert np.allclose(slow.qd[after, 0], 0.5) and np.allclose(slow.sample(slow.t[after], 1)[:, 0], 0.5, atol=1e-6)
     assert plan.slowed_after(0.4, 1.0).q[-1] == pytest.approx(plan.q[-1])
+    end = plan.slowed_after(plan.duration, 0.5)  # nothing follows the end: the plan as it is
+    assert np.array_equal(end.t, plan.t) and np.array_equal(end.q, plan.q)
+    limits = JointLimits(("a", "b"), np.array([[-5.0, 5.0]] * 2), np.array([0.1, 0.1]), np.array([100.0, 100.0]))
+    assert plan.with_follow_through_within(limits, plan.duration) is plan
     for bad in ((0.4, 0.0), (1.5, 0.5), (np.nan, 0.5)):
         with pytest.raises(PlanError):
             plan.slowed_after(*bad)

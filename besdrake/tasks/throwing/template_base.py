@@ -46,8 +46,8 @@ FOLLOW_THROUGH_AFTER = 0.05
 
 def follow_through_phase(base: DMP, executor, robot, after: float | None = FOLLOW_THROUGH_AFTER) -> float | None:
     """Where the throw's follow-through begins, as a phase of ``base`` (0-1): ``after`` s past the ball's release when
-    ``base`` is thrown at its own execution time in ``executor``'s scenario (None: ``after`` is None, or the ball was not
-    released). After the release the arm's movement no longer changes the throw, so a template may play that part
+    ``base`` is thrown at its own execution time in ``executor``'s scenario (None: ``after`` is None, the ball was not
+    released, or that is past the movement's end). After the release the arm's movement no longer changes the throw, so a template may play that part
     slower where the limits need it (:class:`~besdrake.search.templates.MetaDMP`'s ``follow_through``)."""
     from besdrake.search.templates import MetaDMP
 
@@ -57,4 +57,5 @@ def follow_through_phase(base: DMP, executor, robot, after: float | None = FOLLO
     outcome = executor.evaluate([plan])[0]
     if outcome.release_time is None or not np.isfinite(outcome.release_time):
         return None
-    return float(min(1.0, (float(outcome.release_time) + after) / plan.duration))
+    phase = (float(outcome.release_time) + after) / plan.duration
+    return phase if phase < 1.0 else None  # released at the very end: no follow-through
