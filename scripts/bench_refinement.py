@@ -78,6 +78,13 @@ def _run_starts(problems, ranked, k: int, args):
     return run_start(problems, order, group, args.scout_starts)
 
 
+def _follow_through(dmp, ex, robot, after: float | None) -> float | None:
+    """``--follow-through``: the phase of ``dmp`` ``after`` s past its release (None: off, or no follow-through)."""
+    from besdrake.tasks.throwing.template_base import follow_through_phase
+
+    return None if after is None else follow_through_phase(dmp, ex, robot, after)
+
+
 def main(argv: list[str] | None = None) -> int:
     from besdrake.commands.refine import collect_imitated
     from besdrake.imitation import load_dmp
@@ -142,6 +149,9 @@ def main(argv: list[str] | None = None) -> int:
                              "of the task's scatter quadrature with this SD (m per axis; the lab's: 0.002) and rewarded by their RMS "
                              "distance (0: off)")
     parser.add_argument("--robust-radius", type=float, default=None, help="robust check of candidates within this distance (m; default: the module's)")
+    parser.add_argument("--follow-through", type=float, default=None, metavar="S",
+                        help="each problem slows its plans' follow-through where it alone breaks a limit, from S s after its "
+                             "imitated throw's release (RefinementProblem(follow_through=); default: off, the whole throw retimed uniformly)")
     parser.add_argument("--stop-distance", type=float, default=None,
                         help="stop at the first generation with a throw within every limit closer than this (m; the robust "
                              "distance where checked; default: the success distance 0.1 m)")
@@ -182,9 +192,10 @@ def main(argv: list[str] | None = None) -> int:
                 from besdrake.task import get_task
                 robust = RobustCheck.from_task(get_task("throwing"), ex.scenario, args.robust_sd,
                                                radius=ROBUST_RADIUS if args.robust_radius is None else args.robust_radius)
+            phases = [_follow_through(dm, ex, robot, args.follow_through) for dm in dmps]
             problems = [RefinementProblem(robot, dm, reward, ParameterScaling.for_dmp(
                 dm, robot.position_limits, max_execution_time=max(dm.execution_time, MIN_EXECUTION_TIME + 0.05) if args.no_slower else None, **unit),
-                retime=args.retime, robust=robust) for dm in dmps]
+                retime=args.retime, robust=robust, follow_through=ph) for dm, ph in zip(dmps, phases)]
             cma_options = {} if args.plain else dict(DEFAULT_CMA_OPTIONS)
             if args.diagonal is not None and not args.plain:
                 cma_options["CMA_diagonal"] = True if args.diagonal < 0 else args.diagonal
@@ -240,7 +251,7 @@ def main(argv: list[str] | None = None) -> int:
         "restart_regimes": DEFAULT_RESTART_REGIMES if args.regimes is None else args.regimes, "small_share": args.small_share, "patience": args.patience, "scouts": DEFAULT_SCOUTS if args.scouts is None else args.scouts,
         "scout_generations": DEFAULT_SCOUT_GENERATIONS if args.scout_generations is None else args.scout_generations,
         "scout_halving": DEFAULT_SCOUT_HALVING if args.scout_halving is None else args.scout_halving, "plain": args.plain, "target_m": [2.0, 0.0], "backend": args.backend,
-        "robust_sd_m": args.robust_sd, "robust_radius_m": args.robust_radius, "stop_distance_m": args.stop_distance, "lab_repeats": args.lab_repeats,
+        "robust_sd_m": args.robust_sd, "robust_radius_m": args.robust_radius, "stop_distance_m": args.stop_distance, "follow_through_s": args.follow_through, "lab_repeats": args.lab_repeats,
         "stall": None if args.stall_episodes is None else [args.stall_episodes, args.stall_tol, args.stall_after],
         "success_rate": float(np.mean([r["success"] for r in all_runs])),
         "subjects_with_success_in_every_run": sum(v["success_rate"] == 1.0 for v in subjects.values()),
