@@ -184,14 +184,17 @@ class MotionPlan:
             raise ValueError(f"derivative must be 0, 1 or 2, got {derivative}")
         return self._hermite(np.atleast_1d(times))[derivative]
 
-    def _sampled(self, resolution: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _sampled(self, resolution: float, until: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Positions, velocities and accelerations of the interpolated plan at the knots and at least every
-        ``resolution`` s; accelerations also just left of each knot (they jump there)."""
+        ``resolution`` s (up to ``until`` s where given); accelerations also just left of each knot (they jump there)."""
         n = max(2, int(np.ceil(self.duration / resolution)) + 1)
         ts = np.unique(np.concatenate([np.linspace(0.0, self.duration, n), self.t]))
+        left = self.t[1:] - 1e-12
+        if until is not None:
+            ts, left = ts[ts <= until], left[left <= until]
         knot_qd = self.knot_velocities()  # one spline fit (when qd is not given) for both evaluations
         q, qd, qdd = self._hermite(ts, knot_qd)
-        _, _, qdd_left = self._hermite(self.t[1:] - 1e-12, knot_qd)
+        _, _, qdd_left = self._hermite(left, knot_qd)
         return q, qd, np.vstack([qdd, qdd_left])
 
     def slowed_after(self, at: float, factor: float, window: float = 0.3, knot_step: float | None = None) -> "MotionPlan":
@@ -293,12 +296,8 @@ class MotionPlan:
         if until is None:
             _, _, qd_peak, qdd_peak = self._peaks(resolution)
         else:
-            _, qd, qdd = self._sampled(resolution)
-            n = max(2, int(np.ceil(self.duration / resolution)) + 1)
-            ts = np.unique(np.concatenate([np.linspace(0.0, self.duration, n), self.t]))
-            early = np.concatenate([ts, self.t[1:] - 1e-12]) <= until
-            qd_peak = np.max(np.abs(qd[: ts.size][early[: ts.size]]), axis=0, initial=0.0)
-            qdd_peak = np.max(np.abs(qdd[early]), axis=0, initial=0.0)
+            _, qd, qdd = self._sampled(resolution, until)
+            qd_peak, qdd_peak = np.max(np.abs(qd), axis=0, initial=0.0), np.max(np.abs(qdd), axis=0, initial=0.0)
         return qd_peak / limits.velocity, qdd_peak / limits.acceleration
 
     # ------------------------------------------------------------------ I/O

@@ -78,18 +78,12 @@ def _run_starts(problems, ranked, k: int, args):
     return run_start(problems, order, group, args.scout_starts)
 
 
-def _follow_through(dmp, ex, robot, after: float | None) -> float | None:
-    """``--follow-through``: the phase of ``dmp`` ``after`` s past its release (None: off, or no follow-through)."""
-    from besdrake.tasks.throwing.template_base import follow_through_phase
-
-    return None if after is None else follow_through_phase(dmp, ex, robot, after)
-
-
 def main(argv: list[str] | None = None) -> int:
     from besdrake.commands.refine import collect_imitated
     from besdrake.imitation import load_dmp
     from besdrake.search.refinement import MIN_EXECUTION_TIME, ParameterScaling, RefinementProblem, rank_starts, refine, StallRule, DEFAULT_RETIME, DEFAULT_SCOUT_STARTS
     from besdrake.tasks.throwing.reward import ThrowReward
+    from besdrake.tasks.throwing.template_base import follow_through_phase
     from besdrake.search.refinement import DEFAULT_CMA_OPTIONS, DEFAULT_POPSIZE_GROWTH, DEFAULT_RESTART_REGIMES, DEFAULT_STAGNATION_GENERATIONS, STAGNATION_TOL
     from besdrake.search.refinement import DEFAULT_PATIENCE, DEFAULT_SIGMA0, DEFAULT_SCOUT_GENERATIONS, DEFAULT_SCOUT_HALVING, DEFAULT_SCOUTS
     from besdrake.sim import make_executor
@@ -192,7 +186,7 @@ def main(argv: list[str] | None = None) -> int:
                 from besdrake.task import get_task
                 robust = RobustCheck.from_task(get_task("throwing"), ex.scenario, args.robust_sd,
                                                radius=ROBUST_RADIUS if args.robust_radius is None else args.robust_radius)
-            phases = [_follow_through(dm, ex, robot, args.follow_through) for dm in dmps]
+            phases = [follow_through_phase(dm, ex, robot, args.follow_through) for dm in dmps]
             problems = [RefinementProblem(robot, dm, reward, ParameterScaling.for_dmp(
                 dm, robot.position_limits, max_execution_time=max(dm.execution_time, MIN_EXECUTION_TIME + 0.05) if args.no_slower else None, **unit),
                 retime=args.retime, robust=robust, follow_through=ph) for dm, ph in zip(dmps, phases)]

@@ -75,20 +75,20 @@ def _lab_mean(template, lab) -> float:
 
 def _follow(base, ex, args) -> float | None:
     """The base's follow-through phase (``--follow-through`` s after its release; None: off or ``--time-mode raw``)."""
-    from besdrake.tasks.throwing.template_base import follow_through_phase
+    from besdrake.tasks.throwing.template_base import FOLLOW_THROUGH_AFTER, follow_through_phase
 
-    after = None if args.follow_through.lower() == "none" or args.time_mode != "scale" else float(args.follow_through)
+    given = FOLLOW_THROUGH_AFTER if args.follow_through is None else args.follow_through
+    after = None if str(given).lower() == "none" or args.time_mode != "scale" else float(given)
     return follow_through_phase(base, ex, ex.scenario.robot, after)
 
 
-def _references(base, ex, args) -> dict:
+def _references(base, ex, args, follow: float | None) -> dict:
     """Untrained (box centre) and probes-only templates of ``base`` (same box as the trained ones)."""
     from besdrake.search.templates import BehaviorTemplate, MetaDMP, default_meta_bounds, evaluate_template
     from besdrake.search.template_reach import prior_policy, probe_reach, reach_meta_bounds
     from besdrake.search.templates import CONTEXT_BOUNDS
 
     robot = ex.scenario.robot
-    follow = _follow(base, ex, args)
     meta = MetaDMP(base, robot, time_mode=args.time_mode, follow_through=follow)
     bounds = default_meta_bounds(base, robot, time_mode=args.time_mode, follow_through=follow)
     out = {}
@@ -111,14 +111,14 @@ def _references(base, ex, args) -> dict:
     return out
 
 
-def _run_method(base, ex, method: str, args, lab) -> dict:
+def _run_method(base, ex, method: str, args, lab, follow: float | None) -> dict:
     from besdrake.search.templates import evaluate_template, train_template
 
     runs = []
     for seed in range(args.first_seed, args.first_seed + args.seeds):
         t0 = time.perf_counter()
         tr = train_template(base, ex, method, args.episodes, seed, time_mode=args.time_mode, probes=args.probes,
-                            reach_prior=not args.no_prior, follow_through=_follow(base, ex, args))
+                            reach_prior=not args.no_prior, follow_through=follow)
         ev = evaluate_template(tr.template, ex)
         run = {"seed": seed, "mean_distance_cm": 100.0 * ev.mean_distance, "distances_cm": [round(100.0 * float(d), 2) for d in ev.distances],
                "failed_episodes": int(tr.loop.n_failed), "limit_violations": ev.limit_violations, "wall_time_s": time.perf_counter() - t0}
@@ -165,7 +165,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--time-mode", choices=["scale", "raw"], default="scale")
     parser.add_argument("--probes", type=int, default=DEFAULT_PROBES, help="probe rollouts of the base (0: none, the box by the limits)")
     parser.add_argument("--no-prior", action="store_true", help="probes set the box only (no prior mean / initial policy)")
-    parser.add_argument("--follow-through", default="0.05", help="s after the base's release from which a plan that breaks a limit is "
+    parser.add_argument("--follow-through", default=None, help="s after the base's release from which a plan that breaks a limit is "
                         "played slower (as besdrake learn's templates.follow_through); 'none': the whole throw uniformly (before session 25)")
     parser.add_argument("--workers", type=int, default=1, help="simulation processes (1: in this process)")
     parser.add_argument("--scenario", default="nominal", help="simulation scenario of training and the simulated test")
@@ -186,7 +186,8 @@ def main(argv: list[str] | None = None) -> int:
         for name in args.base:
             base = _load_base(name)
             print(f"base {name}", file=sys.stderr, flush=True)
-            refs = _references(base, ex, args)
+            follow = _follow(base, ex, args)
+            refs = _references(base, ex, args, follow)
             nan = {"nearest_m": float("nan"), "farthest_m": float("nan"), "unavoidable_mean_cm": float("nan")}
             entry = {"reach": refs.pop("reach", nan), "references": refs, "methods": {}}
             print(f"  reach {entry['reach']['nearest_m']:.2f}-{entry['reach']['farthest_m']:.2f} m "
@@ -194,7 +195,7 @@ def main(argv: list[str] | None = None) -> int:
                   f"{entry['references']['untrained_cm']:.2f} cm, probes only {entry['references'].get('probes_only_cm', float('nan')):.2f} cm",
                   file=sys.stderr, flush=True)
             for method in args.methods:
-                entry["methods"][method] = _run_method(base, ex, method, args, lab)
+                entry["methods"][method] = _run_method(base, ex, method, args, lab, follow)
             out["bases"][name] = entry
     out["overall_mean_cm"] = {m: float(np.mean([b["methods"][m]["mean_cm"] for b in out["bases"].values()])) for m in args.methods}
     if lab is not None:

@@ -37,7 +37,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="scale: the execution time plays the base's path slower or faster (default); raw: only the DMP's execution time changes")
     parser.add_argument("--probes", type=int, default=None,
                         help="rollouts of the base that set the meta-parameter box and the reward model's prior (default 7, at most a quarter of --episodes; 0: none)")
-    parser.add_argument("--follow-through", default="0.05", metavar="S",
+    parser.add_argument("--follow-through", default=None, metavar="S",
                         help="train: s after the base's release (thrown once at its own speed) from which a plan that breaks a joint "
                              "limit is played slower until it keeps them (the arm's follow-through no longer moves the ball); 'none': "
                              "the whole throw played uniformly (default 0.05)")
@@ -113,12 +113,16 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(str(err)) from None
 
 
-def _follow_through_after(value: str) -> float | None:
-    """``--follow-through``: seconds within [0, 1], or None for 'none'."""
+def _follow_through_after(value: str | None) -> float | None:
+    """``--follow-through``: seconds within [0, 1] (default: the throwing task's ``FOLLOW_THROUGH_AFTER``), or None for
+    'none'."""
     import numpy as np
 
     from besdrake.cli import UserError
+    from besdrake.tasks.throwing.template_base import FOLLOW_THROUGH_AFTER
 
+    if value is None:
+        return FOLLOW_THROUGH_AFTER
     if str(value).strip().lower() == "none":
         return None
     try:

@@ -65,7 +65,7 @@ import numpy as np
 
 from besdrake._io import write_json
 from besdrake.imitation import DMP, DMPParameterError
-from besdrake.plan import FOLLOW_THROUGH_FACTORS, FOLLOW_THROUGH_WINDOW, MotionPlan
+from besdrake.plan import MotionPlan
 from besdrake.robot import Robot, load_robot
 from besdrake.search.base import load_state, save_state
 from besdrake.search.refinement import MIN_EXECUTION_TIME, PLAN_DT
@@ -84,13 +84,6 @@ META_NAMES = ("execution_time", "goal.joint1")
 #: where the range changes fastest (subject 1: 4.15 -> 6.60 cm; subject 3 2.04 -> 1.71): no gain over 4 subjects, so the
 #: default stays 2x (session 18, scripts/bench_learn_templates.py).
 SCALE_SLOWEST = 2.0
-# A template's follow-through (:class:`MetaDMP`'s ``follow_through``: the part of the movement after the phase where
-# the object has left the tool, which no longer changes the outcome) is played slower, by the first of
-# :data:`~besdrake.plan.FOLLOW_THROUGH_FACTORS` that keeps the joint limits, where the whole movement played at the
-# chosen execution time would not keep them. Why (issue 27, session 25): on two of learn's five bases the joint limits
-# bound only after the release (subject 1: peak 0.97 of a limit 0.19 s after it, 0.82-0.91 before it), so playing the
-# whole movement uniformly faster stopped at 1.96-2.02 m, short of the 2.2 m test row.
-
 #: Paper's results on the real robot after 80 episodes (mean distance over the test contexts, cm).
 PAPER_MEAN_CM = {"es": 9.01, "ucb": 19.74}
 
@@ -197,7 +190,9 @@ class MetaDMP:
     ``follow_through`` (``"scale"`` only; None: off): the phase of the movement (0-1) after which it no longer changes
     the outcome (the object has left the tool). A plan that breaks a joint limit at the chosen execution time is then
     played slower from there on (:meth:`~besdrake.plan.MotionPlan.with_follow_through_within`), so
-    that the limits of the follow-through do not cap how fast the part before it may go.
+    that the limits of the follow-through do not cap how fast the part before it may go (issue 27, session 25: on two
+    of learn's five bases the limits bound only after the release, subject 1 at 0.97 of a limit 0.19 s after it and
+    0.82-0.91 before it, so playing the whole movement uniformly faster stopped at 1.96-2.02 m, short of the 2.2 m row).
     """
 
     base: DMP
@@ -253,7 +248,7 @@ class MetaDMP:
         plan = MotionPlan(t=traj.t, q=traj.y, qd=traj.yd, meta=meta, joint_names=self.robot.joint_names)
         if self.follow_through is None:
             return plan
-        return plan.with_follow_through_within(self.robot.limits, float(self.follow_through) * plan.duration)
+        return plan.with_follow_through_within(self.robot.limits, self.follow_through * plan.duration)
 
 
 #: C-REPS settings of a template (issue 27, session 25): a quadratic policy in the context (the probes' policy fitted
@@ -726,5 +721,4 @@ __all__ = [
     "TemplateError", "MetaDMP", "BehaviorTemplate", "TemplatePool", "TemplateEvaluation", "TemplateTraining",
     "default_meta_bounds", "limit_safe_execution_times", "evaluate_template", "train_template", "touchdowns",
     "TIME_MODES", "DEFAULT_PROBES", "reach_floor", "SCALE_SLOWEST", "EXTEND_PROBES", "EXTEND_FACTOR",
-    "FOLLOW_THROUGH_FACTORS", "FOLLOW_THROUGH_WINDOW",
 ]

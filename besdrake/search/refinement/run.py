@@ -172,7 +172,7 @@ def refine(
     own = read_details(details_path) if details_path is not None else {}
     if stop_on_success and any(stops_at(r, stop) for r in own.values()):
         n_episodes = min(n_episodes, len(own))  # a resumed run that had stopped stays stopped
-    logged = _logged_objectives(out)
+    logged = _logged_objectives(out) if stall is not None else []
     if stall is not None and stall.stalled(logged):
         n_episodes = min(n_episodes, len(logged))  # ... and one that had stalled too
     t0 = time.perf_counter()

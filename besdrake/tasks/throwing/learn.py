@@ -303,7 +303,7 @@ def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int
     settings = refinement_settings(ctx.config)
     robust = _robust_check(task, scenario, settings)
     with _executor(ctx, scenario) as executor:
-        phases = [follow_through_phase(d, executor, robot, follow_through) for d in dmps] if follow_through is not None else [None] * len(dmps)
+        phases = [follow_through_phase(d, executor, robot, follow_through) for d in dmps]
         problems = [RefinementProblem(robot, d, reward, task=task, robust=robust, follow_through=ph) for d, ph in zip(dmps, phases)]
         ranking = rank_starts(problems, executor)
         index, start = ranking[0]
