@@ -76,7 +76,8 @@ def test_unknown_stage_is_refused(tmp_path, capsys):
                                       "templates.reach_target=far", "templates.reach_target=[1]", "templates.reach_evaluations=-5",
                                       "templates.reach_other_evaluations=-1", "refinement.run_starts=random",
                                       "templates.slowest=0.5", "templates.slowest=fast", "templates.reach_objective=sideways",
-                                      "templates.follow_through=-0.1", "templates.follow_through=late"])
+                                      "templates.follow_through=-0.1", "templates.follow_through=late",
+                                      "templates.reach_robust=sometimes"])
 def test_a_bad_refinement_transfer_or_diagnosis_setting_is_refused_before_any_stage_runs(tmp_path, capsys, override):
     code = main(["learn", "--quick", "--set", override, "--out", str(tmp_path / "run")])
     err = capsys.readouterr().err

@@ -233,6 +233,8 @@ def test_template_cli_train_list_instantiate(tmp_path):
     assert main(["template", "list", *common]) == 0
     assert main(["template", "instantiate", "t1", *common]) == 2  # no --target
     assert main(["template", "eval", "missing", *common]) == 2
+    assert main(["template", "train", "default", "--name", "t2", "--extend-probes", "-1", "--episodes", "6", *common]) == 2
+    assert "t2" not in TemplatePool(pool)
     assert json.loads((pool / "pool.json").read_text())["templates"]["t1"]["provenance"]["method"] == "ucb"
 
 

@@ -37,6 +37,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="scale: the execution time plays the base's path slower or faster (default); raw: only the DMP's execution time changes")
     parser.add_argument("--probes", type=int, default=None,
                         help="rollouts of the base that set the meta-parameter box and the reward model's prior (default 7, at most a quarter of --episodes; 0: none)")
+    parser.add_argument("--extend-probes", type=int, default=None, metavar="N",
+                        help="train: N more probes beyond the slowest execution time (up to 2x it) where the slowest still lands "
+                             "beyond the context box's nearest target; the box follows them (default 0; besdrake learn: 2)")
     parser.add_argument("--follow-through", default=None, metavar="S",
                         help="train: s after the base's release (thrown once at its own speed) from which a plan that breaks a joint "
                              "limit is played slower until it keeps them (the arm's follow-through no longer moves the ball); 'none': "
@@ -138,13 +141,15 @@ def _train(args, pool) -> int:
     from besdrake.cli import UserError
     from besdrake.imitation import DMPParameterError, load_dmp
     from besdrake.search.loop import ResumeError
-    from besdrake.search.templates import DEFAULT_PROBES, PAPER_MEAN_CM, evaluate_template, train_template
+    from besdrake.search.templates import DEFAULT_PROBES, EXTEND_PROBES, PAPER_MEAN_CM, evaluate_template, train_template
     from besdrake.tasks.throwing.template_base import TEMPLATE_BASE_WEIGHTS, default_template_base, follow_through_phase
 
     if args.episodes < 1:
         raise UserError(f"--episodes must be >= 1, got {args.episodes}")
     if args.probes is not None and args.probes < 0:
         raise UserError(f"--probes must be >= 0, got {args.probes}")
+    if args.extend_probes is not None and not 0 <= args.extend_probes <= 10:
+        raise UserError(f"--extend-probes must be within [0, 10], got {args.extend_probes}")
     after = _follow_through_after(args.follow_through)
     name = args.name or f"{args.method}_seed{args.seed}"
     if name in pool and not args.overwrite:
@@ -177,6 +182,7 @@ def _train(args, pool) -> int:
             training = train_template(base, ex, args.method, args.episodes, args.seed, name, run_dir,
                                       joint1_mode=args.joint1_mode, checkpoints=checkpoints, time_mode=args.time_mode,
                                       probes=DEFAULT_PROBES if args.probes is None else args.probes, follow_through=follow,
+                                      extend_probes=EXTEND_PROBES if args.extend_probes is None else args.extend_probes,
                                       provenance={"base_dmp": base_source, "run_dir": str(run_dir)}, progress=progress)
             ev = evaluate_template(training.template, ex)
     except ResumeError as err:

@@ -279,7 +279,7 @@ def _imitation_jobs(ctx: Context) -> list:
 def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int, tag: str, scouting: bool = True,
                  target: tuple[float, float] | None = None, plans: int | None = None,
                  reward_settings: dict[str, Any] | None = None, sigma0: float | None = None, start_group: int = 0,
-                 follow_through: float | None = None) -> dict[str, Any]:
+                 follow_through: float | None = None, robust: bool = True) -> dict[str, Any]:
     """CMA-ES from the best of ``dmps`` (the paper uses all available plans) in ``scenario``. The default search's scouts
     (short first attempts from the best throws) run only with ``scouting`` and where they take at most half of
     ``budget``: a re-refinement from throws refined already goes straight to CMA-ES from the best of them.
@@ -287,7 +287,8 @@ def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int
     task's reward (e.g. the template reach's ``radial``); ``sigma0``: CMA-ES's initial step (normalised units; None: the
     refinement's default); ``start_group``: the first run starts from the throws ranked ``4 * start_group`` on (later
     runs from the next groups where ``refinement.run_starts`` is diverse); ``follow_through``: s after each start throw's
-    release from which its plans are slowed where they break a limit, as a template plays them (None: off)."""
+    release from which its plans are slowed where they break a limit, as a template plays them (None: off); ``robust``:
+    the refinement's robust check (``refinement.robust_sd``) where it is on (False: every throw scored as thrown)."""
     from besdrake.search.refinement import (DEFAULT_SCOUTS, DEFAULT_SIGMA0, SUCCESS_DISTANCE, RefinementProblem, plot_learning_curves, rank_starts,
                                             refine, scouting_episodes)
     from besdrake.search.refinement.run import stops_at
@@ -301,7 +302,7 @@ def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int
     n_runs = int(cfg["plans"] if plans is None else plans)
     robot = ctx.robot(scenario)
     settings = refinement_settings(ctx.config)
-    robust = _robust_check(task, scenario, settings)
+    robust = _robust_check(task, scenario, settings) if robust else None
     with _executor(ctx, scenario) as executor:
         phases = [follow_through_phase(d, executor, robot, follow_through) for d in dmps]
         problems = [RefinementProblem(robot, d, reward, task=task, robust=robust, follow_through=ph) for d, ph in zip(dmps, phases)]
@@ -639,8 +640,9 @@ REACH_OBJECTIVES = ("point", "range")
 def template_reach_settings(config: dict[str, Any]) -> dict[str, Any]:
     """The templates section's reach settings, checked (:class:`~besdrake.pipeline.config.ConfigError`): the reach
     refinement's ``target`` (m, or None: off), ``evaluations`` (episodes), ``objective`` (:data:`REACH_OBJECTIVES`) and
-    ``sigma`` (its CMA-ES's initial step), ``extend_probes`` (the template's probes beyond its slowest time),
-    and ``slowest`` (the template's slowest execution time, x its base's)."""
+    ``sigma`` (its CMA-ES's initial step), ``robust`` (whether it scores throws by the refinement's robust check),
+    ``extend_probes`` (the template's probes beyond its slowest time), and ``slowest`` (the template's slowest execution
+    time, x its base's)."""
     from besdrake.pipeline.config import ConfigError
     from besdrake.search.templates import EXTEND_PROBES, SCALE_SLOWEST
     from besdrake.search.refinement import DEFAULT_SIGMA0
@@ -656,6 +658,7 @@ def template_reach_settings(config: dict[str, Any]) -> dict[str, Any]:
         slowest = float(cfg.get("slowest", SCALE_SLOWEST))
         follow = cfg.get("follow_through")
         follow = None if follow is None else float(follow)
+        robust = cfg.get("reach_robust", True)
     except (TypeError, ValueError) as err:
         raise ConfigError(f"templates: reach_target must be [x, y] in m or null, reach_evaluations an integer and slowest "
                           f"a number ({err})") from None
@@ -672,10 +675,12 @@ def template_reach_settings(config: dict[str, Any]) -> dict[str, Any]:
         raise ConfigError(f"templates: reach_objective must be one of {REACH_OBJECTIVES}, got {objective!r}")
     if not (1.0 < slowest <= 10.0):
         raise ConfigError(f"templates: slowest must be within (1, 10] (x the base's execution time), got {cfg.get('slowest')!r}")
+    if not isinstance(robust, bool):
+        raise ConfigError(f"templates: reach_robust must be true or false, got {robust!r}")
     if follow is not None and not (np.isfinite(follow) and 0.0 <= follow <= 1.0):
         raise ConfigError(f"templates: follow_through must be a time within [0, 1] s after the release, or null, got {cfg.get('follow_through')!r}")
     return {"target": target if budget > 0 else None, "evaluations": budget, "slowest": slowest, "objective": objective,
-            "sigma": sigma, "extend_probes": extend, "other_evaluations": other, "follow_through": follow}
+            "sigma": sigma, "extend_probes": extend, "other_evaluations": other, "follow_through": follow, "robust": robust}
 
 
 def _template_base(ctx: Context, scenario: str, out: Path) -> tuple[Path, dict[str, Any]]:
@@ -721,10 +726,10 @@ def _reach_refinement(ctx: Context, dmps: list, scenario: str, out: Path, budget
                       start_group: int = 0) -> dict[str, Any]:
     """One CMA-ES run towards the template's reach target; from a later start group (other imitated throws) with scouts
     where the budget allows them, from the refined throw without; its throws played as the template will play them
-    (``templates.follow_through``)."""
+    (``templates.follow_through``), scored robustly only with ``templates.reach_robust``."""
     return _refine_from(ctx, dmps, scenario, out, budget, tag, scouting=start_group > 0, target=settings["target"], plans=1,
                         reward_settings={"radial": True} if settings["objective"] == "range" else None, sigma0=settings["sigma"],
-                        start_group=start_group, follow_through=settings["follow_through"])
+                        start_group=start_group, follow_through=settings["follow_through"], robust=settings["robust"])
 
 
 def _other_family(ctx: Context, scenario: str, out: Path, settings: dict[str, Any], reached: float) -> dict[str, Any] | None:
