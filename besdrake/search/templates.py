@@ -502,8 +502,10 @@ class TemplateTraining:
 DEFAULT_PROBES = 7
 #: Extension probes (:func:`besdrake.search.template_reach.extend_probe`) beyond the box's slowest execution time, up
 #: to :data:`EXTEND_FACTOR` x it, where the slowest probe still lands beyond the context box's nearest target (issue 27).
-#: Off by default: over the five learn bases (ES, 80 episodes) 2 probes gave sim / lab 4.04 / 8.58 cm against 4.78 / 8.53
-#: at seed 0 and 4.83 / 9.13 against 4.85 / 8.53 at seed 1 (session 20): better in simulation, not in the lab.
+#: Off here (``besdrake template train --extend-probes``); ``besdrake learn`` uses 2 (``templates.extend_probes``): over its
+#: five bases (ES, 80 episodes) 2 probes gave sim / lab 2.38 / 7.59 cm against 3.19 / 7.55 at seed 0 and 2.60 / 7.22
+#: against 3.11 / 7.77 at seed 1 (session 26, follow-through bases): the near row at twice a base's time is mended.
+#: Not measured on the default base, whose slowest probe lands beyond 1 m too.
 EXTEND_PROBES = 0
 EXTEND_FACTOR = 2.0
 
