@@ -117,8 +117,8 @@ def test_quick_run_goes_from_demonstrations_to_a_template_pool(tmp_path, capsys)
     assert reach["kept"] == ("floor_m" in reach and reach["floor_m"][1] < reach["floor_m"][0])
     assert ("08_template/reach" in records["template"]["base"]) == reach["kept"]
     # templates.reach_robust false (default): the reach refinement scores throws as thrown, the refinement robustly
-    problem = lambda folder: json.loads((out / folder / "run0" / "problem.json").read_text())  # noqa: E731
-    assert problem("08_template/reach").get("robust") is None and problem("04_refine")["robust"]["radius"] > 0
+    reach_problem, refine_problem = (json.loads((out / f / "run0" / "problem.json").read_text()) for f in ("08_template/reach", "04_refine"))
+    assert reach_problem.get("robust") is None and refine_problem["robust"]["radius"] > 0
     from besdrake.search.templates import TemplatePool
 
     plan = TemplatePool(out / "09_pool").instantiate("throw", [1.9, 0.2])

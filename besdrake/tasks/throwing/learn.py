@@ -302,10 +302,10 @@ def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int
     n_runs = int(cfg["plans"] if plans is None else plans)
     robot = ctx.robot(scenario)
     settings = refinement_settings(ctx.config)
-    robust = _robust_check(task, scenario, settings) if robust else None
+    check = _robust_check(task, scenario, settings) if robust else None
     with _executor(ctx, scenario) as executor:
         phases = [follow_through_phase(d, executor, robot, follow_through) for d in dmps]
-        problems = [RefinementProblem(robot, d, reward, task=task, robust=robust, follow_through=ph) for d, ph in zip(dmps, phases)]
+        problems = [RefinementProblem(robot, d, reward, task=task, robust=check, follow_through=ph) for d, ph in zip(dmps, phases)]
         ranking = rank_starts(problems, executor)
         index, start = ranking[0]
         problem = problems[index]
