@@ -21,7 +21,7 @@ restarts unless stuck (``--patience``), ``--plain`` is plain CMA-ES (the search 
 ``--acceleration-unit``, ``--time-unit``, ``--position-step``/``--time-step`` (initial step per parameter group),
 ``--violation-offset`` and ``--no-slower`` try the alternatives measured in that module's
 docstring, ``--out`` keeps every run's folder (episodes.csv, details.csv with flags and touchdowns,
-optimizer.json with the restart attempts) for diagnosis.
+optimizer.json with the restart attempts) for diagnosis; ``--switch-distance 0.3`` is learn's family switch (session 27).
 
     python3 scripts/bench_refinement.py --subjects 0 1 2 --runs 2 --imitated /tmp/imit
 """
@@ -153,6 +153,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="end a run once its best gained less than --stall-tol over its last this many episodes, not before "
                              "--stall-after episodes (refinement.StallRule; learn's default 200 / 0.01 / 400); default: never")
     parser.add_argument("--stall-tol", type=float, default=0.01)
+    parser.add_argument("--switch-distance", type=float, default=None, metavar="M",
+                        help="a raced scout that went on and stalled farther than M (m) hands over to the next scout the race "
+                             "eliminated (refine(switch_distance=)); default: never")
     parser.add_argument("--stall-after", type=int, default=400)
     parser.add_argument("--lab-repeats", type=int, default=0,
                         help="throw each run's best plan this often in the virtual lab and in its noise floor (the same lab "
@@ -219,7 +222,8 @@ def main(argv: list[str] | None = None) -> int:
                            small_share=args.small_share, patience=args.patience,
                            scouts=args.scouts, scout_generations=args.scout_generations, scout_halving=args.scout_halving,
                            stop_distance=args.stop_distance,
-                           stall=None if args.stall_episodes is None else StallRule(args.stall_episodes, args.stall_tol, args.stall_after))
+                           stall=None if args.stall_episodes is None else StallRule(args.stall_episodes, args.stall_tol, args.stall_after),
+                           switch_distance=args.switch_distance)
                 runs.append({"seed": args.first_seed + k, "start_throw": index, "success": r.success, "episodes_to_success": r.episodes_to_success,
                              "best_distance_within_limits_m": r.summary()["best_distance_within_limits_m"],
                              "best_distance_m": r.summary()["best_distance_m"], "n_episodes": r.n_episodes, "n_failed": r.n_failed,
@@ -247,6 +251,7 @@ def main(argv: list[str] | None = None) -> int:
         "scout_halving": DEFAULT_SCOUT_HALVING if args.scout_halving is None else args.scout_halving, "plain": args.plain, "target_m": [2.0, 0.0], "backend": args.backend,
         "robust_sd_m": args.robust_sd, "robust_radius_m": args.robust_radius, "stop_distance_m": args.stop_distance, "follow_through_s": args.follow_through, "lab_repeats": args.lab_repeats,
         "stall": None if args.stall_episodes is None else [args.stall_episodes, args.stall_tol, args.stall_after],
+        "switch_distance_m": args.switch_distance,
         "success_rate": float(np.mean([r["success"] for r in all_runs])),
         "subjects_with_success_in_every_run": sum(v["success_rate"] == 1.0 for v in subjects.values()),
         "subjects_with_success_in_some_run": sum(v["success_rate"] > 0.0 for v in subjects.values()),

@@ -77,7 +77,8 @@ def test_unknown_stage_is_refused(tmp_path, capsys):
                                       "templates.reach_other_evaluations=-1", "refinement.run_starts=random",
                                       "templates.slowest=0.5", "templates.slowest=fast", "templates.reach_objective=sideways",
                                       "templates.follow_through=-0.1", "templates.follow_through=late",
-                                      "templates.reach_robust=sometimes"])
+                                      "templates.reach_robust=sometimes", "refinement.switch_distance=0",
+                                      "refinement.switch_distance=far"])
 def test_a_bad_refinement_transfer_or_diagnosis_setting_is_refused_before_any_stage_runs(tmp_path, capsys, override):
     code = main(["learn", "--quick", "--set", override, "--out", str(tmp_path / "run")])
     err = capsys.readouterr().err
@@ -145,6 +146,15 @@ def test_a_second_refinement_run_scouts_from_other_imitated_throws():
     assert refinement_settings(config)["run_starts"] == "diverse"
     with pytest.raises(ConfigError, match="run_starts"):
         refinement_settings({"refinement": {"run_starts": "random"}})
+
+
+def test_learn_refines_with_the_family_switch_where_it_scouts():
+    """refinement.switch_distance (default 0.3 m): learn's runs switch throw families where the race's winner stalls
+    farther; a config without the key (a run folder of before) refines as before."""
+    from besdrake.tasks.throwing.learn import refinement_settings
+
+    assert refinement_settings(load_config())["switch_distance"] == 0.3
+    assert refinement_settings({"refinement": {}})["switch_distance"] is None
 
 
 def test_a_reach_refinement_that_stalls_looks_in_another_throw_family(monkeypatch, tmp_path):

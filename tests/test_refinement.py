@@ -224,6 +224,7 @@ def test_refine_cli_writes_summary_figure_and_resumes(base, tmp_path):
     assert summary["runs"][0]["resumed"] and summary["runs"][0]["n_episodes"] == 12
     assert main(["refine", str(tmp_path / "missing.dmp.json"), "--out", str(out), "--backend", "serial"]) == 2
     assert main(argv[:argv.index("--out") + 1] + [str(tmp_path / "stall")] + argv[argv.index("--out") + 2:] + ["--stall-episodes", "0"]) == 2
+    assert main(argv[:argv.index("--out") + 1] + [str(tmp_path / "switch")] + argv[argv.index("--out") + 2:] + ["--switch-distance", "0"]) == 2
 
 
 def test_retiming_stretches_a_plan_beyond_the_speed_limits_and_leaves_others_alone(base):

@@ -566,3 +566,75 @@ def test_refine_command_runs_scout_from_different_throws(base, tmp_path):
     ranking = json.loads((tmp_path / "same" / "start.json").read_text())["ranking"]
     assert picks["same"] == [ranking[0], ranking[0]]
     assert picks["diverse"] == [ranking[0], ranking[4]]
+
+
+def _switching(switch_below, seed: int = 0):
+    """Two raced scouts on the two-basin function: scout 0 starts on the broad local optimum (it leads the race),
+    scout 1 on the way to the global one (it is eliminated)."""
+    n = 3
+    starts = np.array([[-3.0] * n, [1.5] * n])
+    return StagnationRestartCMAES(starts, 0.5, np.random.default_rng(seed), popsize=6, bounds=np.tile([-10.0, 10.0], (n, 1)),
+                                  stagnation_generations=5, tol=0.01, restart_from_best=True, regimes="bipop", scouts=2,
+                                  scout_generations=3, scout_halving=True, switch_below=switch_below)
+
+
+def test_a_winner_that_stalls_far_hands_over_to_the_scout_the_race_eliminated():
+    on, off = _switching(-0.2), _switching(None)
+    run(on, 60)
+    run(off, 60)
+    race = [h["scout"] for h in on.attempt_history if "rung" in h]
+    assert race == [0, 1]  # one rung decides two scouts
+    continued = [h.get("continues_scout") for h in on.attempt_history if "rung" not in h]
+    assert continued[:2] == [0, 1]  # the winner stalled near -0.5, below -0.2: the eliminated scout went on
+    first = next(h for h in on.attempt_history if h.get("continues_scout") == 0)
+    assert first["best_reward"] < -0.2 and first["end"] != "scout"
+    assert on._best_reward > -0.1  # ... and found the global basin the winner never reached
+    assert all(h.get("continues_scout") != 1 for h in off.attempt_history)  # without the switch: restarts from the best
+    assert off._best_reward < -0.4 and not off.reserve
+    assert on.attempt_history[:3] == off.attempt_history[:3]  # the same run up to the switch
+
+
+def test_a_switching_run_resumes_anywhere(tmp_path):
+    for told in (2, 5, 12, 20):  # racing, the winner going on, about the hand-over, after it
+        a = _switching(-0.2)
+        run(a, told)
+        b = restored(a, tmp_path)
+        assert b.switch_below == -0.2 and [k for k, _, _ in b.reserve] == [k for k, _, _ in a.reserve]
+        assert_same_asks(a, b, 30)
+
+
+def test_switch_distance_needs_raced_scouts_and_a_distance(base):
+    from besdrake.search.refinement import make_optimizer
+
+    problem = RefinementProblem(COMPI, base)
+    assert make_optimizer(problem, switch_distance=0.3).switch_below == -0.3
+    assert make_optimizer(problem).switch_below is None
+    for bad in (0.0, -0.3, float("nan")):
+        with pytest.raises(RefinementError, match="switch_distance"):
+            make_optimizer(problem, switch_distance=bad)
+    with pytest.raises(RefinementError, match="raced scouts"):
+        make_optimizer(problem, switch_distance=0.3, scouts=0)
+    with pytest.raises(ValueError, match="switch_below"):
+        StagnationRestartCMAES(np.zeros((1, 2)), 0.5, np.random.default_rng(0), switch_below=float("inf"))
+
+
+@pytest.mark.parametrize("far, ends_after", [(-2.0, 5), (-0.45, 10)])
+def test_a_family_switched_to_that_stays_behind_the_runs_best_ends(far, ends_after):
+    """A plateau of -0.3 about -3 (the race's winner stalls there); about +10 a family that climbs for long towards
+    ``far`` but never reaches -0.3: more than twice as far it ends after half the stagnation window, else after it."""
+    def landscape(X):
+        X = np.atleast_2d(X)
+        return np.maximum(-0.3 - 0.01 * np.sum((X + 3.0) ** 2, axis=1), far - 0.001 * np.sum((X - 10.0) ** 2, axis=1))
+
+    n = 3
+    opt = StagnationRestartCMAES(np.array([[-3.0] * n, [3.0] * n]), 0.5, np.random.default_rng(1), popsize=6,
+                                 bounds=np.tile([-20.0, 20.0], (n, 1)), stagnation_generations=10, tol=1e-4,
+                                 restart_from_best=True, regimes="bipop", scouts=2, scout_generations=3, scout_halving=True,
+                                 switch_below=-0.2)
+    for _ in range(60):
+        X = opt.ask()
+        opt.tell(X, landscape(X))
+    switched = next(h for h in opt.attempt_history if h.get("continues_scout") == 1)
+    assert switched["end"] == "behind" and switched["generations"] == 3 + ends_after and switched["best_reward"] < -0.3
+    after = opt.attempt_history[opt.attempt_history.index(switched) + 1:]
+    assert after and all(h["start"] == -1 for h in after)  # no family left: restarts from the run's best again

@@ -74,6 +74,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--stall-episodes", type=int, default=None, metavar="N",
                         help="end a run once its best gained less than 1 cm over its last N episodes, not before episode 400 "
                              "(besdrake.search.refinement.StallRule; besdrake learn uses 200); default: never")
+    parser.add_argument("--switch-distance", type=float, default=None, metavar="M",
+                        help="where the scout that won the race stalls farther than M m from the target, go on with the scout "
+                             "the race eliminated (the next throw family); needs scouting; default: never")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--continue-after-success", action="store_true", help="use the whole budget instead of stopping at the first success")
     from besdrake.sim.cliutil import add_backend_arguments
@@ -256,7 +259,8 @@ def _refine_run(k: int, args: argparse.Namespace, problem, executor, *, search: 
                         popsize=args.popsize, stop_on_success=not args.continue_after_success, progress=progress,
                         meta_episodes=args.meta_episodes, meta_sigma=args.meta_sigma, **search,
                         **({} if starts is None else {"starts": starts}),
-                        stall=None if args.stall_episodes is None else StallRule(args.stall_episodes))
+                        stall=None if args.stall_episodes is None else StallRule(args.stall_episodes),
+                        switch_distance=args.switch_distance)
     except (RefinementError, ResumeError) as err:
         raise UserError(str(err)) from None
     finally:

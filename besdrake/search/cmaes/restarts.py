@@ -49,6 +49,13 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
     runs ``scout_generations`` generations (a *rung*), then the better half of those that did not stall
     (rounded up) runs another ``scout_generations`` generations each, its own CMA-ES going on, and so on until
     one is left; it goes on as the first attempt proper. Four scouts cost 6 rungs of generations instead of 4.
+    With ``switch_below`` (a reward; halving only), a scout that went on and then ended (stagnation, cap or ``cma``)
+    with its best reward below it hands over to the best scout the race eliminated (the runner-up of the last rung
+    first, then the earlier rungs' by rank), whose CMA-ES goes on where the race left it, instead of a restart from
+    the best candidate: a run whose winning family of candidates cannot reach the goal tries the next within its budget.
+    A scout switched to ends (``"behind"``) where it is still behind the run's best after ``stagnation_generations``
+    generations, or, with rewards that are minus distances (the run's best below 0), more than twice as far after half
+    as many: a hopeless family costs a few generations.
 
     Budget and stop belong to the caller (the loop): :meth:`stop` is never true. One Generator drives
     every attempt; :meth:`state_dict` saves the attempt counter and regime bookkeeping, the per-generation
@@ -77,10 +84,13 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
         scouts: int = 0,
         scout_generations: int = 10,
         scout_halving: bool = False,
+        switch_below: float | None = None,
     ) -> None:
         starts = np.atleast_2d(np.asarray(starts, dtype=float))
         _check_settings(starts, sigma0, stagnation_generations, max_generations, tol, popsize_growth, regimes, small_decades,
                         small_share, patience, scouts, scout_generations)
+        if switch_below is not None and not np.isfinite(switch_below):
+            raise ValueError(f"switch_below must be a finite reward or None, got {switch_below!r}")
         self.n_params = starts.shape[1]
         bounds = None if bounds is None else np.asarray(bounds, dtype=float)
         if bounds is not None:
@@ -88,7 +98,7 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
                 CMAES._check_bounds(bounds, s)
         self._configure(starts, sigma0, popsize, bounds, stagnation_generations, tol, max_generations, restart_from_best,
                         cma_options, popsize_growth, regimes, small_decades, small_share, patience, scouts, scout_generations,
-                        scout_halving)
+                        scout_halving, switch_below)
         self.rng = rng
         self._start_bookkeeping()
         self._init_best(starts[0])
@@ -97,7 +107,8 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
     def _configure(self, starts: np.ndarray, sigma0: float, popsize: int | None, bounds: np.ndarray | None,
                    stagnation_generations: int, tol: float, max_generations: int, restart_from_best: bool,
                    cma_options: dict[str, Any] | None, popsize_growth: float, regimes: str, small_decades: float,
-                   small_share: float, patience: int, scouts: int, scout_generations: int, scout_halving: bool) -> None:
+                   small_share: float, patience: int, scouts: int, scout_generations: int, scout_halving: bool,
+                   switch_below: float | None = None) -> None:
         """Set the settings (checked already)."""
         self.starts = starts
         self.sigma0 = float(sigma0)
@@ -116,6 +127,7 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
         self.scouts = int(scouts)
         self.scout_generations = int(scout_generations)
         self.scout_halving = bool(scout_halving)
+        self.switch_below = None if switch_below is None else float(switch_below)
 
     def _start_bookkeeping(self) -> None:
         """The attempt, scouting and regime bookkeeping of a fresh run."""
@@ -125,6 +137,10 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
         self.current_scout = 0
         self.rung_queue: list[tuple[int, CMAES | None, list[float]]] = [(k, None, []) for k in range(1, self.scouts)] if self.scout_halving else []
         self.rung_done: list[tuple[int, CMAES, list[float]]] = []
+        #: the scouts the race eliminated, best first (kept only with ``switch_below``): the families a run switches to
+        self.reserve: list[tuple[int, CMAES, list[float]]] = []
+        #: the current attempt's generations when it was switched to (None: not a switch)
+        self.switched_at: int | None = None
         #: scouting: the best scout so far (its CMA-ES, and its per-generation best), kept to go on after the last scout
         self.kept: CMAES | None = None
         self.kept_best: list[float] = []
@@ -204,7 +220,16 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
             return "stagnation"
         if self.scouting() and g >= self.scout_generations * (self.rung + 1 if self.scout_halving else 1):
             return "scout"
+        if self.switched_at is not None and self._behind(g - self.switched_at):
+            return "behind"
         return None
+
+    def _behind(self, generations: int) -> bool:
+        """Whether a scout switched to ``generations`` ago is too far behind the run's best to go on."""
+        best, run_best, G = self.attempt_best[-1], self._best_reward, self.stagnation_generations
+        if generations >= G and best < run_best:
+            return True
+        return generations >= G // 2 and run_best < 0 and best < 2 * run_best
 
     def tell(self, candidates: np.ndarray, rewards: np.ndarray) -> None:
         candidates = np.asarray(candidates, dtype=float)
@@ -236,10 +261,16 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
                 return
             if why == "scout" and (not self.kept_best or self.attempt_best[-1] > self.kept_best[-1]):
                 self.kept, self.kept_best, self.kept_scout = self.inner, list(self.attempt_best), self.attempt
+            switch = self._switches(why)
             self.attempt += 1
             self.attempt_best = []
             self.continued_scout = None
-            if self.scouting():
+            self.switched_at = None
+            if switch:
+                k, cma, best = self.reserve.pop(0)
+                self.inner, self.attempt_best, self.continued_scout, self.regime = cma, list(best), k, "large"
+                self.switched_at = len(best)
+            elif self.scouting():
                 self.inner = self._new_attempt(self.sigma0)
             elif self.scouts > 1 and self.attempt == self.scouts and self.kept is not None:
                 # scouting is over: the best scout goes on (a large attempt)
@@ -248,6 +279,11 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
             else:
                 self.inner = self._new_attempt(self._next_regime())
             self.attempt_start_best = float(self._best_reward)
+
+    def _switches(self, why: str) -> bool:
+        """Whether the attempt that just ended (``why``) hands over to the next eliminated scout (``switch_below``)."""
+        return (self.switch_below is not None and self.continued_scout is not None and why != "scout" and bool(self.reserve)
+                and self.attempt_best[-1] < self.switch_below)
 
     def _next_scout(self, why: str) -> None:
         """Successive halving: file the scout that just ended (``why``) and switch to the next one, the next rung,
@@ -258,6 +294,8 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
         if not self.rung_queue and len(self.rung_done) > 1:
             ranked = sorted(self.rung_done, key=lambda e: -e[2][-1])  # stable: an earlier scout wins a tie
             self.rung_queue = [(k, cma, best) for k, cma, best in ranked[: (len(ranked) + 1) // 2]]
+            if self.switch_below is not None:  # the eliminated, the later rung's first
+                self.reserve = list(ranked[(len(ranked) + 1) // 2:]) + self.reserve
             self.rung_done = []
             self.rung += 1
             if len(self.rung_queue) == 1:  # the race is decided
@@ -296,12 +334,18 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
             extra_cfg |= {"scouts": self.scouts, "scout_generations": self.scout_generations}
             if self.scout_halving:
                 extra_cfg["scout_halving"] = True
+        if self.switch_below is not None:
+            extra_cfg["switch_below"] = self.switch_below
         halving_state: dict[str, Any] = {}
         if self.scouts > 1 and self.scout_halving:
             halving_state = {"halving": {
                 "rung": self.rung, "current_scout": self.current_scout,
                 "queue": [{"scout": k, "cma": None if c is None else c.state_dict(), "best": [float(v) for v in b]} for k, c, b in self.rung_queue],
                 "done": [{"scout": k, "cma": c.state_dict(), "best": [float(v) for v in b]} for k, c, b in self.rung_done]}}
+            if self.switch_below is not None:
+                halving_state["halving"]["reserve"] = [{"scout": k, "cma": c.state_dict(), "best": [float(v) for v in b]}
+                                                       for k, c, b in self.reserve]
+                halving_state["halving"]["switched_at"] = self.switched_at
         return {
             "type": "StagnationRestartCMAES",
             "config": {
@@ -342,7 +386,8 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
                        bool(cfg["restart_from_best"]), dict(cfg["cma_options"]), float(cfg.get("popsize_growth", 1.0)),
                        str(cfg.get("regimes", "large")), float(cfg.get("small_decades", 2.0)),
                        float(cfg.get("small_share", 1.0)), int(cfg.get("patience", 2)), int(cfg.get("scouts", 0)),
-                       int(cfg.get("scout_generations", 10)), bool(cfg.get("scout_halving", False)))
+                       int(cfg.get("scout_generations", 10)), bool(cfg.get("scout_halving", False)),
+                       None if cfg.get("switch_below") is None else float(cfg["switch_below"]))
         hv = state.get("halving", {})
 
         def _cma(d):
@@ -356,6 +401,8 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
         opt.current_scout = int(hv.get("current_scout", -1))
         opt.rung_queue = [(int(e["scout"]), _cma(e["cma"]), [float(v) for v in e["best"]]) for e in hv.get("queue", [])]
         opt.rung_done = [(int(e["scout"]), _cma(e["cma"]), [float(v) for v in e["best"]]) for e in hv.get("done", [])]
+        opt.reserve = [(int(e["scout"]), _cma(e["cma"]), [float(v) for v in e["best"]]) for e in hv.get("reserve", [])]
+        opt.switched_at = None if hv.get("switched_at") is None else int(hv["switched_at"])
         opt.kept = None if state.get("kept") is None else CMAES.from_state(state["kept"])
         if opt.kept is not None:
             opt.kept.rng = inner.rng  # one Generator drives every attempt

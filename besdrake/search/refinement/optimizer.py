@@ -109,6 +109,7 @@ def make_optimizer(
     scouts: int | None = None,
     scout_generations: int | None = None,
     scout_halving: bool | None = None,
+    switch_distance: float | None = None,
 ):
     """CMA-ES on the normalised space, started at the imitated movement (``x0 = 0``) unless ``x0`` is given.
 
@@ -121,7 +122,10 @@ def make_optimizer(
 
     With ``meta_episodes > 0`` a :class:`~besdrake.search.cmaes.StagedCMAES`: first CMA-ES (step
     ``meta_sigma``) over the meta-parameters of :func:`meta_basis` for ``meta_episodes`` episodes, then
-    CMA-ES over all parameters from the best candidate so far with step ``sigma0``."""
+    CMA-ES over all parameters from the best candidate so far with step ``sigma0``.
+
+    ``switch_distance`` (m; raced scouts only): a scout that went on and ended with its best objective (minus the
+    reward) above it hands over to the next scout the race eliminated (``StagnationRestartCMAES``'s ``switch_below``)."""
     from besdrake.search.cmaes import CMAES, StagedCMAES
 
     x0 = np.zeros(problem.n_params) if x0 is None else np.asarray(x0, dtype=float)
@@ -141,11 +145,24 @@ def make_optimizer(
                                       tol=stagnation_tol, max_generations=max_attempt_generations, restart_from_best=restart_from_best,
                                       cma_options=cma_options, popsize_growth=popsize_growth, regimes=restart_regimes,
                                       small_share=small_share, patience=patience, scouts=scouts,
-                                      scout_generations=scout_generations, scout_halving=scout_halving)
+                                      scout_generations=scout_generations, scout_halving=scout_halving,
+                                      switch_below=_switch_below(switch_distance, scouts, scout_halving))
     if meta_episodes > 0:
         return StagedCMAES(x0, meta_basis(problem), meta_sigma, sigma0, rng, subspace_evaluations=meta_episodes,
                            popsize_subspace=popsize, popsize=popsize, bounds=bounds, cma_options=cma_options)
     return CMAES(x0, sigma0, rng, popsize=popsize, bounds=bounds, cma_options=cma_options)
+
+
+def _switch_below(switch_distance: float | None, scouts: int, scout_halving: bool) -> float | None:
+    """The reward below which a raced scout hands over to the next (None: never), checked."""
+    if switch_distance is None:
+        return None
+    d = float(switch_distance)
+    if not (np.isfinite(d) and d > 0):
+        raise RefinementError(f"switch_distance must be a distance > 0 (m) or None, got {switch_distance!r}")
+    if scouts < 2 or not scout_halving:
+        raise RefinementError("switch_distance needs raced scouts (scouts >= 2 and scout_halving)")
+    return -d
 
 
 def _start_points(x0: np.ndarray, starts: np.ndarray | None, bounds: np.ndarray) -> np.ndarray:

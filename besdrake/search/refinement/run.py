@@ -144,6 +144,7 @@ def refine(
     scout_halving: bool | None = None,
     stop_distance: float | None = None,
     stall: StallRule | None = None,
+    switch_distance: float | None = None,
 ) -> RefinementResult:
     """Refine ``problem`` with CMA-ES for at most ``n_episodes`` episodes (stops at the first
     generation with a success when ``stop_on_success``). With ``out_dir`` the run is resumable:
@@ -153,7 +154,8 @@ def refine(
     ``stop_distance`` (m, default :data:`SUCCESS_DISTANCE`): with ``stop_on_success``, stop only at a success whose
     distance (its robust distance where a robust check ran) is below it: a margin inside the goal. ``stall``: end the
     run early once it has stalled (:class:`StallRule`; decided from the episode log, so a resumed run decides the same);
-    its result's ``stop_reason`` is then ``"stalled"``."""
+    its result's ``stop_reason`` is then ``"stalled"``. ``switch_distance`` (m): a raced scout that went on and stalled
+    farther than this hands over to the next scout the race eliminated (:func:`make_optimizer`)."""
     from besdrake.search.loop import run_search
 
     settings = _checked_settings(n_episodes, meta_episodes, meta_sigma, stagnation_generations, patience, cma_options,
@@ -161,6 +163,8 @@ def refine(
     search = dict(meta_episodes=meta_episodes, meta_sigma=meta_sigma, starts=starts, restart_from_best=restart_from_best,
                   stagnation_tol=stagnation_tol, max_attempt_generations=max_attempt_generations, small_share=small_share,
                   patience=patience, **settings)
+    if switch_distance is not None:
+        search["switch_distance"] = switch_distance
     out = None if out_dir is None else Path(out_dir)
     details_path = None
     if out is not None:
@@ -220,7 +224,8 @@ def _checked_settings(n_episodes: int, meta_episodes: int, meta_sigma: float, st
 def _run_record(problem: RefinementProblem, seed: int, sigma0: float, popsize: int, *, meta_episodes: int, meta_sigma: float,
                 stagnation_generations: int, starts, restart_from_best: bool, stagnation_tol: float,
                 max_attempt_generations: int, cma_options: dict[str, Any], popsize_growth: float, restart_regimes: str,
-                small_share: float, patience: int, scouts: int, scout_generations: int, scout_halving: bool) -> dict[str, Any]:
+                small_share: float, patience: int, scouts: int, scout_generations: int, scout_halving: bool,
+                switch_distance: float | None = None) -> dict[str, Any]:
     """The run's ``problem.json``: the problem and every setting that differs from the plain search (what a resumed
     run must match)."""
     desc = problem.describe() | {"seed": int(seed), "sigma0": float(sigma0), "popsize": int(popsize)}
@@ -242,6 +247,8 @@ def _run_record(problem: RefinementProblem, seed: int, sigma0: float, popsize: i
             desc |= {"scouts": int(scouts), "scout_generations": int(scout_generations)}
             if scout_halving:
                 desc["scout_halving"] = True
+            if switch_distance is not None:
+                desc["switch_distance"] = float(switch_distance)
     if cma_options:
         desc |= {"cma_options": dict(cma_options)}
     return desc

@@ -324,7 +324,8 @@ def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int
                 return refine(problems[i], ex, n_episodes=int(budget), seed=int(cfg["seed"]) + k, out_dir=out / f"run{k}",
                               sigma0=DEFAULT_SIGMA0 if sigma0 is None else sigma0,
                               popsize=int(cfg["population"]), stop_on_success=settings["stop_on_success"],
-                              stop_distance=settings["stop_distance"], starts=starts, scouts=scouts, stall=settings["stall"])
+                              stop_distance=settings["stop_distance"], starts=starts, scouts=scouts, stall=settings["stall"],
+                              switch_distance=settings["switch_distance"] if scouts else None)
             return job
 
         jobs = [run_job(k) for k in range(n_runs)]
@@ -404,7 +405,8 @@ def refinement_settings(config: dict[str, Any]) -> dict[str, Any]:
     ``stop_on_success``, ``runs_in_turn`` (the runs one after the other up to the first success), ``stop_distance`` (m;
     null: the success distance) and ``robust_sd`` (m per axis; 0: no robust check), ``robust_radius`` (m), ``stall`` (a
     :class:`~besdrake.search.refinement.StallRule` from ``stall_episodes`` / ``stall_tol`` / ``stall_after``; None where
-    ``stall_episodes`` is null)."""
+    ``stall_episodes`` is null), ``switch_distance`` (m; a raced scout that stalls farther hands over to the next one;
+    null: never)."""
     from besdrake.pipeline.config import ConfigError
     from besdrake.search.refinement import SUCCESS_DISTANCE
     from besdrake.search.refinement.robust import ROBUST_RADIUS
@@ -415,11 +417,15 @@ def refinement_settings(config: dict[str, Any]) -> dict[str, Any]:
         out = {"stop_on_success": bool(cfg.get("stop_on_success", True)), "stop_distance": None if stop is None else float(stop),
                "runs_in_turn": bool(cfg.get("runs_in_turn", False)), "run_starts": str(cfg.get("run_starts", "same")),
                "robust_sd": float(cfg.get("robust_sd", 0.0)), "robust_radius": float(cfg.get("robust_radius", ROBUST_RADIUS))}
+        switch = cfg.get("switch_distance")
+        out["switch_distance"] = None if switch is None else float(switch)
     except (TypeError, ValueError) as err:
         raise ConfigError(f"refinement: {err}") from None
     out["stall"] = _stall_rule(cfg)
     if out["stop_distance"] is not None and not (0 < out["stop_distance"] <= SUCCESS_DISTANCE):
         raise ConfigError(f"refinement: stop_distance must be within (0, {SUCCESS_DISTANCE}] m or null, got {stop!r}")
+    if out["switch_distance"] is not None and not (np.isfinite(out["switch_distance"]) and out["switch_distance"] > 0):
+        raise ConfigError(f"refinement: switch_distance must be a distance > 0 (m) or null, got {switch!r}")
     if out["run_starts"] not in ("same", "diverse"):
         raise ConfigError(f"refinement: run_starts must be 'same' or 'diverse', got {out['run_starts']!r}")
     if not (0 <= out["robust_sd"] <= 0.005) or not (out["robust_radius"] > 0):
