@@ -47,6 +47,29 @@ def test_a_run_folder_refuses_another_configuration(tmp_path):
         RunFolder(tmp_path, load_config())
 
 
+def test_a_run_begun_by_an_earlier_besdrake_resumes_with_its_own_configuration(tmp_path, capsys):
+    """A run folder whose config.yaml lacks only settings added since (an earlier besdrake's) resumes as it began,
+    and says which settings it goes without; one that differs in a setting it has is still refused."""
+    old = load_config(quick=True)
+    del old["refinement"]["switch_distance"], old["templates"]["reach_robust"]
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / "config.yaml").write_text(yaml.safe_dump(old, sort_keys=False))
+    before = (tmp_path / "run" / "config.yaml").read_text()
+    run = RunFolder(tmp_path / "run", load_config(quick=True))
+    assert run.config == old and sorted(run.settings_left_out) == ["refinement.switch_distance", "templates.reach_robust"]
+    assert (tmp_path / "run" / "config.yaml").read_text() == before  # the run's record is not rewritten
+    with pytest.raises(RunError, match="another configuration"):
+        RunFolder(tmp_path / "run", load_config(quick=True, overrides=["refinement.seed=5"]))
+    assert main(["learn", "--quick", "--out", str(tmp_path / "run"), "--stage", "label"]) == 0
+    assert "without the settings added since: refinement.switch_distance, templates.reach_robust" in capsys.readouterr().err
+    del old["transfer"]["max_transfers"]  # a setting this version reads without a fallback: refused, clearly
+    (tmp_path / "older").mkdir()
+    (tmp_path / "older" / "config.yaml").write_text(yaml.safe_dump(old, sort_keys=False))
+    assert main(["learn", "--quick", "--out", str(tmp_path / "older"), "--stage", "label"]) == 2
+    err = capsys.readouterr().err
+    assert "cannot resume" in err and "max_transfers" in err and "Traceback" not in err
+
+
 def test_first_stages_run_resume_and_write_their_outputs(tmp_path, capsys):
     out = tmp_path / "run"
     args = ["learn", "--quick", "--out", str(out), "--json", "--stage", "label", "--stage", "segment", "--stage", "imitate"]

@@ -53,6 +53,23 @@ def _input_errors() -> tuple[type[Exception], ...]:
             LogError, PluginError, LabConfigError, ResumeError, RunError, FileNotFoundError)
 
 
+def _check_resumable(run_folder, out) -> None:
+    """A run begun by an earlier besdrake goes on with its own configuration only where this version can read it
+    (the task's checks of its settings pass), else a clear error."""
+    from besdrake.cli import UserError
+    from besdrake.pipeline.config import ConfigError
+    from besdrake.pipeline.learn import learn_scenario
+    from besdrake.task import get_task
+
+    config = run_folder.config
+    try:
+        learn_scenario(config)
+        get_task(config["task"]).check_learn_config(config)
+    except (ConfigError, KeyError, TypeError, ValueError) as err:
+        raise UserError(f"{out} was begun by an earlier besdrake whose configuration this version cannot resume ({err!s}); "
+                        "finish it with that version, or choose a new --out folder") from None
+
+
 def run(args: argparse.Namespace) -> int:
     from besdrake.cli import UserError
     from besdrake.pipeline.config import ConfigError, load_config
@@ -80,6 +97,11 @@ def run(args: argparse.Namespace) -> int:
         run_folder = RunFolder(args.out, config)
     except (ConfigError, RunError) as err:
         raise UserError(str(err)) from None
+    if run_folder.settings_left_out:
+        _check_resumable(run_folder, args.out)
+        print(f"besdrake: note: {args.out} was begun by an earlier besdrake; it goes on with its own configuration, without "
+              f"the settings added since: {', '.join(run_folder.settings_left_out)}", file=sys.stderr)
+    config = run_folder.config
     known = [name for name, _ in stages_of(config)]
     for name in args.stage or []:
         if name not in known:

@@ -3,7 +3,8 @@
 Layout::
 
     RUN/
-      config.yaml          the effective configuration (written once; a resume must match it)
+      config.yaml          the effective configuration (written once; a resume must match it, but for settings a
+                           later besdrake added: the run goes on with its own configuration, as it began)
       inputs.json          SHA-256 of every input file (recordings, lab, scenario)
       NN_stage/            one folder per stage, in order
         stage.json         written last: the stage's summary and wall time (its presence = done)
@@ -40,21 +41,44 @@ def file_hash(path: str | Path) -> str:
     return h.hexdigest()
 
 
+def settings_added(stored: Any, new: Any, prefix: str = "") -> list[str] | None:
+    """The dotted keys ``new`` has and ``stored`` lacks where every setting ``stored`` has is the same in ``new`` (a
+    configuration that a later besdrake only added settings to), else None."""
+    if not (isinstance(stored, dict) and isinstance(new, dict)):
+        return [] if stored == new else None
+    if not set(stored) <= set(new):
+        return None
+    added = [f"{prefix}{k}" for k in new if k not in stored]
+    for k in stored:
+        inner = settings_added(stored[k], new[k], f"{prefix}{k}.")
+        if inner is None:
+            return None
+        added += inner
+    return added
+
+
 class RunFolder:
-    """The folder of one ``besdrake learn`` run."""
+    """The folder of one ``besdrake learn`` run. A run begun by an earlier besdrake whose configuration lacks only
+    settings added since goes on with its own configuration (each stage reads a missing setting as the behaviour
+    before it); :attr:`settings_left_out` names them."""
 
     def __init__(self, root: str | Path, config: dict[str, Any]) -> None:
         self.root = Path(root)
         self.config = config
+        self.settings_left_out: list[str] = []
         self.root.mkdir(parents=True, exist_ok=True)
         path = self.root / "config.yaml"
         text = yaml.safe_dump(config, sort_keys=False)
         if path.is_file():
-            if yaml.safe_load(path.read_text()) != yaml.safe_load(text):
-                raise RunError(
-                    f"{self.root} holds a run with another configuration; resume it with the same options, "
-                    "or choose a new --out folder"
-                )
+            stored = yaml.safe_load(path.read_text())
+            if stored != yaml.safe_load(text):
+                added = settings_added(stored, yaml.safe_load(text))
+                if not added:
+                    raise RunError(
+                        f"{self.root} holds a run with another configuration; resume it with the same options, "
+                        "or choose a new --out folder"
+                    )
+                self.config, self.settings_left_out = stored, added
         else:
             _atomic_write_text(path, text)
 
