@@ -70,9 +70,9 @@ class RunFolder:
         path = self.root / "config.yaml"
         text = yaml.safe_dump(config, sort_keys=False)
         if path.is_file():
-            stored = yaml.safe_load(path.read_text())
-            if stored != yaml.safe_load(text):
-                added = settings_added(stored, yaml.safe_load(text))
+            stored, new = yaml.safe_load(path.read_text()), yaml.safe_load(text)
+            if stored != new:
+                added = settings_added(stored, new)
                 if not added:
                     raise RunError(
                         f"{self.root} holds a run with another configuration; resume it with the same options, "

@@ -153,13 +153,24 @@ def make_optimizer(
     return CMAES(x0, sigma0, rng, popsize=popsize, bounds=bounds, cma_options=cma_options)
 
 
-def _switch_below(switch_distance: float | None, scouts: int, scout_halving: bool) -> float | None:
-    """The reward below which a raced scout hands over to the next (None: never), checked."""
+def checked_switch_distance(switch_distance) -> float | None:
+    """:func:`refine`'s ``switch_distance`` as a distance > 0 (m) or None, else :class:`RefinementError`."""
     if switch_distance is None:
         return None
-    d = float(switch_distance)
+    try:
+        d = float(switch_distance)
+    except (TypeError, ValueError):
+        d = float("nan")
     if not (np.isfinite(d) and d > 0):
         raise RefinementError(f"switch_distance must be a distance > 0 (m) or None, got {switch_distance!r}")
+    return d
+
+
+def _switch_below(switch_distance: float | None, scouts: int, scout_halving: bool) -> float | None:
+    """The reward below which a raced scout hands over to the next (None: never), checked."""
+    d = checked_switch_distance(switch_distance)
+    if d is None:
+        return None
     if scouts < 2 or not scout_halving:
         raise RefinementError("switch_distance needs raced scouts (scouts >= 2 and scout_halving)")
     return -d

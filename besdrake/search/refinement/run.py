@@ -162,9 +162,7 @@ def refine(
                                  restart_regimes, popsize_growth, scouts, scout_generations, scout_halving)
     search = dict(meta_episodes=meta_episodes, meta_sigma=meta_sigma, starts=starts, restart_from_best=restart_from_best,
                   stagnation_tol=stagnation_tol, max_attempt_generations=max_attempt_generations, small_share=small_share,
-                  patience=patience, **settings)
-    if switch_distance is not None:
-        search["switch_distance"] = switch_distance
+                  patience=patience, switch_distance=switch_distance, **settings)
     out = None if out_dir is None else Path(out_dir)
     details_path = None
     if out is not None:

@@ -408,7 +408,8 @@ def refinement_settings(config: dict[str, Any]) -> dict[str, Any]:
     ``stall_episodes`` is null), ``switch_distance`` (m; a raced scout that stalls farther hands over to the next one;
     null: never)."""
     from besdrake.pipeline.config import ConfigError
-    from besdrake.search.refinement import SUCCESS_DISTANCE
+    from besdrake.search.refinement import SUCCESS_DISTANCE, RefinementError
+    from besdrake.search.refinement.optimizer import checked_switch_distance
     from besdrake.search.refinement.robust import ROBUST_RADIUS
 
     cfg = config["refinement"]
@@ -417,15 +418,12 @@ def refinement_settings(config: dict[str, Any]) -> dict[str, Any]:
         out = {"stop_on_success": bool(cfg.get("stop_on_success", True)), "stop_distance": None if stop is None else float(stop),
                "runs_in_turn": bool(cfg.get("runs_in_turn", False)), "run_starts": str(cfg.get("run_starts", "same")),
                "robust_sd": float(cfg.get("robust_sd", 0.0)), "robust_radius": float(cfg.get("robust_radius", ROBUST_RADIUS))}
-        switch = cfg.get("switch_distance")
-        out["switch_distance"] = None if switch is None else float(switch)
-    except (TypeError, ValueError) as err:
+        out["switch_distance"] = checked_switch_distance(cfg.get("switch_distance"))
+    except (TypeError, ValueError, RefinementError) as err:
         raise ConfigError(f"refinement: {err}") from None
     out["stall"] = _stall_rule(cfg)
     if out["stop_distance"] is not None and not (0 < out["stop_distance"] <= SUCCESS_DISTANCE):
         raise ConfigError(f"refinement: stop_distance must be within (0, {SUCCESS_DISTANCE}] m or null, got {stop!r}")
-    if out["switch_distance"] is not None and not (np.isfinite(out["switch_distance"]) and out["switch_distance"] > 0):
-        raise ConfigError(f"refinement: switch_distance must be a distance > 0 (m) or null, got {switch!r}")
     if out["run_starts"] not in ("same", "diverse"):
         raise ConfigError(f"refinement: run_starts must be 'same' or 'diverse', got {out['run_starts']!r}")
     if not (0 <= out["robust_sd"] <= 0.005) or not (out["robust_radius"] > 0):
