@@ -40,12 +40,13 @@ from besdrake.diagnosis.advice import _separation_advice  # noqa: F401  (re-expo
 from besdrake.diagnosis.allowed import _Line, _allowed_effects, _verify_interval_ends  # noqa: F401
 from besdrake.diagnosis.heldout import heldout_gain, per_trial_table
 from besdrake.diagnosis.identifiability import Identifiability, structural_classes
+from besdrake.diagnosis.parameters import prune_parameters
 from besdrake.diagnosis.replay import Evidence, compare, fit_linear, replay
 from besdrake.diagnosis.residual import residual_report
 from besdrake.diagnosis.results import AllowedEffect, Cause, Diagnosis, DiagnosisError, Gain, GroupComparison  # noqa: F401
 from besdrake.diagnosis.selection import _forward_pairs, parsimony, refine_leaders, refine_rivals  # noqa: F401
 from besdrake.diagnosis.settings import *  # noqa: F401,F403  (the thresholds, as before the split)
-from besdrake.diagnosis.settings import ALPHA, EXCLUDE_FRACTION, INDISTINGUISHABLE_DBIC, MIN_TRIALS
+from besdrake.diagnosis.settings import ALPHA, EXCLUDE_FRACTION, INDISTINGUISHABLE_DBIC, MATERIAL, MIN_TRIALS, PRUNE_PARAMETERS
 from besdrake.diagnosis.simulate import _placement_correction, _Sim  # noqa: F401
 from besdrake.diagnosis.trials import TrialModel, model_for
 from besdrake.diagnosis.stats import _bootstrap_median_ci, _extra_effect_significant, _lack_of_fit_p, _material_change  # noqa: F401
@@ -171,7 +172,7 @@ def _diagnose_evidence(ev: Evidence, cands: list[str], pairs: bool, folds: int, 
     best_fit = parsimony(prob, fits, ev.nm, ev.measured_groups, cands, ev.keys, notes)
     refine_rivals(prob, fits, best_fit, ev.sim, ev.measured_groups, iterations)
     best_shift = local_shift.get(best_fit.effects)
-    fitting.jacobian_at(prob, best_fit, lambda effs: ev.sim.features(effs, shift=best_shift))
+    best_fit = _with_needed_parameters(prob, fits, best_fit, sens, ev, best_shift, iterations, notes)
     causes = rank_causes(prob, fits, best_fit, ev.nm, ev.measured_groups)
     others = [s_ for s_ in sens.specs if s_.effect not in best_fit.effects]
     local = (lambda: fitting.sensitivity_at(others, best_fit.parameters(), best_fit.y_fit, lambda effs: ev.sim.features(effs, shift=best_shift))) \
@@ -194,6 +195,26 @@ def _diagnose_evidence(ev: Evidence, cands: list[str], pairs: bool, folds: int, 
         scenario=None, timings=timings, n_rollouts=ev.sim.n_rollouts, notes=notes, cannot_tell=v.cannot_tell, excluded=v.excluded,
         structural=[{"members": c.members, "reason": c.statement()} for c in ident.classes] if ident is not None else [], residual=residual, confidence_basis=v.basis,
     )
+
+
+def _with_needed_parameters(prob: fitting.Problem, fits: list[fitting.CandidateFit], best_fit: fitting.CandidateFit, sens: fitting.Sensitivity,
+                            ev: Evidence, shift, iterations: int, notes: list[str]) -> fitting.CandidateFit:
+    """The chosen cause with a fresh Jacobian at its optimum, less the parameters the log does not need
+    (:func:`~besdrake.diagnosis.parameters.prune_parameters`); it replaces the chosen fit at the head of ``fits``."""
+    fitting.jacobian_at(prob, best_fit, lambda effs: ev.sim.features(effs, shift=shift))
+    if not PRUNE_PARAMETERS:
+        return best_fit
+    n_params: dict[str, int] = {}
+    for s_ in sens.specs:
+        n_params[s_.effect] = n_params.get(s_.effect, 0) + 1
+    pruned, dropped = prune_parameters(prob, best_fit, lambda e: ev.sim.one(e, shift=shift), ev.nm, ev.measured_groups, n_params, iterations)
+    if not dropped:
+        return best_fit
+    fitting.jacobian_at(prob, pruned, lambda effs: ev.sim.features(effs, shift=shift))
+    notes.append(f"{best_fit.name}: {', '.join(dropped)} left at nominal: without them the fit is still adequate and its predictions "
+                 f"stay within {MATERIAL} noise SD of the fit with them (chi2 {best_fit.chi2:.1f} -> {pruned.chi2:.1f})")
+    fits[fits.index(best_fit)] = pruned
+    return pruned
 
 
 def _placement_note(ev: Evidence, placement_sd: float) -> list[str]:
