@@ -187,6 +187,31 @@ def _correct_detectable(row: dict, d) -> bool:
     return equivalent_answer(tuple(row["best"]), d.refined_effects(), shown, d.structural)
 
 
+def extra_parameters(row: dict, classes: list[list[str]], n_params: dict[str, int]) -> list[str]:
+    """The answer's fitted parameters of effects fitted by selection (more than two parameters: the base pose, the
+    encoder offsets) that were not hidden, a parameter structurally identical to a hidden one counting as hidden."""
+    hidden = {f"{e}.{k}" for e, vals in row["hidden"].items() for k in vals}
+    out = []
+    for e, vals in row.get("fitted", {}).items():
+        for k in vals:
+            key = f"{e}.{k}"
+            if n_params.get(e, 0) <= 2 or key in hidden or any(key in c and hidden & set(c) for c in classes):
+                continue
+            out.append(key)
+    return out
+
+
+def parameter_figures(known: list[dict], classes: list[list[str]], n_params: dict[str, int]) -> dict:
+    """Of the right answers that name a cause: how many name only hidden parameters of the multi-parameter effects
+    (issue 25: a user recalibrates every joint an answer names), and how many other parameters they name."""
+    right = [r for r in known if r["best"] and r.get("correct_structural", r["correct"])]
+    extras = [len(extra_parameters(r, classes, n_params)) for r in right]
+    return {"n_right_naming_a_cause": len(right),
+            "right_with_only_hidden_parameters": float(np.mean([e == 0 for e in extras])) if right else None,
+            "extra_parameters_per_right_answer": float(np.mean(extras)) if right else None,
+            "extra_parameters_max": int(max(extras)) if right else None}
+
+
 def _wrong_kind(r: dict) -> str:
     """"incomplete": the answer names a part of the hidden set and nothing else; "false claim": it names an effect
     that is not hidden (the nominal model for a hidden effect included)."""
@@ -518,6 +543,11 @@ def _summarize(results: list[dict], modes: list[str], args, t_bench: float, regi
         return float(np.mean([r[key] for r in rows])) if rows else None
 
     out = {"config": vars(args), "machine_note": "2 shared cores (other jobs running): wall times are noisy", "bench_wall_s": time.perf_counter() - t_bench}
+    from besdrake.diagnosis.identifiability import structural_classes
+    from besdrake.sim.effects import get_effect
+
+    classes = [list(c.members) for c in structural_classes(registry).classes]  # cached per registry (JSON)
+    n_params = {e: len(get_effect(e).params) for e in registry}
     for mode in modes:
         known = [r for r in results if r["mode"] == mode and not r["unknown"] and "error" not in r]
         conf: dict[str, dict[str, int]] = {}
@@ -627,6 +657,7 @@ def _summarize(results: list[dict], modes: list[str], args, t_bench: float, regi
             "structural_trials": int(sum(r.get("structural_arises", False) for r in known)),
             "structural_named_and_stated": int(sum(r.get("structural_arises", False) and r.get("structural_in_verdict", False) for r in known)),
             "residual_model": _residual_summary(unk),
+            "parameters": parameter_figures(known, classes, n_params),
             "errors": [r for r in results if r["mode"] == mode and "error" in r],
         }
     out["trials"] = results

@@ -50,7 +50,7 @@ from besdrake.diagnosis.settings import ALPHA, EXCLUDE_FRACTION, INDISTINGUISHAB
 from besdrake.diagnosis.simulate import _placement_correction, _Sim  # noqa: F401
 from besdrake.diagnosis.trials import TrialModel, model_for
 from besdrake.diagnosis.stats import _bootstrap_median_ci, _extra_effect_significant, _lack_of_fit_p, _material_change  # noqa: F401
-from besdrake.diagnosis.verdict import judge, rank_causes
+from besdrake.diagnosis.verdict import Verdict, judge, rank_causes
 from besdrake.sim.effects import list_effects
 from besdrake.sim.scenario import Scenario, load_scenario
 
@@ -172,12 +172,13 @@ def _diagnose_evidence(ev: Evidence, cands: list[str], pairs: bool, folds: int, 
     best_fit = parsimony(prob, fits, ev.nm, ev.measured_groups, cands, ev.keys, notes)
     refine_rivals(prob, fits, best_fit, ev.sim, ev.measured_groups, iterations)
     best_shift = local_shift.get(best_fit.effects)
-    best_fit = _with_needed_parameters(prob, fits, best_fit, sens, ev, best_shift, iterations, notes)
+    fitting.jacobian_at(prob, best_fit, lambda effs: ev.sim.features(effs, shift=best_shift))
     causes = rank_causes(prob, fits, best_fit, ev.nm, ev.measured_groups)
     others = [s_ for s_ in sens.specs if s_.effect not in best_fit.effects]
     local = (lambda: fitting.sensitivity_at(others, best_fit.parameters(), best_fit.y_fit, lambda effs: ev.sim.features(effs, shift=best_shift))) \
         if best_fit.y_fit is not None else None
     v = judge(prob, sens, fits, causes, ev, cands, ident, local_sens=local)
+    _name_needed_parameters(v, prob, sens, ev, best_shift, iterations, notes)
     t0 = time.perf_counter()
     gain, per_trial_after = heldout_gain(ev, sens, v.best_fit, best_shift, folds, iterations, rng)
     timings["heldout"] = time.perf_counter() - t0
@@ -197,24 +198,27 @@ def _diagnose_evidence(ev: Evidence, cands: list[str], pairs: bool, folds: int, 
     )
 
 
-def _with_needed_parameters(prob: fitting.Problem, fits: list[fitting.CandidateFit], best_fit: fitting.CandidateFit, sens: fitting.Sensitivity,
-                            ev: Evidence, shift, iterations: int, notes: list[str]) -> fitting.CandidateFit:
-    """The chosen cause with a fresh Jacobian at its optimum, less the parameters the log does not need
-    (:func:`~besdrake.diagnosis.parameters.prune_parameters`); it replaces the chosen fit at the head of ``fits``."""
-    fitting.jacobian_at(prob, best_fit, lambda effs: ev.sim.features(effs, shift=shift))
-    if not PRUNE_PARAMETERS:
-        return best_fit
+def _name_needed_parameters(v: Verdict, prob: fitting.Problem, sens: fitting.Sensitivity, ev: Evidence, shift, iterations: int,
+                            notes: list[str]) -> None:
+    """The named cause less the parameters the log does not need (:func:`~besdrake.diagnosis.parameters.prune_parameters`):
+    it replaces the judged fit in ``v`` (what is named, refined and held out), while the verdict and its confidence stay
+    those of the cause as selected, against which the rivals and second effects were judged."""
+    if not PRUNE_PARAMETERS or not v.best.effects or v.best_fit.y_fit is None:
+        return
     n_params: dict[str, int] = {}
     for s_ in sens.specs:
         n_params[s_.effect] = n_params.get(s_.effect, 0) + 1
-    pruned, dropped = prune_parameters(prob, best_fit, lambda e: ev.sim.one(e, shift=shift), ev.nm, ev.measured_groups, n_params, iterations)
+    full = v.best_fit
+    pruned, dropped = prune_parameters(prob, full, lambda e: ev.sim.one(e, shift=shift), ev.nm, ev.measured_groups, n_params, iterations)
     if not dropped:
-        return best_fit
+        return
     fitting.jacobian_at(prob, pruned, lambda effs: ev.sim.features(effs, shift=shift))
-    notes.append(f"{best_fit.name}: {', '.join(dropped)} left at nominal: without them the fit is still adequate and its predictions "
-                 f"stay within {MATERIAL} noise SD of the fit with them (chi2 {best_fit.chi2:.1f} -> {pruned.chi2:.1f})")
-    fits[fits.index(best_fit)] = pruned
-    return pruned
+    notes.append(f"{full.name}: {', '.join(dropped)} left at nominal: without them the fit is still adequate and its predictions "
+                 f"stay within {MATERIAL} noise SD of the fit with them (chi2 {full.chi2:.1f} -> {pruned.chi2:.1f})")
+    cause = rank_causes(prob, [pruned], pruned, ev.nm, ev.measured_groups)[0]
+    v.fits[next(i for i, f in enumerate(v.fits) if f is full)] = pruned
+    v.causes[next(i for i, c in enumerate(v.causes) if c is v.best)] = cause
+    v.best_fit, v.best = pruned, cause
 
 
 def _placement_note(ev: Evidence, placement_sd: float) -> list[str]:

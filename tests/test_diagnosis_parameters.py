@@ -1,0 +1,94 @@
+"""Parameter parsimony (besdrake.diagnosis.parameters): the named cause keeps only the parameters the log needs."""
+
+import numpy as np
+import pytest
+
+from besdrake.diagnosis import fitting, noise
+from besdrake.diagnosis.parameters import prune_parameters
+from besdrake.tasks.throwing.diagnosis.observables import N_FEATURES, group_slices
+
+JOINTS = [fitting.ParamSpec("joint_offset", f"joint{j}", 0.0, -0.1, 0.1, 0.01, "rad") for j in range(1, 7)]
+N_PARAMS = {"joint_offset": 6, "ball": 2}
+
+
+class _OffsetWorld:
+    """Touchdowns only: each joint offset moves every throw's touchdown along its own direction (1 m per rad times a
+    per-throw signature), a ball radius too; 5 cm touchdown noise."""
+
+    def __init__(self, seed: int, hidden: dict[str, float]):
+        rng = np.random.default_rng(seed)
+        self.N, self.sl = 25, group_slices()["touchdown"]
+        self.sig = {s.key: rng.normal(0, 1, (self.N, 2)) for s in JOINTS}
+        self.sig["ball.radius"] = rng.normal(0, 1, (self.N, 2))
+        self.sig["ball.mass"] = rng.normal(0, 1, (self.N, 2))
+        self.y0 = np.full((self.N, N_FEATURES), np.nan)
+        self.y0[:, self.sl] = rng.normal(0, 1, (self.N, 2))
+        self.nm = noise.NoiseModel(sd={"touchdown": 0.05, "ball_pos": 0.01, "ball_vel": 0.05, "ball_acc": 0.3, "ball_rest": 0.003, "joints": 1e-3},
+                                   dof={"touchdown": 16, "ball_pos": 0, "ball_vel": 0, "ball_acc": 0, "ball_rest": 0, "joints": 0}, source={})
+        y_meas = self.one({"joint_offset": hidden})
+        y_meas[:, self.sl] += rng.normal(0, 0.05, (self.N, 2))
+        self.prob = fitting.Problem(y_meas, self.y0, self.nm.vector())
+        self.calls = 0
+
+    def one(self, effects: dict) -> np.ndarray:
+        y = self.y0.copy()
+        for name, v in effects.get("joint_offset", {}).items():
+            y[:, self.sl] += 3.0 * v * self.sig[f"joint_offset.{name}"]
+        y[:, self.sl] += 10.0 * (effects.get("ball", {}).get("radius", 0.035) - 0.035) * self.sig["ball.radius"]
+        y[:, self.sl] += 2.0 * (effects.get("ball", {}).get("mass", 0.05) - 0.05) * self.sig["ball.mass"]
+        self.calls = getattr(self, "calls", 0) + 1
+        return y
+
+    def features(self, effects_list: list[dict]) -> np.ndarray:
+        return np.array([self.one(e) for e in effects_list])
+
+    def fit(self, specs: list[fitting.ParamSpec], effects=("joint_offset",)) -> fitting.CandidateFit:
+        """The candidate refined on ``specs`` with its Jacobian at the optimum (as the diagnosis has it)."""
+        sens = fitting.compute_sensitivity(specs, self.y0, self.features)
+        f = fitting.linear_fit(self.prob, sens, tuple(effects))
+        fitting.refine(self.prob, f, self.one, iterations=5)
+        return fitting.jacobian_at(self.prob, f, self.features)
+
+
+def test_parameters_that_only_absorb_noise_are_left_at_nominal():
+    both = 0
+    for seed in range(8):
+        world = _OffsetWorld(seed, {"joint1": 0.04})
+        full = world.fit([JOINTS[0], JOINTS[3], JOINTS[5]])  # joint 1 hidden; joints 4 and 6 chosen as well
+        assert full.chi2 < world.fit([JOINTS[0]]).chi2  # the spare parameters do lower the chi2 a little
+        pruned, dropped = prune_parameters(world.prob, full, world.one, world.nm, ["touchdown"], N_PARAMS, 5)
+        assert "joint_offset.joint1" not in dropped and set(dropped) <= {"joint_offset.joint4", "joint_offset.joint6"}
+        assert pruned.inactive[len(full.inactive):] == dropped and len(pruned.specs) == 3 - len(dropped)
+        assert 0 < pruned.stderr[0] < 0.005 and pruned.theta[0] == pytest.approx(0.04, abs=4 * pruned.stderr[0])
+        assert pruned.chi2 == pytest.approx(float(np.sum(world.prob.weighted(pruned.y_fit) ** 2)))
+        assert full.k == 3  # the full fit is not changed in place
+        both += len(dropped) == 2
+    # A spare pair fitted to pure noise moves the touchdowns by 0.07-0.26 noise SD (median over throws): seed 1 keeps one.
+    assert both >= 6
+
+
+def test_a_parameter_the_log_needs_stays():
+    world = _OffsetWorld(0, {"joint1": 0.04, "joint4": -0.03})
+    full = world.fit([JOINTS[0], JOINTS[3]])
+    pruned, dropped = prune_parameters(world.prob, full, world.one, world.nm, ["touchdown"], N_PARAMS, 5)
+    assert dropped == [] and pruned is full
+    assert full.theta == pytest.approx([0.04, -0.03], abs=0.006)
+
+
+def test_an_effect_keeps_one_parameter_and_small_effects_are_fitted_whole():
+    world = _OffsetWorld(0, {"joint1": 0.0})  # nothing hidden: nothing here is needed, yet each effect keeps one
+    radius = fitting.ParamSpec("ball", "radius", 0.035, 0.02, 0.05, 0.001, "m")
+    mass = fitting.ParamSpec("ball", "mass", 0.05, 0.03, 0.2, 0.005, "kg")
+    full = world.fit([JOINTS[0], JOINTS[1], radius, mass], effects=("ball", "joint_offset"))
+    pruned, dropped = prune_parameters(world.prob, full, world.one, world.nm, ["touchdown"], N_PARAMS, 5)
+    assert len(dropped) == 1 and dropped[0].startswith("joint_offset.")
+    assert sorted(s.key for s in pruned.specs if s.effect == "ball") == ["ball.mass", "ball.radius"]
+
+
+def test_a_fit_without_predictions_or_jacobian_is_returned_as_it_is():
+    world = _OffsetWorld(0, {"joint1": 0.04})
+    sens = fitting.compute_sensitivity(JOINTS[:2], world.y0, world.features)
+    linear = fitting.linear_fit(world.prob, sens, ("joint_offset",))  # never refined: no predictions
+    world.calls = 0
+    assert prune_parameters(world.prob, linear, world.one, world.nm, ["touchdown"], N_PARAMS, 5) == (linear, [])
+    assert world.calls == 0
