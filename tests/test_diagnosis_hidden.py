@@ -253,11 +253,31 @@ def test_a_tilted_scoop_mount_is_named_from_a_full_log():
     from besdrake.tasks.throwing.diagnosis.design import DEFAULT_SIDEWAYS
 
     lab = VirtualLab({"name": "test_lab", "effects": {"scoop_mount": {"roll": 0.04}}, "seed": 11})
-    ms = [lab.execute(p) for p in diagnosis_plans(25, 8, seed=11, probes=DEFAULT_PROBES, sideways=DEFAULT_SIDEWAYS)]
+    ms = [lab.execute(p) for p in diagnosis_plans(25, 8, seed=11, probes=DEFAULT_PROBES, sideways=DEFAULT_SIDEWAYS,
+                                                     limits=load_scenario("nominal").robot.limits)]
     d = diagnose(ms, backend="serial")
     assert d.best.effects == ("scoop_mount",), d.verdict
     roll = next(p for p in d.best.parameters if p["parameter"] == "roll")
     assert abs(roll["value"] - 0.04) <= max(4 * roll["stderr"], 0.006), roll
+    assert d.explained and d.gain.median_disparity_after_m < d.gain.median_disparity_before_m
+
+
+@pytest.mark.slow
+def test_a_joint_offset_is_named_with_that_joint_only():
+    """Issue 25: a user recalibrates every joint an answer names. One encoder offset hidden (joint 3, 0.06 rad), the
+    whole registry with pairs, a full log with sideways throws: the cause names that joint's offset and no other
+    joint's. Before parameter parsimony this log was answered with joints 2, 3 and 5 (0.008, 0.046, 0.006 rad)."""
+    from besdrake.tasks.throwing.diagnosis.design import DEFAULT_SIDEWAYS
+
+    lab = VirtualLab({"name": "test_lab", "effects": {"joint_offset": {"joint3": 0.06}}, "seed": 17})
+    ms = [lab.execute(p) for p in diagnosis_plans(25, 8, seed=17, probes=DEFAULT_PROBES, sideways=DEFAULT_SIDEWAYS,
+                                                     limits=load_scenario("nominal").robot.limits)]
+    d = diagnose(ms, backend="process", workers=2)
+    assert d.best.effects == ("joint_offset",), d.verdict
+    (joint3,) = d.best.parameters
+    assert joint3["parameter"] == "joint3" and abs(joint3["value"] - 0.06) <= max(4 * joint3["stderr"], 0.006), d.best.parameters
+    assert d.refined_effects() == {"joint_offset": {"joint3": pytest.approx(joint3["value"], abs=1e-6)}}
+    assert any("left at nominal" in n for n in d.notes)
     assert d.explained and d.gain.median_disparity_after_m < d.gain.median_disparity_before_m
 
 

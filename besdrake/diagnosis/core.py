@@ -14,7 +14,8 @@ its :class:`~besdrake.diagnosis.trials.TrialModel` (:meth:`besdrake.task.Task.di
    :meth:`_Sim.local_shift`; a pair's second effect claimed only if it is significant with the trials' plans as the
    independent units, :func:`_extra_effect_significant`, since residuals within a trial are strongly correlated and
    BIC over entries counts one trial's noise several times; an effect that hardly moves the predictions is dropped
-   unless it alone is :data:`STRONG_DBIC` better than nominal); candidates within :data:`INDISTINGUISHABLE_DBIC` of
+   unless it alone is :data:`STRONG_DBIC` better than nominal, and so is a parameter of the named cause,
+   :mod:`~besdrake.diagnosis.parameters`); candidates within :data:`INDISTINGUISHABLE_DBIC` of
    the best that are not merely the best plus an unneeded effect are reported as "cannot tell apart", with the
    recording or trial that would separate them (predicted by simulating both fitted candidates). When even the best
    candidate leaves a residual above the noise (lack-of-fit test at :data:`ALPHA`), the result is "not explained".

@@ -2,15 +2,17 @@
 
 The parameters of a large effect (six encoder offsets, a base pose) are chosen on the linear model at nominal
 (:func:`~besdrake.diagnosis.fitting.linear_fit` with ``select``), where every residual entry counts as independent. One
-throw's unmodelled perturbation moves many of its entries together, so a few more parameters than the effect needs
-are chosen and then absorb that scatter (benchmark seed 0, trial 72: a base yaw of -0.057 rad was fitted as joint-1,
-4, 5 and 6 offsets of -0.075, -0.022, 0.002 and 0.081 rad; a joint-1 offset alone fits as well to 0.23 noise SD on
-the touchdowns). A user who trusts such an answer recalibrates joints that are fine.
+trial's unmodelled perturbation moves many of its entries together, so a few more parameters than the effect needs
+are chosen and then absorb that scatter (issue 25's diagnosis benchmark, seed 0, trial 72: a base yaw of -0.057 rad was fitted
+as joint-1, 4, 5 and 6 offsets of -0.075, -0.022, 0.002 and 0.081 rad; a joint-1 offset alone predicts the same
+outcomes to 0.23 noise SD). A user who trusts such an answer recalibrates joints that are fine.
 
 :func:`prune_parameters` applies to parameters the rule :func:`~besdrake.diagnosis.selection.parsimony` applies to
 whole effects: a parameter is reset to nominal when the cause without it is still adequate (lack-of-fit test) and its
 predictions stay within :data:`~besdrake.diagnosis.settings.MATERIAL` noise SD of the full fit's (median over the trials,
-every measured group), backward, one parameter at a time, the smallest loss of fit first; every effect keeps one.
+every measured group), backward, one parameter at a time, the smallest loss of fit first; every effect keeps one. The
+diagnosis judges its verdict and confidence on the cause as selected and names the pruned one
+(:func:`besdrake.diagnosis.core._name_needed_parameters`).
 """
 
 from __future__ import annotations
