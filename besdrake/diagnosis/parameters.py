@@ -26,21 +26,22 @@ from besdrake.diagnosis import fitting, noise
 from besdrake.diagnosis.settings import ALPHA, MATERIAL
 from besdrake.diagnosis.stats import _lack_of_fit_p, _material_change
 
-#: Per round, the parameters whose reset costs the least fit (one rollout batch each, on the fit's Jacobian) that are
+#: Per round, how many of the parameters whose reset costs the least fit (predicted on the fit's Jacobian) are simulated,
 #: refined and judged; the others stay.
 PRUNE_TRIES = 2
 
 
-def _without(prob: fitting.Problem, fit: fitting.CandidateFit, j: int) -> tuple[list[fitting.ParamSpec], np.ndarray, np.ndarray]:
-    """Specs, theta and weighted Jacobian of ``fit`` with parameter ``j`` at nominal and the others moved by one
-    Gauss-Newton step on ``fit``'s Jacobian to make up for it (no rollouts)."""
+def _without(prob: fitting.Problem, fit: fitting.CandidateFit, j: int) -> tuple[float, list[fitting.ParamSpec], np.ndarray, np.ndarray]:
+    """``fit`` with parameter ``j`` at nominal and the others moved by one Gauss-Newton step on ``fit``'s Jacobian to
+    make up for it (no rollouts): the chi2 that linear model predicts, the specs, theta and weighted Jacobian."""
     keep = [i for i in range(len(fit.specs)) if i != j]
     specs = [fit.specs[i] for i in keep]
     A = fit.jac[:, keep]
     r = prob.weighted(fit.y_fit) - fit.jac[:, j] * (fit.specs[j].nominal - fit.theta[j])
-    theta = fit.theta[keep] + fitting._solve_step(A, r, specs, fit.theta[keep])
     lo, hi = np.array([s.low for s in specs]), np.array([s.high for s in specs])
-    return specs, np.clip(theta, lo, hi), A
+    theta = np.clip(fit.theta[keep] + fitting._solve_step(A, r, specs, fit.theta[keep]), lo, hi)
+    r_pred = r - A @ (theta - fit.theta[keep])
+    return float(r_pred @ r_pred), specs, theta, A
 
 
 def _droppable(fit: fitting.CandidateFit, n_params: dict[str, int]) -> list[int]:
@@ -61,15 +62,12 @@ def prune_parameters(prob: fitting.Problem, fit: fitting.CandidateFit, simulate_
         return fit, []
     current, dropped = fit, []
     while True:
-        options = []
-        for j in _droppable(current, n_params):
-            specs, theta, A = _without(prob, current, j)
+        options = sorted(((*_without(prob, current, j), j) for j in _droppable(current, n_params)), key=lambda o: o[0])
+        chosen = None
+        for _c2, specs, theta, A, j in options[:PRUNE_TRIES]:
             y = simulate_one(fitting.effects_from(specs, theta))
             r = prob.weighted(y)
-            options.append((float(r @ r), j, specs, theta, A, y))
-        chosen = None
-        for c2, j, specs, theta, A, y in sorted(options, key=lambda o: o[0])[:PRUNE_TRIES]:
-            cand = replace(current, specs=specs, theta=theta, jac=A, y_fit=y, chi2=c2, k=len(specs), stderr=fitting.stderr_from(A, specs),
+            cand = replace(current, specs=specs, theta=theta, jac=A, y_fit=y, chi2=float(r @ r), k=len(specs), stderr=fitting.stderr_from(A, specs),
                            inactive=current.inactive + [current.specs[j].key], fresh_jacobian=False)
             fitting.refine(prob, cand, simulate_one, iterations=iterations, starts=[(theta, y)], try_linear=False, nominal_secants=False)
             if _immaterial(prob, fit, cand, nm, groups):
