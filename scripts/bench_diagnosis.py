@@ -31,7 +31,10 @@ earlier magnitudes. The logs use the diagnosis design with sideways throws (``--
 the figures above: ``reliability`` (per confidence level: trials, right, right or honest, wrong, share right, the wrong
 trials; unknown-effect trials count as wrong when named with "high"), ``confident_wrong`` (target 0),
 ``right_cause_rate_structural`` (an answer naming a structurally identical parameter, e.g. a base yaw for a joint-1
-offset, counts as right) and ``structural_trials`` / ``structural_named_and_stated``.
+offset, counts as right) and ``structural_trials`` / ``structural_named_and_stated``; ``parameters``: of the right
+answers, the share that names only hidden parameters of the six-parameter effects (joint offsets, base pose; up to
+structural identity), the spare parameters per answer, and how far off the named values of the hidden parameters are
+(relative to their deviation from nominal): a user recalibrates every joint an answer names (session 28).
 
     python3 scripts/bench_diagnosis.py --trials 40 --unknown 5 --workers 1 --progress --out /tmp/diag_bench/partial.json > bench_diagnosis.json
     python3 scripts/bench_diagnosis.py --trials 80 --unknown 8 --workers 2 --progress --out /tmp/diag_bench/full.json > bench_full.json  # issue 25
@@ -203,13 +206,22 @@ def extra_parameters(row: dict, classes: list[list[str]], n_params: dict[str, in
 
 def parameter_figures(known: list[dict], classes: list[list[str]], n_params: dict[str, int]) -> dict:
     """Of the right answers that name a cause: how many name only hidden parameters of the multi-parameter effects
-    (issue 25: a user recalibrates every joint an answer names), and how many other parameters they name."""
+    (issue 25: a user recalibrates every joint an answer names), how many other parameters they name, and how far off
+    the values they name for the hidden parameters are (relative to the hidden deviation from nominal)."""
+    from besdrake.sim.effects import get_effect
+
     right = [r for r in known if r["best"] and r.get("correct_structural", r["correct"])]
     extras = [len(extra_parameters(r, classes, n_params)) for r in right]
+    # How far the named value of each hidden parameter of those effects is off, relative to the hidden deviation.
+    errors = [abs(r["fitted"][e][k] - v) / abs(v - get_effect(e).params[k].nominal) for r in right for e, vals in r["hidden"].items()
+              if n_params.get(e, 0) > 2 for k, v in vals.items() if k in r["fitted"].get(e, {}) and v != get_effect(e).params[k].nominal]
     return {"n_right_naming_a_cause": len(right),
             "right_with_only_hidden_parameters": float(np.mean([e == 0 for e in extras])) if right else None,
             "extra_parameters_per_right_answer": float(np.mean(extras)) if right else None,
-            "extra_parameters_max": int(max(extras)) if right else None}
+            "extra_parameters_max": int(max(extras)) if right else None,
+            "hidden_values_named": len(errors),
+            "hidden_value_error_median": float(np.median(errors)) if errors else None,
+            "hidden_value_error_max": float(np.max(errors)) if errors else None}
 
 
 def _wrong_kind(r: dict) -> str:

@@ -204,8 +204,8 @@ def _name_needed_parameters(v: Verdict, prob: fitting.Problem, sens: fitting.Sen
     """The named cause less the parameters the log does not need (:func:`~besdrake.diagnosis.parameters.prune_parameters`):
     it replaces the judged fit in ``v`` (what is named, refined and held out), while the verdict and its confidence stay
     those of the cause as selected, against which the rivals and second effects were judged."""
-    if not PRUNE_PARAMETERS or not v.best.effects or v.best_fit.y_fit is None:
-        return
+    if not PRUNE_PARAMETERS or not v.explained or not v.best.effects or v.best_fit.y_fit is None:
+        return  # a cause that leaves a residual above the noise has no adequate subset either
     n_params: dict[str, int] = {}
     for s_ in sens.specs:
         n_params[s_.effect] = n_params.get(s_.effect, 0) + 1
