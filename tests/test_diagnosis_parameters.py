@@ -92,3 +92,34 @@ def test_a_fit_without_predictions_or_jacobian_is_returned_as_it_is():
     world.calls = 0
     assert prune_parameters(world.prob, linear, world.one, world.nm, ["touchdown"], N_PARAMS, 5) == (linear, [])
     assert world.calls == 0
+
+
+def test_the_diagnosis_names_the_pruned_cause_and_keeps_its_verdict():
+    """core._name_needed_parameters: the pruned fit replaces the judged one in the verdict (named, refined and held
+    out), a note says what was left at nominal, and the verdict's confidence and text stay those of the judged cause."""
+    from types import SimpleNamespace
+
+    from besdrake.diagnosis.core import _name_needed_parameters
+    from besdrake.diagnosis.verdict import Verdict, rank_causes
+
+    world = _OffsetWorld(0, {"joint1": 0.04})
+    full = world.fit([JOINTS[0], JOINTS[3], JOINTS[5]])
+    other = world.fit([JOINTS[1]])
+    sim = SimpleNamespace(one=lambda e, shift=None: world.one(e), features=lambda effs, shift=None: world.features(effs))
+    ev = SimpleNamespace(sim=sim, nm=world.nm, measured_groups=["touchdown"])
+    sens = fitting.compute_sensitivity(JOINTS, world.y0, world.features)
+    causes = rank_causes(world.prob, [full, other], full, world.nm, ["touchdown"])
+    v = Verdict(True, "high", "explained by joint_offset", causes, [full, other], causes[0], full, [])
+    notes: list[str] = []
+    _name_needed_parameters(v, world.prob, sens, ev, None, 5, notes)
+    assert v.best_fit is v.fits[0] and v.best is v.causes[0] and v.fits[1] is other
+    assert [p["parameter"] for p in v.best.parameters] == ["joint1"] and v.best.delta_bic == 0.0
+    assert v.best.left_nominal[-2:] == ["joint_offset.joint4", "joint_offset.joint6"]
+    assert (v.confidence, v.text) == ("high", "explained by joint_offset")
+    assert len(notes) == 1 and "joint_offset.joint4, joint_offset.joint6 left at nominal" in notes[0]
+    # Nothing to leave out, or nothing explained: the verdict is not touched.
+    for verdict in (Verdict(True, "low", "", causes[1:], [other], causes[1], other, []),
+                    Verdict(False, "low", "", causes, [full, other], causes[0], full, [])):
+        before = (verdict.best, verdict.best_fit, list(verdict.fits))
+        _name_needed_parameters(verdict, world.prob, sens, ev, None, 5, notes)
+        assert (verdict.best, verdict.best_fit, list(verdict.fits)) == before and len(notes) == 1
