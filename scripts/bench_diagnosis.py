@@ -213,8 +213,14 @@ def parameter_figures(known: list[dict], classes: list[list[str]], n_params: dic
     right = [r for r in known if r["best"] and r.get("correct_structural", r["correct"])]
     extras = [len(extra_parameters(r, classes, n_params)) for r in right]
     # How far the named value of each hidden parameter of those effects is off, relative to the hidden deviation.
-    errors = [abs(r["fitted"][e][k] - v) / abs(v - get_effect(e).params[k].nominal) for r in right for e, vals in r["hidden"].items()
-              if n_params.get(e, 0) > 2 for k, v in vals.items() if k in r["fitted"].get(e, {}) and v != get_effect(e).params[k].nominal]
+    errors = []
+    for r in right:
+        for e, vals in r["hidden"].items():
+            named = r["fitted"].get(e, {}) if n_params.get(e, 0) > 2 else {}
+            for k, v in vals.items():
+                nominal = get_effect(e).params[k].nominal
+                if k in named and v != nominal:
+                    errors.append(abs(named[k] - v) / abs(v - nominal))
     return {"n_right_naming_a_cause": len(right),
             "right_with_only_hidden_parameters": float(np.mean([e == 0 for e in extras])) if right else None,
             "extra_parameters_per_right_answer": float(np.mean(extras)) if right else None,

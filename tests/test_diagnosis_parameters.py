@@ -17,6 +17,7 @@ class _OffsetWorld:
 
     def __init__(self, seed: int, hidden: dict[str, float]):
         rng = np.random.default_rng(seed)
+        self.calls = 0
         self.N, self.sl = 25, group_slices()["touchdown"]
         self.sig = {s.key: rng.normal(0, 1, (self.N, 2)) for s in JOINTS}
         self.sig["ball.radius"] = rng.normal(0, 1, (self.N, 2))
@@ -28,7 +29,6 @@ class _OffsetWorld:
         y_meas = self.one({"joint_offset": hidden})
         y_meas[:, self.sl] += rng.normal(0, 0.05, (self.N, 2))
         self.prob = fitting.Problem(y_meas, self.y0, self.nm.vector())
-        self.calls = 0
 
     def one(self, effects: dict) -> np.ndarray:
         y = self.y0.copy()
@@ -36,7 +36,7 @@ class _OffsetWorld:
             y[:, self.sl] += 3.0 * v * self.sig[f"joint_offset.{name}"]
         y[:, self.sl] += 10.0 * (effects.get("ball", {}).get("radius", 0.035) - 0.035) * self.sig["ball.radius"]
         y[:, self.sl] += 2.0 * (effects.get("ball", {}).get("mass", 0.05) - 0.05) * self.sig["ball.mass"]
-        self.calls = getattr(self, "calls", 0) + 1
+        self.calls += 1
         return y
 
     def features(self, effects_list: list[dict]) -> np.ndarray:

@@ -32,11 +32,12 @@ its :class:`~besdrake.diagnosis.trials.TrialModel` (:meth:`besdrake.task.Task.di
 from __future__ import annotations
 
 import time
+from collections import Counter
 from typing import Sequence
 
 import numpy as np
 
-from besdrake.diagnosis import fitting
+from besdrake.diagnosis import fitting, settings
 from besdrake.diagnosis.advice import _separation_advice  # noqa: F401  (re-exported)
 from besdrake.diagnosis.allowed import _Line, _allowed_effects, _verify_interval_ends  # noqa: F401
 from besdrake.diagnosis.heldout import heldout_gain, per_trial_table
@@ -47,7 +48,7 @@ from besdrake.diagnosis.residual import residual_report
 from besdrake.diagnosis.results import AllowedEffect, Cause, Diagnosis, DiagnosisError, Gain, GroupComparison  # noqa: F401
 from besdrake.diagnosis.selection import _forward_pairs, parsimony, refine_leaders, refine_rivals  # noqa: F401
 from besdrake.diagnosis.settings import *  # noqa: F401,F403  (the thresholds, as before the split)
-from besdrake.diagnosis.settings import ALPHA, EXCLUDE_FRACTION, INDISTINGUISHABLE_DBIC, MATERIAL, MIN_TRIALS, PRUNE_PARAMETERS
+from besdrake.diagnosis.settings import ALPHA, EXCLUDE_FRACTION, INDISTINGUISHABLE_DBIC, MATERIAL, MIN_TRIALS
 from besdrake.diagnosis.simulate import _placement_correction, _Sim  # noqa: F401
 from besdrake.diagnosis.trials import TrialModel, model_for
 from besdrake.diagnosis.stats import _bootstrap_median_ci, _extra_effect_significant, _lack_of_fit_p, _material_change  # noqa: F401
@@ -204,12 +205,10 @@ def _name_needed_parameters(v: Verdict, prob: fitting.Problem, sens: fitting.Sen
     """The named cause less the parameters the log does not need (:func:`~besdrake.diagnosis.parameters.prune_parameters`):
     it replaces the judged fit in ``v`` (what is named, refined and held out), while the verdict and its confidence stay
     those of the cause as selected, against which the rivals and second effects were judged."""
-    if not PRUNE_PARAMETERS or not v.explained or not v.best.effects or v.best_fit.y_fit is None:
+    if not settings.PRUNE_PARAMETERS or not v.explained or not v.best.effects or v.best_fit.y_fit is None:
         return  # a cause that leaves a residual above the noise has no adequate subset either
-    n_params: dict[str, int] = {}
-    for s_ in sens.specs:
-        n_params[s_.effect] = n_params.get(s_.effect, 0) + 1
     full = v.best_fit
+    n_params = Counter(s_.effect for s_ in sens.specs)
     pruned, dropped = prune_parameters(prob, full, lambda e: ev.sim.one(e, shift=shift), ev.nm, ev.measured_groups, n_params, iterations)
     if not dropped:
         return
