@@ -98,6 +98,9 @@ FORWARD_TOP = 2
 #: better by BIC (issue 25: a tool tilt 3.8x the detection limit beside an object placement habit was never fitted as
 #: a pair: the lack-of-fit test over the whole log has no power for one parameter's signature). None: off.
 FORWARD_PAIRS_EVIDENCE_DBIC: float | None = None
+#: How often the cause is chosen again when a rival refined after the choice fits better by more than
+#: INDISTINGUISHABLE_DBIC (:func:`~besdrake.diagnosis.selection.settle`); 0: never (the choice before session 29).
+RESELECT_ROUNDS = 2
 #: "high" confidence (issue 25: a nonlinear effect was once named a joint offset with "high"): before a cause is named
 #: with high confidence every single effect is fitted with rollouts, not only the leaders of the linear fit at nominal
 #: (a strongly nonlinear effect is misjudged there and never refined), and the nearest rival that is not the best plus
