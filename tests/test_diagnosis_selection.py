@@ -79,3 +79,13 @@ def test_without_reselection_the_first_choice_stays(monkeypatch):
 def test_a_right_first_choice_is_kept():
     first, settled, notes, _ = _World(0, {"joint_offset": {"joint1": 0.04}}).chosen()
     assert first.effects == settled.effects == ("joint_offset",) and settled is first and notes == []
+
+
+def test_a_new_choice_no_better_than_the_first_is_not_taken(monkeypatch):
+    """Parsimony may answer the winning rival with a part of it that fits worse than the first choice: then the first
+    choice stays (here parsimony is made to answer the nominal model)."""
+    from besdrake.diagnosis import selection
+
+    monkeypatch.setattr(selection, "parsimony", lambda prob, fits, *args: next(f for f in fits if not f.effects))
+    first, settled, notes, fits = _World(0, {"ball": {"radius": 0.044}}).chosen()
+    assert first.effects == ("joint_offset",) and settled is first and notes == [] and fits[0] is first
