@@ -276,8 +276,8 @@ def settle(prob: fitting.Problem, fits: list[fitting.CandidateFit], best_fit: fi
     chosen; ``fits`` ranked with it first. Why: a rival is refined only after the choice, and its linear fit at nominal
     can be far from its refined one (seed 2 trial 34 of the benchmark: an object placement habit, chi2 682 refined, was
     listed as "cannot tell" beside the base pose named with chi2 857). The second condition: parsimony may answer a
-    winning pair with a part of it that fits worse than the first choice (a scoop tilt: joint offset + placement habit
-    won by 7.5 BIC, parsimony kept the joint offset, 28 BIC behind the scoop tilt)."""
+    winning pair with a part of it that fits worse than the first choice (a tool tilt: joint offset + placement habit
+    won by 7.5 BIC, parsimony kept the joint offset, 28 BIC behind the tool tilt)."""
     for _round in range(settings.RESELECT_ROUNDS):
         before = {id(f) for f in fits if f.refined}
         refine_rivals(prob, fits, best_fit, sim, groups, iterations)
