@@ -46,7 +46,7 @@ from besdrake.diagnosis.parameters import prune_parameters
 from besdrake.diagnosis.replay import Evidence, compare, fit_linear, replay
 from besdrake.diagnosis.residual import residual_report
 from besdrake.diagnosis.results import AllowedEffect, Cause, Diagnosis, DiagnosisError, Gain, GroupComparison  # noqa: F401
-from besdrake.diagnosis.selection import _forward_pairs, parsimony, refine_leaders, refine_rivals, settle  # noqa: F401
+from besdrake.diagnosis.selection import _forward_pairs, parsimony, rank, refine_leaders, refine_rivals, settle  # noqa: F401
 from besdrake.diagnosis.settings import *  # noqa: F401,F403  (the thresholds, as before the split)
 from besdrake.diagnosis.settings import ALPHA, EXCLUDE_FRACTION, INDISTINGUISHABLE_DBIC, MATERIAL, MIN_TRIALS
 from besdrake.diagnosis.simulate import _placement_correction, _Sim  # noqa: F401
@@ -168,9 +168,7 @@ def _diagnose_evidence(ev: Evidence, cands: list[str], pairs: bool, folds: int, 
     none_fit = next(f for f in fits if not f.effects)
     none_fit.refined, none_fit.y_fit = True, ev.y0
     timings["refine"] = time.perf_counter() - t0
-    # Rank: refined candidates by their real chi2; linear-only ones are never ranked above a refined one
-    # with a better linear BIC (they were not refined because their linear fit was worse).
-    fits.sort(key=lambda f: (f.bic if f.refined else np.inf, f.bic))
+    rank(fits)
     choice_notes: list[str] = []
     best_fit = parsimony(prob, fits, ev.nm, ev.measured_groups, cands, ev.keys, choice_notes)
     best_fit = settle(prob, fits, best_fit, ev.sim, ev.nm, ev.measured_groups, cands, ev.keys, choice_notes, iterations, local_shift)

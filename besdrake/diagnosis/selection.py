@@ -262,9 +262,13 @@ def refine_rivals(prob: fitting.Problem, fits: list[fitting.CandidateFit], best_
         rivals += [f for f in fits if not f.refined and len(f.effects) == 1 and f.effects != best_fit.effects and f not in rivals]
     for f in rivals:
         fitting.refine(prob, f, lambda e: sim.one(e), iterations=iterations, chi2_floor=best_fit.chi2)
-    fits.remove(best_fit)
-    fits.sort(key=lambda f: (f.bic if f.refined else np.inf, f.bic))
-    fits.insert(0, best_fit)
+    rank(fits, first=best_fit)
+
+
+def rank(fits: list[fitting.CandidateFit], first: fitting.CandidateFit | None = None) -> None:
+    """Rank ``fits`` in place: refined candidates by their real BIC, then the linear-only ones (never above a refined
+    one: they were not refined because their linear fit was worse); ``first``, the chosen cause, ahead of all."""
+    fits.sort(key=lambda f: (f is not first, f.bic if f.refined else np.inf, f.bic))
 
 
 def settle(prob: fitting.Problem, fits: list[fitting.CandidateFit], best_fit: fitting.CandidateFit, sim: _Sim, nm: noise.NoiseModel,
@@ -289,11 +293,10 @@ def settle(prob: fitting.Problem, fits: list[fitting.CandidateFit], best_fit: fi
             if not _clearly_better(winner, best_fit):
                 return best_fit
         again: list[str] = []
-        fits.sort(key=lambda f: (f.bic if f.refined else np.inf, f.bic))
+        rank(fits)
         chosen = parsimony(prob, fits, nm, groups, cands, keys, again)
         if not _clearly_better(chosen, best_fit):
-            fits.remove(best_fit)
-            fits.insert(0, best_fit)
+            rank(fits, first=best_fit)
             return best_fit
         notes[:] = [f"{winner.name}, refined as a rival of {best_fit.name}, fits {best_fit.bic - winner.bic:.1f} BIC better: the cause "
                     f"is chosen again among the refined candidates ({chosen.name}, {best_fit.bic - chosen.bic:.1f} BIC better)"] + again
