@@ -44,7 +44,9 @@ unknown trials of ``--trials 80 --unknown 8`` on full logs and 30 + 2 on touchdo
 a lent 16-core machine: full logs right 75 % (85 % up to structural identity), touchdown right or honest 50 % (80 %
 signature-aware); "high" 18 times, 17 right (the old rule: 33, 28 right); unknown effects never "high"; wall per
 full-log diagnosis median 54 s, max 87 s. Shards: ``--only`` with every 8th trial, merged and re-summarised with
-``--resummarize``.
+``--resummarize``. Several seeds as one benchmark (session 30; each row tagged with its file's seed)::
+
+    python3 scripts/bench_diagnosis.py --resummarize scripts/results/bench_diagnosis_full_seed{2,3}_*s29.json > pooled.json
 Session 17 completed the full-log trials (all 88; two device runs of 16 single-worker shards with ``--modes full`` or
 ``touchdown`` and a trial list each): right cause 73.8 % (82.5 % up to structural identity, 86.3 % right or honest),
 "high" right 32 of 33 with today's rule (``reliability_rule_now``; trials 40-87: 15 of 15), 1 confidently wrong, unknown
@@ -247,7 +249,7 @@ def reliability(rows: list[dict]) -> dict:
         honest = [r for r in sel if r.get("correct_structural", r["correct"]) or r["honest_cannot_tell"]]
         out[level] = {"n": len(sel), "right": len(right), "right_or_honest": len(honest), "wrong": len(sel) - len(honest),
                       "share_right": len(right) / len(sel) if sel else None,
-                      "wrong_trials": [{"trial": r["trial"], "hidden": r["hidden"], "best": r["best"], "kind": _wrong_kind(r)} for r in sel if r not in honest]}
+                      "wrong_trials": [{"trial": r["trial"], **({"seed": r["seed"]} if "seed" in r else {}), "hidden": r["hidden"], "best": r["best"], "kind": _wrong_kind(r)} for r in sel if r not in honest]}
     return out
 
 
@@ -682,6 +684,28 @@ def _summarize(results: list[dict], modes: list[str], args, t_bench: float, regi
     return out
 
 
+def _resummarize(paths: list[str]) -> dict:
+    """The summary of the rows of earlier output JSONs, pooled: one file as it was run, several (other seeds, shards)
+    as one benchmark, each row tagged with its file's seed; the config is the first file's, with every file's listed."""
+    from besdrake.task import effects_for
+
+    olds, results = [], []
+    for path in paths:
+        with open(path) as fh:
+            old = json.load(fh)
+        olds.append(old)
+        seed = old.get("config", {}).get("seed")
+        results += [r if len(paths) == 1 else {"seed": seed, **r} for r in old["trials"]]
+    modes = [m for m in ("full", "touchdown") if any(r["mode"] == m for r in results)]
+    config = {**olds[0].get("config", {}), "resummarize": list(paths)}
+    if len(paths) > 1:
+        config["pooled"] = [{"file": p, "seed": o.get("config", {}).get("seed"), "rows": len(o["trials"])} for p, o in zip(paths, olds)]
+    out = _summarize(results, modes, argparse.Namespace(**config), time.perf_counter(), effects_for("throwing"))
+    walls = [o.get("bench_wall_s") for o in olds]
+    out["bench_wall_s"] = walls[0] if len(walls) == 1 else walls
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--trials", type=int, default=40, help="hidden-effect trials (known effects)")
@@ -703,20 +727,14 @@ def main(argv=None) -> int:
                                                           "is checked (no part of the diagnosis saw them; 0: none)")
     ap.add_argument("--progress", action="store_true", help="one line per diagnosis on stderr")
     ap.add_argument("--out", default=None, help="also (re)write the summary JSON to this file after every diagnosis")
-    ap.add_argument("--resummarize", default=None, help="print the summary of the trials in this earlier output JSON (no new diagnoses)")
+    ap.add_argument("--resummarize", nargs="+", default=None, metavar="JSON",
+                    help="print the summary of the trials in these earlier output JSONs, pooled (no new diagnoses): several seeds' "
+                         "rows give the figures over all their trials, each row tagged with its file's seed")
     ap.add_argument("--signatures-from", default=None, help="an earlier output JSON: its rows' signature figures are copied for the same trial, "
                                                               "mode and hidden effect instead of being recomputed (re-runs of a changed diagnosis)")
     args = ap.parse_args(argv)
     if args.resummarize:
-        from besdrake.task import effects_for
-
-        with open(args.resummarize) as fh:
-            old = json.load(fh)
-        results = old["trials"]
-        modes = [m for m in ("full", "touchdown") if any(r["mode"] == m for r in results)]
-        out = _summarize(results, modes, argparse.Namespace(**{**old.get("config", {}), "resummarize": args.resummarize}), time.perf_counter() - old.get("bench_wall_s", 0.0), effects_for("throwing"))
-        out["bench_wall_s"] = old.get("bench_wall_s")
-        print(json.dumps(out, indent=1, default=float))
+        print(json.dumps(_resummarize(args.resummarize), indent=1, default=float))
         return 0
 
     from besdrake.diagnosis import diagnose, diagnosis_plans

@@ -120,3 +120,30 @@ def test_confidence_sweep_re_decides_high_from_the_recorded_basis(script):
     assert sweep[(15.0, 0.05, 99)]["high"] == 0  # both leads of 12 BIC fall short of 15
     assert bench._wrong_kind({"best": ["ball"], "hidden": {"ball": {}, "air_drag": {}}}) == "incomplete"
     assert bench._wrong_kind({"best": ["ball", "gain_scale"], "hidden": {"ball": {}, "air_drag": {}}}) == "false claim"
+
+
+def test_resummarize_pools_the_rows_of_several_seeds(script, tmp_path):
+    """Several seeds' outputs summarised as one benchmark: every row counts once, tagged with its file's seed, so a wrong
+    "high" answer names the run it came from."""
+    import json
+
+    bench = script("bench_diagnosis")
+    stored = sorted((bench.Path(bench.__file__).parent / "results").glob("bench_diagnosis_full_seed[23]_*s29.json"))
+    assert len(stored) >= 2
+    one = json.loads(stored[0].read_text())
+    alone = bench._resummarize([str(stored[0])])["full"]
+    assert alone["n_known_trials"] == one["full"]["n_known_trials"]
+    assert alone["reliability"]["high"]["n"] == one["full"]["reliability"]["high"]["n"]
+    # A copy with another seed and one answer turned confidently wrong.
+    other = json.loads(json.dumps(one))
+    other["config"]["seed"] = 99
+    row = next(r for r in other["trials"] if r["mode"] == "full" and r["confidence"] == "high" and not r["unknown"])
+    row.update(correct=False, correct_structural=False, correct_detectable=False)
+    (tmp_path / "other.json").write_text(json.dumps(other))
+    pooled = bench._resummarize([str(stored[0]), str(tmp_path / "other.json")])
+    assert pooled["full"]["n_known_trials"] == 2 * alone["n_known_trials"]
+    assert pooled["full"]["reliability"]["high"]["n"] == 2 * alone["reliability"]["high"]["n"]
+    assert pooled["full"]["confident_wrong"] == 2 * alone["confident_wrong"] + 1
+    wrong = pooled["full"]["reliability"]["high"]["wrong_trials"]
+    assert {"seed": 99, "trial": row["trial"]}.items() <= next(w for w in wrong if w.get("seed") == 99).items()
+    assert [p["seed"] for p in pooled["config"]["pooled"]] == [one["config"]["seed"], 99]
