@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from besdrake.diagnosis import fitting, noise, settings
-from besdrake.diagnosis.selection import parsimony, settle
+from besdrake.diagnosis.selection import parsimony, rank, settle
 from besdrake.tasks.throwing.diagnosis.observables import N_FEATURES, group_slices
 
 J1 = fitting.ParamSpec("joint_offset", "joint1", 0.0, -0.1, 0.1, 0.01, "rad")
@@ -53,7 +53,7 @@ class _World:
         fits = [fitting.linear_fit(self.prob, sens, e) for e in [(), ("joint_offset",), ("ball",), ("joint_offset", "ball")]]
         for f in fits[:2]:
             fitting.refine(self.prob, f, self.one, iterations=5)
-        fits.sort(key=lambda f: (f.bic if f.refined else np.inf, f.bic))
+        rank(fits)
         notes: list[str] = []
         first = parsimony(self.prob, fits, self.nm, ["touchdown"], CANDS, self.keys, notes)
         settled = settle(self.prob, fits, first, self, self.nm, ["touchdown"], CANDS, self.keys, notes, 5, {})
