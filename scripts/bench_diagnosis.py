@@ -706,6 +706,23 @@ def _resummarize(paths: list[str]) -> dict:
     return out
 
 
+def _trial_plans(args, seed: int, executor, cache: dict) -> list:
+    """A trial's throws: the task's random design for ``seed``, or the D-optimal one from the pool (built once, in
+    ``cache``)."""
+    from besdrake.diagnosis import diagnosis_plans
+    from besdrake.diagnosis.optimal_design import design_pool, optimal_plans
+    from besdrake.sim.scenario import load_scenario
+    from besdrake.tasks.throwing.diagnosis.design import DEFAULT_PROBES, DEFAULT_SIDEWAYS
+
+    opts = {"probes": DEFAULT_PROBES if args.probes is None else args.probes,
+            "sideways": DEFAULT_SIDEWAYS if args.sideways is None else args.sideways}
+    if args.design == "random":
+        return diagnosis_plans(args.throws, args.repeats, seed=seed, limits=load_scenario("nominal").robot.limits, **opts)
+    if "pool" not in cache:
+        cache["pool"] = design_pool(args.throws, args.repeats, "nominal", executor=executor, **opts)
+    return optimal_plans(args.throws, args.repeats, seed=seed, pool=cache["pool"]).plans
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--trials", type=int, default=40, help="hidden-effect trials (known effects)")
@@ -714,6 +731,9 @@ def main(argv=None) -> int:
     ap.add_argument("--repeats", type=int, default=8)
     ap.add_argument("--probes", type=int, default=None, help="tilt probes among the throws (default: the diagnosis design's, 2; 0: throws only, the design before session 9)")
     ap.add_argument("--sideways", type=int, default=None, help="sideways throws among the distinct throws (default: the diagnosis design's, 5; 0: planar only)")
+    ap.add_argument("--design", choices=("random", "optimal"), default="random",
+                    help="random: the task's designed throws drawn per trial; optimal: the D-optimal choice from a pool of them "
+                         "(besdrake.diagnosis.optimal_design, per trial seed; the pool's sensitivities computed once and cached)")
     ap.add_argument("--draws", choices=("full", "classic"), default="full",
                     help="full: every parameter of every effect over its realistic range in both directions, cycled, with pairs (issue 25); "
                          "classic: one effect per trial at the magnitudes of the earlier benchmark")
@@ -757,6 +777,7 @@ def main(argv=None) -> int:
     truth_roll = Rollout("nominal")
     results = []
     t_bench = time.perf_counter()
+    design_cache: dict = {}
     with make_executor("process", workers=args.workers, scenario="nominal", limits="flag") as ex:
         n_total = args.trials + args.unknown
         # Unknown-effect trials interleaved evenly with the known ones (a cut-short run still has some).
@@ -775,9 +796,7 @@ def main(argv=None) -> int:
                 k_known += 1
             if only is not None and i not in only:
                 continue
-            plans = diagnosis_plans(args.throws, args.repeats, seed=1000 * args.seed + i, probes=DEFAULT_PROBES if args.probes is None else args.probes,
-                                    sideways=DEFAULT_SIDEWAYS if args.sideways is None else args.sideways,
-                                    limits=load_scenario("nominal").robot.limits)
+            plans = _trial_plans(args, 1000 * args.seed + i, ex, design_cache)
             lab = VirtualLab({"name": "bench_lab", "effects": hidden, "seed": 1000 * args.seed + i})
             try:
                 ms = [lab.execute(p) for p in plans]
