@@ -20,6 +20,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="with --design: how many of them are slow tilt probes that show the ball-scoop friction (default 2)")
     parser.add_argument("--sideways", type=int, default=None,
                         help="with --design: how many of the distinct throws are sideways throws that also move joints 1, 4 and 6 (default 5)")
+    parser.add_argument("--optimal", action="store_true",
+                        help="with --design: choose the distinct plans D-optimally from a pool of the task's random designs (the simulation's "
+                             "sensitivities to every candidate effect, computed once per scenario and cached; see besdrake.diagnosis.optimal_design)")
     parser.add_argument("--out", type=Path, default=None, help="folder for report.md, diagnosis.json, refined_scenario.yaml, figures (default: runs/diagnosis/<log name>)")
     parser.add_argument("--scenario", default=None,
                         help="the simulation the lab is compared with (name or YAML path; default: the log's task's default scenario, 'nominal' for throwing)")
@@ -109,11 +112,14 @@ def _design_throwing(args: argparse.Namespace) -> int:
     sideways = DEFAULT_SIDEWAYS if args.sideways is None else args.sideways
     if args.sideways is None:  # the default fits the design's distinct throws
         sideways = max(0, min(sideways, args.throws - args.repeats - probes))
-    try:
-        plans = diagnosis_plans(args.throws, args.repeats, seed=args.seed, probes=probes, sideways=sideways,
-                                limits=load_scenario(args.scenario or "nominal").robot.limits)
-    except ValueError as err:
-        raise UserError(str(err)) from None
+    if args.optimal:
+        plans = _optimal(args, args.scenario or "nominal", probes=probes, sideways=sideways)
+    else:
+        try:
+            plans = diagnosis_plans(args.throws, args.repeats, seed=args.seed, probes=probes, sideways=sideways,
+                                    limits=load_scenario(args.scenario or "nominal").robot.limits)
+        except ValueError as err:
+            raise UserError(str(err)) from None
     _write_plans(plans, args.design)
     print(f"wrote {len(plans)} plans ({args.repeats} repeats, {probes} tilt probes, {sideways} sideways throws) to {args.design}")
     return 0
@@ -157,12 +163,34 @@ def _design_task(args: argparse.Namespace) -> int:
     scen = load_scenario(args.scenario)
     try:
         model = model_for(scen)
-        plans = model.design_experiments(args.throws, args.repeats, seed=args.seed, limits=scen.robot.limits, scenario=args.scenario)
+        plans = (_optimal(args, scen, scenario=args.scenario) if args.optimal
+                 else model.design_experiments(args.throws, args.repeats, seed=args.seed, limits=scen.robot.limits, scenario=args.scenario))
     except (TaskError, ValueError) as err:
         raise UserError(str(err)) from None
     _write_plans(plans, args.design)
     print(f"wrote {len(plans)} {model.plural()} ({args.repeats} repeats) to {args.design}")
     return 0
+
+
+def _optimal(args: argparse.Namespace, scenario, **options) -> list:
+    """``--optimal``: the D-optimal design's plans; prints what it gains over the task's random design."""
+    import numpy as np
+
+    from besdrake.cli import UserError
+    from besdrake.diagnosis.optimal_design import optimal_plans
+    from besdrake.sim.cliutil import executor_from_args
+    from besdrake.sim.executors import ExecutorError
+    from besdrake.sim.scenario import ScenarioError
+
+    try:
+        with executor_from_args(args, scenario=scenario) as ex:
+            d = optimal_plans(args.throws, args.repeats, seed=args.seed, scenario=scenario, executor=ex, **options)
+    except (ValueError, ExecutorError, ScenarioError) as err:
+        raise UserError(str(err)) from None
+    low = sorted(d.gain.items(), key=lambda kv: kv[1] if np.isfinite(kv[1]) else np.inf)[:3]
+    print(f"D-optimal design: log det {d.log_det:.1f} against {d.reference_log_det:.1f} for the task's random design; each parameter's "
+          f"information given the others x{d.median_gain():.2f} (median), least " + ", ".join(f"{k} x{v:.2f}" for k, v in low))
+    return d.plans
 
 
 def _write_plans(plans: list, folder) -> None:

@@ -16,7 +16,8 @@ every design holds (a task's fixed plans, e.g. probes) keep the multiplicity the
 pool, whose sensitivities are computed once per registry, scenario and pool (about ``2 x parameters x pool`` rollouts)
 and cached as ``.npz`` (:func:`cache_dir`). A design (:func:`optimal_plans`) chooses its distinct plans greedily from
 a seeded share :data:`CANDIDATE_SHARE` of the pool (other seeds, other designs), repeats a seeded choice of them as the
-task's design would, and shuffles the log. :attr:`OptimalDesign.gain` compares each parameter's conditional
+task's design would, and shuffles the log. A log that will record only some observable groups (e.g. the outcome
+alone) is designed on their features (``groups``). :attr:`OptimalDesign.gain` compares each parameter's conditional
 information with the task's random design of the pool's first seed.
 """
 
@@ -42,7 +43,7 @@ POOL_DESIGNS = 12
 #: Share of the pool a design chooses from (drawn with its seed).
 CANDIDATE_SHARE = 0.5
 #: Bump when the computation changes (invalidates cached pools).
-VERSION = 1
+VERSION = 2
 
 
 @dataclass
@@ -131,13 +132,16 @@ def _split_pool(designs: list[list]) -> tuple[list, list[tuple[object, int]], li
     return candidates, fixed, distinct, repeats
 
 
-def _blocks(keys_J: tuple[list[str], np.ndarray], n_plans: int) -> np.ndarray:
-    """Per plan the information block ``J_p J_p^T`` from the stacked sensitivities (P, N x F); NaN counts as 0."""
-    _, J = keys_J
+def _per_plan(J: np.ndarray, n_plans: int) -> np.ndarray:
+    """The stacked sensitivities (P, N x F) as (N, P, F); NaN counts as 0 (a failed rollout tells nothing)."""
     J = np.nan_to_num(np.asarray(J, dtype=float))
-    F = J.shape[1] // n_plans
-    per = J.reshape(J.shape[0], n_plans, F).transpose(1, 0, 2)
-    return np.einsum("npf,nqf->npq", per, per)
+    return J.reshape(J.shape[0], n_plans, J.shape[1] // n_plans).transpose(1, 0, 2)
+
+
+def blocks_of(per_plan: np.ndarray, columns: Sequence[int] | None = None) -> np.ndarray:
+    """Per plan the information block ``J_p J_p^T`` (N, P, P) of the features ``columns`` (default all)."""
+    J = per_plan if columns is None else per_plan[:, :, list(columns)]
+    return np.einsum("npf,nqf->npq", J, J)
 
 
 def _cache_key(effects: Sequence[str], scen, plans: Sequence) -> str:
@@ -148,32 +152,33 @@ def _cache_key(effects: Sequence[str], scen, plans: Sequence) -> str:
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 
-def _sensitivity_blocks(executor, effects: Sequence[str], plans: list, model, scen, use_cache: bool) -> tuple[list[str], np.ndarray]:
-    """Parameter keys and per-plan information blocks of ``plans``, from the cache when it holds them."""
+def _sensitivities(executor, effects: Sequence[str], plans: list, model, scen, use_cache: bool) -> tuple[list[str], np.ndarray]:
+    """Parameter keys and the per-plan sensitivities (N, P, F) of ``plans``, from the cache when it holds them."""
     path = cache_dir() / f"{_cache_key(effects, scen, plans)}.npz"
     if use_cache and path.is_file():
         try:
             with np.load(path) as z:
-                return [str(k) for k in z["keys"]], np.asarray(z["blocks"], dtype=float)
+                return [str(k) for k in z["keys"]], np.asarray(z["per_plan"], dtype=float)
         except (OSError, ValueError, KeyError):
             pass  # a damaged cache file is recomputed
     keys, J = scaled_sensitivities(executor, effects, plans, model)
-    blocks = _blocks((keys, J), len(plans))
+    per_plan = _per_plan(J, len(plans))
     if use_cache:
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
             tmp = path.with_name(f"{path.stem}.{os.getpid()}.tmp.npz")  # concurrent designs write their own, then replace
-            np.savez(tmp, keys=np.array(keys), blocks=blocks)
+            np.savez(tmp, keys=np.array(keys), per_plan=per_plan)
             tmp.replace(path)
         except OSError:
             pass
-    return keys, blocks
+    return keys, per_plan
 
 
 def design_pool(n: int, repeats: int, scenario="nominal", effects: Sequence[str] | None = None, executor=None,
-                use_cache: bool = True, **options) -> DesignPool:
+                use_cache: bool = True, groups: Sequence[str] | None = None, **options) -> DesignPool:
     """The candidates of an ``n``-plan design with ``repeats`` repeats on ``scenario`` (see the module docstring);
-    ``effects``: the registry's that act on the scenario's task by default; ``options``: the task's design options."""
+    ``effects``: the registry's that act on the scenario's task by default; ``groups``: the observable groups the log
+    will record (default every one; e.g. the outcome alone); ``options``: the task's design options."""
     from besdrake.diagnosis.trials import model_for
     from besdrake.sim.executors import make_executor
     from besdrake.sim.scenario import Scenario, load_scenario
@@ -188,10 +193,15 @@ def design_pool(n: int, repeats: int, scenario="nominal", effects: Sequence[str]
     ex = executor or make_executor("serial", scenario=scen, limits="flag")
     try:
         plans = candidates + [p for p, _ in fixed]
-        keys, blocks = _sensitivity_blocks(ex, effects, plans, model, scen, use_cache)
+        keys, per_plan = _sensitivities(ex, effects, plans, model, scen, use_cache)
     finally:
         if own:
             ex.close()
+    sl = model.slices()
+    unknown = sorted(set(groups or ()) - set(sl))
+    if unknown:
+        raise ValueError(f"design_pool: unknown observable group(s) {unknown}; the task's: {list(sl)}")
+    blocks = blocks_of(per_plan, None if groups is None else [c for g in groups for c in range(sl[g].start, sl[g].stop)])
     nc = len(candidates)
     fixed_info = sum((c * blocks[nc + j] for j, (_, c) in enumerate(fixed)), np.zeros(blocks.shape[1:]))
     return DesignPool(candidates, blocks[:nc], fixed, fixed_info, keys, reference, reference_repeats)

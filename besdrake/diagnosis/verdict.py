@@ -97,14 +97,23 @@ def indistinguishable(fits: list[fitting.CandidateFit], causes: list[Cause], ev:
     return indist
 
 
-def rival_margin(fits: list[fitting.CandidateFit], causes: list[Cause], indist: list[dict]) -> float:
-    """How far (BIC) the best cause leads its nearest refined rival (the nominal model included) that is not merely the
-    best plus an unneeded effect, nor structurally the same cause (inf when there is none)."""
+def _real_rivals(fits: list[fitting.CandidateFit], causes: list[Cause], indist: list[dict]) -> list[Cause]:
+    """The refined rivals of the best cause (the nominal model included) that are not merely the best plus an unneeded
+    effect, nor structurally the same cause."""
     best = causes[0]
     same = {a["b"] for a in indist if a.get("structural")}
-    margins = [c.delta_bic for f, c in zip(fits[1:], causes[1:])
-               if f.refined and not set(best.effects) <= set(c.effects) and f.name not in same]
-    return min(margins, default=float("inf"))
+    return [c for f, c in zip(fits[1:], causes[1:]) if f.refined and not set(best.effects) <= set(c.effects) and f.name not in same]
+
+
+def rival_margin(fits: list[fitting.CandidateFit], causes: list[Cause], indist: list[dict]) -> float:
+    """How far (BIC) the best cause leads its nearest real rival (:func:`_real_rivals`; inf when there is none)."""
+    return min((c.delta_bic for c in _real_rivals(fits, causes, indist)), default=float("inf"))
+
+
+def rival_fit_margin(fits: list[fitting.CandidateFit], causes: list[Cause], indist: list[dict]) -> float:
+    """How much worse (chi2, the fit alone, no parameter count) the nearest-fitting real rival fits than the best cause
+    (inf when there is none)."""
+    return min((c.chi2 - causes[0].chi2 for c in _real_rivals(fits, causes, indist)), default=float("inf"))
 
 
 def strongest_extra(causes: list[Cause], nu: float = 0, scale: float = 1.0) -> tuple[float, Cause | None]:
@@ -211,9 +220,10 @@ def confidence_basis(fits: list[fitting.CandidateFit], causes: list[Cause], indi
     (:func:`rival_margin`), the evidence for an added effect (:func:`strongest_extra`) and how many parameters it moves
     materially (:func:`moved_per_effect`)."""
     p_extra, _ = strongest_extra(causes, nu, scale)
-    margin = rival_margin(fits, causes, indist)
+    margin, fit_margin = rival_margin(fits, causes, indist), rival_fit_margin(fits, causes, indist)
     return {"explained": explained, "separable_rival": any(not a.get("structural") for a in indist), "p_value": causes[0].p_value,
-            "outcome_only": outcome_only, "rival_margin_dbic": margin if np.isfinite(margin) else None, "extra_effect_p": p_extra,
+            "outcome_only": outcome_only, "rival_margin_dbic": margin if np.isfinite(margin) else None,
+            "rival_margin_chi2": fit_margin if np.isfinite(fit_margin) else None, "extra_effect_p": p_extra,
             "moved_parameters": sum(moved_per_effect(_values(causes[0])).values())}
 
 
@@ -258,7 +268,9 @@ def is_high(basis: dict, margin_dbic: float | None = None, extra_p: float | None
     extra_p = HIGH_EXTRA_P if extra_p is None else extra_p
     max_moved = HIGH_MAX_MOVED if max_moved is None else max_moved
     margin = np.inf if basis["rival_margin_dbic"] is None else basis["rival_margin_dbic"]
-    strict = not settings.VERIFY_SINGLES or (margin >= margin_dbic and added_effect_p(basis, plans) >= extra_p
+    fit_margin = basis.get("rival_margin_chi2")
+    fit_ok = settings.HIGH_MARGIN_CHI2 is None or fit_margin is None or fit_margin >= settings.HIGH_MARGIN_CHI2
+    strict = not settings.VERIFY_SINGLES or (margin >= margin_dbic and fit_ok and added_effect_p(basis, plans) >= extra_p
                                              and basis.get("moved_parameters", 0) <= max_moved and not basis.get("immaterial_extra", False)
                                              and not (second and second_allowed(basis)))
     return bool(basis["explained"] and not basis["separable_rival"] and basis["p_value"] >= CONFIDENT_P and not basis["outcome_only"] and strict)
