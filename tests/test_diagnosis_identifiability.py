@@ -149,7 +149,7 @@ def test_a_named_cause_with_a_structural_twin_says_so_without_a_rival():
     ident = idf.Identifiability([idf.StructuralClass(["base_offset.yaw", "joint_offset.joint1"], "the same rotation", 0.01)], [], 10, [])
     best = _cause("joint_offset", {"joint1": (0.08, 0.004), "joint4": (0.05, 0.004)})
     none = _cause("joint_offset", {}, delta_bic=200.0)
-    none.effects, none.p_value = (), 0.0
+    none.effects, none.p_value, none.chi2 = (), 0.0, 200.0
     fit = SimpleNamespace(name="joint_offset", refined=True, effects=("joint_offset",))
     nfit = SimpleNamespace(name="none", refined=True, effects=())
     ev = SimpleNamespace(measured_groups=["touchdown", "joints"], model=MODEL, nm=None, keys=[])
@@ -170,7 +170,7 @@ def test_a_rival_tied_to_the_named_effect_by_a_structural_class_is_said_to_be_th
     ident = idf.Identifiability([idf.StructuralClass(["base_offset.yaw", "joint_offset.joint1"], "the same rotation", 0.01)], [], 10, [])
     best = _cause("joint_offset", {"joint4": (0.056, 0.004)})
     none = _cause("joint_offset", {}, delta_bic=200.0)
-    none.effects, none.p_value = (), 0.0
+    none.effects, none.p_value, none.chi2 = (), 0.0, 200.0
     fit = SimpleNamespace(name="joint_offset", refined=True, effects=("joint_offset",))
     nfit = SimpleNamespace(name="none", refined=True, effects=())
     ev = SimpleNamespace(measured_groups=["touchdown", "joints"], model=MODEL, nm=None, keys=[], sim=None, plans=[])

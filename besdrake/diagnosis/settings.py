@@ -110,7 +110,8 @@ VERIFY_SINGLES = True
 HIGH_MARGIN_DBIC = 10.0
 #: ... and that rival must also fit worse by at least this much chi2 on the fit alone (None: not checked): a lead made
 #: only of the rival's extra parameters is no evidence against it (issue 25, the D-optimal design on seed 2, trial 15:
-#: a ball radius + gain scale named joint offset + gain scale with "high", the true pair 11.8 BIC but 1.8 chi2 behind;
+#: a hidden pair named with a joint offset in place of one of its effects with "high", the true pair 11.8 BIC but
+#: 1.8 chi2 behind;
 #: over the 127 "high" answers of the benchmark's full-log rows, seeds 0-4 and both designs, no right one had a
 #: separable rival within 7.0 chi2).
 HIGH_MARGIN_CHI2: float | None = 6.0
