@@ -719,7 +719,7 @@ def _trial_plans(args, seed: int, executor, cache: dict) -> list:
     if args.design == "random":
         return diagnosis_plans(args.throws, args.repeats, seed=seed, limits=load_scenario("nominal").robot.limits, **opts)
     if "pool" not in cache:
-        cache["pool"] = design_pool(args.throws, args.repeats, "nominal", executor=executor, **opts)
+        cache["pool"] = design_pool(args.throws, args.repeats, "nominal", executor=executor, design_options=opts)
     return optimal_plans(args.throws, args.repeats, seed=seed, pool=cache["pool"]).plans
 
 

@@ -89,7 +89,7 @@ def fake_sensitivities(monkeypatch, tmp_path):
 def test_a_designed_log_has_the_requested_size_repeats_and_fixed_plans(fake_sensitivities, tmp_path):
     from besdrake.tasks.throwing.diagnosis.design import plan_limits_exceeded
 
-    d = od.optimal_plans(25, 8, seed=4, executor=object(), probes=2, sideways=5)
+    d = od.optimal_plans(25, 8, seed=4, executor=object(), design_options={"probes": 2, "sideways": 5})
     hashes = [plan_hash(p) for p in d.plans]
     counts = {h: hashes.count(h) for h in hashes}
     assert len(d.plans) == 25 and len(counts) == 25 - 8
@@ -98,13 +98,13 @@ def test_a_designed_log_has_the_requested_size_repeats_and_fixed_plans(fake_sens
     assert not any(plan_limits_exceeded(p, COMPI.limits) for p in d.plans)
     assert d.log_det > d.reference_log_det and d.median_gain() > 1.0
     # another seed chooses from another share of the pool; the pool's sensitivities come from the cache
-    d2 = od.optimal_plans(25, 8, seed=5, executor=object(), probes=2, sideways=5)
+    d2 = od.optimal_plans(25, 8, seed=5, executor=object(), design_options={"probes": 2, "sideways": 5})
     assert {plan_hash(p) for p in d2.plans} != set(hashes)
     assert len(fake_sensitivities) == 1 and len(list((tmp_path / "design").glob("*.npz"))) == 1
 
 
 def test_an_impossible_request_is_a_value_error(fake_sensitivities):
-    pool = od.design_pool(6, 0, executor=object(), probes=0, sideways=0)
+    pool = od.design_pool(6, 0, executor=object(), design_options={"probes": 0, "sideways": 0})
     with pytest.raises(ValueError, match="cannot choose"):
         od.optimal_plans(6, 4, pool=pool)  # 2 distinct plans cannot give 4 repeats
 
@@ -114,7 +114,7 @@ def test_real_sensitivities_raise_the_conditional_information(monkeypatch, tmp_p
     monkeypatch.setenv("BESDRAKE_CACHE", str(tmp_path))
     monkeypatch.setattr(od, "POOL_DESIGNS", 4)
     monkeypatch.setattr(od, "CANDIDATE_SHARE", 1.0)  # a pool this small: choose from all of it (half of it can lose)
-    d = od.optimal_plans(25, 8, seed=0, probes=2, sideways=5)
+    d = od.optimal_plans(25, 8, seed=0, design_options={"probes": 2, "sideways": 5})
     gains = np.array([g for g in d.gain.values() if np.isfinite(g)])
     assert d.log_det > d.reference_log_det
     assert np.median(gains) > 1.1 and np.mean(gains >= 0.95) > 0.8, d.gain
@@ -134,3 +134,13 @@ def test_cli_writes_the_optimal_design_the_lab_runner_reads(fake_sensitivities, 
     capsys.readouterr()
     assert main(["diagnose", "--design", str(tmp_path / "bad"), "--optimal", "--throws", "12", "--repeats", "9"]) == 2
     assert "besdrake: error:" in capsys.readouterr().err
+
+
+def test_cli_designs_another_tasks_experiment_too(fake_sensitivities, tmp_path):
+    from besdrake.cli import main
+    from besdrake.commands.lab_run import load_plans
+
+    assert main(["diagnose", "--design", str(tmp_path / "picks"), "--optimal", "--scenario", "pick_and_place", "--throws", "10",
+                 "--repeats", "4"]) == 0
+    plans = load_plans(tmp_path / "picks")
+    assert len(plans) == 10 and len({plan_hash(p) for p in plans}) == 6

@@ -113,7 +113,7 @@ def _design_throwing(args: argparse.Namespace) -> int:
     if args.sideways is None:  # the default fits the design's distinct throws
         sideways = max(0, min(sideways, args.throws - args.repeats - probes))
     if args.optimal:
-        plans = _optimal(args, args.scenario or "nominal", probes=probes, sideways=sideways)
+        plans = _optimal(args, args.scenario or "nominal", {"probes": probes, "sideways": sideways})
     else:
         try:
             plans = diagnosis_plans(args.throws, args.repeats, seed=args.seed, probes=probes, sideways=sideways,
@@ -163,7 +163,7 @@ def _design_task(args: argparse.Namespace) -> int:
     scen = load_scenario(args.scenario)
     try:
         model = model_for(scen)
-        plans = (_optimal(args, scen, scenario=args.scenario) if args.optimal
+        plans = (_optimal(args, scen, {"scenario": args.scenario}) if args.optimal
                  else model.design_experiments(args.throws, args.repeats, seed=args.seed, limits=scen.robot.limits, scenario=args.scenario))
     except (TaskError, ValueError) as err:
         raise UserError(str(err)) from None
@@ -172,7 +172,7 @@ def _design_task(args: argparse.Namespace) -> int:
     return 0
 
 
-def _optimal(args: argparse.Namespace, scenario, **options) -> list:
+def _optimal(args: argparse.Namespace, scenario, options: dict) -> list:
     """``--optimal``: the D-optimal design's plans; prints what it gains over the task's random design."""
     import numpy as np
 
@@ -184,7 +184,7 @@ def _optimal(args: argparse.Namespace, scenario, **options) -> list:
 
     try:
         with executor_from_args(args, scenario=scenario) as ex:
-            d = optimal_plans(args.throws, args.repeats, seed=args.seed, scenario=scenario, executor=ex, **options)
+            d = optimal_plans(args.throws, args.repeats, seed=args.seed, scenario=scenario, executor=ex, design_options=options)
     except (ValueError, ExecutorError, ScenarioError) as err:
         raise UserError(str(err)) from None
     low = sorted(d.gain.items(), key=lambda kv: kv[1] if np.isfinite(kv[1]) else np.inf)[:3]

@@ -175,10 +175,11 @@ def _sensitivities(executor, effects: Sequence[str], plans: list, model, scen, u
 
 
 def design_pool(n: int, repeats: int, scenario="nominal", effects: Sequence[str] | None = None, executor=None,
-                use_cache: bool = True, groups: Sequence[str] | None = None, **options) -> DesignPool:
+                use_cache: bool = True, groups: Sequence[str] | None = None, design_options: dict | None = None) -> DesignPool:
     """The candidates of an ``n``-plan design with ``repeats`` repeats on ``scenario`` (see the module docstring);
     ``effects``: the registry's that act on the scenario's task by default; ``groups``: the observable groups the log
-    will record (default every one; e.g. the outcome alone); ``options``: the task's design options."""
+    will record (default every one; e.g. the outcome alone); ``design_options``: the task's design options (keywords of its
+:meth:`~besdrake.diagnosis.trials.TrialModel.design_experiments`)."""
     from besdrake.diagnosis.trials import model_for
     from besdrake.sim.executors import make_executor
     from besdrake.sim.scenario import Scenario, load_scenario
@@ -187,7 +188,7 @@ def design_pool(n: int, repeats: int, scenario="nominal", effects: Sequence[str]
     scen = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
     model = model_for(scen)
     effects = list(effects) if effects is not None else effects_for(getattr(scen, "task", None) or DEFAULT_TASK)
-    designs = [model.design_experiments(n, repeats, seed=j, limits=scen.robot.limits, **options) for j in range(POOL_DESIGNS)]
+    designs = [model.design_experiments(n, repeats, seed=j, limits=scen.robot.limits, **(design_options or {})) for j in range(POOL_DESIGNS)]
     candidates, fixed, reference, reference_repeats = _split_pool(designs)
     own = executor is None
     ex = executor or make_executor("serial", scenario=scen, limits="flag")
@@ -208,10 +209,12 @@ def design_pool(n: int, repeats: int, scenario="nominal", effects: Sequence[str]
 
 
 def optimal_plans(n: int = 25, repeats: int = 8, seed: int = 0, scenario="nominal", effects: Sequence[str] | None = None,
-                  executor=None, use_cache: bool = True, pool: DesignPool | None = None, **options) -> OptimalDesign:
+                  executor=None, use_cache: bool = True, pool: DesignPool | None = None, groups: Sequence[str] | None = None,
+                  design_options: dict | None = None) -> OptimalDesign:
     """A D-optimal ``n``-plan log with ``repeats`` repeats (see the module docstring), seeded with ``seed``;
-    ``pool``: a :func:`design_pool` already built for the same request. :class:`ValueError` for a bad request."""
-    pool = pool or design_pool(n, repeats, scenario, effects, executor, use_cache, **options)
+    ``pool``: a :func:`design_pool` already built for the same request (else built with ``groups`` and
+    ``design_options``). :class:`ValueError` for a bad request."""
+    pool = pool or design_pool(n, repeats, scenario, effects, executor, use_cache, groups, design_options)
     rng = np.random.default_rng(seed)
     fixed_repeats = sum(c - 1 for _, c in pool.fixed)
     k = n - repeats - len(pool.fixed)
