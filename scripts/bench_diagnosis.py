@@ -758,7 +758,7 @@ def main(argv=None) -> int:
         return 0
 
     from besdrake.diagnosis import diagnose, diagnosis_plans
-    from besdrake.tasks.throwing.diagnosis.design import DEFAULT_PROBES, DEFAULT_SIDEWAYS
+    from besdrake.tasks.throwing.diagnosis.design import DEFAULT_SIDEWAYS
     from besdrake.sim import Rollout
     from besdrake.sim.scenario import load_scenario
     from besdrake.task import effects_for

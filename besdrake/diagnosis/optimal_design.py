@@ -25,14 +25,15 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 
+from besdrake._io import save_npz
 from besdrake.diagnosis.identifiability import STEP_FRACTION, scaled_sensitivities
+from besdrake.diagnosis.identifiability import cache_dir as identifiability_cache_dir
 from besdrake.sim.effects import get_effect
 
 #: Prior precision per parameter in units of its realistic range (a prior SD of half the range): keeps the log
@@ -102,9 +103,8 @@ def greedy_d_optimal(blocks: np.ndarray, base: np.ndarray, k: int, allowed: Sequ
 
 
 def cache_dir() -> Path:
-    """``$BESDRAKE_CACHE/design`` (default ``~/.cache/besdrake/design``)."""
-    base = os.environ.get("BESDRAKE_CACHE") or os.path.join(os.path.expanduser("~"), ".cache", "besdrake")
-    return Path(base) / "design"
+    """``$BESDRAKE_CACHE/design`` (default ``~/.cache/besdrake/design``), beside the identifiability cache."""
+    return identifiability_cache_dir().parent / "design"
 
 
 def _split_pool(designs: list[list]) -> tuple[list, list[tuple[object, int]], list[int], list[int]]:
@@ -165,10 +165,7 @@ def _sensitivities(executor, effects: Sequence[str], plans: list, model, scen, u
     per_plan = _per_plan(J, len(plans))
     if use_cache:
         try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            tmp = path.with_name(f"{path.stem}.{os.getpid()}.tmp.npz")  # concurrent designs write their own, then replace
-            np.savez(tmp, keys=np.array(keys), per_plan=per_plan)
-            tmp.replace(path)
+            save_npz(path, keys=np.array(keys), per_plan=per_plan)  # atomic: concurrent designs each replace it whole
         except OSError:
             pass
     return keys, per_plan
@@ -179,7 +176,7 @@ def design_pool(n: int, repeats: int, scenario="nominal", effects: Sequence[str]
     """The candidates of an ``n``-plan design with ``repeats`` repeats on ``scenario`` (see the module docstring);
     ``effects``: the registry's that act on the scenario's task by default; ``groups``: the observable groups the log
     will record (default every one; e.g. the outcome alone); ``design_options``: the task's design options (keywords of its
-:meth:`~besdrake.diagnosis.trials.TrialModel.design_experiments`)."""
+    :meth:`~besdrake.diagnosis.trials.TrialModel.design_experiments`)."""
     from besdrake.diagnosis.trials import model_for
     from besdrake.sim.executors import make_executor
     from besdrake.sim.scenario import Scenario, load_scenario
@@ -187,6 +184,10 @@ def design_pool(n: int, repeats: int, scenario="nominal", effects: Sequence[str]
 
     scen = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
     model = model_for(scen)
+    sl = model.slices()
+    unknown = sorted(set(groups or ()) - set(sl))
+    if unknown:
+        raise ValueError(f"design_pool: unknown observable group(s) {unknown}; the task's: {list(sl)}")
     effects = list(effects) if effects is not None else effects_for(getattr(scen, "task", None) or DEFAULT_TASK)
     designs = [model.design_experiments(n, repeats, seed=j, limits=scen.robot.limits, **(design_options or {})) for j in range(POOL_DESIGNS)]
     candidates, fixed, reference, reference_repeats = _split_pool(designs)
@@ -198,10 +199,6 @@ def design_pool(n: int, repeats: int, scenario="nominal", effects: Sequence[str]
     finally:
         if own:
             ex.close()
-    sl = model.slices()
-    unknown = sorted(set(groups or ()) - set(sl))
-    if unknown:
-        raise ValueError(f"design_pool: unknown observable group(s) {unknown}; the task's: {list(sl)}")
     blocks = blocks_of(per_plan, None if groups is None else [c for g in groups for c in range(sl[g].start, sl[g].stop)])
     nc = len(candidates)
     fixed_info = sum((c * blocks[nc + j] for j, (_, c) in enumerate(fixed)), np.zeros(blocks.shape[1:]))
