@@ -723,6 +723,38 @@ def _trial_plans(args, seed: int, executor, cache: dict) -> list:
     return optimal_plans(args.throws, args.repeats, seed=seed, pool=cache["pool"]).plans
 
 
+def _sequential_log(args, seed: int, executor, lab, registry: list[str], cache: dict, dkw: dict) -> tuple[list, list, dict]:
+    """``--design sequential``: the task's random design of ``--first-throws`` plans is thrown and diagnosed (full
+    logs), then the rest of the ``--throws`` are chosen to separate that diagnosis's leading causes
+    (:func:`besdrake.diagnosis.discrimination.discriminating_plans`, or with ``--follow-up information``
+    :func:`~besdrake.diagnosis.discrimination.informative_plans`) and thrown. The plans, the whole log, and what
+    the first stage found (its wall time counts in the trial's)."""
+    from besdrake.diagnosis import diagnose, diagnosis_plans
+    from besdrake.diagnosis.discrimination import discriminating_plans, informative_plans
+    from besdrake.sim.scenario import load_scenario
+    from besdrake.tasks.throwing.diagnosis.design import DEFAULT_PROBES, DEFAULT_SIDEWAYS
+
+    probes = DEFAULT_PROBES if args.probes is None else args.probes
+    sideways = DEFAULT_SIDEWAYS if args.sideways is None else args.sideways
+    n1, r1 = args.first_throws, args.first_repeats
+    first = diagnosis_plans(n1, r1, seed=seed, limits=load_scenario("nominal").robot.limits, probes=probes,
+                             sideways=int(round(sideways * (n1 - r1 - probes) / max(args.throws - args.repeats - probes, 1))))
+    ms1 = [lab.execute(p) for p in first]
+    t0 = time.perf_counter()
+    d1 = diagnose(ms1, candidates=registry, executor=executor, cache=cache, seed=seed, **dkw)
+    t1 = time.perf_counter()
+    opts = {"probes": probes, "sideways": sideways}
+    follow = (discriminating_plans(d1, args.throws - n1, args.repeats - r1, executor, seed=seed, design_options=opts)
+              if args.follow_up == "separation" else
+              informative_plans(d1, first, args.throws - n1, args.repeats - r1, executor, seed=seed, design_options=opts))
+    t2 = time.perf_counter()
+    ms2 = [lab.execute(p) for p in follow.plans]
+    info = {"first_best": list(d1.best.effects) if d1.best else [], "first_confidence": d1.confidence, "first_explained": d1.explained,
+            "first_wall_s": t1 - t0, "design_wall_s": t2 - t1, "leader": follow.leader, "rivals": follow.rivals,
+            "separation": follow.separation, "reference_separation": follow.reference_separation, "gain": follow.gain}
+    return first + follow.plans, ms1 + ms2, info
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--trials", type=int, default=40, help="hidden-effect trials (known effects)")
@@ -731,9 +763,16 @@ def main(argv=None) -> int:
     ap.add_argument("--repeats", type=int, default=8)
     ap.add_argument("--probes", type=int, default=None, help="tilt probes among the throws (default: the diagnosis design's, 2; 0: throws only, the design before session 9)")
     ap.add_argument("--sideways", type=int, default=None, help="sideways throws among the distinct throws (default: the diagnosis design's, 5; 0: planar only)")
-    ap.add_argument("--design", choices=("random", "optimal"), default="random",
+    ap.add_argument("--design", choices=("random", "optimal", "sequential"), default="random",
                     help="random: the task's designed throws drawn per trial; optimal: the D-optimal choice from a pool of them "
-                         "(besdrake.diagnosis.optimal_design, per trial seed; the pool's sensitivities computed once and cached)")
+                         "(besdrake.diagnosis.optimal_design, per trial seed; the pool's sensitivities computed once and cached); "
+                         "sequential: --first-throws of the random design, diagnosed, then the rest chosen to separate its leading causes "
+                         "(besdrake.diagnosis.discrimination; full logs only)")
+    ap.add_argument("--first-throws", type=int, default=15, help="with --design sequential: throws of the first stage")
+    ap.add_argument("--first-repeats", type=int, default=5, help="with --design sequential: repeats among the first stage's throws")
+    ap.add_argument("--follow-up", choices=("separation", "information"), default="separation",
+                    help="with --design sequential: the second stage separates the leading causes' fitted predictions (discriminating_plans) "
+                         "or is D-optimal for their parameters at the named cause's fit (informative_plans)")
     ap.add_argument("--draws", choices=("full", "classic"), default="full",
                     help="full: every parameter of every effect over its realistic range in both directions, cycled, with pairs (issue 25); "
                          "classic: one effect per trial at the magnitudes of the earlier benchmark")
@@ -796,10 +835,15 @@ def main(argv=None) -> int:
                 k_known += 1
             if only is not None and i not in only:
                 continue
-            plans = _trial_plans(args, 1000 * args.seed + i, ex, design_cache)
             lab = VirtualLab({"name": "bench_lab", "effects": hidden, "seed": 1000 * args.seed + i})
+            cache: dict = {}
+            stage: dict = {}
             try:
-                ms = [lab.execute(p) for p in plans]
+                if args.design == "sequential":
+                    plans, ms, stage = _sequential_log(args, 1000 * args.seed + i, ex, lab, registry, cache, dkw)
+                else:
+                    plans = _trial_plans(args, 1000 * args.seed + i, ex, design_cache)
+                    ms = [lab.execute(p) for p in plans]
             except Exception as err:  # noqa: BLE001 - e.g. the lab's placement habit + scatter beyond the effect's bounds
                 for mode in modes:
                     results.append({"trial": i, "mode": mode, "hidden": hidden, "unknown": unknown, "error": f"lab: {type(err).__name__}: {err}"})
@@ -828,7 +872,6 @@ def main(argv=None) -> int:
             marginal = {} if unknown_sig or len(hidden) < 2 else {
                 e: _expected_signature(hidden, ms, plans, truth_roll, lab.config.noise.ball_placement_sd, seed=1000 * args.seed + i,
                                        base={o: v for o, v in hidden.items() if o != e}) for e in hidden}
-            cache: dict = {}
             fresh_ms = None
             for mode in modes:
                 log = ms if mode == "full" else _strip(ms)
@@ -838,7 +881,7 @@ def main(argv=None) -> int:
                 except Exception as err:  # noqa: BLE001 - a benchmark records failures
                     results.append({"trial": i, "mode": mode, "hidden": hidden, "unknown": unknown, "error": f"{type(err).__name__}: {err}"})
                     continue
-                wall = time.perf_counter() - t0
+                wall = time.perf_counter() - t0 + stage.get("first_wall_s", 0.0) + stage.get("design_wall_s", 0.0)
                 truth = tuple(sorted(hidden))
                 best = tuple(sorted(d.best.effects)) if d.best else ()
                 alt = [tuple(sorted(a["b"].split(" + "))) for a in d.indistinguishable]
@@ -876,6 +919,8 @@ def main(argv=None) -> int:
                     "additions_listed": [a["effect"] for a in d.indistinguishable if a.get("addition")],
                     "aliases_listed": [a["b"] for a in d.indistinguishable if a.get("alias")],
                 }
+                if stage:
+                    row["sequential"] = stage
                 if unknown and d.residual is not None:
                     row.update(_residual_row(d))
                     if args.fresh:

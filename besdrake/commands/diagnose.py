@@ -23,6 +23,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--optimal", action="store_true",
                         help="with --design: choose the distinct plans D-optimally from a pool of the task's random designs (the simulation's "
                              "sensitivities to every candidate effect, computed once per scenario and cached; see besdrake.diagnosis.optimal_design)")
+    parser.add_argument("--after", type=Path, default=None, metavar="LOGDIR",
+                        help="with --design: a follow-up to this first log: diagnose it, then choose the plans that tell its leading causes apart "
+                             "(D-optimal for their parameters at the named cause's fit, given the logged plans; see besdrake.diagnosis.discrimination)")
     parser.add_argument("--out", type=Path, default=None, help="folder for report.md, diagnosis.json, refined_scenario.yaml, figures (default: runs/diagnosis/<log name>)")
     parser.add_argument("--scenario", default=None,
                         help="the simulation the lab is compared with (name or YAML path; default: the log's task's default scenario, 'nominal' for throwing)")
@@ -50,6 +53,10 @@ def run(args: argparse.Namespace) -> int:
     from besdrake.sim.executors import ExecutorError
     from besdrake.sim.scenario import ScenarioError, load_scenario
 
+    if args.after is not None and args.design is None:
+        raise UserError("--after LOGDIR designs a follow-up: give --design DIR too")
+    if args.design is not None and args.after is not None and args.scenario is None:
+        args.scenario = _log_scenario(_read_log(args.after))
     if args.design is not None and args.scenario is not None and _task_of(args.scenario) != "throwing":
         return _design_task(args)
     if args.design is not None:
@@ -66,17 +73,9 @@ def run(args: argparse.Namespace) -> int:
         load_plugins(args.plugin)
     except PluginError as err:
         raise UserError(str(err)) from None
-    try:
-        from besdrake.transfer.log import read_log
-
-        measurements = read_log(args.logdir)
-    except (OSError, ValueError) as err:
-        raise UserError(f"cannot read the log {args.logdir}: {err}") from None
-    tasks = sorted({type(m).TASK for m in measurements if type(m).TASK is not None})
+    measurements = _read_log(args.logdir)
     if args.scenario is None:
-        from besdrake.task import get_task
-
-        args.scenario = get_task(tasks[0]).default_scenario if tasks else "nominal"
+        args.scenario = _log_scenario(measurements)
     candidates = None if args.candidates is None else [c.strip() for c in args.candidates.split(",") if c.strip()]
     try:
         scenario = load_scenario(args.scenario)
@@ -112,7 +111,11 @@ def _design_throwing(args: argparse.Namespace) -> int:
     sideways = DEFAULT_SIDEWAYS if args.sideways is None else args.sideways
     if args.sideways is None:  # the default fits the design's distinct throws
         sideways = max(0, min(sideways, args.throws - args.repeats - probes))
-    if args.optimal:
+    if args.optimal and args.after is not None:
+        raise UserError("--optimal and --after are two designs: give one")
+    if args.after is not None:
+        plans = _follow_up(args, {"probes": probes, "sideways": sideways})
+    elif args.optimal:
         plans = _optimal(args, args.scenario or "nominal", {"probes": probes, "sideways": sideways})
     else:
         try:
@@ -163,8 +166,14 @@ def _design_task(args: argparse.Namespace) -> int:
     scen = load_scenario(args.scenario)
     try:
         model = model_for(scen)
-        plans = (_optimal(args, scen, {"scenario": args.scenario}) if args.optimal
-                 else model.design_experiments(args.throws, args.repeats, seed=args.seed, limits=scen.robot.limits, scenario=args.scenario))
+        if args.optimal and args.after is not None:
+            raise UserError("--optimal and --after are two designs: give one")
+        if args.after is not None:
+            plans = _follow_up(args, {"scenario": args.scenario})
+        elif args.optimal:
+            plans = _optimal(args, scen, {"scenario": args.scenario})
+        else:
+            plans = model.design_experiments(args.throws, args.repeats, seed=args.seed, limits=scen.robot.limits, scenario=args.scenario)
     except (TaskError, ValueError) as err:
         raise UserError(str(err)) from None
     _write_plans(plans, args.design)
@@ -191,6 +200,56 @@ def _optimal(args: argparse.Namespace, scenario, options: dict) -> list:
     print(f"D-optimal design: log det {d.log_det:.1f} against {d.reference_log_det:.1f} for the task's random design; each parameter's "
           f"information given the others x{d.median_gain():.2f} (median), least " + ", ".join(f"{k} x{v:.2f}" for k, v in low))
     return d.plans
+
+
+def _follow_up(args: argparse.Namespace, options: dict) -> list:
+    """``--after LOGDIR``: diagnose the first log, then the plans that tell its leading causes apart
+    (:func:`~besdrake.diagnosis.discrimination.informative_plans`); prints which and what they add against the task's
+    random design."""
+    import numpy as np
+
+    from besdrake.cli import UserError
+    from besdrake.diagnosis import DiagnosisError, diagnose
+    from besdrake.diagnosis.discrimination import informative_plans
+    from besdrake.sim.cliutil import executor_from_args
+    from besdrake.sim.executors import ExecutorError
+    from besdrake.sim.scenario import ScenarioError, load_scenario
+
+    measurements = _read_log(args.after)
+    try:
+        scen = load_scenario(args.scenario or _log_scenario(measurements))
+        with executor_from_args(args, scenario=scen) as ex:
+            first = diagnose(measurements, scenario=scen, executor=ex, seed=args.seed,
+                             **({} if args.placement_sd is None else {"placement_sd": args.placement_sd}))
+            d = informative_plans(first, [m.plan for m in measurements], args.throws, args.repeats, ex, seed=args.seed, design_options=options)
+    except (DiagnosisError, ValueError, ExecutorError, ScenarioError) as err:
+        raise UserError(str(err)) from None
+    print(f"first log: {first.verdict}")
+    gains = {k: v for k, v in d.gain.items() if np.isfinite(v)}
+    low = sorted(gains.items(), key=lambda kv: kv[1])[:3]
+    print(f"follow-up to tell {d.leader} from {', '.join(d.rivals)}: each of their parameters' information given the others and the first log "
+          f"x{np.median(list(gains.values())) if gains else float('nan'):.2f} (median) against the task's random design, least "
+          + ", ".join(f"{k} x{v:.2f}" for k, v in low))
+    return d.plans
+
+
+def _read_log(folder) -> list:
+    """The measurements of a log folder; a :class:`~besdrake.cli.UserError` where it cannot be read."""
+    from besdrake.cli import UserError
+    from besdrake.transfer.log import read_log
+
+    try:
+        return read_log(folder)
+    except (OSError, ValueError) as err:
+        raise UserError(f"cannot read the log {folder}: {err}") from None
+
+
+def _log_scenario(measurements: list) -> str:
+    """The default scenario of the log's task ('nominal' for throwing)."""
+    from besdrake.task import get_task
+
+    tasks = sorted({type(m).TASK for m in measurements if type(m).TASK is not None})
+    return get_task(tasks[0]).default_scenario if tasks else "nominal"
 
 
 def _write_plans(plans: list, folder) -> None:
