@@ -106,6 +106,13 @@ def test_cli_writes_the_follow_up_of_a_logged_first_experiment(first_diagnosis, 
     out = capsys.readouterr().out
     assert seen == [6] and "follow-up to tell none from base_offset, ball_placement" in out
     assert len(load_plans(tmp_path / "next")) == 4
+    # the follow-up thrown, both logs are one log to the diagnosis: trials numbered on, the files untouched
+    from besdrake.commands.diagnose import _read_logs
+    from besdrake.transfer.log import read_log
+
+    assert main(["lab", "run", "--lab", str(lab), "--plans", str(tmp_path / "next"), "--out", str(tmp_path / "log2"), "--quiet"]) == 0
+    both = _read_logs([tmp_path / "log", tmp_path / "log2"])
+    assert [m.trial for m in both] == list(range(10)) and [m.trial for m in read_log(tmp_path / "log2")] == list(range(4))
     assert main(["diagnose", "--design", str(tmp_path / "x"), "--after", str(tmp_path / "log"), "--optimal"]) == 2
     assert main(["diagnose", "--after", str(tmp_path / "log")]) == 2
     assert main(["diagnose", "--design", str(tmp_path / "y"), "--after", str(tmp_path / "nolog")]) == 2

@@ -11,7 +11,8 @@ HELP = "compare a lab log with the simulation, name the cause (effect fit + BIC)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("logdir", type=Path, nargs="?", default=None, help="a measured-data log folder (besdrake lab run --out ...)")
+    parser.add_argument("logdir", type=Path, nargs="*", default=[],
+                        help="measured-data log folder(s) (besdrake lab run --out ...); several are diagnosed as one log (e.g. a first log and its --after follow-up)")
     parser.add_argument("--design", type=Path, default=None, metavar="DIR",
                         help="instead of diagnosing: write a diagnosis plan set (diverse throws with repeats) as DIR/NNN_*.plan.json for 'besdrake lab run --plans DIR'")
     parser.add_argument("--throws", type=int, default=25, help="with --design: number of throws (default 25)")
@@ -61,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
         return _design_task(args)
     if args.design is not None:
         return _design_throwing(args)
-    if args.logdir is None:
+    if not args.logdir:
         raise UserError("give a log folder to diagnose (or --design DIR to write a plan set)")
     if args.workers < 1:
         raise UserError(f"--workers must be >= 1, got {args.workers}")
@@ -73,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
         load_plugins(args.plugin)
     except PluginError as err:
         raise UserError(str(err)) from None
-    measurements = _read_log(args.logdir)
+    measurements = _read_logs(args.logdir)
     if args.scenario is None:
         args.scenario = _log_scenario(measurements)
     candidates = None if args.candidates is None else [c.strip() for c in args.candidates.split(",") if c.strip()]
@@ -90,7 +91,7 @@ def run(args: argparse.Namespace) -> int:
                             **({} if args.placement_sd is None else {"placement_sd": args.placement_sd}))
     except (DiagnosisError, EffectError, ScenarioError, ExecutorError) as err:
         raise UserError(str(err)) from None
-    out = args.out or Path("runs") / "diagnosis" / Path(args.logdir).resolve().name
+    out = args.out or Path("runs") / "diagnosis" / "+".join(Path(d).resolve().name for d in args.logdir)
     paths = write_report(diag, out, figures=not args.no_figures)
     if args.json:
         print(diag.to_json())
@@ -242,6 +243,18 @@ def _read_log(folder) -> list:
         return read_log(folder)
     except (OSError, ValueError) as err:
         raise UserError(f"cannot read the log {folder}: {err}") from None
+
+
+def _read_logs(folders: list) -> list:
+    """The measurements of several log folders as one log, numbered on in memory from one folder to the next (the
+    files are not touched)."""
+    import dataclasses
+
+    out: list = []
+    for folder in folders:
+        offset = len(out)
+        out += [dataclasses.replace(m, trial=m.trial + offset) for m in _read_log(folder)]
+    return out
 
 
 def _log_scenario(measurements: list) -> str:

@@ -16,9 +16,9 @@ centred placement):
   starts at the rival's chi-square gap on the first log; greedy on ``sum_rival log(1 + total / SCALE)`` (the close
   rivals first). Blind to a rival whose extra effect was fitted at nominal.
 
-The most informative chosen plans are thrown twice (repeats for the noise estimate). What a design gains is stated
-against the task's random design of the same size (which is in the pool too). Measured on the diagnosis benchmark:
-besdrake/tasks/throwing/diagnosis/CALIBRATION.md, "A sequential experiment".
+The most informative chosen plans are run twice (repeats for the noise estimate). What a design gains is stated
+against the task's random design of the same size (which is in the pool too). Measured with
+``scripts/bench_diagnosis.py --design sequential`` (the default task's CALIBRATION.md, "A sequential experiment").
 
 Knows no task: plans, observables and designs come from the scenario's :class:`~besdrake.diagnosis.trials.TrialModel`.
 """
@@ -117,23 +117,34 @@ def _pool(model, n: int, repeats: int, first_seed: int, limits, options: dict) -
     return plans, reference
 
 
-def discriminating_plans(diagnosis, n: int, repeats: int, executor, seed: int = 0, rivals: int = RIVALS,
-                         design_options: dict | None = None) -> DiscriminatingDesign:
-    """A follow-up log of ``n`` plans (``repeats`` of them thrown twice) that separates ``diagnosis``'s named cause
-    from its ``rivals`` leading rivals (see the module docstring); ``seed`` draws the pool's designs (seeds
-    ``seed + 1 ...``) and the log's order; ``design_options``: the task's design keywords. :class:`ValueError` for
-    a bad request."""
+def _request(diagnosis, n: int, repeats: int, rivals: int, who: str) -> tuple:
+    """The scenario, the task's trial model, the leading causes and the measured feature columns of a follow-up
+    request; :class:`ValueError` for a bad size."""
     from besdrake.diagnosis.trials import model_for
 
     if not (1 <= n and 0 <= repeats <= n // 2):
-        raise ValueError(f"discriminating_plans: need n >= 1 and 0 <= repeats <= n/2, got n={n}, repeats={repeats}")
+        raise ValueError(f"{who}: need n >= 1 and 0 <= repeats <= n/2, got n={n}, repeats={repeats}")
     scen = diagnosis.scenario
     model = model_for(scen)
-    causes = leading_causes(diagnosis, rivals)
-    if len(causes) < 2:
-        raise ValueError("discriminating_plans: the diagnosis ranked no rival to the named cause")
     sl = model.slices()
     columns = np.concatenate([np.arange(sl[g].start, sl[g].stop) for g in diagnosis.groups_measured])
+    return scen, model, leading_causes(diagnosis, rivals), columns
+
+
+def _shuffled(pool: list, indices: list[int], seed: int) -> list:
+    log = [pool[i] for i in indices]
+    return [log[int(i)] for i in np.random.default_rng(seed).permutation(len(log))]
+
+
+def discriminating_plans(diagnosis, n: int, repeats: int, executor, seed: int = 0, rivals: int = RIVALS,
+                         design_options: dict | None = None) -> DiscriminatingDesign:
+    """A follow-up log of ``n`` plans (``repeats`` of them run twice) that separates ``diagnosis``'s named cause
+    from its ``rivals`` leading rivals (see the module docstring); ``seed`` draws the pool's designs (seeds
+    ``seed + 1 ...``) and the log's order; ``design_options``: the task's design keywords. :class:`ValueError` for
+    a bad request."""
+    scen, model, causes, columns = _request(diagnosis, n, repeats, rivals, "discriminating_plans")
+    if len(causes) < 2:
+        raise ValueError("discriminating_plans: the diagnosis ranked no rival to the named cause")
     pool, reference = _pool(model, n, repeats, seed, scen.robot.limits, design_options or {})
     feats = predicted_features(executor, model, pool, [cause_effects(c) for c in causes], columns)
     ok = np.all(np.isfinite(feats[0]), axis=1)
@@ -146,9 +157,7 @@ def discriminating_plans(diagnosis, n: int, repeats: int, executor, seed: int = 
     again = sorted(chosen, key=lambda i: -np.sum(np.log1p(sep[i] / SCALE)))[:repeats]
     names = [_name(c) for c in causes]
     total = sep[chosen + again].sum(axis=0)
-    log = [pool[i] for i in chosen + again]
-    order = np.random.default_rng(seed).permutation(len(log))
-    return DiscriminatingDesign([log[int(i)] for i in order], names[0], names[1:],
+    return DiscriminatingDesign(_shuffled(pool, chosen + again, seed), names[0], names[1:],
                                 dict(zip(names[1:], map(float, total))), dict(zip(names[1:], map(float, sep[reference].sum(axis=0)))))
 
 
@@ -180,25 +189,18 @@ def sensitivities_at(executor, model, plans: Sequence, specs: Sequence, base: di
 
 def informative_plans(diagnosis, logged_plans: Sequence, n: int, repeats: int, executor, seed: int = 0, rivals: int = RIVALS,
                       design_options: dict | None = None) -> DiscriminatingDesign:
-    """A follow-up log of ``n`` plans (``repeats`` thrown twice) that is D-optimal for the parameters of the leading
+    """A follow-up log of ``n`` plans (``repeats`` run twice) that is D-optimal for the parameters of the leading
     causes *at the named cause's fit* (Ds-optimality on the causes that matter, given what ``logged_plans`` already
     show): where :func:`discriminating_plans` needs a rival's second effect fitted away from nominal to see it, the
     information counts what each of its parameters could still show beside the named cause's. ``gain``: each
     parameter's information given the others against the task's random design of the same size."""
     from besdrake.diagnosis.optimal_design import PRIOR_PRECISION, blocks_of, conditional_information, greedy_d_optimal, information
-    from besdrake.diagnosis.trials import model_for
     from besdrake.transfer.measurement import plan_hash
 
-    if not (1 <= n and 0 <= repeats <= n // 2):
-        raise ValueError(f"informative_plans: need n >= 1 and 0 <= repeats <= n/2, got n={n}, repeats={repeats}")
-    scen = diagnosis.scenario
-    model = model_for(scen)
-    causes = leading_causes(diagnosis, rivals)
+    scen, model, causes, columns = _request(diagnosis, n, repeats, rivals, "informative_plans")
     specs = relevant_specs(causes, model)
     if not specs:
         raise ValueError("informative_plans: the leading causes have no parameters to inform")
-    sl = model.slices()
-    columns = np.concatenate([np.arange(sl[g].start, sl[g].stop) for g in diagnosis.groups_measured])
     pool, reference = _pool(model, n, repeats, seed, scen.robot.limits, design_options or {})
     hashes = [plan_hash(p) for p in logged_plans]
     logged = {h: p for h, p in zip(hashes, logged_plans)}  # distinct, in first-seen order
@@ -215,10 +217,8 @@ def informative_plans(diagnosis, logged_plans: Sequence, n: int, repeats: int, e
     R = information(blocks, {i: reference.count(i) for i in set(reference)}, base)
     keys = [s_.key for s_ in specs]
     gain = {key: float(g / r) if r > 0 else float("nan") for key, g, r in zip(keys, conditional_information(M), conditional_information(R))}
-    log = [pool[i] for i in chosen + again]
-    order = np.random.default_rng(seed).permutation(len(log))
     names = [_name(c) for c in causes]
-    return DiscriminatingDesign([log[int(i)] for i in order], names[0], names[1:], {}, {}, gain)
+    return DiscriminatingDesign(_shuffled(pool, chosen + again, seed), names[0], names[1:], {}, {}, gain)
 
 
 def _name(cause) -> str:
