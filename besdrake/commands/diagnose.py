@@ -56,12 +56,15 @@ def run(args: argparse.Namespace) -> int:
 
     if args.after is not None and args.design is None:
         raise UserError("--after LOGDIR designs a follow-up: give --design DIR too")
-    if args.design is not None and args.after is not None and args.scenario is None:
-        args.scenario = _log_scenario(_read_log(args.after))
+    if args.optimal and args.after is not None:
+        raise UserError("--optimal and --after are two designs: give one")
+    after = _read_log(args.after) if args.design is not None and args.after is not None else None
+    if after is not None and args.scenario is None:
+        args.scenario = _log_scenario(after)
     if args.design is not None and args.scenario is not None and _task_of(args.scenario) != "throwing":
-        return _design_task(args)
+        return _design_task(args, after)
     if args.design is not None:
-        return _design_throwing(args)
+        return _design_throwing(args, after)
     if not args.logdir:
         raise UserError("give a log folder to diagnose (or --design DIR to write a plan set)")
     if args.workers < 1:
@@ -100,8 +103,9 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _design_throwing(args: argparse.Namespace) -> int:
-    """``--design`` for throwing: the diagnosis throws with tilt probes and sideways throws."""
+def _design_throwing(args: argparse.Namespace, after: list | None) -> int:
+    """``--design`` for throwing: the diagnosis throws with tilt probes and sideways throws (``after``: the first log
+    of ``--after``)."""
     from besdrake.cli import UserError
     from besdrake.sim.scenario import load_scenario
 
@@ -112,18 +116,13 @@ def _design_throwing(args: argparse.Namespace) -> int:
     sideways = DEFAULT_SIDEWAYS if args.sideways is None else args.sideways
     if args.sideways is None:  # the default fits the design's distinct throws
         sideways = max(0, min(sideways, args.throws - args.repeats - probes))
-    if args.optimal and args.after is not None:
-        raise UserError("--optimal and --after are two designs: give one")
-    if args.after is not None:
-        plans = _follow_up(args, {"probes": probes, "sideways": sideways})
-    elif args.optimal:
-        plans = _optimal(args, args.scenario or "nominal", {"probes": probes, "sideways": sideways})
-    else:
-        try:
-            plans = diagnosis_plans(args.throws, args.repeats, seed=args.seed, probes=probes, sideways=sideways,
-                                    limits=load_scenario(args.scenario or "nominal").robot.limits)
-        except ValueError as err:
-            raise UserError(str(err)) from None
+    scenario = args.scenario or "nominal"
+    try:
+        plans = _chosen_design(args, after, scenario, {"probes": probes, "sideways": sideways},
+                               lambda: diagnosis_plans(args.throws, args.repeats, seed=args.seed, probes=probes, sideways=sideways,
+                                                       limits=load_scenario(scenario).robot.limits))
+    except ValueError as err:
+        raise UserError(str(err)) from None
     _write_plans(plans, args.design)
     print(f"wrote {len(plans)} plans ({args.repeats} repeats, {probes} tilt probes, {sideways} sideways throws) to {args.design}")
     return 0
@@ -157,8 +156,9 @@ def _task_of(scenario: str) -> str | None:
         raise UserError(str(err)) from None
 
 
-def _design_task(args: argparse.Namespace) -> int:
-    """``--design`` for a task other than throwing: its own designed experiment (``--throws`` trials, ``--repeats``)."""
+def _design_task(args: argparse.Namespace, after: list | None) -> int:
+    """``--design`` for a task other than throwing: its own designed experiment (``--throws`` trials, ``--repeats``;
+    ``after``: the first log of ``--after``)."""
     from besdrake.cli import UserError
     from besdrake.diagnosis.trials import model_for
     from besdrake.sim.scenario import load_scenario
@@ -167,14 +167,9 @@ def _design_task(args: argparse.Namespace) -> int:
     scen = load_scenario(args.scenario)
     try:
         model = model_for(scen)
-        if args.optimal and args.after is not None:
-            raise UserError("--optimal and --after are two designs: give one")
-        if args.after is not None:
-            plans = _follow_up(args, {"scenario": args.scenario})
-        elif args.optimal:
-            plans = _optimal(args, scen, {"scenario": args.scenario})
-        else:
-            plans = model.design_experiments(args.throws, args.repeats, seed=args.seed, limits=scen.robot.limits, scenario=args.scenario)
+        plans = _chosen_design(args, after, scen, {"scenario": args.scenario},
+                               lambda: model.design_experiments(args.throws, args.repeats, seed=args.seed, limits=scen.robot.limits,
+                                                                scenario=args.scenario))
     except (TaskError, ValueError) as err:
         raise UserError(str(err)) from None
     _write_plans(plans, args.design)
@@ -182,10 +177,27 @@ def _design_task(args: argparse.Namespace) -> int:
     return 0
 
 
-def _optimal(args: argparse.Namespace, scenario, options: dict) -> list:
-    """``--optimal``: the D-optimal design's plans; prints what it gains over the task's random design."""
+def _chosen_design(args: argparse.Namespace, after: list | None, scenario, options: dict, random_design) -> list:
+    """The plans of the design asked for: the follow-up to ``after`` (``--after``), the D-optimal one (``--optimal``)
+    or the task's random design (``random_design()``); ``options``: the task's design keywords."""
+    if after is not None:
+        return _follow_up(args, after, scenario, options)
+    if args.optimal:
+        return _optimal(args, scenario, options)
+    return random_design()
+
+
+def _gain_summary(gain: dict[str, float]) -> str:
+    """Each parameter's information against the task's random design: the median and the three least."""
     import numpy as np
 
+    finite = sorted(((k, v) for k, v in gain.items() if np.isfinite(v)), key=lambda kv: kv[1])
+    median = np.median([v for _, v in finite]) if finite else float("nan")
+    return f"x{median:.2f} (median), least " + ", ".join(f"{k} x{v:.2f}" for k, v in finite[:3])
+
+
+def _optimal(args: argparse.Namespace, scenario, options: dict) -> list:
+    """``--optimal``: the D-optimal design's plans; prints what it gains over the task's random design."""
     from besdrake.cli import UserError
     from besdrake.diagnosis.optimal_design import optimal_plans
     from besdrake.sim.cliutil import executor_from_args
@@ -197,18 +209,15 @@ def _optimal(args: argparse.Namespace, scenario, options: dict) -> list:
             d = optimal_plans(args.throws, args.repeats, seed=args.seed, scenario=scenario, executor=ex, design_options=options)
     except (ValueError, ExecutorError, ScenarioError) as err:
         raise UserError(str(err)) from None
-    low = sorted(d.gain.items(), key=lambda kv: kv[1] if np.isfinite(kv[1]) else np.inf)[:3]
     print(f"D-optimal design: log det {d.log_det:.1f} against {d.reference_log_det:.1f} for the task's random design; each parameter's "
-          f"information given the others x{d.median_gain():.2f} (median), least " + ", ".join(f"{k} x{v:.2f}" for k, v in low))
+          f"information given the others {_gain_summary(d.gain)}")
     return d.plans
 
 
-def _follow_up(args: argparse.Namespace, options: dict) -> list:
-    """``--after LOGDIR``: diagnose the first log, then the plans that tell its leading causes apart
+def _follow_up(args: argparse.Namespace, measurements: list, scenario, options: dict) -> list:
+    """``--after LOGDIR``: diagnose the first log (``measurements``), then the plans that tell its leading causes apart
     (:func:`~besdrake.diagnosis.discrimination.informative_plans`); prints which and what they add against the task's
     random design."""
-    import numpy as np
-
     from besdrake.cli import UserError
     from besdrake.diagnosis import DiagnosisError, diagnose
     from besdrake.diagnosis.discrimination import informative_plans
@@ -216,9 +225,8 @@ def _follow_up(args: argparse.Namespace, options: dict) -> list:
     from besdrake.sim.executors import ExecutorError
     from besdrake.sim.scenario import ScenarioError, load_scenario
 
-    measurements = _read_log(args.after)
     try:
-        scen = load_scenario(args.scenario or _log_scenario(measurements))
+        scen = load_scenario(scenario) if isinstance(scenario, str) else scenario
         with executor_from_args(args, scenario=scen) as ex:
             first = diagnose(measurements, scenario=scen, executor=ex, seed=args.seed,
                              **({} if args.placement_sd is None else {"placement_sd": args.placement_sd}))
@@ -226,11 +234,8 @@ def _follow_up(args: argparse.Namespace, options: dict) -> list:
     except (DiagnosisError, ValueError, ExecutorError, ScenarioError) as err:
         raise UserError(str(err)) from None
     print(f"first log: {first.verdict}")
-    gains = {k: v for k, v in d.gain.items() if np.isfinite(v)}
-    low = sorted(gains.items(), key=lambda kv: kv[1])[:3]
-    print(f"follow-up to tell {d.leader} from {', '.join(d.rivals)}: each of their parameters' information given the others and the first log "
-          f"x{np.median(list(gains.values())) if gains else float('nan'):.2f} (median) against the task's random design, least "
-          + ", ".join(f"{k} x{v:.2f}" for k, v in low))
+    print(f"follow-up to tell {d.leader} from {', '.join(d.rivals)}: each of their parameters' information given the others and the first log, "
+          f"against the task's random design, {_gain_summary(d.gain)}")
     return d.plans
 
 
