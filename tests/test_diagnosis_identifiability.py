@@ -122,6 +122,27 @@ def test_sideways_design_moves_joints_1_4_and_6_within_the_gate_and_keeps_the_pl
         assert sorted(set(mixed)) == sorted(set(planar))  # the same stratified amplitudes, some thrown sideways
 
 
+def test_a_throw_from_turned_wrist_joints_tells_a_scoop_roll_from_a_joint6_offset():
+    """From the untwisted wrist a scoop tilted about its roll axis throws almost as a joint-6 offset does; started
+    with joints 4 and 6 turned the same way (as the design's sideways throws may be), the two throw apart."""
+    from besdrake.diagnosis.discrimination import predicted_features
+    from besdrake.diagnosis.trials import model_for
+    from besdrake.sim.executors import make_executor
+    from besdrake.tasks.throwing.diagnosis.design import SIDE_RANGES
+    from besdrake.tasks.throwing.throws import default_throw, side_throw
+
+    model = model_for("nominal")
+    plans = [default_throw(amplitude=0.45), side_throw(amplitude=0.45, start4=0.5, start6=0.5)]
+    with make_executor("serial", scenario="nominal", limits="flag") as ex:
+        f = predicted_features(ex, model, plans, [{}, {"scoop_mount": {"roll": 0.04}}, {"joint_offset": {"joint6": -0.04}}],
+                               np.arange(model.n_features))
+    roll, j6 = np.nan_to_num(f[1] - f[0]), np.nan_to_num(f[2] - f[0])
+    # Per plan: what of the roll's signature (in noise units) no joint-6 offset of any size reproduces.
+    unexplained = [float(np.sum((r - (r @ j) / (j @ j) * j) ** 2)) for r, j in zip(roll, j6)]
+    assert unexplained[0] < 1.0 < 10.0 < unexplained[1] and unexplained[1] > 30 * unexplained[0], unexplained
+    assert SIDE_RANGES["start4"][1] >= 0.5 and SIDE_RANGES["start6"][1] >= 0.5
+
+
 def _cause(effect: str, params: dict[str, tuple[float, float]], delta_bic: float = 0.0):
     from besdrake.diagnosis.results import Cause
 
