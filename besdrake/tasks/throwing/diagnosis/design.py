@@ -41,7 +41,7 @@ DEFAULT_SIDEWAYS = 5
 #: Uniform ranges (rad) of the sideways throws' joint-1 sweep, joint-4/6 twists during the swing and joint-4/6 start angles.
 #: The start angles reach 0.5 rad (0.15 until session 33): a scoop tilted on its flange about its roll axis and an
 #: offset of joint 6 turn the release almost alike in throws from the untwisted wrist (over a 25-throw log the part of
-#: the tilt's signature a joint-6 offset cannot mimic was 2.4 % of it), while a throw started with joints 4 and 6 turned
+#: the tilt's chi-square a joint-6 offset cannot mimic was 2.5 % of it), while a throw started with joints 4 and 6 turned
 #: the same way by 0.5 rad tells them apart 70 times more per throw (CALIBRATION.md, "Wider wrist starts").
 SIDE_RANGES = {"sweep": (-0.3, 0.3), "twist4": (-0.25, 0.25), "twist6": (-0.25, 0.25), "start4": (-0.5, 0.5), "start6": (-0.5, 0.5)}
 #: Sideways throws use amplitudes from here up (a slow swing from a turned wrist dropped the ball early: amplitude
