@@ -284,6 +284,8 @@ def test_scouting_episodes_counts_every_rung():
     assert scouting_episodes(10, scouts=4, scout_generations=4, scout_halving=True) == (4 + 2) * 4 * 10
     assert scouting_episodes(10, scouts=5, scout_generations=4, scout_halving=True) == (5 + 3 + 2) * 4 * 10
     assert scouting_episodes(20, scouts=1, scout_generations=4, scout_halving=True) == 0  # no race with one scout
+    # The default race (session 34): four scouts in rungs of 3 generations of 10 cost 180 episodes (240 in rungs of 4).
+    assert scouting_episodes(10) == (4 + 2) * 3 * 10
     with pytest.raises(RefinementError):
         scouting_episodes(10, scouts=-1)
 
