@@ -8,7 +8,7 @@ import pytest
 
 from besdrake.search.base import load_state, save_state
 from besdrake.search.cmaes import StagnationRestartCMAES
-from besdrake.search.refinement import (DEFAULT_SCOUTS, RefinementError, RefinementProblem, rank_starts, refine,
+from besdrake.search.refinement import (DEFAULT_SCOUT_GENERATIONS, DEFAULT_SCOUTS, RefinementError, RefinementProblem, rank_starts, refine,
                                         restart_points, run_start_order, scout_start_points)
 from besdrake.tasks.throwing.template_base import fitted_default_throw
 from besdrake.tasks.throwing.reward import ThrowReward
@@ -418,6 +418,23 @@ def test_scouting_refine_resumes_and_a_default_run_is_another_run(base, tmp_path
     for bad in ({"scouts": -1}, {"scout_generations": 0}, {"patience": 0}):
         with pytest.raises(RefinementError):
             refine(RefinementProblem(COMPI, base), StandIn(), n_episodes=12, **(kw | bad))
+
+
+def test_a_run_begun_with_another_race_resumes_with_its_own(base, tmp_path):
+    """A run folder begun with rungs of 4 generations (the default until session 34) resumes under the new default with
+    its own race: the same episodes as the uninterrupted run, not "another refinement run"."""
+    kw = dict(seed=3, popsize=6, stagnation_generations=50, stop_on_success=False, scouts=3)
+    n = (3 + 2) * 4 * 6 + 12
+    refine(RefinementProblem(COMPI, base), StandIn(), n_episodes=30, out_dir=tmp_path / "old", scout_generations=4, **kw)
+    again = refine(RefinementProblem(COMPI, base), StandIn(), n_episodes=n, out_dir=tmp_path / "old", **kw)
+    whole = refine(RefinementProblem(COMPI, base), StandIn(), n_episodes=n, scout_generations=4, **kw)
+    assert again.resumed and np.array_equal(whole.rewards, again.rewards)
+    assert [a["generations"] for a in again.attempts[:3]] == [4, 4, 4]
+    # a new folder takes the default, and an explicit rung length that differs from the record is refused
+    fresh = refine(RefinementProblem(COMPI, base), StandIn(), n_episodes=n, out_dir=tmp_path / "new", **kw)
+    assert [a["generations"] for a in fresh.attempts[:3]] == [DEFAULT_SCOUT_GENERATIONS] * 3
+    with pytest.raises(RefinementError, match="another refinement"):
+        refine(RefinementProblem(COMPI, base), StandIn(), n_episodes=n + 6, out_dir=tmp_path / "old", scout_generations=3, **kw)
 
 
 def test_default_step_is_the_measured_sigma0_and_small_restarts_scale_with_it(base):

@@ -155,9 +155,13 @@ def refine(
     distance (its robust distance where a robust check ran) is below it: a margin inside the goal. ``stall``: end the
     run early once it has stalled (:class:`StallRule`; decided from the episode log, so a resumed run decides the same);
     its result's ``stop_reason`` is then ``"stalled"``. ``switch_distance`` (m): a raced scout that went on and stalled
-    farther than this hands over to the next scout the race eliminated (:func:`make_optimizer`)."""
+    farther than this hands over to the next scout the race eliminated (:func:`make_optimizer`). ``scout_generations``
+    None: the rung length the run in ``out_dir`` began with, else :data:`DEFAULT_SCOUT_GENERATIONS` (a killed run resumes
+    with its own race after the default changed)."""
     from besdrake.search.loop import run_search
 
+    if scout_generations is None:  # a run keeps the race it began with where the default has changed since (4 -> 3)
+        scout_generations = _saved_scout_generations(None if out_dir is None else Path(out_dir))
     settings = _checked_settings(n_episodes, meta_episodes, meta_sigma, stagnation_generations, patience, cma_options,
                                  restart_regimes, popsize_growth, scouts, scout_generations, scout_halving)
     search = dict(meta_episodes=meta_episodes, meta_sigma=meta_sigma, starts=starts, restart_from_best=restart_from_best,
@@ -185,6 +189,18 @@ def refine(
     if stall is not None and result.stop_reason != "optimizer" and not result.reached(stop) and stall.stalled(-result.rewards):
         result.stop_reason = "stalled"
     return result
+
+
+def _saved_scout_generations(out: Path | None) -> int | None:
+    """The rung length of the scouts' race that the run in ``out`` began with (its record), None where there is none."""
+    path = None if out is None else out / PROBLEM_FILE
+    if path is None or not path.is_file():
+        return None
+    try:
+        value = json.loads(path.read_text()).get("scout_generations")
+    except (OSError, json.JSONDecodeError, AttributeError):
+        return None  # _open_run_folder reports a corrupt record
+    return int(value) if isinstance(value, int) and value >= 1 else None
 
 
 def _logged_objectives(out: Path | None) -> list[float]:
