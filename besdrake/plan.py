@@ -29,6 +29,8 @@ from besdrake.robot import JointLimits
 #: (:meth:`MotionPlan.with_follow_through_within`), and the time (s) over which the speed changes.
 FOLLOW_THROUGH_FACTORS = (0.85, 0.7, 0.55, 0.4)
 FOLLOW_THROUGH_WINDOW = 0.3
+#: Share of each joint's acceleration limit that :meth:`MotionPlan.stopped_after` brakes a follow-through with.
+BRAKE_SHARE = 0.9
 
 
 def _speed_profile(at: float, factor: float, window: float):
@@ -228,6 +230,28 @@ class MotionPlan:
                           qd=np.vstack([qd_keep, self.sample(s_later, 1) * rate(s_later)[:, None]]),
                           meta=dict(self.meta) | {"slowed_after_s": float(at), "slowed_factor": float(factor)},
                           joint_names=self.joint_names)
+
+    def stopped_after(self, at: float, limits: JointLimits, share: float = BRAKE_SHARE) -> "MotionPlan":
+        """This plan up to its first knot at or after ``at`` s, then every joint braked to rest at a constant
+        deceleration (all joints stopping together, none beyond ``share`` of its acceleration limit): what is left of a
+        follow-through when its path would leave the position limits. Knots keep this plan's median step."""
+        self.validate()
+        if not (np.isfinite(at) and np.isfinite(share) and 0.0 < share <= 1.0):
+            raise PlanError(f"stopped_after: need a finite time and 0 < share <= 1, got {at!r}, {share!r}")
+        k = int(np.searchsorted(self.t, at - 1e-12))
+        if k >= self.t.size - 1:  # nothing follows
+            return self
+        q0, v0 = self.q[k], self.knot_velocities()[k]
+        acc = np.asarray(self._limits_for(limits).acceleration, dtype=float) * share
+        stop = float(np.max(np.abs(v0) / acc))
+        step = float(np.median(np.diff(self.t)))
+        tau = np.linspace(0.0, stop, max(2, int(np.ceil(stop / step)) + 1))[1:] if stop > 0 else np.array([step])
+        frac = np.clip(tau / max(stop, 1e-12), 0.0, 1.0)[:, None]
+        q = q0 + v0 * np.minimum(tau[:, None], stop) * (1.0 - 0.5 * frac)
+        qd = v0 * (1.0 - frac)
+        return MotionPlan(t=np.concatenate([self.t[: k + 1], self.t[k] + tau]), q=np.vstack([self.q[: k + 1], q]),
+                          qd=np.vstack([self.knot_velocities()[: k + 1], qd]),
+                          meta=dict(self.meta) | {"stopped_after_s": float(self.t[k])}, joint_names=self.joint_names)
 
     def with_follow_through_within(self, limits: JointLimits, at: float, factors: tuple[float, ...] = FOLLOW_THROUGH_FACTORS,
                                    window: float = FOLLOW_THROUGH_WINDOW) -> "MotionPlan":

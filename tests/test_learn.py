@@ -101,7 +101,8 @@ def test_unknown_stage_is_refused(tmp_path, capsys):
                                       "templates.slowest=0.5", "templates.slowest=fast", "templates.reach_objective=sideways",
                                       "templates.follow_through=-0.1", "templates.follow_through=late",
                                       "templates.reach_robust=sometimes", "refinement.switch_distance=0",
-                                      "refinement.switch_distance=far"])
+                                      "refinement.switch_distance=far", "refinement.turn_distance=0.5",
+                                      "templates.robust_sd=-0.001", "templates.robust_sd=lots"])
 def test_a_bad_refinement_transfer_or_diagnosis_setting_is_refused_before_any_stage_runs(tmp_path, capsys, override):
     code = main(["learn", "--quick", "--set", override, "--out", str(tmp_path / "run")])
     err = capsys.readouterr().err
@@ -140,9 +141,12 @@ def test_quick_run_goes_from_demonstrations_to_a_template_pool(tmp_path, capsys)
     assert reach["target_m"] == [2.35, 0.0] and reach["episodes"] <= 20 and reach["start_distance_m"] > 0
     assert reach["kept"] == ("floor_m" in reach and reach["floor_m"][1] < reach["floor_m"][0])
     assert ("08_template/reach" in records["template"]["base"]) == reach["kept"]
-    # templates.reach_robust false (default): the reach refinement scores throws as thrown, the refinement robustly
+    # templates.reach_robust true (default): the reach refinement scores throws near its target robustly, as the
+    # refinement does; templates.robust_sd: the template's episodes are rewarded over the ball's placement scatter
     reach_problem, refine_problem = (json.loads((out / f / "run0" / "problem.json").read_text()) for f in ("08_template/reach", "04_refine"))
-    assert reach_problem.get("robust") is None and refine_problem["robust"]["radius"] > 0
+    assert reach_problem["robust"]["radius"] > 0 and refine_problem["robust"]["radius"] > 0
+    template = json.loads((out / "08_template" / "throw.template.json").read_text())
+    assert "expected over 9 setups" in template["provenance"]["reward"]
     from besdrake.search.templates import TemplatePool
 
     plan = TemplatePool(out / "09_pool").instantiate("throw", [1.9, 0.2])
@@ -224,6 +228,19 @@ def test_refinement_runs_in_turn_stop_at_the_first_that_succeeds():
     assert len(calls) == 2 and calls == ["ex", "ex"]
     # a success outside the stop distance (its robust distance where checked) does not end the turn
     assert _runs_in_turn([job(robustly_far), job(near)], "ex", 0.05) == [robustly_far, near]
+    # a turn distance at the goal: a run within it ends the turn though it never got within the stop distance
+    assert _runs_in_turn([job(robustly_far), job(near)], "ex", 0.1) == [robustly_far]
+
+
+def test_the_turn_distance_defaults_to_the_stop_distance_and_is_checked():
+    from besdrake.pipeline.config import ConfigError, load_config
+    from besdrake.tasks.throwing.learn import refinement_settings
+
+    assert refinement_settings(load_config(overrides=["refinement.turn_distance=0.1"]))["turn_distance"] == 0.1
+    assert refinement_settings(load_config())["turn_distance"] in (None, 0.1)
+    for bad in ("0", "0.5", "far"):
+        with pytest.raises(ConfigError, match="turn_distance"):
+            refinement_settings(load_config(overrides=[f"refinement.turn_distance={bad}"]))
 
 def test_the_transfer_is_seeded_with_the_refinements_best_throw_first(tmp_path):
     """The first seed is the Transferability search's template (its goal velocity): the refinement's best throw."""

@@ -194,3 +194,26 @@ def test_peak_limit_ratios_until_a_time_see_only_the_plan_before_it():
     assert full_v[0] > 1.5 and early_v[0] < 0.3 and np.all(early_a <= full_a + 1e-12)
     same_v, same_a = plan.peak_limit_ratios(limits, until=plan.duration)
     assert np.allclose(same_v, full_v) and np.allclose(same_a, full_a)
+
+
+def test_a_plan_stopped_after_a_time_brakes_every_joint_to_rest_within_its_limits():
+    from besdrake.robot import load_robot
+
+    robot = load_robot("compi")
+    t = np.linspace(0.0, 1.0, 101)
+    q = np.outer(np.sin(2.0 * t), np.linspace(0.2, 1.2, 6))  # every joint still moving at 0.5 s
+    plan = MotionPlan(t=t, q=q, qd=np.outer(2.0 * np.cos(2.0 * t), np.linspace(0.2, 1.2, 6)))
+    stopped = plan.stopped_after(0.5, robot.limits, share=0.5)
+    k = int(np.searchsorted(t, 0.5))
+    assert np.array_equal(stopped.t[: k + 1], t[: k + 1]) and np.array_equal(stopped.q[: k + 1], q[: k + 1])
+    assert np.all(stopped.qd[-1] == 0.0) and stopped.meta["stopped_after_s"] == pytest.approx(0.5)
+    v0 = plan.qd[k]
+    acc = np.abs(stopped.sample(np.linspace(0.51, stopped.duration, 200), 2))
+    assert acc.max() <= 0.5 * robot.limits.acceleration.max() + 1e-6  # the joint that needs longest brakes at half its limit
+    travel = stopped.q[-1] - q[k]
+    stop = stopped.duration - t[k]
+    assert np.allclose(travel, 0.5 * v0 * stop)  # constant deceleration: half the speed times the time to stop
+    assert np.all(np.diff(stopped.t) > 0) and stopped.check_limits(robot.limits).ok
+    assert plan.stopped_after(1.0, robot.limits) is plan  # nothing follows
+    with pytest.raises(PlanError):
+        plan.stopped_after(0.5, robot.limits, share=0.0)

@@ -234,8 +234,12 @@ def test_template_cli_train_list_instantiate(tmp_path):
     assert main(["template", "instantiate", "t1", *common]) == 2  # no --target
     assert main(["template", "eval", "missing", *common]) == 2
     assert main(["template", "train", "default", "--name", "t2", "--extend-probes", "-1", "--episodes", "6", *common]) == 2
+    assert main(["template", "train", "default", "--name", "t2", "--robust-sd", "nan", "--episodes", "6", *common]) == 2
     assert "t2" not in TemplatePool(pool)
     assert json.loads((pool / "pool.json").read_text())["templates"]["t1"]["provenance"]["method"] == "ucb"
+    assert main(["template", "train", "default", "--name", "t3", "--method", "ucb", "--episodes", "4", "--probes", "0",
+                 "--robust-sd", "0.002", "--no-figures", *common]) == 0
+    assert "over 9 setups" in TemplatePool(pool).provenance("t3")["reward"]
 
 
 def test_creps_baseline_trains_saves_and_loads(base, tmp_path):
@@ -450,3 +454,105 @@ def test_radial_reward_scores_the_range_in_any_direction():
     assert ThrowReward.from_dict(radial.to_dict()).radial and "radial" not in ThrowReward().to_dict()
     with pytest.raises(ValueError, match="radial"):
         ThrowReward(radial="yes")
+
+
+class ScatteredStandIn(PolarStandIn):
+    """PolarStandIn whose fast throws (under ``cliff`` s) sit on a placement cliff: a ball put off centre (the task's
+    ``ball_placement`` effect) lands ``drop`` m shorter per mm, either way."""
+
+    def __init__(self, cliff: float = 1.0, drop: float = 0.1) -> None:
+        super().__init__()
+        self.cliff, self.drop = cliff, drop
+
+    def evaluate(self, plans, effects=None):
+        effects = [effects] * len(plans) if effects is None or isinstance(effects, dict) else effects
+        out = super().evaluate(plans)
+        for p, e, o in zip(plans, effects, out):
+            off = np.hypot(*(e or {}).get("ball_placement", {"x": 0.0, "y": 0.0}).values())
+            if p.duration < self.cliff and off > 0:
+                o.touchdown = o.touchdown * (1.0 - self.drop * 1000.0 * off / np.linalg.norm(o.touchdown))
+        return out
+
+
+def _scatter(sd: float = 0.002):
+    from besdrake.sim.scenario import load_scenario
+    from besdrake.task import get_task
+
+    return get_task("throwing").scatter_effects(load_scenario("nominal"), sd)
+
+
+def test_a_scattered_setup_rewards_the_expected_miss_and_probes_first(base):
+    from besdrake.search.templates import _episode_reward
+
+    effects, weights = _scatter()
+    meta = MetaDMP(base, COMPI)
+    bounds = default_meta_bounds(base, COMPI)
+    ex = ScatteredStandIn(cliff=0.5 * (bounds[0, 0] + bounds[0, 1]))
+    reward = _episode_reward(meta, bounds, ex, (effects, weights))
+    target = np.array([2.0, 0.0])  # beyond the fast throw's centred touchdown (1.82 m)
+    slow, fast = np.array([bounds[0, 1], 0.0]), np.array([bounds[0, 0], 0.0])
+    # a slow throw stays put: the nominal and two probes, the reward its own squared miss
+    r_slow = reward(target, slow)
+    assert ex.calls == 3
+    nominal = ex.evaluate([meta.plan(slow)])[0].touchdown
+    assert r_slow == pytest.approx(-np.sum((nominal - target) ** 2))
+    # a fast throw on the cliff: every placement simulated, the reward the quadrature's expected squared miss
+    ex.calls = 0
+    r_fast = reward(target, fast)
+    assert ex.calls == len(effects)
+    tds = np.array([o.touchdown for o in ex.evaluate([meta.plan(fast)] * len(effects), effects=effects)])
+    assert r_fast == pytest.approx(-float(weights @ np.sum((tds - target) ** 2, axis=1)))
+    assert r_fast < -np.sum((tds[0] - target) ** 2)  # worse than its centred miss: the scatter counts
+    assert _episode_reward(meta, bounds, PolarStandIn())(target, fast) == pytest.approx(-np.sum((tds[0] - target) ** 2))
+
+
+def test_a_template_trained_over_the_scatter_lands_on_average_where_asked(base):
+    """Fast throws land shorter off centre: the template trained over the scatter throws them farther, so that their
+    expected miss over the scatter is smaller than a template trained on the centred ball alone."""
+    effects, weights = _scatter()
+    bounds = default_meta_bounds(base, COMPI)
+    cliff = 0.5 * (bounds[0, 0] + bounds[0, 1])
+    far = np.array([[1.6, 0.0]])  # only throws on the cliff (faster than ``cliff``: beyond 1.06 m) reach it
+
+    def expected_miss(training) -> float:
+        plan = training.template.instantiate(far[0])
+        tds = np.array([o.touchdown for o in ScatteredStandIn(cliff, 0.05).evaluate([plan] * len(effects), effects=effects)])
+        return float(np.sqrt(weights @ np.sum((tds - far[0]) ** 2, axis=1)))
+
+    plain = train_template(base, ScatteredStandIn(cliff, 0.05), "ucb", 40, seed=0, probes=0, meta_bounds=bounds)
+    robust = train_template(base, ScatteredStandIn(cliff, 0.05), "ucb", 40, seed=0, probes=0, meta_bounds=bounds,
+                            scatter=(effects, weights))
+    assert "expected over 9 setups" in robust.template.provenance["reward"]
+    assert expected_miss(robust) < expected_miss(plain)
+    with pytest.raises(TemplateError, match="scatter"):
+        train_template(base, PolarStandIn(), "ucb", 4, probes=0, scatter=(effects[1:], weights[1:]))
+
+
+def test_a_template_brakes_a_follow_through_that_would_leave_joint_1s_limits():
+    """Issue 27 (subject 4's base: a joint-1 sweep that ends 0.34 rad below its limit). After the follow-through
+    phase the ball has left: a plan rotated so far that the rest of its sweep would leave joint 1's limits is braked
+    to rest there instead, so the box reaches farther round; the ball lands where the unbraked plan's does."""
+    from besdrake.imitation import DMP
+    from besdrake.sim.executors import make_executor
+
+    sweep = _late_sweep_base()
+    plan = sweep.open_loop(0.01)
+    q = plan.y + np.r_[np.pi - 0.3 - plan.y[-1, 0], np.zeros(plan.y.shape[1] - 1)]  # the sweep ends 0.3 rad from the limit
+    base = DMP(q.shape[1], 10).fit(plan.t, q)
+    plain, braked = default_meta_bounds(base, COMPI), default_meta_bounds(base, COMPI, follow_through=0.55)
+    assert plain[1, 1] <= np.pi and braked[1, 1] > plain[1, 1] + 0.1
+    meta = MetaDMP(base, COMPI, follow_through=0.55)
+    theta = np.array([float(base.execution_time), braked[1, 1]])
+    played, uniform = meta.plan(theta), MetaDMP(base, COMPI).plan(theta)
+    assert not uniform.check_limits(COMPI.limits).ok and played.check_limits(COMPI.limits).ok
+    assert played.meta["stopped_after_s"] >= 0.55 * uniform.duration and np.all(played.qd[-1] == 0.0)
+    n = int(np.sum(uniform.t <= played.meta["stopped_after_s"]))
+    assert np.array_equal(played.q[:n], uniform.q[:n])
+    # within the limits a plan is played as it was; braked, it throws the same
+    inside = np.array([plain[0, 1], float(base.goal[0])])
+    assert MetaDMP(base, COMPI).plan(inside).check_limits(COMPI.limits).ok
+    assert np.array_equal(meta.plan(inside).q, MetaDMP(base, COMPI).plan(inside).q)
+    free = MetaDMP(base, COMPI).plan(inside)
+    with make_executor("serial", scenario="nominal") as ex:
+        a, b = ex.evaluate([free, free.stopped_after(0.55 * free.duration, COMPI.limits)])
+    assert a.touchdown is not None and np.allclose(a.touchdown, b.touchdown, atol=1e-9)

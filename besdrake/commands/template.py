@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
 from pathlib import Path
@@ -44,6 +45,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="train: s after the base's release (thrown once at its own speed) from which a plan that breaks a joint "
                              "limit is played slower until it keeps them (the arm's follow-through no longer moves the ball); 'none': "
                              "the whole throw played uniformly (default 0.05)")
+    parser.add_argument("--robust-sd", type=float, default=0.0, metavar="M",
+                        help="train: m per axis of the lab's setup scatter (the ball's placement) that each episode is rewarded "
+                             "over: its expected squared miss over the task's quadrature (default 0: the setup as designed; "
+                             "besdrake learn: 0.002)")
     parser.add_argument("--overwrite", action="store_true", help="train: replace a template of the same name")
     parser.add_argument("--target", "--context", dest="target", nargs=2, type=float, metavar=("X", "Y"), help="instantiate: target (x forward, y lateral), m")
     parser.add_argument("--plan-out", type=Path, default=None, help="instantiate: write the motion plan JSON here")
@@ -137,6 +142,13 @@ def _follow_through_after(value: str | None) -> float | None:
     return after
 
 
+def _scatter(scenario, sd: float):
+    """The scenario's task's setup scatter of ``sd`` as a quadrature (effects, weights), or None (``sd`` 0)."""
+    from besdrake.task import get_task
+
+    return get_task(scenario.task).scatter_effects(scenario, sd) if sd > 0 else None
+
+
 def _train(args, pool) -> int:
     from besdrake.cli import UserError
     from besdrake.imitation import DMPParameterError, load_dmp
@@ -150,6 +162,8 @@ def _train(args, pool) -> int:
         raise UserError(f"--probes must be >= 0, got {args.probes}")
     if args.extend_probes is not None and not 0 <= args.extend_probes <= 10:
         raise UserError(f"--extend-probes must be within [0, 10], got {args.extend_probes}")
+    if not (math.isfinite(args.robust_sd) and 0.0 <= args.robust_sd <= 0.05):
+        raise UserError(f"--robust-sd must be within [0, 0.05] m, got {args.robust_sd}")
     after = _follow_through_after(args.follow_through)
     name = args.name or f"{args.method}_seed{args.seed}"
     if name in pool and not args.overwrite:
@@ -183,7 +197,8 @@ def _train(args, pool) -> int:
                                       joint1_mode=args.joint1_mode, checkpoints=checkpoints, time_mode=args.time_mode,
                                       probes=DEFAULT_PROBES if args.probes is None else args.probes, follow_through=follow,
                                       extend_probes=EXTEND_PROBES if args.extend_probes is None else args.extend_probes,
-                                      provenance={"base_dmp": base_source, "run_dir": str(run_dir)}, progress=progress)
+                                      provenance={"base_dmp": base_source, "run_dir": str(run_dir)}, progress=progress,
+                                      scatter=_scatter(ex.scenario, args.robust_sd))
             ev = evaluate_template(training.template, ex)
     except ResumeError as err:
         raise UserError(f"{run_dir}: {err}") from None

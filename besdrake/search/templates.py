@@ -84,6 +84,10 @@ META_NAMES = ("execution_time", "goal.joint1")
 #: where the range changes fastest (subject 1: 4.15 -> 6.60 cm; subject 3 2.04 -> 1.71): no gain over 4 subjects, so the
 #: default stays 2x (session 18, scripts/bench_learn_templates.py).
 SCALE_SLOWEST = 2.0
+#: rad kept from joint 1's position limits by a box whose follow-through is braked (:func:`default_meta_bounds`).
+BRAKED_MARGIN = 1e-3
+#: Distance (m) counted for a rollout under the scatter (``train_template(scatter=...)``) that gives no touchdown.
+SCATTER_MISS_DISTANCE = 1.0
 #: Paper's results on the real robot after 80 episodes (mean distance over the test contexts, cm).
 PAPER_MEAN_CM = {"es": 9.01, "ucb": 19.74}
 
@@ -99,7 +103,8 @@ def default_meta_bounds(base: DMP, robot: Robot, respect_limits: bool = True, jo
     the base's.
 
     With ``respect_limits`` the box shrinks to plans within the robot's joint limits: in ``"rotate"`` mode
-    the joint-1 goal range keeps the whole rotated joint-1 path inside its limits, and the execution time
+    the joint-1 goal range keeps the whole rotated joint-1 path inside its limits (with ``follow_through``, the path
+    with its follow-through braked, :meth:`MetaDMP.stopped_path`; the goal itself may then lie beyond them), and the execution time
     is limited to :func:`limit_safe_execution_times` (a faster execution scales velocities by 1/k and
     accelerations by 1/k^2; a refined DMP's path may also change shape with its execution time; with
     ``follow_through`` a plan whose follow-through alone breaks a limit is slowed there, :class:`MetaDMP`). When no
@@ -113,13 +118,15 @@ def default_meta_bounds(base: DMP, robot: Robot, respect_limits: bool = True, jo
         raise TemplateError(f"the slowest execution time of a template is > 1 x its base's, got {slowest!r}")
     hi = max(lo + 0.1, (float(slowest) if time_mode == "scale" else 1.6) * tau)
     jl = robot.position_limits[0]
-    bounds = np.array([[lo, hi], [max(jl[0], g1 - 0.9), min(jl[1], g1 + 0.9)]])
+    braked = joint1_mode == "rotate" and follow_through is not None  # the path, not the goal, must keep the limits
+    bounds = np.array([[lo, hi], [g1 - 0.9, g1 + 0.9] if braked else [max(jl[0], g1 - 0.9), min(jl[1], g1 + 0.9)]])
     if respect_limits:
         meta = MetaDMP(base, robot, joint1_mode, time_mode=time_mode, follow_through=follow_through)
-        if joint1_mode == "rotate":  # the whole joint-1 path shifts with the goal
-            q1 = meta.plan(np.array([tau, g1])).q[:, 0]
-            bounds[1, 0] = max(bounds[1, 0], g1 + jl[0] - q1.min())
-            bounds[1, 1] = min(bounds[1, 1], g1 + jl[1] - q1.max())
+        if joint1_mode == "rotate":  # the whole joint-1 path shifts with the goal (its follow-through braked, if it has one)
+            q1 = (meta.stopped_path if braked else meta.plan)(np.array([tau, g1])).q[:, 0]
+            margin = BRAKED_MARGIN if braked else 0.0  # a rotated path repeats the base's to ~1e-5 rad
+            bounds[1, 0] = max(bounds[1, 0], g1 + jl[0] - q1.min() + margin)
+            bounds[1, 1] = min(bounds[1, 1], g1 + jl[1] - q1.max() - margin)
             if bounds[1, 0] >= bounds[1, 1]:
                 bounds[1] = [g1 - 1e-3, g1 + 1e-3]
         safe = limit_safe_execution_times(meta, bounds)
@@ -193,6 +200,11 @@ class MetaDMP:
     that the limits of the follow-through do not cap how fast the part before it may go (issue 27, session 25: on two
     of learn's five bases the limits bound only after the release, subject 1 at 0.97 of a limit 0.19 s after it and
     0.82-0.91 before it, so playing the whole movement uniformly faster stopped at 1.96-2.02 m, short of the 2.2 m row).
+    A plan whose follow-through would leave a joint's *position* limits (which no slower playing mends) is braked to
+    rest there instead (:meth:`~besdrake.plan.MotionPlan.stopped_after`), and in ``"rotate"`` mode the joint-1 box is
+    the rotation that keeps the braked path inside the limits (:func:`default_meta_bounds`): session 35, subject 4's
+    base swept joint 1 on by 0.54 rad after its release, which capped the box 0.34 rad round, short of the near
+    row's left targets.
     """
 
     base: DMP
@@ -248,7 +260,19 @@ class MetaDMP:
         plan = MotionPlan(t=traj.t, q=traj.y, qd=traj.yd, meta=meta, joint_names=self.robot.joint_names)
         if self.follow_through is None:
             return plan
-        return plan.with_follow_through_within(self.robot.limits, self.follow_through * plan.duration)
+        at = self.follow_through * plan.duration
+        played = plan.with_follow_through_within(self.robot.limits, at)
+        if played.check_limits(self.robot.limits).ok:
+            return played
+        stopped = plan.stopped_after(at, self.robot.limits)  # a follow-through that leaves the position limits
+        return stopped if stopped.check_limits(self.robot.limits).ok else played
+
+    def stopped_path(self, theta: np.ndarray) -> MotionPlan:
+        """``theta``'s plan with its follow-through braked to rest (:meth:`~besdrake.plan.MotionPlan.stopped_after`),
+        the shortest path a plan of it may take (without ``follow_through``: the plan)."""
+        plan = self.dmp(theta).open_loop(self.dt)
+        plan = MotionPlan(t=plan.t, q=plan.y, qd=plan.yd, joint_names=self.robot.joint_names)
+        return plan if self.follow_through is None else plan.stopped_after(self.follow_through * plan.duration, self.robot.limits)
 
 
 #: C-REPS settings of a template (issue 27, session 25): a quadratic policy in the context (the probes' policy fitted
@@ -533,6 +557,7 @@ def train_template(
     extend_probes: int = EXTEND_PROBES,
     extend_factor: float = EXTEND_FACTOR,
     follow_through: float | None = None,
+    scatter: tuple[list, Any] | None = None,
 ) -> TemplateTraining:
     """Learn a behaviour template from ``base`` with ``method`` in ``n_episodes`` rollouts.
 
@@ -549,7 +574,12 @@ def train_template(
     beyond the context box's nearest target and the box is not given, ``extend_probes`` more probes (out of
     ``n_episodes``) go up to ``extend_factor`` x that slowest time and the box follows them
     (:func:`~besdrake.search.template_reach.extend_probe`). ``follow_through``: the phase of the base after which its
-    movement no longer changes the outcome (``"scale"`` mode; :class:`MetaDMP`), or None.
+    movement no longer changes the outcome (``"scale"`` mode; :class:`MetaDMP`), or None. ``scatter``: the lab's
+    trial-to-trial scatter of the setup as a quadrature (:meth:`besdrake.task.Task.scatter_effects`: effects, the
+    nominal first as None, and weights); each episode's plan is then simulated as designed and under the two setups
+    farthest apart, under the others too where those move its touchdown by 1 cm or more (:func:`_touchdowns_under`),
+    and rewarded by the expected squared distance, so the template learns where its plans land on average and
+    prefers the steadier ones.
     """
     from besdrake.search.loop import run_contextual_search
 
@@ -565,15 +595,28 @@ def train_template(
     if probe is not None:  # extension probes are episodes too
         n_probes = max(n_probes, len(probe.taus))
     optimizer = _template_optimizer(method, bounds, seed, probe if reach_prior else None, optimizer_kwargs)
-    evaluate = _episode_reward(meta, bounds, executor)
+    evaluate = _episode_reward(meta, bounds, executor, _check_scatter(scatter))
     curve: dict[int, float] = {}
     callback = _episode_callback(name, meta, bounds, executor, n_probes, checkpoints, eval_contexts, progress, curve)
     t0 = time.perf_counter()
     loop = run_contextual_search(optimizer, evaluate, n_episodes - n_probes, CONTEXT_BOUNDS, out_dir=out_dir, callback=callback)
     wall = time.perf_counter() - t0
     prov = _provenance(method, loop, n_probes, seed, meta, probe, reach_prior, executor) | dict(provenance or {})
+    if scatter is not None:
+        prov["reward"] = f"-(squared touchdown distance, m^2), expected over {len(scatter[0])} setups of the lab's scatter"
     template = BehaviorTemplate(name, meta, bounds, loop.optimizer, prov)
     return TemplateTraining(template, loop, curve, wall)
+
+
+def _check_scatter(scatter) -> tuple[list, np.ndarray] | None:
+    """``scatter`` as (effects, weights), or None; TemplateError where it is not a quadrature with the nominal first."""
+    if scatter is None:
+        return None
+    effects, weights = list(scatter[0]), np.asarray(scatter[1], dtype=float).ravel()
+    if (not effects or effects[0] is not None or weights.size != len(effects) or not np.isfinite(weights).all()
+            or (weights < 0).any() or abs(weights.sum() - 1.0) > 1e-9):
+        raise TemplateError("scatter must be (effects with the nominal None first, one weight each, >= 0, summing to 1)")
+    return (effects, weights) if len(effects) > 1 else None
 
 
 def _check_request(method: str, n_episodes: int) -> None:
@@ -592,17 +635,50 @@ def _robot_of(robot: Robot | None, executor) -> Robot:
     return robot
 
 
-def _episode_reward(meta: MetaDMP, bounds: np.ndarray, executor) -> Callable[[np.ndarray, np.ndarray], float]:
-    """The contextual reward: minus the squared distance of the touchdown of ``theta``'s plan from the context."""
+def _episode_reward(meta: MetaDMP, bounds: np.ndarray, executor, scatter=None) -> Callable[[np.ndarray, np.ndarray], float]:
+    """The contextual reward: minus the squared distance of the touchdown of ``theta``'s plan from the context; with
+    ``scatter`` (effects, nominal first as None, and quadrature weights) its expectation over the setup's scatter
+    (:func:`_touchdowns_under`)."""
+    effects, weights = (([None], np.ones(1)) if scatter is None else (list(scatter[0]), np.asarray(scatter[1], dtype=float)))
 
     def evaluate(context: np.ndarray, theta: np.ndarray) -> float:
         # C-REPS samples from a Gaussian: execute the nearest parameters inside the box
-        td = touchdowns([meta.plan(np.clip(theta, bounds[:, 0], bounds[:, 1]))], executor)[0]
-        if not np.isfinite(td).all():
+        plan = meta.plan(np.clip(theta, bounds[:, 0], bounds[:, 1]))
+        td = touchdowns([plan], executor) if len(effects) == 1 else _touchdowns_under(plan, effects, weights, executor)
+        if not np.isfinite(td[0]).all():
             raise RuntimeError("no touchdown (never released or simulation failed)")
-        return -float(np.sum((td - context) ** 2))
+        d2 = np.sum((td - context) ** 2, axis=1)
+        return -float(weights @ np.where(np.isfinite(d2), d2, SCATTER_MISS_DISTANCE**2))
 
     return evaluate
+
+
+def _touchdowns_under(plan: MotionPlan, effects: list, weights: np.ndarray, executor) -> np.ndarray:
+    """(k, 2) touchdowns of one plan under each of ``effects`` (the nominal first; NaN where none). The nominal and the
+    two setups farthest apart are simulated first; where both land within the refinement's probe tolerance of the
+    nominal the others count as landing where it does (as the refinement's robust check does), else they are simulated."""
+    from besdrake.search.refinement.robust import RobustCheck
+
+    check = RobustCheck(effects[1:], weights)
+    probes = [1 + k for k in check.probes()]
+    first = _touchdowns_of([plan] * (1 + len(probes)), [None] + [effects[k] for k in probes], executor)
+    out = np.repeat(first[:1], len(effects), axis=0)
+    out[probes] = first[1:]
+    moved = np.linalg.norm(first[1:] - first[0], axis=1)
+    if not (np.isfinite(moved).all() and (moved < check.probe_tolerance).all()):
+        rest = [k for k in range(1, len(effects)) if k not in probes]
+        out[rest] = _touchdowns_of([plan] * len(rest), [effects[k] for k in rest], executor)
+    return out
+
+
+def _touchdowns_of(plans: list[MotionPlan], effects: list, executor) -> np.ndarray:
+    """(n, 2) touchdowns of ``plans`` under ``effects`` (one each; NaN where none)."""
+    outcomes = executor.evaluate(plans, effects=effects)
+    out = np.full((len(plans), 2), np.nan)
+    for i, o in enumerate(outcomes):
+        if o.touchdown is not None and not o.flags.get("sim_failed"):
+            out[i] = np.asarray(o.touchdown, dtype=float)[:2]
+    return out
 
 
 def _episode_callback(name: str, meta: MetaDMP, bounds: np.ndarray, executor, n_probes: int, checkpoints: tuple[int, ...],

@@ -330,7 +330,7 @@ def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int
 
         jobs = [run_job(k) for k in range(n_runs)]
         if settings["stop_on_success"] and settings["runs_in_turn"]:
-            results = _runs_in_turn(jobs, executor, settings["stop_distance"] or SUCCESS_DISTANCE)
+            results = _runs_in_turn(jobs, executor, settings["turn_distance"] or settings["stop_distance"] or SUCCESS_DISTANCE)
         else:  # independent runs: their generations share the pool, one wider batch per round (same results)
             results = run_concurrently(executor, jobs)
     runs = _save_refined([problems[run_starts[k][0]] for k in range(len(results))], robot, results, out)
@@ -350,13 +350,13 @@ def _refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int
     }
 
 
-def _runs_in_turn(jobs: list, executor, stop_distance: float) -> list:
-    """The CMA-ES runs one after the other on ``executor``, up to the first that stops at a throw within
-    ``stop_distance`` (its robust distance where checked): a later run only where every earlier one failed."""
+def _runs_in_turn(jobs: list, executor, turn_distance: float) -> list:
+    """The CMA-ES runs one after the other on ``executor``, up to the first that found a throw within
+    ``turn_distance`` (its robust distance where checked): a later run only where every earlier one failed."""
     results = []
     for job in jobs:
         results.append(job(executor))
-        if results[-1].reached(stop_distance):
+        if results[-1].reached(turn_distance):
             break
     return results
 
@@ -403,7 +403,8 @@ def _save_throw(dmp, robot, out: Path, k: int) -> None:
 def refinement_settings(config: dict[str, Any]) -> dict[str, Any]:
     """The refinement section's stop and robustness settings, checked (:class:`~besdrake.pipeline.config.ConfigError`):
     ``stop_on_success``, ``runs_in_turn`` (the runs one after the other up to the first success), ``stop_distance`` (m;
-    null: the success distance) and ``robust_sd`` (m per axis; 0: no robust check), ``robust_radius`` (m), ``stall`` (a
+    null: the success distance), ``turn_distance`` (m: with ``runs_in_turn`` a run follows only where every earlier one
+    ended beyond it; null: the stop distance) and ``robust_sd`` (m per axis; 0: no robust check), ``robust_radius`` (m), ``stall`` (a
     :class:`~besdrake.search.refinement.StallRule` from ``stall_episodes`` / ``stall_tol`` / ``stall_after``; None where
     ``stall_episodes`` is null), ``switch_distance`` (m; a raced scout that stalls farther hands over to the next one;
     null: never)."""
@@ -422,6 +423,7 @@ def refinement_settings(config: dict[str, Any]) -> dict[str, Any]:
     except (TypeError, ValueError, RefinementError) as err:
         raise ConfigError(f"refinement: {err}") from None
     out["stall"] = _stall_rule(cfg)
+    out["turn_distance"] = _turn_distance(cfg.get("turn_distance"))
     if out["stop_distance"] is not None and not (0 < out["stop_distance"] <= SUCCESS_DISTANCE):
         raise ConfigError(f"refinement: stop_distance must be within (0, {SUCCESS_DISTANCE}] m or null, got {stop!r}")
     if out["run_starts"] not in ("same", "diverse"):
@@ -430,6 +432,20 @@ def refinement_settings(config: dict[str, Any]) -> dict[str, Any]:
         raise ConfigError(f"refinement: robust_sd must be within 0..0.005 m and robust_radius > 0 m, "
                           f"got {out['robust_sd']!r}, {out['robust_radius']!r}")
     return out
+
+
+def _turn_distance(value: Any) -> float | None:
+    """``refinement.turn_distance`` checked: None, or a distance within (0, the success distance] m."""
+    from besdrake.pipeline.config import ConfigError
+    from besdrake.search.refinement import SUCCESS_DISTANCE
+
+    try:
+        turn = None if value is None else float(value)
+    except (TypeError, ValueError):
+        turn = float("nan")
+    if turn is not None and not (0 < turn <= SUCCESS_DISTANCE):
+        raise ConfigError(f"refinement: turn_distance must be within (0, {SUCCESS_DISTANCE}] m or null, got {value!r}")
+    return turn
 
 
 def _stall_rule(cfg: dict[str, Any]):
@@ -645,8 +661,8 @@ def template_reach_settings(config: dict[str, Any]) -> dict[str, Any]:
     """The templates section's reach settings, checked (:class:`~besdrake.pipeline.config.ConfigError`): the reach
     refinement's ``target`` (m, or None: off), ``evaluations`` (episodes), ``objective`` (:data:`REACH_OBJECTIVES`) and
     ``sigma`` (its CMA-ES's initial step), ``robust`` (whether it scores throws by the refinement's robust check),
-    ``extend_probes`` (the template's probes beyond its slowest time), and ``slowest`` (the template's slowest execution
-    time, x its base's)."""
+    ``extend_probes`` (the template's probes beyond its slowest time), ``slowest`` (the template's slowest execution
+    time, x its base's) and ``robust_sd`` (m: the setup scatter the template's episodes are rewarded over; 0: none)."""
     from besdrake.pipeline.config import ConfigError
     from besdrake.search.templates import EXTEND_PROBES, SCALE_SLOWEST
     from besdrake.search.refinement import DEFAULT_SIGMA0
@@ -663,6 +679,7 @@ def template_reach_settings(config: dict[str, Any]) -> dict[str, Any]:
         follow = cfg.get("follow_through")
         follow = None if follow is None else float(follow)
         robust = cfg.get("reach_robust", True)
+        robust_sd = float(cfg.get("robust_sd", 0.0))
     except (TypeError, ValueError) as err:
         raise ConfigError(f"templates: reach_target must be [x, y] in m or null, reach_evaluations an integer and slowest "
                           f"a number ({err})") from None
@@ -679,12 +696,15 @@ def template_reach_settings(config: dict[str, Any]) -> dict[str, Any]:
         raise ConfigError(f"templates: reach_objective must be one of {REACH_OBJECTIVES}, got {objective!r}")
     if not (1.0 < slowest <= 10.0):
         raise ConfigError(f"templates: slowest must be within (1, 10] (x the base's execution time), got {cfg.get('slowest')!r}")
+    if not (np.isfinite(robust_sd) and 0.0 <= robust_sd <= 0.05):
+        raise ConfigError(f"templates: robust_sd must be within [0, 0.05] m (0: off), got {cfg.get('robust_sd')!r}")
     if not isinstance(robust, bool):
         raise ConfigError(f"templates: reach_robust must be true or false, got {robust!r}")
     if follow is not None and not (np.isfinite(follow) and 0.0 <= follow <= 1.0):
         raise ConfigError(f"templates: follow_through must be a time within [0, 1] s after the release, or null, got {cfg.get('follow_through')!r}")
     return {"target": target if budget > 0 else None, "evaluations": budget, "slowest": slowest, "objective": objective,
-            "sigma": sigma, "extend_probes": extend, "other_evaluations": other, "follow_through": follow, "robust": robust}
+            "sigma": sigma, "extend_probes": extend, "other_evaluations": other, "follow_through": follow, "robust": robust,
+            "robust_sd": robust_sd}
 
 
 def _template_base(ctx: Context, scenario: str, out: Path) -> tuple[Path, dict[str, Any]]:
@@ -768,7 +788,7 @@ def stage_template(ctx: Context, out: Path) -> dict[str, Any]:
         training = train_template(
             base, executor, method=method, n_episodes=int(cfg["episodes"]), seed=int(cfg["seed"]),
             name="throw", out_dir=out / "training", slowest=reach_settings["slowest"], extend_probes=reach_settings["extend_probes"],
-            follow_through=follow,
+            follow_through=follow, scatter=_template_scatter(ctx, scenario, reach_settings["robust_sd"]),
             provenance={"base": str(base_file), "scenario": scenario, "lab": ctx.config["lab"], "demonstrations": ctx.config["demonstrations"]},
         )
         sim_eval = evaluate_template(training.template, executor)
@@ -801,6 +821,16 @@ def stage_template(ctx: Context, out: Path) -> dict[str, Any]:
         "lab_about_sim_mean_m": _nanmean_or_none(np.linalg.norm(lab_td - sim_eval.touchdowns, axis=1)),
         "training_wall_time_s": training.wall_time,
     }
+
+
+def _template_scatter(ctx: Context, scenario: str, sd: float):
+    """The task's setup scatter of ``sd`` in ``scenario`` as a quadrature (effects, weights) for the template's
+    episodes, or None (``sd`` 0)."""
+    from besdrake.sim.scenario import load_scenario
+    from besdrake.task import DEFAULT_TASK, get_task
+
+    task = get_task(str(ctx.config.get("task") or DEFAULT_TASK))
+    return task.scatter_effects(load_scenario(scenario), sd) if sd > 0 else None
 
 
 def _nanmean_or_none(x: np.ndarray) -> float | None:
