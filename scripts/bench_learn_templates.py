@@ -5,7 +5,9 @@ and JSON figures (stdout, and ``--json``).
 Each ``--run`` is a ``besdrake learn`` run folder whose stages up to ``transfer_refined`` are done (one subject each,
 e.g. ``besdrake learn --out RUN --set demonstrations.subjects=[S] --stage label ... --stage transfer_refined``). For
 each run and method this script calls learn's own template stage (:func:`besdrake.tasks.throwing.learn.stage_template`)
-on a copy of the run's configuration with the ``--set`` overrides (``templates.*`` only), writing into
+on a copy of the run's configuration with the ``--set`` overrides (``templates.*`` only; the run's saved settings win
+over today's defaults, so a default changed since the run needs its ``--set``: session 35's
+``templates.reach_robust=true`` on session 34's runs), writing into
 ``OUT/<run name>/<method>/`` (the run folder itself is never written, except its ``inputs.json`` lab hash): the base
 is the run's best refined throw (``_best_throw``), refined further towards ``templates.reach_target`` and kept by the
 floor rule (``_template_base``), the template trained in the run's simulation (the diagnosed scenario where the run has
