@@ -241,16 +241,17 @@ class MotionPlan:
         k = int(np.searchsorted(self.t, at - 1e-12))
         if k >= self.t.size - 1:  # nothing follows
             return self
-        q0, v0 = self.q[k], self.knot_velocities()[k]
+        qd_all = self.knot_velocities()
+        q0, v0 = self.q[k], qd_all[k]
         acc = np.asarray(self._limits_for(limits).acceleration, dtype=float) * share
         stop = float(np.max(np.abs(v0) / acc))
         step = float(np.median(np.diff(self.t)))
         tau = np.linspace(0.0, stop, max(2, int(np.ceil(stop / step)) + 1))[1:] if stop > 0 else np.array([step])
-        frac = np.clip(tau / max(stop, 1e-12), 0.0, 1.0)[:, None]
-        q = q0 + v0 * np.minimum(tau[:, None], stop) * (1.0 - 0.5 * frac)
+        frac = np.minimum(tau / max(stop, 1e-12), 1.0)[:, None]  # 1 throughout where nothing moves (stop 0)
+        q = q0 + v0 * tau[:, None] * (1.0 - 0.5 * frac)
         qd = v0 * (1.0 - frac)
         return MotionPlan(t=np.concatenate([self.t[: k + 1], self.t[k] + tau]), q=np.vstack([self.q[: k + 1], q]),
-                          qd=np.vstack([self.knot_velocities()[: k + 1], qd]),
+                          qd=np.vstack([qd_all[: k + 1], qd]),
                           meta=dict(self.meta) | {"stopped_after_s": float(self.t[k])}, joint_names=self.joint_names)
 
     def with_follow_through_within(self, limits: JointLimits, at: float, factors: tuple[float, ...] = FOLLOW_THROUGH_FACTORS,

@@ -209,6 +209,12 @@ def known_tasks() -> list[str]:
     return sorted(builtin | set(_REGISTRY))
 
 
+def scenario_scatter(scenario, sd: float) -> tuple[list, Any] | None:
+    """The lab's setup scatter of ``sd`` (m per axis) in ``scenario`` as its task's quadrature
+    (:meth:`Task.scatter_effects`: effects, the nominal first as None, and weights); None for ``sd`` 0."""
+    return get_task(scenario.task).scatter_effects(scenario, sd) if sd > 0 else None
+
+
 def get_task(name: str) -> Task:
     """The task called ``name`` (a built-in one is imported on first use); :class:`TaskError` if unknown."""
     if name not in _REGISTRY and (TASKS_DIR / str(name) / "task.py").is_file():

@@ -142,18 +142,12 @@ def _follow_through_after(value: str | None) -> float | None:
     return after
 
 
-def _scatter(scenario, sd: float):
-    """The scenario's task's setup scatter of ``sd`` as a quadrature (effects, weights), or None (``sd`` 0)."""
-    from besdrake.task import get_task
-
-    return get_task(scenario.task).scatter_effects(scenario, sd) if sd > 0 else None
-
-
 def _train(args, pool) -> int:
     from besdrake.cli import UserError
     from besdrake.imitation import DMPParameterError, load_dmp
     from besdrake.search.loop import ResumeError
     from besdrake.search.templates import DEFAULT_PROBES, EXTEND_PROBES, PAPER_MEAN_CM, evaluate_template, train_template
+    from besdrake.task import scenario_scatter
     from besdrake.tasks.throwing.template_base import TEMPLATE_BASE_WEIGHTS, default_template_base, follow_through_phase
 
     if args.episodes < 1:
@@ -198,7 +192,7 @@ def _train(args, pool) -> int:
                                       probes=DEFAULT_PROBES if args.probes is None else args.probes, follow_through=follow,
                                       extend_probes=EXTEND_PROBES if args.extend_probes is None else args.extend_probes,
                                       provenance={"base_dmp": base_source, "run_dir": str(run_dir)}, progress=progress,
-                                      scatter=_scatter(ex.scenario, args.robust_sd))
+                                      scatter=scenario_scatter(ex.scenario, args.robust_sd))
             ev = evaluate_template(training.template, ex)
     except ResumeError as err:
         raise UserError(f"{run_dir}: {err}") from None

@@ -255,9 +255,8 @@ class MetaDMP:
     def plan(self, theta: np.ndarray) -> MotionPlan:
         """The motion plan of ``theta`` (its rollout ends exactly at the execution time, never with a step of microseconds
         that the lab's safety gate would refuse: :data:`besdrake.imitation.dmp.MIN_LAST_STEP_FRACTION`)."""
-        traj = self.dmp(theta).open_loop(self.dt)
         meta = {"source": "behavior_template", "execution_time": float(theta[0]), "goal_joint1": float(theta[1])}
-        plan = MotionPlan(t=traj.t, q=traj.y, qd=traj.yd, meta=meta, joint_names=self.robot.joint_names)
+        plan = self._path(theta, meta)
         if self.follow_through is None:
             return plan
         at = self.follow_through * plan.duration
@@ -270,9 +269,13 @@ class MetaDMP:
     def stopped_path(self, theta: np.ndarray) -> MotionPlan:
         """``theta``'s plan with its follow-through braked to rest (:meth:`~besdrake.plan.MotionPlan.stopped_after`),
         the shortest path a plan of it may take (without ``follow_through``: the plan)."""
-        plan = self.dmp(theta).open_loop(self.dt)
-        plan = MotionPlan(t=plan.t, q=plan.y, qd=plan.yd, joint_names=self.robot.joint_names)
+        plan = self._path(theta)
         return plan if self.follow_through is None else plan.stopped_after(self.follow_through * plan.duration, self.robot.limits)
+
+    def _path(self, theta: np.ndarray, meta: dict[str, Any] | None = None) -> MotionPlan:
+        """The DMP of ``theta`` rolled out as it is (no follow-through handling)."""
+        traj = self.dmp(theta).open_loop(self.dt)
+        return MotionPlan(t=traj.t, q=traj.y, qd=traj.yd, meta=meta or {}, joint_names=self.robot.joint_names)
 
 
 #: C-REPS settings of a template (issue 27, session 25): a quadratic policy in the context (the probes' policy fitted
@@ -493,9 +496,10 @@ class TemplateEvaluation:
         }
 
 
-def touchdowns(plans: list[MotionPlan], executor) -> np.ndarray:
-    """(n, 2) touchdown points (NaN for no touchdown or a failed simulation)."""
-    outcomes = executor.evaluate(plans)
+def touchdowns(plans: list[MotionPlan], executor, effects: list | None = None) -> np.ndarray:
+    """(n, 2) touchdown points (NaN for no touchdown or a failed simulation); ``effects``: one mapping (or None) per
+    plan, as :meth:`~besdrake.sim.executors.Executor.evaluate` takes them."""
+    outcomes = executor.evaluate(plans) if effects is None else executor.evaluate(plans, effects=effects)
     out = np.full((len(plans), 2), np.nan)
     for i, o in enumerate(outcomes):
         if o.touchdown is not None and not o.flags.get("sim_failed"):
@@ -639,12 +643,15 @@ def _episode_reward(meta: MetaDMP, bounds: np.ndarray, executor, scatter=None) -
     """The contextual reward: minus the squared distance of the touchdown of ``theta``'s plan from the context; with
     ``scatter`` (effects, nominal first as None, and quadrature weights) its expectation over the setup's scatter
     (:func:`_touchdowns_under`)."""
-    effects, weights = (([None], np.ones(1)) if scatter is None else (list(scatter[0]), np.asarray(scatter[1], dtype=float)))
+    from besdrake.search.refinement.robust import RobustCheck
+
+    check = None if scatter is None else RobustCheck(scatter[0][1:], scatter[1])
+    weights = np.ones(1) if check is None else check.weights
 
     def evaluate(context: np.ndarray, theta: np.ndarray) -> float:
         # C-REPS samples from a Gaussian: execute the nearest parameters inside the box
         plan = meta.plan(np.clip(theta, bounds[:, 0], bounds[:, 1]))
-        td = touchdowns([plan], executor) if len(effects) == 1 else _touchdowns_under(plan, effects, weights, executor)
+        td = touchdowns([plan], executor) if check is None else _touchdowns_under(plan, check, executor)
         if not np.isfinite(td[0]).all():
             raise RuntimeError("no touchdown (never released or simulation failed)")
         d2 = np.sum((td - context) ** 2, axis=1)
@@ -653,31 +660,20 @@ def _episode_reward(meta: MetaDMP, bounds: np.ndarray, executor, scatter=None) -
     return evaluate
 
 
-def _touchdowns_under(plan: MotionPlan, effects: list, weights: np.ndarray, executor) -> np.ndarray:
-    """(k, 2) touchdowns of one plan under each of ``effects`` (the nominal first; NaN where none). The nominal and the
-    two setups farthest apart are simulated first; where both land within the refinement's probe tolerance of the
-    nominal the others count as landing where it does (as the refinement's robust check does), else they are simulated."""
-    from besdrake.search.refinement.robust import RobustCheck
-
-    check = RobustCheck(effects[1:], weights)
+def _touchdowns_under(plan: MotionPlan, check, executor) -> np.ndarray:
+    """(k, 2) touchdowns of one plan as designed and under each of ``check``'s setups (a
+    :class:`~besdrake.search.refinement.robust.RobustCheck`; NaN where none). The nominal and the check's probes (the
+    two setups farthest apart) are simulated first; where both land within its probe tolerance of the nominal the
+    others count as landing where it does (as the refinement's robust check does), else they are simulated."""
+    effects = [None] + list(check.effects)
     probes = [1 + k for k in check.probes()]
-    first = _touchdowns_of([plan] * (1 + len(probes)), [None] + [effects[k] for k in probes], executor)
+    first = touchdowns([plan] * (1 + len(probes)), executor, [None] + [effects[k] for k in probes])
     out = np.repeat(first[:1], len(effects), axis=0)
     out[probes] = first[1:]
     moved = np.linalg.norm(first[1:] - first[0], axis=1)
     if not (np.isfinite(moved).all() and (moved < check.probe_tolerance).all()):
         rest = [k for k in range(1, len(effects)) if k not in probes]
-        out[rest] = _touchdowns_of([plan] * len(rest), [effects[k] for k in rest], executor)
-    return out
-
-
-def _touchdowns_of(plans: list[MotionPlan], effects: list, executor) -> np.ndarray:
-    """(n, 2) touchdowns of ``plans`` under ``effects`` (one each; NaN where none)."""
-    outcomes = executor.evaluate(plans, effects=effects)
-    out = np.full((len(plans), 2), np.nan)
-    for i, o in enumerate(outcomes):
-        if o.touchdown is not None and not o.flags.get("sim_failed"):
-            out[i] = np.asarray(o.touchdown, dtype=float)[:2]
+        out[rest] = touchdowns([plan] * len(rest), executor, [effects[k] for k in rest])
     return out
 
 

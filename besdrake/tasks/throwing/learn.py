@@ -775,6 +775,7 @@ def stage_template(ctx: Context, out: Path) -> dict[str, Any]:
     reach the farthest context (:func:`_template_base`); tested in simulation and in the lab."""
     from besdrake.imitation import load_dmp
     from besdrake.search.templates import TEST_CONTEXTS, evaluate_template, train_template
+    from besdrake.task import scenario_scatter
     from besdrake.tasks.throwing.template_base import follow_through_phase
 
     cfg = ctx.config["templates"]
@@ -788,7 +789,7 @@ def stage_template(ctx: Context, out: Path) -> dict[str, Any]:
         training = train_template(
             base, executor, method=method, n_episodes=int(cfg["episodes"]), seed=int(cfg["seed"]),
             name="throw", out_dir=out / "training", slowest=reach_settings["slowest"], extend_probes=reach_settings["extend_probes"],
-            follow_through=follow, scatter=_template_scatter(ctx, scenario, reach_settings["robust_sd"]),
+            follow_through=follow, scatter=scenario_scatter(executor.scenario, reach_settings["robust_sd"]),
             provenance={"base": str(base_file), "scenario": scenario, "lab": ctx.config["lab"], "demonstrations": ctx.config["demonstrations"]},
         )
         sim_eval = evaluate_template(training.template, executor)
@@ -821,16 +822,6 @@ def stage_template(ctx: Context, out: Path) -> dict[str, Any]:
         "lab_about_sim_mean_m": _nanmean_or_none(np.linalg.norm(lab_td - sim_eval.touchdowns, axis=1)),
         "training_wall_time_s": training.wall_time,
     }
-
-
-def _template_scatter(ctx: Context, scenario: str, sd: float):
-    """The task's setup scatter of ``sd`` in ``scenario`` as a quadrature (effects, weights) for the template's
-    episodes, or None (``sd`` 0)."""
-    from besdrake.sim.scenario import load_scenario
-    from besdrake.task import DEFAULT_TASK, get_task
-
-    task = get_task(str(ctx.config.get("task") or DEFAULT_TASK))
-    return task.scatter_effects(load_scenario(scenario), sd) if sd > 0 else None
 
 
 def _nanmean_or_none(x: np.ndarray) -> float | None:
