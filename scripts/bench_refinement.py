@@ -21,7 +21,9 @@ restarts unless stuck (``--patience``), ``--plain`` is plain CMA-ES (the search 
 ``--acceleration-unit``, ``--time-unit``, ``--position-step``/``--time-step`` (initial step per parameter group),
 ``--violation-offset`` and ``--no-slower`` try the alternatives measured in that module's
 docstring, ``--out`` keeps every run's folder (episodes.csv, details.csv with flags and touchdowns,
-optimizer.json with the restart attempts) for diagnosis; ``--switch-distance 0.3`` is learn's family switch (session 27).
+optimizer.json with the restart attempts) for diagnosis; ``--switch-distance 0.3`` is learn's family switch (session 27);
+``--races 2`` with it races the next four imitated throws within the run where the race's winner stalls beyond the
+switch distance (session 36; run k then starts from start group G + 2k).
 
     python3 scripts/bench_refinement.py --subjects 0 1 2 --runs 2 --imitated /tmp/imit
 """
@@ -65,17 +67,18 @@ def _lab_line(lab: dict | None) -> str:
 
 
 def _run_starts(problems, ranked, k: int, args):
-    """Run ``k``'s start throw and the start points of its restarts or scouts (``--restart-from``, ``--run-starts``,
-    ``--start-group``)."""
-    from besdrake.search.refinement import restart_points, run_start, run_start_order, simulated_order
+    """Run ``k``'s start throw, the start points of its restarts or scouts (``--restart-from``, ``--run-starts``,
+    ``--start-group``) and those of its further races (``--races``; None for one)."""
+    from besdrake.search.refinement import race_points, restart_points, run_start, run_start_order, simulated_order
 
     order = simulated_order(ranked)
     diverse = args.run_starts == "diverse" and args.scouts != 0 and not args.plain  # as besdrake learn: only where it scouts
-    group = args.start_group + (k if diverse else 0)
+    group = args.start_group + (k * args.races if diverse else 0)
     if args.restart_from == "ranked":
         order = run_start_order(order, group, args.scout_starts)
-        return order[0], restart_points(problems[order[0]], [problems[i] for i in order[: args.n_starts]])
-    return run_start(problems, order, group, args.scout_starts)
+        return order[0], restart_points(problems[order[0]], [problems[i] for i in order[: args.n_starts]]), None
+    index, starts = run_start(problems, order, group, args.scout_starts)
+    return index, starts, race_points(problems, order, group, args.races, args.scout_starts) if args.races > 1 else None
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -156,6 +159,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--switch-distance", type=float, default=None, metavar="M",
                         help="a raced scout that went on and stalled farther than M (m) hands over to the next scout the race "
                              "eliminated (refine(switch_distance=)); default: never")
+    parser.add_argument("--races", type=int, default=1, metavar="R",
+                        help="with --switch-distance: where every raced family ends farther than it, race the next group of "
+                             "imitated throws, up to R races per run (refine(next_starts=)); with --run-starts diverse run k "
+                             "starts from group G + k R (default: 1, no further race)")
     parser.add_argument("--stall-after", type=int, default=400)
     parser.add_argument("--lab-repeats", type=int, default=0,
                         help="throw each run's best plan this often in the virtual lab and in its noise floor (the same lab "
@@ -212,7 +219,7 @@ def main(argv: list[str] | None = None) -> int:
             start = ranked[0][1]
             runs = []
             for k in range(args.runs):
-                index, starts = _run_starts(problems, ranked, k, args)
+                index, starts, next_starts = _run_starts(problems, ranked, k, args)
                 out_dir = None if args.out is None else args.out / f"s{s}_run{k}"
                 r = refine(problems[index], ex, args.episodes, seed=args.first_seed + k, popsize=args.popsize, sigma0=args.sigma0,
                            out_dir=out_dir, meta_episodes=args.meta_episodes, meta_sigma=args.meta_sigma,
@@ -223,7 +230,7 @@ def main(argv: list[str] | None = None) -> int:
                            scouts=args.scouts, scout_generations=args.scout_generations, scout_halving=args.scout_halving,
                            stop_distance=args.stop_distance,
                            stall=None if args.stall_episodes is None else StallRule(args.stall_episodes, args.stall_tol, args.stall_after),
-                           switch_distance=args.switch_distance)
+                           switch_distance=args.switch_distance, next_starts=next_starts)
                 runs.append({"seed": args.first_seed + k, "start_throw": index, "success": r.success, "episodes_to_success": r.episodes_to_success,
                              "best_distance_within_limits_m": r.summary()["best_distance_within_limits_m"],
                              "best_distance_m": r.summary()["best_distance_m"], "n_episodes": r.n_episodes, "n_failed": r.n_failed,
@@ -251,7 +258,7 @@ def main(argv: list[str] | None = None) -> int:
         "scout_halving": DEFAULT_SCOUT_HALVING if args.scout_halving is None else args.scout_halving, "plain": args.plain, "target_m": [2.0, 0.0], "backend": args.backend,
         "robust_sd_m": args.robust_sd, "robust_radius_m": args.robust_radius, "stop_distance_m": args.stop_distance, "follow_through_s": args.follow_through, "lab_repeats": args.lab_repeats,
         "stall": None if args.stall_episodes is None else [args.stall_episodes, args.stall_tol, args.stall_after],
-        "switch_distance_m": args.switch_distance,
+        "switch_distance_m": args.switch_distance, "races": args.races,
         "success_rate": float(np.mean([r["success"] for r in all_runs])),
         "subjects_with_success_in_every_run": sum(v["success_rate"] == 1.0 for v in subjects.values()),
         "subjects_with_success_in_some_run": sum(v["success_rate"] > 0.0 for v in subjects.values()),

@@ -659,3 +659,111 @@ def test_a_family_switched_to_that_stays_behind_the_runs_best_ends(far, ends_aft
     assert switched["end"] == "behind" and switched["generations"] == 3 + ends_after and switched["best_reward"] < -0.3
     after = opt.attempt_history[opt.attempt_history.index(switched) + 1:]
     assert after and all(h["start"] == -1 for h in after)  # no family left: restarts from the run's best again
+
+
+def _racing(next_starts, seed: int = 0):
+    """Two raced scouts that both start in the broad local optimum of the two-basin function (every family of the first
+    race stalls near -0.5, below the switch at -0.2); ``next_starts``: the start points of a second race."""
+    n = 3
+    starts = np.array([[-3.0] * n, [-3.5] * n])
+    return StagnationRestartCMAES(starts, 0.5, np.random.default_rng(seed), popsize=6, bounds=np.tile([-10.0, 10.0], (n, 1)),
+                                  stagnation_generations=5, tol=0.01, restart_from_best=True, regimes="bipop", scouts=2,
+                                  scout_generations=3, scout_halving=True, switch_below=-0.2, next_starts=next_starts)
+
+
+def test_a_run_whose_raced_families_all_fall_short_races_the_next_start_points():
+    n = 3
+    on, off = _racing(np.array([[2.5] * n, [-1.0] * n])), _racing(None)
+    run(on, 80)
+    run(off, 80)
+    scouts = [h["scout"] for h in on.attempt_history if "rung" in h]
+    assert scouts == [0, 1, 2, 3] and on.race == 1  # a second race of two scouts
+    second = on.attempt_history.index(next(h for h in on.attempt_history if h.get("scout") == 2))
+    before = on.attempt_history[:second]
+    assert [h.get("continues_scout") for h in before if "rung" not in h] == [0]  # the winner ended short of the switch
+    assert all(h["best_reward"] < -0.2 for h in before)  # ... and the next race came before the eliminated scout
+    assert [h["start"] for h in on.attempt_history if h.get("scout") in (2, 3)] == [2, 3]  # rows after ``starts``
+    assert on._best_reward > -0.1 and off._best_reward < -0.4  # the second race found the global basin
+    assert on.attempt_history[:second] == off.attempt_history[:second]  # the same run up to the second race
+
+
+def test_a_racing_run_resumes_anywhere(tmp_path):
+    n = 3
+    for told in (5, 15, 25, 40):  # first race, its families ending, the second race, after it
+        a = _racing(np.array([[2.5] * n, [-1.0] * n]))
+        run(a, told)
+        b = restored(a, tmp_path)
+        assert b.race == a.race and np.array_equal(b.next_starts, a.next_starts)
+        assert_same_asks(a, b, 30)
+
+
+def test_further_races_need_a_switch_and_matching_start_points(base):
+    from besdrake.search.refinement import make_optimizer
+
+    problem = RefinementProblem(COMPI, base)
+    nxt = np.zeros((4, problem.n_params))
+    assert make_optimizer(problem, switch_distance=0.3, next_starts=nxt).n_races() == 2
+    with pytest.raises(RefinementError, match="next_starts"):
+        make_optimizer(problem, next_starts=nxt)
+    with pytest.raises(ValueError, match="next_starts"):
+        _racing(np.zeros((2, 4)))  # three parameters, not four
+    with pytest.raises(ValueError, match="next_starts"):
+        StagnationRestartCMAES(np.zeros((2, 3)), 0.5, np.random.default_rng(0), scouts=2, scout_halving=True, next_starts=np.zeros((2, 3)))
+
+
+def test_race_points_are_the_next_groups_of_the_runs_order(base):
+    from besdrake.search.refinement import race_points
+
+    throws = []
+    for k in range(10):
+        t = base.copy()
+        t.goal = t.goal.copy()
+        t.goal[1] += 0.05 * k
+        throws.append(t)
+    problems = [RefinementProblem(COMPI, t) for t in throws]
+    order = list(range(9, -1, -1))  # best first: throw 9
+    pts = race_points(problems, order, 0, 2, 4)
+    assert np.allclose(pts, restart_points(problems[9], [problems[i] for i in (5, 4, 3, 2)]))
+    later = race_points(problems, order, 2, 2, 4)  # group 2 starts at throw 1 (throws 1, 0, 9, 8 wrapping around)
+    assert np.allclose(later, restart_points(problems[1], [problems[i] for i in (7, 6, 5, 4)]))
+    assert race_points(problems, order, 0, 1, 4) is None and race_points(problems, order[:4], 0, 2, 4) is None
+    with pytest.raises(RefinementError, match="races"):
+        race_points(problems, order, 0, 0, 4)
+
+
+def test_after_the_last_race_the_eliminated_scouts_of_every_race_are_switched_to():
+    n = 3
+    opt = _racing(np.array([[-2.5] * n, [-4.0] * n]))  # the second race starts in the local optimum too
+    run(opt, 80)
+    continued = [h["continues_scout"] for h in opt.attempt_history if "continues_scout" in h]
+    assert opt.race == 1 and continued[0] == 0  # the first race's winner, then the second race
+    winner = continued[1]
+    assert winner in (2, 3) and continued[2:4] == [5 - winner, 1]  # the second race's runner-up first, then the first's
+    assert opt._best_reward < -0.4
+
+
+def test_refine_command_gives_each_run_its_further_races(base, tmp_path):
+    """``besdrake refine --races 2 --switch-distance 0.3``: run 0 races the throws ranked 1-4 and may race 5-8 (here
+    six throws: 5, 6, 1, 2), run 1 starts from the ninth (wrapping: the third); without a switch it is refused."""
+    import json
+
+    from besdrake.cli import main
+    from besdrake.imitation import save_dmp
+
+    folder = tmp_path / "imitated"
+    folder.mkdir()
+    for k, dz in enumerate((0.0, -0.2, 0.2, -0.4, 0.4, -0.6)):
+        throw = base.copy()
+        throw.goal = throw.goal.copy()
+        throw.goal[1] += dz
+        save_dmp(throw, folder / f"throw{k}.dmp.json")
+    out = tmp_path / "out"
+    argv = ["refine", str(folder), "--out", str(out), "--episodes", "4", "--popsize", "4", "--runs", "2", "--quiet",
+            "--no-figures", "--backend", "serial", "--races", "2"]
+    assert main(argv) == 2  # refused: no --switch-distance
+    assert main(argv + ["--switch-distance", "0.3", "--json"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    ranking = json.loads((out / "start.json").read_text())["ranking"]
+    assert summary["start"]["run_start_throws"] == [ranking[0], ranking[2]]
+    record = json.loads((out / "run0" / "problem.json").read_text())
+    assert len(record["next_starts"]) == 4 and record["switch_distance"] == 0.3

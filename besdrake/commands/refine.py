@@ -77,6 +77,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--switch-distance", type=float, default=None, metavar="M",
                         help="where the scout that won the race stalls farther than M m from the target, go on with the scout "
                              "the race eliminated (the next throw family); needs scouting; default: never")
+    parser.add_argument("--races", type=int, default=1, metavar="R",
+                        help="with --switch-distance: where the race's winner stalls farther than it, race the next four "
+                             "imitated throws within the run's budget, up to R races per run (run k then starts from the "
+                             "throws ranked 4kR+1 on); default: 1")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--continue-after-success", action="store_true", help="use the whole budget instead of stopping at the first success")
     from besdrake.sim.cliutil import add_backend_arguments
@@ -190,6 +194,8 @@ def _check_args(args: argparse.Namespace) -> None:
         raise UserError(f"--popsize-growth must be >= 1, got {args.popsize_growth}")
     if not np.isfinite(args.target).all():
         raise UserError(f"--target must be finite, got {args.target}")
+    if args.races < 1 or (args.races > 1 and (args.switch_distance is None or args.plain or args.scouts in (0, 1))):
+        raise UserError(f"--races must be >= 1, and more than 1 needs --switch-distance and scouting; got {args.races}")
 
 
 def _problems(args: argparse.Namespace, files: list[Path]):
@@ -235,7 +241,7 @@ def _start(args: argparse.Namespace, files: list[Path], problems: list, executor
     return start
 
 
-def _refine_run(k: int, args: argparse.Namespace, problem, executor, *, search: dict, starts, show: bool):
+def _refine_run(k: int, args: argparse.Namespace, problem, executor, *, search: dict, starts, show: bool, next_starts=None):
     """Run ``k`` of the refinement into ``OUT/run{k}`` (resumable), its refined DMP saved beside it."""
     from besdrake.cli import UserError
     from besdrake.imitation import save_dmp
@@ -260,7 +266,7 @@ def _refine_run(k: int, args: argparse.Namespace, problem, executor, *, search: 
                         meta_episodes=args.meta_episodes, meta_sigma=args.meta_sigma, **search,
                         **({} if starts is None else {"starts": starts}),
                         stall=None if args.stall_episodes is None else StallRule(args.stall_episodes),
-                        switch_distance=args.switch_distance)
+                        switch_distance=args.switch_distance, next_starts=next_starts)
     except (RefinementError, ResumeError) as err:
         raise UserError(str(err)) from None
     finally:
@@ -295,7 +301,7 @@ def run(args: argparse.Namespace) -> int:
     import logging
 
     from besdrake.cli import UserError
-    from besdrake.search.refinement import run_start
+    from besdrake.search.refinement import race_points, run_start
     from besdrake.sim.cliutil import executor_from_args
     from besdrake.sim.executors import ExecutorError
     from besdrake.sim.scenario import ScenarioError
@@ -320,11 +326,13 @@ def run(args: argparse.Namespace) -> int:
         order = start.get("ranking") or [int(start["index"])]
         diverse = args.run_starts == "diverse" and search.get("scouts") != 0 and not args.plain
         # Each run from its start throw, its scouts from the next ones (None with one start point).
-        starts = [run_start(problems, order, k if diverse else 0, scout_starts) for k in range(args.runs)]
+        groups = [k * args.races if diverse else 0 for k in range(args.runs)]
+        starts = [run_start(problems, order, g, scout_starts) for g in groups]
+        later = [race_points(problems, order, g, args.races, scout_starts) if args.races > 1 else None for g in groups]
         start["run_start_throws"] = [int(i) for i, _ in starts]
         # The runs are independent: run_concurrently merges their generations into one batch per round (same results).
-        runs = run_concurrently(executor, [partial(_refine_run, k, args, problems[i], search=search, starts=points, show=show)
-                                           for k, (i, points) in enumerate(starts)])
+        runs = run_concurrently(executor, [partial(_refine_run, k, args, problems[i], search=search, starts=points, show=show,
+                                                   next_starts=later[k]) for k, (i, points) in enumerate(starts)])
     summary = _summary(args, files, start, runs, t_start)
     if args.json:
         print(json.dumps(summary, default=float))

@@ -56,6 +56,10 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
     A scout switched to ends (``"behind"``) where it is still behind the run's best after ``stagnation_generations``
     generations, or, with rewards that are minus distances (the run's best below 0), more than twice as far after half
     as many: a hopeless family costs a few generations.
+    With ``next_starts`` (rows; halving and ``switch_below`` only), further groups of ``scouts`` start points: where the
+    scout that went on ends with the run's best reward still below ``switch_below``, the next group is raced the same
+    way before any eliminated scout is switched to (its eliminated scouts go first in the reserve): a run whose raced
+    families fall short tries other start points within its budget.
 
     Budget and stop belong to the caller (the loop): :meth:`stop` is never true. One Generator drives
     every attempt; :meth:`state_dict` saves the attempt counter and regime bookkeeping, the per-generation
@@ -85,8 +89,10 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
         scout_generations: int = 10,
         scout_halving: bool = False,
         switch_below: float | None = None,
+        next_starts: np.ndarray | None = None,
     ) -> None:
         starts = np.atleast_2d(np.asarray(starts, dtype=float))
+        next_starts = _checked_next_starts(next_starts, starts, scouts, scout_halving, switch_below)
         _check_settings(starts, sigma0, stagnation_generations, max_generations, tol, popsize_growth, regimes, small_decades,
                         small_share, patience, scouts, scout_generations)
         if switch_below is not None and not np.isfinite(switch_below):
@@ -94,11 +100,11 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
         self.n_params = starts.shape[1]
         bounds = None if bounds is None else np.asarray(bounds, dtype=float)
         if bounds is not None:
-            for s in starts:
+            for s in starts if next_starts is None else np.vstack([starts, next_starts]):
                 CMAES._check_bounds(bounds, s)
         self._configure(starts, sigma0, popsize, bounds, stagnation_generations, tol, max_generations, restart_from_best,
                         cma_options, popsize_growth, regimes, small_decades, small_share, patience, scouts, scout_generations,
-                        scout_halving, switch_below)
+                        scout_halving, switch_below, next_starts)
         self.rng = rng
         self._start_bookkeeping()
         self._init_best(starts[0])
@@ -108,7 +114,7 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
                    stagnation_generations: int, tol: float, max_generations: int, restart_from_best: bool,
                    cma_options: dict[str, Any] | None, popsize_growth: float, regimes: str, small_decades: float,
                    small_share: float, patience: int, scouts: int, scout_generations: int, scout_halving: bool,
-                   switch_below: float | None = None) -> None:
+                   switch_below: float | None = None, next_starts: np.ndarray | None = None) -> None:
         """Set the settings (checked already)."""
         self.starts = starts
         self.sigma0 = float(sigma0)
@@ -128,6 +134,7 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
         self.scout_generations = int(scout_generations)
         self.scout_halving = bool(scout_halving)
         self.switch_below = None if switch_below is None else float(switch_below)
+        self.next_starts = next_starts
 
     def _start_bookkeeping(self) -> None:
         """The attempt, scouting and regime bookkeeping of a fresh run."""
@@ -141,6 +148,8 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
         self.reserve: list[tuple[int, CMAES, list[float]]] = []
         #: the current attempt's generations when it was switched to (None: not a switch)
         self.switched_at: int | None = None
+        #: the race now running or decided: 0 the first (``starts``), g the g-th group of ``next_starts``
+        self.race = 0
         #: scouting: the best scout so far (its CMA-ES, and its per-generation best), kept to go on after the last scout
         self.kept: CMAES | None = None
         self.kept_best: list[float] = []
@@ -171,6 +180,16 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
             return -1, self._best_params.copy()
         i = self.attempt % len(self.starts)
         return i, self.starts[i].copy()
+
+    def scout_start(self, k: int) -> np.ndarray:
+        """Start point of scout ``k``: scouts ``0 .. scouts - 1`` from ``starts``, later races' from ``next_starts``."""
+        if k < self.scouts or self.next_starts is None:
+            return self.starts[k % len(self.starts)].copy()
+        return self.next_starts[(k - self.scouts) % len(self.next_starts)].copy()
+
+    def n_races(self) -> int:
+        """Races a run may hold: the first, and one per group of ``scouts`` rows of ``next_starts``."""
+        return 1 if self.next_starts is None else 1 + -(-len(self.next_starts) // self.scouts)
 
     def _new_attempt(self, sigma: float, x: np.ndarray | None = None) -> CMAES:
         """A fresh CMA-ES of step ``sigma`` from ``x`` (default: :meth:`_start_point`), clipped into the bounds."""
@@ -245,9 +264,9 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
             halving = self.scout_halving and self.scouting()
             index, _ = self._start_point()
             if halving:
-                index = self.current_scout % len(self.starts)
+                index = self._start_index(self.current_scout)
             if self.continued_scout is not None:
-                index = self.continued_scout % len(self.starts)  # the scout's start point
+                index = self._start_index(self.continued_scout)  # the scout's start point
             entry = {"start": index, "generations": len(self.attempt_best), "best_reward": float(self.attempt_best[-1]), "end": why}
             if halving:
                 entry |= {"scout": self.current_scout, "rung": self.rung}
@@ -261,7 +280,8 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
                 return
             if why == "scout" and (not self.kept_best or self.attempt_best[-1] > self.kept_best[-1]):
                 self.kept, self.kept_best, self.kept_scout = self.inner, list(self.attempt_best), self.attempt
-            switch = self._switches(why)
+            rerace = self._reraces(why)
+            switch = not rerace and self._switches(why)
             self.attempt += 1
             self.attempt_best = []
             self.continued_scout = None
@@ -270,6 +290,9 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
                 k, cma, best = self.reserve.pop(0)
                 self.inner, self.attempt_best, self.continued_scout, self.regime = cma, list(best), k, "large"
                 self.switched_at = len(best)
+            elif rerace:
+                self._start_race()
+                return
             elif self.scouting():
                 self.inner = self._new_attempt(self.sigma0)
             elif self.scouts > 1 and self.attempt == self.scouts and self.kept is not None:
@@ -284,6 +307,28 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
         """Whether the attempt that just ended (``why``) hands over to the next eliminated scout (``switch_below``)."""
         return (self.switch_below is not None and self.continued_scout is not None and why != "scout" and bool(self.reserve)
                 and self.attempt_best[-1] < self.switch_below)
+
+    def _start_index(self, k: int) -> int:
+        """The row of scout ``k``'s start point in ``starts`` (later races': ``len(starts)`` + its row of ``next_starts``)."""
+        if k < self.scouts or self.next_starts is None:
+            return k % len(self.starts)
+        return len(self.starts) + (k - self.scouts) % len(self.next_starts)
+
+    def _reraces(self, why: str) -> bool:
+        """Whether the run races its next group of start points now (``next_starts``): a raced scout that went on has
+        just ended (``why``) with the run's best still below ``switch_below``, and a group is left."""
+        return (self.next_starts is not None and self.race + 1 < self.n_races() and self.continued_scout is not None
+                and why != "scout" and self._best_reward < self.switch_below)
+
+    def _start_race(self) -> None:
+        """Begin the next race: its first scout runs, the others queue for the first rung."""
+        self.race += 1
+        first = self.race * self.scouts
+        self.rung, self.current_scout, self.rung_done = 0, first, []
+        self.rung_queue = [(k, None, []) for k in range(first + 1, first + self.scouts)]
+        self.attempt_best, self.continued_scout, self.switched_at, self.regime = [], None, None, "large"
+        self.inner = self._new_attempt(self.sigma0, self.scout_start(first))
+        self.attempt_start_best = float(self._best_reward)
 
     def _next_scout(self, why: str) -> None:
         """Successive halving: file the scout that just ended (``why``) and switch to the next one, the next rung,
@@ -303,7 +348,7 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
         if self.rung_queue:
             k, cma, best = self.rung_queue.pop(0)
             self.current_scout, self.attempt_best = k, list(best)
-            self.inner = cma if cma is not None else self._new_attempt(self.sigma0, self.starts[k % len(self.starts)].copy())
+            self.inner = cma if cma is not None else self._new_attempt(self.sigma0, self.scout_start(k))
         else:  # scouting is over: the winner goes on as a large attempt (a fresh one if every scout stalled)
             self.current_scout = -1
             self.attempt_best = []
@@ -336,6 +381,8 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
                 extra_cfg["scout_halving"] = True
         if self.switch_below is not None:
             extra_cfg["switch_below"] = self.switch_below
+        if self.next_starts is not None:
+            extra_cfg["next_starts"] = self.next_starts
         halving_state: dict[str, Any] = {}
         if self.scouts > 1 and self.scout_halving:
             halving_state = {"halving": {
@@ -346,6 +393,8 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
                 halving_state["halving"]["reserve"] = [{"scout": k, "cma": c.state_dict(), "best": [float(v) for v in b]}
                                                        for k, c, b in self.reserve]
                 halving_state["halving"]["switched_at"] = self.switched_at
+            if self.next_starts is not None:
+                halving_state["halving"]["race"] = self.race
         return {
             "type": "StagnationRestartCMAES",
             "config": {
@@ -387,7 +436,8 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
                        str(cfg.get("regimes", "large")), float(cfg.get("small_decades", 2.0)),
                        float(cfg.get("small_share", 1.0)), int(cfg.get("patience", 2)), int(cfg.get("scouts", 0)),
                        int(cfg.get("scout_generations", 10)), bool(cfg.get("scout_halving", False)),
-                       None if cfg.get("switch_below") is None else float(cfg["switch_below"]))
+                       None if cfg.get("switch_below") is None else float(cfg["switch_below"]),
+                       None if cfg.get("next_starts") is None else np.atleast_2d(np.asarray(cfg["next_starts"], dtype=float)))
         hv = state.get("halving", {})
 
         def _cma(d):
@@ -403,6 +453,7 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
         opt.rung_done = [(int(e["scout"]), _cma(e["cma"]), [float(v) for v in e["best"]]) for e in hv.get("done", [])]
         opt.reserve = [(int(e["scout"]), _cma(e["cma"]), [float(v) for v in e["best"]]) for e in hv.get("reserve", [])]
         opt.switched_at = None if hv.get("switched_at") is None else int(hv["switched_at"])
+        opt.race = int(hv.get("race", 0))
         opt.kept = None if state.get("kept") is None else CMAES.from_state(state["kept"])
         if opt.kept is not None:
             opt.kept.rng = inner.rng  # one Generator drives every attempt
@@ -423,6 +474,18 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
         opt.inner = inner
         opt.rng = inner.rng
         return opt
+
+
+def _checked_next_starts(next_starts, starts: np.ndarray, scouts: int, scout_halving: bool, switch_below) -> np.ndarray | None:
+    """``next_starts`` as a finite (k, n) array (None stays None); ValueError unless the run races with a switch."""
+    if next_starts is None:
+        return None
+    rows = np.atleast_2d(np.asarray(next_starts, dtype=float))
+    if rows.size == 0 or rows.shape[1] != starts.shape[1] or not np.isfinite(rows).all():
+        raise ValueError(f"next_starts must be a non-empty finite (k, {starts.shape[1]}) array, got shape {rows.shape}")
+    if scouts < 2 or not scout_halving or switch_below is None:
+        raise ValueError("next_starts needs raced scouts (scouts >= 2, scout_halving) and switch_below")
+    return rows
 
 
 def _check_settings(starts: np.ndarray, sigma0: float, stagnation_generations: int, max_generations: int, tol: float,

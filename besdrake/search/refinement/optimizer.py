@@ -110,6 +110,7 @@ def make_optimizer(
     scout_generations: int | None = None,
     scout_halving: bool | None = None,
     switch_distance: float | None = None,
+    next_starts: np.ndarray | None = None,
 ):
     """CMA-ES on the normalised space, started at the imitated movement (``x0 = 0``) unless ``x0`` is given.
 
@@ -125,7 +126,10 @@ def make_optimizer(
     CMA-ES over all parameters from the best candidate so far with step ``sigma0``.
 
     ``switch_distance`` (m; raced scouts only): a scout that went on and ended with its best objective (minus the
-    reward) above it hands over to the next scout the race eliminated (``StagnationRestartCMAES``'s ``switch_below``)."""
+    reward) above it hands over to the next scout the race eliminated (``StagnationRestartCMAES``'s ``switch_below``).
+    ``next_starts`` (rows, groups of ``scouts``; needs ``switch_distance``): where every family of the race has ended
+    with the run still farther than the switch distance, the next group of start points is raced (e.g. the next
+    imitated movements: :func:`~besdrake.search.refinement.starts.race_points`)."""
     from besdrake.search.cmaes import CMAES, StagedCMAES
 
     x0 = np.zeros(problem.n_params) if x0 is None else np.asarray(x0, dtype=float)
@@ -137,6 +141,8 @@ def make_optimizer(
     scouts, scout_generations, scout_halving = _scouting_defaults(scouts, scout_generations, scout_halving)
     if stagnation_generations > 0 and meta_episodes > 0:
         raise RefinementError("stagnation restarts and the meta-parameter stage do not combine; give one of them")
+    if next_starts is not None and (stagnation_generations == 0 or switch_distance is None):
+        raise RefinementError("next_starts (further races) need the stagnation restarts, raced scouts and a switch_distance")
     if stagnation_generations > 0:
         from besdrake.search.cmaes import StagnationRestartCMAES
 
@@ -146,7 +152,8 @@ def make_optimizer(
                                       cma_options=cma_options, popsize_growth=popsize_growth, regimes=restart_regimes,
                                       small_share=small_share, patience=patience, scouts=scouts,
                                       scout_generations=scout_generations, scout_halving=scout_halving,
-                                      switch_below=_switch_below(switch_distance, scouts, scout_halving))
+                                      switch_below=_switch_below(switch_distance, scouts, scout_halving),
+                                      next_starts=None if next_starts is None else _start_points(x0, next_starts, bounds))
     if meta_episodes > 0:
         return StagedCMAES(x0, meta_basis(problem), meta_sigma, sigma0, rng, subspace_evaluations=meta_episodes,
                            popsize_subspace=popsize, popsize=popsize, bounds=bounds, cma_options=cma_options)

@@ -145,6 +145,7 @@ def refine(
     stop_distance: float | None = None,
     stall: StallRule | None = None,
     switch_distance: float | None = None,
+    next_starts: np.ndarray | None = None,
 ) -> RefinementResult:
     """Refine ``problem`` with CMA-ES for at most ``n_episodes`` episodes (stops at the first
     generation with a success when ``stop_on_success``). With ``out_dir`` the run is resumable:
@@ -155,7 +156,8 @@ def refine(
     distance (its robust distance where a robust check ran) is below it: a margin inside the goal. ``stall``: end the
     run early once it has stalled (:class:`StallRule`; decided from the episode log, so a resumed run decides the same);
     its result's ``stop_reason`` is then ``"stalled"``. ``switch_distance`` (m): a raced scout that went on and stalled
-    farther than this hands over to the next scout the race eliminated (:func:`make_optimizer`). ``scout_generations``
+    farther than this hands over to the next scout the race eliminated (:func:`make_optimizer`); ``next_starts``: start
+    points of further races once every raced family has ended farther than that (:func:`make_optimizer`). ``scout_generations``
     None: the rung length the run in ``out_dir`` began with, else :data:`DEFAULT_SCOUT_GENERATIONS` (a killed run resumes
     with its own race after the default changed)."""
     from besdrake.search.loop import run_search
@@ -166,7 +168,7 @@ def refine(
                                  restart_regimes, popsize_growth, scouts, scout_generations, scout_halving)
     search = dict(meta_episodes=meta_episodes, meta_sigma=meta_sigma, starts=starts, restart_from_best=restart_from_best,
                   stagnation_tol=stagnation_tol, max_attempt_generations=max_attempt_generations, small_share=small_share,
-                  patience=patience, switch_distance=switch_distance, **settings)
+                  patience=patience, switch_distance=switch_distance, next_starts=next_starts, **settings)
     out = None if out_dir is None else Path(out_dir)
     details_path = None
     if out is not None:
@@ -239,7 +241,7 @@ def _run_record(problem: RefinementProblem, seed: int, sigma0: float, popsize: i
                 stagnation_generations: int, starts, restart_from_best: bool, stagnation_tol: float,
                 max_attempt_generations: int, cma_options: dict[str, Any], popsize_growth: float, restart_regimes: str,
                 small_share: float, patience: int, scouts: int, scout_generations: int, scout_halving: bool,
-                switch_distance: float | None = None) -> dict[str, Any]:
+                switch_distance: float | None = None, next_starts=None) -> dict[str, Any]:
     """The run's ``problem.json``: the problem and every setting that differs from the plain search (what a resumed
     run must match)."""
     desc = problem.describe() | {"seed": int(seed), "sigma0": float(sigma0), "popsize": int(popsize)}
@@ -263,6 +265,8 @@ def _run_record(problem: RefinementProblem, seed: int, sigma0: float, popsize: i
                 desc["scout_halving"] = True
             if switch_distance is not None:
                 desc["switch_distance"] = float(switch_distance)
+            if next_starts is not None:
+                desc["next_starts"] = np.atleast_2d(np.asarray(next_starts, dtype=float)).tolist()
     if cma_options:
         desc |= {"cma_options": dict(cma_options)}
     return desc

@@ -75,6 +75,22 @@ def run_start(problems: Sequence[RefinementProblem], order: Sequence[int], group
     return order[0], scout_points(problems, order, n)
 
 
+def race_points(problems: Sequence[RefinementProblem], order: Sequence[int], group: int, races: int,
+                n: int | None = None) -> np.ndarray | None:
+    """Start points of the further races of a run that starts from group ``group`` (:func:`run_start`): the imitated
+    movements of the next ``races - 1`` groups of ``n`` in that run's normalised space, shape ``((races - 1) n,
+    n_params)`` (wrapping around the movements; :func:`refine`'s ``next_starts``); None for a single race, or where the
+    movements do not fill a second group."""
+    n = scout_starts_checked(n)
+    if int(races) != races or races < 1:
+        raise RefinementError(f"races must be an integer >= 1, got {races!r}")
+    order = run_start_order(order, group, n)
+    if races == 1 or n == 1 or len(order) <= n:
+        return None
+    later = [order[(n + i) % len(order)] for i in range((int(races) - 1) * n)]
+    return restart_points(problems[order[0]], [problems[i] for i in later])
+
+
 def scout_starts_checked(n: int | None) -> int:
     """The number of scout start points, :data:`DEFAULT_SCOUT_STARTS` where None; :class:`RefinementError` unless >= 1."""
     n = DEFAULT_SCOUT_STARTS if n is None else n
