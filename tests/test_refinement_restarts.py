@@ -560,21 +560,27 @@ def test_default_search_reaches_the_goal_where_bipop_alone_stalled(tmp_path):
     assert {a["start"] for a in result.attempts[:DEFAULT_SCOUTS]} == set(range(DEFAULT_SCOUTS))  # one per imitated throw
 
 
-def test_refine_command_runs_scout_from_different_throws(base, tmp_path):
-    """``besdrake refine --runs 2`` (``--run-starts diverse``, the default): run 1 starts from the fifth-best of six
-    imitated throws; ``--run-starts same`` starts both from the best."""
-    import json
-
-    from besdrake.cli import main
+def _six_throws(base, folder):
+    """Six imitated stand-in throws (``base`` with its joint-2 goal moved) saved in ``folder``."""
     from besdrake.imitation import save_dmp
 
-    folder = tmp_path / "imitated"
     folder.mkdir()
     for k, dz in enumerate((0.0, -0.2, 0.2, -0.4, 0.4, -0.6)):
         throw = base.copy()
         throw.goal = throw.goal.copy()
         throw.goal[1] += dz
         save_dmp(throw, folder / f"throw{k}.dmp.json")
+    return folder
+
+
+def test_refine_command_runs_scout_from_different_throws(base, tmp_path):
+    """``besdrake refine --runs 2`` (``--run-starts diverse``, the default): run 1 starts from the fifth-best of six
+    imitated throws; ``--run-starts same`` starts both from the best."""
+    import json
+
+    from besdrake.cli import main
+
+    folder = _six_throws(base, tmp_path / "imitated")
     picks = {}
     for how in ("diverse", "same"):
         out = tmp_path / how
@@ -748,15 +754,8 @@ def test_refine_command_gives_each_run_its_further_races(base, tmp_path):
     import json
 
     from besdrake.cli import main
-    from besdrake.imitation import save_dmp
 
-    folder = tmp_path / "imitated"
-    folder.mkdir()
-    for k, dz in enumerate((0.0, -0.2, 0.2, -0.4, 0.4, -0.6)):
-        throw = base.copy()
-        throw.goal = throw.goal.copy()
-        throw.goal[1] += dz
-        save_dmp(throw, folder / f"throw{k}.dmp.json")
+    folder = _six_throws(base, tmp_path / "imitated")
     out = tmp_path / "out"
     argv = ["refine", str(folder), "--out", str(out), "--episodes", "4", "--popsize", "4", "--runs", "2", "--quiet",
             "--no-figures", "--backend", "serial", "--races", "2"]
