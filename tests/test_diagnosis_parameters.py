@@ -123,3 +123,40 @@ def test_the_diagnosis_names_the_pruned_cause_and_keeps_its_verdict():
         before = (verdict.best, verdict.best_fit, list(verdict.fits))
         _name_needed_parameters(verdict, world.prob, sens, ev, None, 5, notes)
         assert (verdict.best, verdict.best_fit, list(verdict.fits)) == before and len(notes) == 1
+
+
+def test_rivals_that_beat_the_pruned_cause_are_listed_and_the_answer_is_low():
+    """core._list_rivals_beating_the_named: the hidden effect is a ball radius; the verdict was judged on a joint offset
+    with spare parameters, which the parsimony step pruned to one offset; the ball, fitted, beats that by BIC, so it is
+    listed ("cannot tell"), the answer becomes "low" and says so. A rival that fits worse, the named cause plus an
+    effect, and one already listed are not added; an unexplained verdict is left as it is."""
+    from types import SimpleNamespace
+
+    from besdrake.diagnosis.core import _list_rivals_beating_the_named
+    from besdrake.diagnosis.verdict import Verdict, rank_causes
+
+    radius = fitting.ParamSpec("ball", "radius", 0.035, 0.02, 0.05, 0.001, "m")
+    world = _OffsetWorld(3, {"joint1": 0.0})
+    world.prob = fitting.Problem(world.one({"ball": {"radius": 0.041}}) + np.pad(
+        np.random.default_rng(3).normal(0, 0.05, (world.N, 2)), ((0, 0), (world.sl.start, N_FEATURES - world.sl.stop))), world.y0, world.nm.vector())
+    named = world.fit([JOINTS[0]])  # the pruned cause
+    ball = world.fit([radius], effects=("ball",))
+    worse = world.fit([JOINTS[2]])
+    worse.effects = ("gain_scale",)  # a stand-in rival that fits worse than the named cause
+    pair = world.fit([JOINTS[0], radius], effects=("ball", "joint_offset"))
+    assert ball.bic < named.bic < worse.bic and pair.bic < named.bic
+    fits = [named, pair, worse, ball]
+    causes = rank_causes(world.prob, fits, named, world.nm, ["touchdown"])
+    ev = SimpleNamespace(sim=SimpleNamespace(full_cache={}, key=str), nm=world.nm, measured_groups=["touchdown"], plans=[])
+    v = Verdict(True, "high", "explained by joint_offset", causes, fits, causes[0], named, [])
+    notes: list[str] = []
+    _list_rivals_beating_the_named(v, ev, None, notes)
+    assert [a["b"] for a in v.indist] == ["ball"] and v.indist[0]["beats_named"]
+    assert v.indist[0]["delta_bic"] == pytest.approx(ball.bic - named.bic)
+    assert v.confidence == "low" and "fits worse than ball" in v.text and v.basis["rivals_beating_named"] == ["ball"]
+    assert len(notes) == 1 and "ball" in notes[0]
+    _list_rivals_beating_the_named(v, ev, None, notes)  # listed once
+    assert [a["b"] for a in v.indist] == ["ball"] and len(notes) == 1
+    unexplained = Verdict(False, "low", "not explained", causes, fits, causes[0], named, [])
+    _list_rivals_beating_the_named(unexplained, ev, None, notes)
+    assert unexplained.indist == [] and unexplained.text == "not explained"

@@ -52,7 +52,7 @@ from besdrake.diagnosis.settings import ALPHA, EXCLUDE_FRACTION, INDISTINGUISHAB
 from besdrake.diagnosis.simulate import _placement_correction, _Sim  # noqa: F401
 from besdrake.diagnosis.trials import TrialModel, model_for
 from besdrake.diagnosis.stats import _bootstrap_median_ci, _extra_effect_significant, _lack_of_fit_p, _material_change  # noqa: F401
-from besdrake.diagnosis.verdict import Verdict, judge, rank_causes
+from besdrake.diagnosis.verdict import Verdict, judge, rank_causes, rivals_beating
 from besdrake.sim.effects import list_effects
 from besdrake.sim.scenario import Scenario, load_scenario
 
@@ -181,6 +181,7 @@ def _diagnose_evidence(ev: Evidence, cands: list[str], pairs: bool, folds: int, 
         if best_fit.y_fit is not None else None
     v = judge(prob, sens, fits, causes, ev, cands, ident, local_sens=local)
     _name_needed_parameters(v, prob, sens, ev, best_shift, iterations, notes)
+    _list_rivals_beating_the_named(v, ev, ident, notes)
     t0 = time.perf_counter()
     gain, per_trial_after = heldout_gain(ev, sens, v.best_fit, best_shift, folds, iterations, rng)
     timings["heldout"] = time.perf_counter() - t0
@@ -219,6 +220,25 @@ def _name_needed_parameters(v: Verdict, prob: fitting.Problem, sens: fitting.Sen
     v.fits[next(i for i, f in enumerate(v.fits) if f is full)] = pruned
     v.causes[next(i for i, c in enumerate(v.causes) if c is v.best)] = cause
     v.best_fit, v.best = pruned, cause
+
+
+def _list_rivals_beating_the_named(v: Verdict, ev: Evidence, ident: Identifiability | None, notes: list[str]) -> None:
+    """Rivals that fit better than the named cause with only its needed parameters (:func:`~besdrake.diagnosis.verdict.
+    rivals_beating`) join "cannot tell"; a separable one makes the answer "low" (honest, not a new choice: the named cause
+    stays the one selected)."""
+    if not settings.LIST_RIVALS_BEATING_NAMED or not v.explained or not v.best.effects:
+        return
+    beaten = rivals_beating(v, ev, ident)
+    if not beaten:
+        return
+    v.indist.extend(beaten)
+    names = ", ".join(f"{a['b']} ({-a['delta_bic']:.1f} BIC better)" for a in beaten)
+    notes.append(f"{v.best_fit.name} with only its needed parameters fits worse than {names}: listed as rivals the log cannot tell from it")
+    separable = [a["b"] for a in beaten if not a.get("structural")]
+    if separable:
+        v.confidence = "low"
+        v.text += "; with only its needed parameters it fits worse than " + ", ".join(separable) + ": cannot tell it from them"
+    v.basis["rivals_beating_named"] = [a["b"] for a in beaten]
 
 
 def _placement_note(ev: Evidence, placement_sd: float) -> list[str]:

@@ -179,6 +179,9 @@ HIGH_SECOND_PLANS = False
 #: at nominal: a cause far from nominal (an arm at 0.42x its gain) changes how a second effect shows. Off: it did not
 #: separate trial 8 from chance either (tool tilt z 2.32 -> 2.46) and costs ~+15 % rollouts (trial 8: 2782 -> 3275).
 SECONDS_LOCAL = False
+#: After parameter parsimony, rivals that fit better than the named cause with only its needed parameters are listed as
+#: "cannot tell" and the answer is "low" (:func:`besdrake.diagnosis.core._list_rivals_beating_the_named`; session 36).
+LIST_RIVALS_BEATING_NAMED = True
 #: Parameter parsimony (:mod:`~besdrake.diagnosis.parameters`): the named cause's parameters that the log does not need
 #: (the cause adequate without them, its predictions within MATERIAL noise SD of the fit with them) are left at
 #: nominal, so that a base yaw is named as one joint-1 offset, not as offsets of four joints (issue 25, benchmark seed 0
