@@ -106,7 +106,7 @@ def rivals_beating(v: "Verdict", ev: Any, ident: Identifiability | None = None) 
     left at nominal (:func:`besdrake.diagnosis.parameters.prune_parameters`), not yet among ``v.indist`` and not merely the
     named cause plus an effect: the verdict was judged on the cause as selected, which led them, and the pruned one no
     longer does (issue 25, touchdown-only benchmark seed 4 trial 29: a joint offset selected with more offsets led the
-    hidden scoop tilt by 11 BIC, pruned to two offsets it trailed it by 5). ``delta_bic`` against the named cause."""
+    hidden effect by 11 BIC, pruned to two offsets it trailed it by 5). ``delta_bic`` against the named cause."""
     named, listed = v.best_fit, {a["b"] for a in v.indist}
     out = []
     for f, c in zip(v.fits, v.causes):
