@@ -127,9 +127,9 @@ def make_optimizer(
 
     ``switch_distance`` (m; raced scouts only): a scout that went on and ended with its best objective (minus the
     reward) above it hands over to the next scout the race eliminated (``StagnationRestartCMAES``'s ``switch_below``).
-    ``next_starts`` (rows, groups of ``scouts``; needs ``switch_distance``): where every family of the race has ended
-    with the run still farther than the switch distance, the next group of start points is raced (e.g. the next
-    imitated movements: :func:`~besdrake.search.refinement.starts.race_points`)."""
+    ``next_starts`` (rows, groups of ``scouts``; needs ``switch_distance``): where the race's winner ends with the run
+    still farther than the switch distance, the next group of start points is raced before any eliminated scout goes
+    on (e.g. the next imitated movements: :func:`~besdrake.search.refinement.starts.race_points`)."""
     from besdrake.search.cmaes import CMAES, StagedCMAES
 
     x0 = np.zeros(problem.n_params) if x0 is None else np.asarray(x0, dtype=float)

@@ -157,7 +157,7 @@ def refine(
     run early once it has stalled (:class:`StallRule`; decided from the episode log, so a resumed run decides the same);
     its result's ``stop_reason`` is then ``"stalled"``. ``switch_distance`` (m): a raced scout that went on and stalled
     farther than this hands over to the next scout the race eliminated (:func:`make_optimizer`); ``next_starts``: start
-    points of further races once every raced family has ended farther than that (:func:`make_optimizer`). ``scout_generations``
+    points of further races, one raced where the race's winner ends farther than that (:func:`make_optimizer`). ``scout_generations``
     None: the rung length the run in ``out_dir`` began with, else :data:`DEFAULT_SCOUT_GENERATIONS` (a killed run resumes
     with its own race after the default changed)."""
     from besdrake.search.loop import run_search
