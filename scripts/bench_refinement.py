@@ -78,7 +78,7 @@ def _run_starts(problems, ranked, k: int, args):
         order = run_start_order(order, group, args.scout_starts)
         return order[0], restart_points(problems[order[0]], [problems[i] for i in order[: args.n_starts]]), None
     index, starts = run_start(problems, order, group, args.scout_starts)
-    return index, starts, race_points(problems, order, group, args.races, args.scout_starts) if args.races > 1 else None
+    return index, starts, race_points(problems, order, group, args.races, args.scout_starts)  # None for one race
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -328,7 +328,7 @@ def run(args: argparse.Namespace) -> int:
         # Each run from its start throw, its scouts from the next ones (None with one start point).
         groups = [k * args.races if diverse else 0 for k in range(args.runs)]
         starts = [run_start(problems, order, g, scout_starts) for g in groups]
-        later = [race_points(problems, order, g, args.races, scout_starts) if args.races > 1 else None for g in groups]
+        later = [race_points(problems, order, g, args.races, scout_starts) for g in groups]  # None for one race
         start["run_start_throws"] = [int(i) for i, _ in starts]
         # The runs are independent: run_concurrently merges their generations into one batch per round (same results).
         runs = run_concurrently(executor, [partial(_refine_run, k, args, problems[i], search=search, starts=points, show=show,

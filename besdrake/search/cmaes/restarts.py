@@ -183,9 +183,8 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
 
     def scout_start(self, k: int) -> np.ndarray:
         """Start point of scout ``k``: scouts ``0 .. scouts - 1`` from ``starts``, later races' from ``next_starts``."""
-        if k < self.scouts or self.next_starts is None:
-            return self.starts[k % len(self.starts)].copy()
-        return self.next_starts[(k - self.scouts) % len(self.next_starts)].copy()
+        i = self._start_index(k)
+        return (self.starts[i] if i < len(self.starts) else self.next_starts[i - len(self.starts)]).copy()
 
     def n_races(self) -> int:
         """Races a run may hold: the first, and one per group of ``scouts`` rows of ``next_starts``."""
