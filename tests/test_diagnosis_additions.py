@@ -156,3 +156,31 @@ def test_sensitivity_at_steps_each_parameter_on_top_of_the_fitted_cause():
     sens = fitting.sensitivity_at(specs, base, np.array([[1.0]]), simulate)
     assert all(e["gain_scale"] == base["gain_scale"] for e in seen) and len(seen) == 2
     assert np.allclose(sens.dy[:, 0, 0], [2.0, 1.0])
+
+
+def test_second_effects_beside_a_rival_the_answer_cannot_tell_from_are_listed(monkeypatch):
+    """The joint-1 offset fits as the base height does ("cannot tell it from"): what the log allows beside it (the drag,
+    which nothing constrains) is listed as that rival's pair too; the excluded scoop roll is not, nor is the named cause."""
+    from besdrake.diagnosis import verdict
+    from besdrake.diagnosis.simulate import _Sim
+
+    def answer():
+        prob, sens, fit = _world()
+        rival = fitting.linear_fit(prob, sens, ("joint_offset",))
+        rival.y_fit = prob.y0 + np.nan_to_num(sens.dy[3]) * rival.theta[0]
+        rival.refined = True
+        causes = [SimpleNamespace(effects=("base_offset",), delta_bic=0.0), SimpleNamespace(effects=("joint_offset",), delta_bic=0.3)]
+        v = verdict.Verdict(True, "low", "explained by base_offset", causes, [fit, rival], SimpleNamespace(effects=("base_offset",)), fit,
+                            [{"a": "base_offset", "b": "joint_offset", "structural": False, "delta_bic": 0.3}])
+        ev = SimpleNamespace(measured_groups=["touchdown"], model=MODEL, sim=_Sim(None, [], [], [], [], model=MODEL))
+        verdict.possible_seconds(v, prob, sens, ev, ["base_offset", "scoop_mount", "air_drag", "joint_offset"])
+        return v
+
+    v = answer()
+    beside = {a["b"]: a for a in v.indist if a.get("beside")}
+    assert set(beside) == {"air_drag + joint_offset"} and beside["air_drag + joint_offset"]["beside"] == "joint_offset"
+    assert beside["air_drag + joint_offset"]["recommendation"] and "nor beside the rivals it cannot be told from: joint_offset: air_drag" in v.text
+    assert {a["b"] for a in v.indist if a.get("addition") and not a.get("beside")} == {"air_drag + base_offset", "base_offset + joint_offset"}
+    monkeypatch.setattr(settings, "ADDITIONS_BESIDE_RIVALS", False)
+    v = answer()
+    assert not any(a.get("beside") for a in v.indist) and "nor beside the rivals" not in v.text

@@ -1,5 +1,5 @@
-"""Choosing the cause (besdrake.diagnosis.selection.settle): a rival refined after the choice that fits clearly better
-is chosen instead."""
+"""Choosing the cause (besdrake.diagnosis.selection): a rival refined after the choice that fits clearly better is chosen
+instead (``settle``); what parsimony leaves of the best fit gives way to a clearly better rival the log needs whole."""
 
 from types import SimpleNamespace
 
@@ -89,3 +89,58 @@ def test_a_new_choice_no_better_than_the_first_is_not_taken(monkeypatch):
     monkeypatch.setattr(selection, "parsimony", lambda prob, fits, *args: next(f for f in fits if not f.effects))
     first, settled, notes, fits = _World(0, {"ball": {"radius": 0.044}}).chosen()
     assert first.effects == ("joint_offset",) and settled is first and notes == [] and fits[0] is first
+
+
+def _stub_fits(bics: dict[tuple, float]) -> list:
+    """Refined stand-in fits (what parsimony reads of them), ranked by BIC."""
+    fits = [SimpleNamespace(effects=e, name=" + ".join(e) or "none", bic=b, refined=True, y_fit=np.zeros(1)) for e, b in bics.items()]
+    return sorted(fits, key=lambda f: f.bic)
+
+
+def _parsimony_with(monkeypatch, bics: dict[tuple, float], unneeded: set[tuple]) -> tuple:
+    """Parsimony over stand-in fits where effect ``e`` of candidate ``c`` may be dropped exactly when ``(c, e)`` is in
+    ``unneeded`` (the tests of :func:`besdrake.diagnosis.selection._drop` replaced by that table)."""
+    from besdrake.diagnosis import selection
+
+    fits = _stub_fits(bics)
+
+    def drop(prob, best_fit, by_effects, e, *args):
+        sub = tuple(x for x in best_fit.effects if x != e)
+        if (best_fit.effects, e) in unneeded and sub in by_effects:
+            return by_effects[sub].bic, e, by_effects[sub], f"{e} of {best_fit.name} not needed"
+        return None
+
+    monkeypatch.setattr(selection, "_drop", drop)
+    notes: list[str] = []
+    return parsimony(None, fits, None, ["touchdown"], ["a", "b", "c"], [], notes), notes
+
+
+def test_a_part_left_by_parsimony_gives_way_to_a_clearly_better_needed_rival(monkeypatch):
+    """Trial 31 of the touchdown benchmark (seed 4), in miniature: the pair wins, its first effect is not needed, and the
+    second one left alone fits 30 BIC worse than the first effect alone, which the log needs: that one is named."""
+    bics = {("a", "b"): 65.6, ("a",): 67.0, ("b",): 97.0, (): 144.6}
+    chosen, notes = _parsimony_with(monkeypatch, bics, {(("a", "b"), "a")})
+    assert chosen.effects == ("a",)
+    assert notes[0] == "a of a + b not needed" and notes[1].startswith("b fits 30.0 BIC worse than a, each of whose effects the log needs")
+    monkeypatch.setattr(settings, "NEEDED_RIVAL", False)
+    chosen, notes = _parsimony_with(monkeypatch, bics, {(("a", "b"), "a")})
+    assert chosen.effects == ("b",) and len(notes) == 1
+
+
+def test_a_needed_rival_within_the_margin_or_with_an_unneeded_effect_is_not_named(monkeypatch):
+    margin = settings.INDISTINGUISHABLE_DBIC
+    near = {("a", "b"): 60.0, ("b",): 70.0, ("a",): 70.0 - margin + 0.5, (): 144.6}
+    assert _parsimony_with(monkeypatch, near, {(("a", "b"), "a")})[0].effects == ("b",)
+    # "a" alone is clearly better but not needed (the nominal model does as well): "c", needed, is next in line.
+    unneeded = {("a", "b"): 60.0, ("a",): 62.0, ("c",): 65.0, ("b",): 90.0, (): 100.0}
+    chosen, _ = _parsimony_with(monkeypatch, unneeded, {(("a", "b"), "a"), (("a",), "a")})
+    assert chosen.effects == ("c",)
+    # A clearly better pair whose effects both pass the tests is not named for a single (seed 4, full logs, trial 16).
+    pair = {("a", "b"): 60.0, ("a", "c"): 62.0, ("a",): 75.0, ("c",): 80.0, ("b",): 90.0, (): 144.6}
+    assert _parsimony_with(monkeypatch, pair, {(("a", "b"), "b")})[0].effects == ("a",)
+
+
+def test_a_rival_whose_parts_were_never_refined_is_not_named(monkeypatch):
+    """Whether each effect of a pair is needed is judged against the pair without it; unrefined, it is not judged."""
+    bics = {("a", "b"): 60.0, ("b", "c"): 61.0, ("b",): 90.0, (): 144.6}  # ("c",) never refined
+    assert _parsimony_with(monkeypatch, bics, {(("a", "b"), "a")})[0].effects == ("b",)

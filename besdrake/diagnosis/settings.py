@@ -101,6 +101,10 @@ FORWARD_PAIRS_EVIDENCE_DBIC: float | None = None
 #: How often the cause is chosen again when a rival refined after the choice fits better by more than
 #: INDISTINGUISHABLE_DBIC (:func:`~besdrake.diagnosis.selection.settle`); 0: never (the choice before session 29).
 RESELECT_ROUNDS = 2
+#: Where parsimony's choice (the best fit less the effects the log does not need) fits more than INDISTINGUISHABLE_DBIC
+#: worse than another refined candidate each of whose effects the log needs, that candidate is named instead
+#: (:func:`~besdrake.diagnosis.selection._needed_rival`; session 37). False: parsimony's choice stands.
+NEEDED_RIVAL = True
 #: "high" confidence (issue 25: a nonlinear effect was once named a joint offset with "high"): before a cause is named
 #: with high confidence every single effect is fitted with rollouts, not only the leaders of the linear fit at nominal
 #: (a strongly nonlinear effect is misjudged there and never refined), and the nearest rival that is not the best plus
@@ -182,6 +186,9 @@ SECONDS_LOCAL = False
 #: After parameter parsimony, rivals that fit better than the named cause with only its needed parameters are listed as
 #: "cannot tell" and the answer is "low" (:func:`besdrake.diagnosis.core._list_rivals_beating_the_named`; session 36).
 LIST_RIVALS_BEATING_NAMED = True
+#: On logs of the outcome alone, the second effects the log cannot exclude are listed beside each single rival "cannot
+#: tell" names as well as beside the named cause (:func:`~besdrake.diagnosis.verdict._additions_beside_rivals`; session 37).
+ADDITIONS_BESIDE_RIVALS = True
 #: Parameter parsimony (:mod:`~besdrake.diagnosis.parameters`): the named cause's parameters that the log does not need
 #: (the cause adequate without them, its predictions within MATERIAL noise SD of the fit with them) are left at
 #: nominal, so that a base yaw is named as one joint-1 offset, not as offsets of four joints (issue 25, benchmark seed 0
