@@ -918,6 +918,11 @@ def main(argv=None) -> int:
                     "ranked": [[list(c.effects), float(c.delta_bic), float(c.chi2), bool(c.refined)] for c in d.causes[:16]],
                     "additions_listed": [a["effect"] for a in d.indistinguishable if a.get("addition")],
                     "aliases_listed": [a["b"] for a in d.indistinguishable if a.get("alias")],
+                    # Session 37's two rules, for attribution: the pairs listed beside the rivals (without them, would the
+                    # answer still hold the truth?) and whether a clearly better rival replaced what parsimony left.
+                    "beside_rivals_listed": [a["b"] for a in d.indistinguishable if a.get("beside")],
+                    "honest_without_beside": truth in [tuple(sorted(a["b"].split(" + "))) for a in d.indistinguishable if not a.get("beside")] or honest_undetected,
+                    "needed_rival_named": any("each of whose effects the log needs" in n for n in d.notes),
                 }
                 if stage:
                     row["sequential"] = stage
