@@ -797,6 +797,7 @@ def main(argv=None) -> int:
         return 0
 
     from besdrake.diagnosis import diagnose, diagnosis_plans
+    from besdrake.diagnosis.selection import NEEDED_RIVAL_NOTE
     from besdrake.tasks.throwing.diagnosis.design import DEFAULT_SIDEWAYS
     from besdrake.sim import Rollout
     from besdrake.sim.scenario import load_scenario
@@ -922,7 +923,7 @@ def main(argv=None) -> int:
                     # answer still hold the truth?) and whether a clearly better rival replaced what parsimony left.
                     "beside_rivals_listed": [a["b"] for a in d.indistinguishable if a.get("beside")],
                     "honest_without_beside": truth in [tuple(sorted(a["b"].split(" + "))) for a in d.indistinguishable if not a.get("beside")] or honest_undetected,
-                    "needed_rival_named": any("each of whose effects the log needs" in n for n in d.notes),
+                    "needed_rival_named": any(NEEDED_RIVAL_NOTE in n for n in d.notes),
                 }
                 if stage:
                     row["sequential"] = stage

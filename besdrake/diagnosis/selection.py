@@ -185,6 +185,10 @@ def parsimony(prob: fitting.Problem, fits: list[fitting.CandidateFit], nm: noise
     return best_fit
 
 
+#: The words of the note :func:`_needed_rival` leaves where it names a rival (a benchmark counts them).
+NEEDED_RIVAL_NOTE = "each of whose effects the log needs"
+
+
 def _needed_rival(prob: fitting.Problem, fits: list[fitting.CandidateFit], chosen: fitting.CandidateFit, by_effects: dict,
                   nm: noise.NoiseModel, groups: list[str], cands: list[str], keys: list[str], notes: list[str]) -> fitting.CandidateFit:
     """The BIC-best refined candidate of no more effects than ``chosen`` (what parsimony left of the best fit) that fits
@@ -205,8 +209,7 @@ def _needed_rival(prob: fitting.Problem, fits: list[fitting.CandidateFit], chose
             continue  # a part of it was never refined: whether each effect is needed cannot be judged
         own: list[str] = []
         if all(_drop(prob, f, by_effects, e, nm, groups, cands, keys, own) is None for e in f.effects):
-            notes.append(f"{chosen.name} fits {chosen.bic - f.bic:.1f} BIC worse than {f.name}, each of whose effects the log needs: "
-                         f"{f.name} is named")
+            notes.append(f"{chosen.name} fits {chosen.bic - f.bic:.1f} BIC worse than {f.name}, {NEEDED_RIVAL_NOTE}: {f.name} is named")
             notes.extend(own)
             return f
     return chosen

@@ -414,27 +414,23 @@ def _additions_beside_rivals(v: Verdict, prob: fitting.Problem, sens: fitting.Se
     "cannot exclude C beside A" leave B + C as open as A + C (benchmark seed 4, outcome-only trial 15: an object's size and
     a gain change hidden, actuator lag named, the gain change alone a rival 1.4 BIC behind, the pair nowhere)."""
     b = v.best.effects[0]
-    fits = {c.effects: f for f, c in zip(v.fits, v.causes)}
-    dbic = {c.effects: float(c.delta_bic) for c in v.causes}
+    singles = {c.effects[0]: (f, c) for f, c in zip(v.fits, v.causes) if len(c.effects) == 1}
     named = {tuple(sorted(a["b"].split(" + "))) for a in v.indist}
     rivals = [a["b"] for a in v.indist if not a.get("addition") and " + " not in a["b"]]
     said = []
     for r in rivals:
-        f = fits.get((r,))
+        f, c = singles.get(r, (None, None))
         if f is None or not f.refined or f.y_fit is None or getattr(f, "jac", None) is None:
             continue
         adds = additions_beside(prob, sens, f, cands)
-        refined = {next(e for e in pair if e != r): d for pair, d in dbic.items() if len(pair) == 2 and r in pair and fits[pair].refined}
-        names = listed_additions([a.to_dict() for a in adds], refined_dbic=refined)
+        names = listed_additions([a.to_dict() for a in adds], refined_dbic=_refined_pair_dbic(v, r))
         new = []
         for a in sorted((a for a in adds if a.effect in names and a.effect != b), key=lambda a: names.index(a.effect)):
             pair = tuple(sorted((r, a.effect)))
             if pair in named:
                 continue
             named.add(pair)
-            rec = _recommendation(a.effect, [s_ for s_ in sens.specs if s_.effect == a.effect], ev.sim, ev.measured_groups, None)
-            v.indist.append({"a": v.best_fit.name, "b": " + ".join(pair), "structural": False, "addition": True, "beside": r, "effect": a.effect,
-                             "allowed": a.to_dict()["allowed"], "recommendation": rec, "delta_bic": float(dbic[(r,)] + np.log(max(prob.n, 1)) - a.gain)})
+            _append_pair(v, r, a, sens, ev, float(c.delta_bic) + np.log(max(prob.n, 1)) - a.gain, beside=r)
             new.append(a.effect)
         if new:
             said.append(f"{r}: {', '.join(new)}")
@@ -442,24 +438,29 @@ def _additions_beside_rivals(v: Verdict, prob: fitting.Problem, sens: fitting.Se
         v.text += "; nor beside the rivals it cannot be told from: " + "; ".join(said)
 
 
+def _refined_pair_dbic(v: Verdict, e: str) -> dict[str, float]:
+    """Per effect X: the delta BIC of the pair "``e`` + X" where it was refined with rollouts."""
+    return {next(x for x in c.effects if x != e): float(c.delta_bic) for f, c in zip(v.fits, v.causes)
+            if f.refined and len(c.effects) == 2 and e in c.effects}
+
+
+def _append_pair(v: Verdict, lead: str, a: Any, sens: fitting.Sensitivity, ev: Any, delta_bic: float, **extra: Any) -> str:
+    """Append the pair "``lead`` + addition ``a``" to ``v.indist`` with the recording that would show ``a``; returns that."""
+    rec = _recommendation(a.effect, [s_ for s_ in sens.specs if s_.effect == a.effect], ev.sim, ev.measured_groups, None)
+    v.indist.append({"a": v.best_fit.name, "b": " + ".join(sorted((lead, a.effect))), "structural": False, "addition": True, **extra,
+                     "effect": a.effect, "allowed": a.to_dict()["allowed"], "recommendation": rec, "delta_bic": float(delta_bic)})
+    return rec
+
+
 def _list_additions(v: Verdict, adds: list, n: int, sens: fitting.Sensitivity, ev: Any, named: set) -> tuple[list, list[str]]:
     """The additions :func:`~besdrake.diagnosis.additions.listed` keeps, appended to ``v.indist`` as pairs (unless the pair
     is listed already); returns them and the recordings that would show them."""
     b = v.best.effects[0]
-    v.basis["additions_refined_dbic"] = {next(e for e in c.effects if e != b): float(c.delta_bic) for f, c in zip(v.fits[1:], v.causes[1:])
-                                         if f.refined and len(c.effects) == 2 and b in c.effects}
+    v.basis["additions_refined_dbic"] = _refined_pair_dbic(v, b)
     names = listed_additions(v.basis["additions"], refined_dbic=v.basis["additions_refined_dbic"])
     listed = sorted([a for a in adds if a.effect in names], key=lambda a: names.index(a.effect))
-    recs = []
-    for a in listed:
-        pair = tuple(sorted((b, a.effect)))
-        if pair in named:
-            continue
-        rec = _recommendation(a.effect, [s_ for s_ in sens.specs if s_.effect == a.effect], ev.sim, ev.measured_groups, None)
-        recs.append(rec)
-        # delta BIC of the pair, linearised: the chi-square its best parameter gains against one more parameter's penalty
-        v.indist.append({"a": v.best_fit.name, "b": " + ".join(pair), "structural": False, "addition": True, "effect": a.effect,
-                         "allowed": a.to_dict()["allowed"], "recommendation": rec, "delta_bic": float(np.log(max(n, 1)) - a.gain)})
+    # delta BIC of a pair, linearised: the chi-square its best parameter gains against one more parameter's penalty
+    recs = [_append_pair(v, b, a, sens, ev, np.log(max(n, 1)) - a.gain) for a in listed if tuple(sorted((b, a.effect))) not in named]
     return listed, recs
 
 
