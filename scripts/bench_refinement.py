@@ -89,6 +89,7 @@ def main(argv: list[str] | None = None) -> int:
     from besdrake.tasks.throwing.template_base import follow_through_phase
     from besdrake.search.refinement import DEFAULT_CMA_OPTIONS, DEFAULT_POPSIZE_GROWTH, DEFAULT_RESTART_REGIMES, DEFAULT_STAGNATION_GENERATIONS, STAGNATION_TOL
     from besdrake.search.refinement import DEFAULT_PATIENCE, DEFAULT_SIGMA0, DEFAULT_SCOUT_GENERATIONS, DEFAULT_SCOUT_HALVING, DEFAULT_SCOUTS
+    from besdrake.search.refinement.robust import FRONTIER_MARGIN
     from besdrake.sim import make_executor
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
@@ -146,6 +147,9 @@ def main(argv: list[str] | None = None) -> int:
                              "of the task's scatter quadrature with this SD (m per axis; the lab's: 0.002) and rewarded by their RMS "
                              "distance (0: off)")
     parser.add_argument("--robust-radius", type=float, default=None, help="robust check of candidates within this distance (m; default: the module's)")
+    parser.add_argument("--robust-frontier", type=float, default=None, metavar="M",
+                        help=f"check only candidates whose nominal distance is below the run's best so far plus M (m; e.g. "
+                             f"{FRONTIER_MARGIN}, session 38; default: every candidate within the radius, as learn)")
     parser.add_argument("--follow-through", type=float, default=None, metavar="S",
                         help="each problem slows its plans' follow-through where it alone breaks a limit, from S s after its "
                              "imitated throw's release (RefinementProblem(follow_through=); default: off, the whole throw retimed uniformly)")
@@ -195,7 +199,8 @@ def main(argv: list[str] | None = None) -> int:
                 from besdrake.search.refinement.robust import ROBUST_RADIUS, RobustCheck
                 from besdrake.task import get_task
                 robust = RobustCheck.from_task(get_task("throwing"), ex.scenario, args.robust_sd,
-                                               radius=ROBUST_RADIUS if args.robust_radius is None else args.robust_radius)
+                                               radius=ROBUST_RADIUS if args.robust_radius is None else args.robust_radius,
+                                               frontier=args.robust_frontier)
             phases = [follow_through_phase(dm, ex, robot, args.follow_through) for dm in dmps]
             problems = [RefinementProblem(robot, dm, reward, ParameterScaling.for_dmp(
                 dm, robot.position_limits, max_execution_time=max(dm.execution_time, MIN_EXECUTION_TIME + 0.05) if args.no_slower else None, **unit),
@@ -256,7 +261,8 @@ def main(argv: list[str] | None = None) -> int:
         "restart_regimes": DEFAULT_RESTART_REGIMES if args.regimes is None else args.regimes, "small_share": args.small_share, "patience": args.patience, "scouts": DEFAULT_SCOUTS if args.scouts is None else args.scouts,
         "scout_generations": DEFAULT_SCOUT_GENERATIONS if args.scout_generations is None else args.scout_generations,
         "scout_halving": DEFAULT_SCOUT_HALVING if args.scout_halving is None else args.scout_halving, "plain": args.plain, "target_m": [2.0, 0.0], "backend": args.backend,
-        "robust_sd_m": args.robust_sd, "robust_radius_m": args.robust_radius, "stop_distance_m": args.stop_distance, "follow_through_s": args.follow_through, "lab_repeats": args.lab_repeats,
+        "robust_sd_m": args.robust_sd, "robust_radius_m": args.robust_radius,
+        "robust_frontier_m": args.robust_frontier, "stop_distance_m": args.stop_distance, "follow_through_s": args.follow_through, "lab_repeats": args.lab_repeats,
         "stall": None if args.stall_episodes is None else [args.stall_episodes, args.stall_tol, args.stall_after],
         "switch_distance_m": args.switch_distance, "races": args.races,
         "success_rate": float(np.mean([r["success"] for r in all_runs])),

@@ -96,6 +96,7 @@ def test_unknown_stage_is_refused(tmp_path, capsys):
                                       "diagnosis.probes=9", "diagnosis.repeats=-1", "diagnosis.throws=lots",
                                       "diagnosis.sideways=99", "diagnosis.sideways=some", "refinement.stop_distance=0.5",
                                       "refinement.robust_sd=0.01", "refinement.robust_sd=lots", "refinement.robust_radius=0",
+                                      "refinement.robust_frontier=lots", "refinement.robust_frontier=0", "refinement.robust_frontier=0.5",
                                       "templates.reach_target=far", "templates.reach_target=[1]", "templates.reach_evaluations=-5",
                                       "templates.reach_other_evaluations=-1", "refinement.run_starts=random",
                                       "templates.slowest=0.5", "templates.slowest=fast", "templates.reach_objective=sideways",
@@ -182,6 +183,18 @@ def test_learn_refines_with_the_family_switch_where_it_scouts():
 
     assert refinement_settings(load_config())["switch_distance"] == 0.3
     assert refinement_settings({"refinement": {}})["switch_distance"] is None
+
+
+def test_learn_checks_only_the_throws_that_could_become_a_runs_best_where_asked():
+    """refinement.robust_frontier (session 38, an option) reaches the robust check; null by default and absent (a run
+    folder of before): every throw within the radius is checked."""
+    from besdrake.tasks.throwing.learn import _robust_check, refinement_settings
+
+    on = refinement_settings(load_config(overrides=["refinement.robust_frontier=0.01"]))
+    assert on["robust_frontier"] == 0.01 and _robust_check("throwing", "nominal", on).frontier == 0.01
+    for cfg in (load_config(), {"refinement": {"robust_sd": 0.002}}):
+        off = refinement_settings(cfg)
+        assert off["robust_frontier"] is None and _robust_check("throwing", "nominal", off).frontier is None
 
 
 def test_a_reach_refinement_that_stalls_looks_in_another_throw_family(monkeypatch, tmp_path):

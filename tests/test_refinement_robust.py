@@ -48,10 +48,11 @@ class ScatterStandIn:
         return out
 
 
-def placement_check(sd: float = 0.002, radius: float = 0.3, probe_tolerance: float | None = 0.01) -> RobustCheck:
+def placement_check(sd: float = 0.002, radius: float = 0.3, probe_tolerance: float | None = 0.01, frontier: float | None = 0.01) -> RobustCheck:
     from besdrake.sim.scenario import load_scenario
 
-    return RobustCheck.from_task(get_task("throwing"), load_scenario("nominal"), sd, radius=radius, probe_tolerance=probe_tolerance)
+    return RobustCheck.from_task(get_task("throwing"), load_scenario("nominal"), sd, radius=radius, probe_tolerance=probe_tolerance,
+                                 frontier=frontier)
 
 
 def test_robust_reward_is_the_rms_distance_over_the_quadrature():
@@ -99,6 +100,45 @@ def test_only_candidates_near_the_goal_are_rechecked_and_a_cliff_ranks_lower(bas
     assert r[1].distance == pytest.approx(r[2].distance, abs=1e-6) and r[1].distance < 0.1
     assert r[2].robust_distance > r[1].robust_distance + 0.2 and r[2].reward < r[1].reward
     assert RefinementProblem.from_description(problem.describe()).robust.to_dict() == check.to_dict()
+
+
+def test_only_candidates_that_could_become_the_runs_best_are_checked(base):
+    problem = RefinementProblem(COMPI, base, robust=placement_check())
+    n = problem.parameterization.template.n_dims
+    theta0, scale = problem.scaling.theta0, problem.scaling.scale
+    X = np.zeros((2, problem.n_params))  # both land about 5 cm short of the target, one on a cliff
+    X[:, n] = (0.0 - theta0[n]) / scale[n]
+    X[:, n + 1] = (0.95 - theta0[n + 1]) / scale[n + 1]
+    X[1, n + 2] = 0.5
+    ex = ScatterStandIn(gain=0.0, cliff=base.goal[2] + 0.1)
+    evaluate = problem.batch_evaluator(ex)
+    first = evaluate(X)  # nothing recorded before: both checked, the cliff ranks lower
+    assert ex.perturbed == 2 + 8 and first[1] < first[0]
+    again = problem.evaluate(X, ex_again := ScatterStandIn(gain=0.0, cliff=base.goal[2] + 0.1))
+    assert ex_again.perturbed == 10 and again[1].reward == pytest.approx(first[1])  # the batch's own records left out
+    problem.records["better"] = RewardBreakdown(-0.02, 0.02, 0.0, (1.98, 0.0), robust_distance=0.02)
+    ex = ScatterStandIn(gain=0.0, cliff=base.goal[2] + 0.1)
+    behind = problem.evaluate(X, ex)  # 5 cm against a best of 2 cm: neither can become the best, neither is checked
+    assert ex.perturbed == 0 and all(not np.isfinite(r.robust_distance) and r.reward == pytest.approx(-r.distance) for r in behind)
+    problem.records["better"] = RewardBreakdown(-0.045, 0.045, 0.0, (1.955, 0.0), robust_distance=0.045)
+    ex = ScatterStandIn(gain=0.0, cliff=base.goal[2] + 0.1)
+    near = problem.evaluate(X, ex)  # within the 1 cm margin of the best: checked
+    assert ex.perturbed == 10 and near[1].reward == pytest.approx(first[1])
+    everyone = RefinementProblem(COMPI, base, robust=placement_check(frontier=None))
+    everyone.records["better"] = RewardBreakdown(-0.02, 0.02, 0.0, (1.98, 0.0), robust_distance=0.02)
+    ex = ScatterStandIn(gain=0.0, cliff=base.goal[2] + 0.1)
+    everyone.evaluate(X, ex)
+    assert ex.perturbed == 10  # without a frontier every candidate within the radius is checked
+    assert "frontier" not in everyone.robust.to_dict() and RobustCheck.from_dict(problem.robust.to_dict()).frontier == 0.01
+
+
+def test_a_frontier_run_checks_its_best_and_fewer_others(base):
+    runs = {f: refine(RefinementProblem(COMPI, base, robust=placement_check(frontier=f)), ScatterStandIn(), n_episodes=200, seed=1,
+                      popsize=10, stop_on_success=False) for f in (None, 0.01)}
+    lazy, full = runs[0.01], runs[None]
+    assert 0 < lazy.n_robust_rollouts < full.n_robust_rollouts
+    best = int(np.argmax(lazy.rewards))
+    assert np.isfinite(lazy.robust_distances[best]) and lazy.best_robust_distance == lazy.robust_distances[best]
 
 
 def test_a_robust_run_records_its_checks_resumes_and_stops_inside_the_margin(base, tmp_path):

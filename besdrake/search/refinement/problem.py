@@ -171,13 +171,22 @@ class RefinementProblem:
             for i, o in zip(todo, outcomes):
                 out[i] = self.reward(plans[i], o, self.robot.limits)
             if self.robust is not None:
-                self._check_robust(plans, out, executor)
+                self._check_robust(plans, out, executor, self._best_objective({params_key(x) for x in X}))
         return [r for r in out if r is not None]
 
-    def _check_robust(self, plans: list, out: list, executor) -> None:
-        """Replace the records of the candidates near the goal by their robust ones: the probes of every such candidate
-        in one batch of rollouts, then the other setups of those that did not stay put in another."""
-        check = [i for i, r in enumerate(out) if r is not None and plans[i] is not None and self.robust.needs(r)]
+    def _best_objective(self, batch: set[str]) -> float:
+        """Minus the best reward of the recorded episodes outside ``batch`` (m; inf where there are none): what a candidate
+        must beat to become the run's best. Episodes of the batch itself are left out, so that a generation evaluated
+        again on resuming a killed run is checked as it was the first time."""
+        rewards = [r.reward for k, r in self.records.items() if k not in batch and np.isfinite(r.reward)]
+        return -max(rewards) if rewards else np.inf
+
+    def _check_robust(self, plans: list, out: list, executor, best_objective: float = np.inf) -> None:
+        """Replace the records of the candidates near the goal that could become the run's best (its frontier) by their
+        robust ones: the probes of every such candidate in one batch of rollouts, then the other setups of those that did
+        not stay put in another."""
+        check = [i for i, r in enumerate(out) if r is not None and plans[i] is not None and self.robust.needs(r)
+                 and self.robust.on_frontier(r, best_objective)]
         if not check:
             return
         probes = self.robust.probes()

@@ -10,7 +10,11 @@ whose outcome stays put). Only candidates within :attr:`RobustCheck.radius` of t
 checked, so the price in rollouts is paid near the goal only, and a check *probes* first: the two setups farthest
 apart (e.g. two opposite corners of the quadrature) are simulated, and only where one of them moves the outcome
 point by :attr:`RobustCheck.probe_tolerance` or more are the other setups simulated too (elsewhere they count as
-landing where the nominal does). Measured on a task: the notes beside it (``besdrake/tasks/<name>/REFINEMENT.md``).
+landing where the nominal does). Optionally a check is spent only where it can matter (:attr:`RobustCheck.frontier`,
+e.g. :data:`FRONTIER_MARGIN`): on a candidate whose nominal distance could make it the run's best so far (within the
+frontier margin of the best objective of the episodes before its batch); the others are rewarded by their nominal
+distance (no robust distance recorded). The run's best, the plan it returns and the stop on success are then still
+judged over the scatter, at about half the check rollouts (not learn's default: see the task's notes). Measured on a task: the notes beside it (``besdrake/tasks/<name>/REFINEMENT.md``).
 """
 
 from __future__ import annotations
@@ -29,6 +33,9 @@ ROBUST_RADIUS = 0.2
 MISS_DISTANCE = 1.0
 #: A probe that moves the outcome point less than this (m) from the nominal's counts as "stays put".
 PROBE_TOLERANCE = 0.01
+#: With a frontier, a candidate is checked only where its nominal distance is below the run's best objective so far plus
+#: this (m): the probes' tolerance, so that a candidate whose scatter could bring it below the best is not missed.
+FRONTIER_MARGIN = PROBE_TOLERANCE
 
 
 @dataclass
@@ -42,6 +49,8 @@ class RobustCheck:
     miss_distance: float = MISS_DISTANCE
     #: m; None: no probing (every setup simulated at once)
     probe_tolerance: float | None = PROBE_TOLERANCE
+    #: m; None: every candidate within the radius is checked, not only those that could become the run's best
+    frontier: float | None = None
 
     def __post_init__(self) -> None:
         self.effects = [dict(e) for e in self.effects]
@@ -50,7 +59,8 @@ class RobustCheck:
             raise RefinementError(f"a robust check needs >= 1 effect and one weight more (the nominal's first), "
                                   f"non-negative and summing to 1; got {len(self.effects)} effects, weights {w.tolist()}")
         self.weights = w
-        names = ("radius", "miss_distance") + (("probe_tolerance",) if self.probe_tolerance is not None else ())
+        names = ("radius", "miss_distance") + (("probe_tolerance",) if self.probe_tolerance is not None else ()) + (
+            ("frontier",) if self.frontier is not None else ())
         for name in names:
             v = float(getattr(self, name))
             if not (np.isfinite(v) and v > 0):
@@ -93,6 +103,11 @@ class RobustCheck:
         """Whether the nominal record ``r`` is near enough the goal (within every limit) to be checked."""
         return (not r.failed) and r.touchdown is not None and r.penalty == 0.0 and r.distance < self.radius
 
+    def on_frontier(self, r: RewardBreakdown, best_objective: float) -> bool:
+        """Whether ``r``'s nominal distance could make it the run's best (``best_objective``: m, minus the best reward of
+        the episodes before; ``inf`` where there are none), so that its check can matter; always without a frontier."""
+        return self.frontier is None or r.distance < best_objective + self.frontier
+
     def combine(self, nominal: RewardBreakdown, perturbed: Sequence[RewardBreakdown | None]) -> RewardBreakdown:
         """The nominal record with the reward ``-RMS distance - penalty`` over the quadrature and the RMS distance
         kept (``robust_distance``); ``perturbed``: one record per setup, None for one not simulated (it counts as the
@@ -105,13 +120,15 @@ class RobustCheck:
 
     def to_dict(self) -> dict[str, Any]:
         return {"effects": [dict(e) for e in self.effects], "weights": [float(v) for v in self.weights],
-                "radius": self.radius, "miss_distance": self.miss_distance, "probe_tolerance": self.probe_tolerance}
+                "radius": self.radius, "miss_distance": self.miss_distance, "probe_tolerance": self.probe_tolerance} | (
+                    {"frontier": self.frontier} if self.frontier is not None else {})
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "RobustCheck":
         try:
-            tol = d.get("probe_tolerance")
-            return cls(d["effects"], d["weights"], float(d["radius"]), float(d["miss_distance"]), None if tol is None else float(tol))
+            tol, front = d.get("probe_tolerance"), d.get("frontier")  # no frontier recorded: every candidate was checked
+            return cls(d["effects"], d["weights"], float(d["radius"]), float(d["miss_distance"]), None if tol is None else float(tol),
+                       None if front is None else float(front))
         except (KeyError, TypeError, ValueError) as err:
             raise RefinementError(f"bad robust check {d!r}: {err}") from err
 

@@ -404,7 +404,9 @@ def refinement_settings(config: dict[str, Any]) -> dict[str, Any]:
     """The refinement section's stop and robustness settings, checked (:class:`~besdrake.pipeline.config.ConfigError`):
     ``stop_on_success``, ``runs_in_turn`` (the runs one after the other up to the first success), ``stop_distance`` (m;
     null: the success distance), ``turn_distance`` (m: with ``runs_in_turn`` a run follows only where every earlier one
-    ended beyond it; null: the stop distance) and ``robust_sd`` (m per axis; 0: no robust check), ``robust_radius`` (m), ``stall`` (a
+    ended beyond it; null: the stop distance) and ``robust_sd`` (m per axis; 0: no robust check), ``robust_radius`` (m),
+    ``robust_frontier`` (m; null or absent, as in a run folder of before: every throw within the radius checked, not only
+    those that could become the run's best), ``stall`` (a
     :class:`~besdrake.search.refinement.StallRule` from ``stall_episodes`` / ``stall_tol`` / ``stall_after``; None where
     ``stall_episodes`` is null), ``switch_distance`` (m; a raced scout that stalls farther hands over to the next one;
     null: never)."""
@@ -418,7 +420,8 @@ def refinement_settings(config: dict[str, Any]) -> dict[str, Any]:
         stop = cfg.get("stop_distance")
         out = {"stop_on_success": bool(cfg.get("stop_on_success", True)), "stop_distance": None if stop is None else float(stop),
                "runs_in_turn": bool(cfg.get("runs_in_turn", False)), "run_starts": str(cfg.get("run_starts", "same")),
-               "robust_sd": float(cfg.get("robust_sd", 0.0)), "robust_radius": float(cfg.get("robust_radius", ROBUST_RADIUS))}
+               "robust_sd": float(cfg.get("robust_sd", 0.0)), "robust_radius": float(cfg.get("robust_radius", ROBUST_RADIUS)),
+               "robust_frontier": None if cfg.get("robust_frontier") is None else float(cfg["robust_frontier"])}
         out["switch_distance"] = checked_switch_distance(cfg.get("switch_distance"))
     except (TypeError, ValueError, RefinementError) as err:
         raise ConfigError(f"refinement: {err}") from None
@@ -431,6 +434,8 @@ def refinement_settings(config: dict[str, Any]) -> dict[str, Any]:
     if not (0 <= out["robust_sd"] <= 0.005) or not (out["robust_radius"] > 0):
         raise ConfigError(f"refinement: robust_sd must be within 0..0.005 m and robust_radius > 0 m, "
                           f"got {out['robust_sd']!r}, {out['robust_radius']!r}")
+    if out["robust_frontier"] is not None and not (0 < out["robust_frontier"] < out["robust_radius"]):
+        raise ConfigError(f"refinement: robust_frontier must be within (0, robust_radius) m or null, got {out['robust_frontier']!r}")
     return out
 
 
@@ -470,7 +475,8 @@ def _robust_check(task: str, scenario: str, settings: dict[str, Any]):
 
     if settings["robust_sd"] <= 0:
         return None
-    return RobustCheck.from_task(get_task(task), load_scenario(scenario), settings["robust_sd"], radius=settings["robust_radius"])
+    return RobustCheck.from_task(get_task(task), load_scenario(scenario), settings["robust_sd"], radius=settings["robust_radius"],
+                                 frontier=settings.get("robust_frontier"))
 
 
 def stage_refine(ctx: Context, out: Path) -> dict[str, Any]:
