@@ -144,3 +144,49 @@ def test_a_rival_whose_parts_were_never_refined_is_not_named(monkeypatch):
     """Whether each effect of a pair is needed is judged against the pair without it; unrefined, it is not judged."""
     bics = {("a", "b"): 60.0, ("b", "c"): 61.0, ("b",): 90.0, (): 144.6}  # ("c",) never refined
     assert _parsimony_with(monkeypatch, bics, {(("a", "b"), "a")})[0].effects == ("b",)
+
+
+def _stale_pair(world: "_World") -> tuple[fitting.CandidateFit, fitting.CandidateFit, list[fitting.CandidateFit]]:
+    """The joint offset refined, and its pair with the ball's radius refined from a poor start only (as a pair refined
+    before its single was re-judged on its own placement correction): the pair fits worse than the single it holds."""
+    sens = fitting.compute_sensitivity([J1, RADIUS], world.y0, world.features)
+    single, pair = (fitting.linear_fit(world.prob, sens, e) for e in [("joint_offset",), ("joint_offset", "ball")])
+    fitting.refine(world.prob, single, world.one, iterations=5)
+    bad = np.array([-0.05, 0.03])
+    fitting.refine(world.prob, pair, world.one, iterations=0, starts=[(bad, world.one(fitting.effects_from(pair.specs, bad)))], try_linear=False)
+    fits = [single, pair]
+    rank(fits)
+    return single, pair, fits
+
+
+class _PlacementWorld(_World):
+    """_World with placement draws set (so the leaders are re-judged) whose correction is nil everywhere."""
+
+    placement_draws = ()
+
+    def local_shift(self, effects: dict):
+        return None
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_pair_that_fits_worse_than_its_single_is_refined_again_from_it(seed):
+    from besdrake.diagnosis.selection import relocalise_placement
+
+    world = _PlacementWorld(seed, {"joint_offset": {"joint1": 0.03}, "ball": {"radius": 0.043}})
+    single, pair, fits = _stale_pair(world)
+    stale = pair.chi2
+    assert stale > single.chi2 + 50
+    relocalise_placement(world.prob, fits, world, 5, {})
+    assert pair.chi2 < single.chi2 - 10 < stale  # from the single's optimum the pair can only gain; here the radius does
+    assert dict(zip([s.key for s in pair.specs], pair.theta))["ball.radius"] > 0.037
+
+
+def test_without_the_refit_a_stale_pair_stays(monkeypatch):
+    from besdrake.diagnosis.selection import relocalise_placement
+
+    monkeypatch.setattr(settings, "REFIT_WORSE_PAIRS", False)
+    world = _PlacementWorld(0, {"joint_offset": {"joint1": 0.03}, "ball": {"radius": 0.043}})
+    single, pair, fits = _stale_pair(world)
+    stale = pair.chi2
+    relocalise_placement(world.prob, fits, world, 5, {})
+    assert pair.chi2 == stale

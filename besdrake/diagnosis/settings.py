@@ -98,6 +98,10 @@ FORWARD_TOP = 2
 #: better by BIC (issue 25: a tool tilt 3.8x the detection limit beside an object placement habit was never fitted as
 #: a pair: the lack-of-fit test over the whole log has no power for one parameter's signature). None: off.
 FORWARD_PAIRS_EVIDENCE_DBIC: float | None = None
+#: After the leaders are re-judged on the placement correction at their own parameters, a refined pair that fits worse
+#: than a re-judged single effect it holds is refined again from that single's optimum
+#: (:func:`~besdrake.diagnosis.selection._refit_from_single`; session 38). False: such a pair stays as it is.
+REFIT_WORSE_PAIRS = True
 #: How often the cause is chosen again when a rival refined after the choice fits better by more than
 #: INDISTINGUISHABLE_DBIC (:func:`~besdrake.diagnosis.selection.settle`); 0: never (the choice before session 29).
 RESELECT_ROUNDS = 2
