@@ -171,7 +171,8 @@ class RefinementProblem:
             for i, o in zip(todo, outcomes):
                 out[i] = self.reward(plans[i], o, self.robot.limits)
             if self.robust is not None:
-                self._check_robust(plans, out, executor, self._best_objective({params_key(x) for x in X}))
+                best = np.inf if self.robust.frontier is None else self._best_objective({params_key(x) for x in X})
+                self._check_robust(plans, out, executor, best)
         return [r for r in out if r is not None]
 
     def _best_objective(self, batch: set[str]) -> float:
