@@ -145,10 +145,16 @@ def relocalise_placement(prob: fitting.Problem, fits: list[fitting.CandidateFit]
     for f in chosen:
         localise(prob, f, sim, iterations, local_shift)
     if settings.REFIT_WORSE_PAIRS:
-        for single in [f for f in chosen if len(f.effects) == 1]:
-            for pair in [p for p in fits if p.refined and len(p.effects) == 2 and single.effects[0] in p.effects]:
-                if pair.y_fit is not None and single.y_fit is not None and pair.chi2 > single.chi2:
-                    _refit_from_single(prob, pair, single, sim, iterations, local_shift)
+        for pair, single in _pairs_worse_than_their_single(fits, chosen):
+            if pair.chi2 > single.chi2:  # still: a pair holding two re-judged singles may be refitted already
+                _refit_from_single(prob, pair, single, sim, iterations, local_shift)
+
+
+def _pairs_worse_than_their_single(fits: list[fitting.CandidateFit], chosen: list[fitting.CandidateFit]) -> list[tuple]:
+    """(pair, single) for every refined pair that fits worse than a re-judged (``chosen``) single effect it holds."""
+    singles = [f for f in chosen if len(f.effects) == 1 and f.y_fit is not None]
+    return [(p, s_) for s_ in singles for p in fits if p.refined and len(p.effects) == 2 and s_.effects[0] in p.effects
+            and p.y_fit is not None and p.chi2 > s_.chi2]
 
 
 def _refit_from_single(prob: fitting.Problem, pair: fitting.CandidateFit, single: fitting.CandidateFit, sim: _Sim, iterations: int,
