@@ -185,14 +185,14 @@ def test_learn_refines_with_the_family_switch_where_it_scouts():
     assert refinement_settings({"refinement": {}})["switch_distance"] is None
 
 
-def test_learn_checks_only_the_throws_that_could_become_a_runs_best_where_asked():
-    """refinement.robust_frontier (session 38, an option) reaches the robust check; null by default and absent (a run
-    folder of before): every throw within the radius is checked."""
+def test_learn_checks_only_the_throws_that_could_become_a_runs_best_by_default():
+    """refinement.robust_frontier (session 38; the default, 0.01 m, since session 39) reaches the robust check; null and
+    absent (a run folder of before): every throw within the radius is checked."""
     from besdrake.tasks.throwing.learn import _robust_check, refinement_settings
 
-    on = refinement_settings(load_config(overrides=["refinement.robust_frontier=0.01"]))
+    on = refinement_settings(load_config())
     assert on["robust_frontier"] == 0.01 and _robust_check("throwing", "nominal", on).frontier == 0.01
-    for cfg in (load_config(), {"refinement": {"robust_sd": 0.002}}):
+    for cfg in (load_config(overrides=["refinement.robust_frontier=null"]), {"refinement": {"robust_sd": 0.002}}):
         off = refinement_settings(cfg)
         assert off["robust_frontier"] is None and _robust_check("throwing", "nominal", off).frontier is None
 
@@ -216,6 +216,44 @@ def test_a_reach_refinement_that_stalls_looks_in_another_throw_family(monkeypatc
     other = L._other_family(None, "nominal", tmp_path, settings, 0.36)
     assert calls == [(["imitated"], 600, 1)]
     assert other == {"start_distance_m": 1.2, "best_distance_m": 0.16, "episodes": 600, "best_dmp": "refined0.dmp.json"}
+
+
+def test_a_reach_refinement_that_stalls_goes_on_from_the_other_refinement_runs_throws(monkeypatch, tmp_path):
+    """templates.reach_other_runs: only where the reach refinement ended beyond the goal, one more from each refinement
+    run's throw of another family than the base (same budget); the base's own family and a setting of false: none."""
+    from types import SimpleNamespace
+
+    from besdrake.sim.scenario import load_scenario
+    from besdrake.tasks.throwing import learn as L
+    from besdrake.tasks.throwing.template_base import fitted_default_throw
+
+    refine = tmp_path / "04_refine"
+    refine.mkdir()
+    base = fitted_default_throw()
+    other = base.copy()
+    other.goal_velocity = other.goal_velocity + 0.3  # imitated from another throw: another goal velocity
+    same = base.copy()
+    same.weights = same.weights + 1.0  # refined from the base's own throw
+    for i, d in enumerate((same, other)):
+        d.save(refine / f"refined{i}.dmp.json")
+    base.save(tmp_path / "best.dmp.json")
+    ctx = SimpleNamespace(run=SimpleNamespace(root=tmp_path), robot=lambda scenario=None: load_scenario("nominal").robot)
+    assert L._other_run_throws(ctx, tmp_path / "best.dmp.json", "nominal") == [refine / "refined1.dmp.json"]
+
+    calls = []
+
+    def fake(ctx, dmps, scenario, out, budget, settings, tag, start_group=0):
+        calls.append((dmps[0].goal_velocity.copy(), budget, out.name))
+        return {"start_distance_m": 0.39, "best_distance_within_limits_m": 0.07, "runs": [{"n_episodes": 300}], "best_dmp": "refined0.dmp.json"}
+
+    monkeypatch.setattr(L, "_reach_refinement", fake)
+    settings = {"other_runs": True, "evaluations": 800}
+    assert L._other_runs_reach(ctx, tmp_path / "best.dmp.json", "nominal", tmp_path / "reach", settings, 0.08) == [] and not calls
+    assert L._other_runs_reach(ctx, tmp_path / "best.dmp.json", "nominal", tmp_path / "reach", settings | {"other_runs": False}, 0.35) == []
+    found = L._other_runs_reach(ctx, tmp_path / "best.dmp.json", "nominal", tmp_path / "reach", settings, 0.35)
+    assert len(calls) == 1 and np.allclose(calls[0][0], other.goal_velocity) and calls[0][1:] == (800, "refined1")
+    assert found == [("refined1.dmp.json", {"start_distance_m": 0.39, "best_distance_m": 0.07, "episodes": 300,
+                                            "best_file": tmp_path / "reach" / "refined1" / "refined0.dmp.json"})]
 
 
 def test_refinement_runs_in_turn_stop_at_the_first_that_succeeds():

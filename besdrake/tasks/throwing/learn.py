@@ -679,6 +679,7 @@ def template_reach_settings(config: dict[str, Any]) -> dict[str, Any]:
         target = None if target is None else tuple(float(v) for v in target)
         budget = int(budget)
         other = int(cfg.get("reach_other_evaluations", 0))
+        other_runs = cfg.get("reach_other_runs", False)
         sigma = float(cfg.get("reach_sigma", DEFAULT_SIGMA0))
         extend = int(cfg.get("extend_probes", EXTEND_PROBES))
         slowest = float(cfg.get("slowest", SCALE_SLOWEST))
@@ -706,11 +707,13 @@ def template_reach_settings(config: dict[str, Any]) -> dict[str, Any]:
         raise ConfigError(f"templates: robust_sd must be within [0, 0.05] m (0: off), got {cfg.get('robust_sd')!r}")
     if not isinstance(robust, bool):
         raise ConfigError(f"templates: reach_robust must be true or false, got {robust!r}")
+    if not isinstance(other_runs, bool):
+        raise ConfigError(f"templates: reach_other_runs must be true or false, got {other_runs!r}")
     if follow is not None and not (np.isfinite(follow) and 0.0 <= follow <= 1.0):
         raise ConfigError(f"templates: follow_through must be a time within [0, 1] s after the release, or null, got {cfg.get('follow_through')!r}")
     return {"target": target if budget > 0 else None, "evaluations": budget, "slowest": slowest, "objective": objective,
-            "sigma": sigma, "extend_probes": extend, "other_evaluations": other, "follow_through": follow, "robust": robust,
-            "robust_sd": robust_sd}
+            "sigma": sigma, "extend_probes": extend, "other_evaluations": other, "other_runs": other_runs,
+            "follow_through": follow, "robust": robust, "robust_sd": robust_sd}
 
 
 def _template_base(ctx: Context, scenario: str, out: Path) -> tuple[Path, dict[str, Any]]:
@@ -737,18 +740,23 @@ def _template_base(ctx: Context, scenario: str, out: Path) -> tuple[Path, dict[s
               "best_distance_m": result["best_distance_within_limits_m"], "episodes": int(sum(r["n_episodes"] for r in result["runs"]))}
     if result["runs"][0].get("stop_reason") == "start" or result["best_distance_within_limits_m"] is None:
         return base_file, record | {"kept": False}
-    candidates = [base_file, out / result["best_dmp"]]
+    candidates, kinds = [base_file, out / result["best_dmp"]], ["refined throw", "reach refinement"]
+    for name, run in _other_runs_reach(ctx, base_file, scenario, out, settings, result["best_distance_within_limits_m"]):
+        record.setdefault("other_runs", []).append({"from": name} | {k: run[k] for k in ("start_distance_m", "best_distance_m", "episodes")})
+        candidates.append(run["best_file"])
+        kinds.append(f"reach refinement from {name}")
     other = _other_family(ctx, scenario, out / "other", settings, result["best_distance_within_limits_m"])
     if other is not None:
         record["other_family"] = {k: other[k] for k in ("start_distance_m", "best_distance_m", "episodes")}
         candidates.append(out / "other" / other["best_dmp"])
+        kinds.append("other throws")
     with _executor(ctx, scenario) as executor:
         robot = ctx.robot(scenario)
         dmps = [load_dmp(f) for f in candidates]
         floors = [reach_floor(d, executor, robot, slowest=settings["slowest"],
                               follow_through=follow_through_phase(d, executor, robot, settings["follow_through"])) for d in dmps]
     pick = int(np.argmin(floors))
-    record |= {"floor_m": floors, "kept": pick > 0, "kept_from": ("refined throw", "reach refinement", "other throws")[pick]}
+    record |= {"floor_m": floors, "kept": pick > 0, "kept_from": kinds[pick]}
     return candidates[pick], record
 
 
@@ -760,6 +768,42 @@ def _reach_refinement(ctx: Context, dmps: list, scenario: str, out: Path, budget
     return _refine_from(ctx, dmps, scenario, out, budget, tag, scouting=start_group > 0, target=settings["target"], plans=1,
                         reward_settings={"radial": True} if settings["objective"] == "range" else None, sigma0=settings["sigma"],
                         start_group=start_group, follow_through=settings["follow_through"], robust=settings["robust"])
+
+
+def _other_run_throws(ctx: Context, base_file: Path, scenario: str) -> list[Path]:
+    """The refinement runs' throws of another throw family than ``base_file`` (refined from another imitated throw: the
+    base's search space does not represent them), in run order."""
+    from besdrake.imitation import load_dmp, shared_parameterization
+
+    files = sorted((ctx.run.root / "04_refine").glob("refined*.dmp.json"))
+    if not files:
+        return []
+    _, kept = shared_parameterization([load_dmp(base_file)] + [load_dmp(f) for f in files], ctx.robot(scenario).joint_names)
+    return [f for i, f in enumerate(files, start=1) if i not in kept]
+
+
+def _other_runs_reach(ctx: Context, base_file: Path, scenario: str, out: Path, settings: dict[str, Any],
+                      reached: float) -> list[tuple[str, dict[str, Any]]]:
+    """Where the reach refinement ended ``reached`` m from its target, beyond the goal: one reach refinement (the same
+    budget) from each of the refinement's other runs' throws of another family (``templates.reach_other_runs``). The
+    refinement keeps the closest of its runs, but a throw family that lands on the refinement's target may reach no
+    farther, while another run's lands a little off and reaches the far contexts (issue 27). Returns (throw file name,
+    {start_distance_m, best_distance_m, episodes, best_file}) per run that ended within the joint limits."""
+    from besdrake.imitation import load_dmp
+    from besdrake.search.refinement import SUCCESS_DISTANCE
+
+    if reached <= SUCCESS_DISTANCE or not settings["other_runs"]:
+        return []
+    found = []
+    for f in _other_run_throws(ctx, base_file, scenario):
+        name = f.name.split(".")[0]
+        result = _reach_refinement(ctx, [load_dmp(f)], scenario, out / name, settings["evaluations"], settings,
+                                   f"template reach (from {f.name})")
+        if result["best_distance_within_limits_m"] is not None:
+            found.append((f.name, {"start_distance_m": result["start_distance_m"], "best_distance_m": result["best_distance_within_limits_m"],
+                                   "episodes": int(sum(r.get("n_episodes", 0) for r in result["runs"])),
+                                   "best_file": out / name / result["best_dmp"]}))
+    return found
 
 
 def _other_family(ctx: Context, scenario: str, out: Path, settings: dict[str, Any], reached: float) -> dict[str, Any] | None:
