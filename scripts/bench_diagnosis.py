@@ -550,6 +550,24 @@ def _residual_summary(unk: list[dict]) -> dict:
             "per_trial": per}
 
 
+def _within_beside(hidden: dict, allowed: dict) -> bool:
+    """Whether every hidden parameter lies within what the answer allows it: alone, or beside (``AllowedEffect.beside``)
+    a parameter of another hidden effect (two deviations that hide each other); False where a hidden effect is not
+    among ``allowed`` (effect -> AllowedEffect, cannot_tell and excluded)."""
+    keys = {f"{e}.{k}" for e, vals in hidden.items() for k in vals}
+    for e, vals in hidden.items():
+        a = allowed.get(e)
+        if a is None:
+            return False
+        for k, v in vals.items():
+            if k not in a.allowed:
+                continue
+            spans = [a.allowed[k]] + [span for other, span in a.beside.get(k, {}).items() if other in keys - {f"{e}.{k}"}]
+            if not any(lo - 1e-9 <= v <= hi + 1e-9 for lo, hi in spans):
+                return False
+    return True
+
+
 def _strip(ms):
     from besdrake.tasks.throwing.measurement import ThrowMeasurement as Measurement
 
@@ -588,6 +606,11 @@ def _summarize(results: list[dict], modes: list[str], args, t_bench: float, regi
         # Value-checked: as lenient, but a "cannot tell nominal from {...}" answer counts only when the hidden value lies
         # inside the interval the answer states for it ("larger deviations would have been seen" must hold).
         value_checked = [r["correct"] or r["honest_cannot_tell"] or r.get("hidden_within_allowed", False) for r in known]
+        # The same with the intervals two deviations that hide each other allow (rows since session 39), and the "no
+        # discrepancy" answers whose stated intervals a hidden value lies outside of, alone and with those pairs.
+        value_checked_beside = [r["correct"] or r["honest_cannot_tell"] or r.get("hidden_within_allowed_beside", r.get("hidden_within_allowed", False))
+                                for r in known]
+        nominal_answers = [r for r in known if r.get("cannot_tell") and not r["best"]]
         # Touchdown-only logs cannot show an effect that does not move the touchdown: there "the nominal
         # simulation agrees within the noise" is the honest answer.
         detect = [r for r in known if r.get("touchdown_detectable", True)]
@@ -619,6 +642,10 @@ def _summarize(results: list[dict], modes: list[str], args, t_bench: float, regi
             "right_or_honest_cannot_tell_rate": float(np.mean(ok_or_honest)) if ok_or_honest else None,
             "right_or_honest_rate_lenient": float(np.mean(lenient)) if lenient else None,
             "right_or_honest_rate_value_checked": float(np.mean(value_checked)) if value_checked else None,
+            "right_or_honest_rate_value_checked_beside": float(np.mean(value_checked_beside)) if value_checked_beside else None,
+            "nominal_answers_hidden_outside_alone": [r["trial"] for r in nominal_answers if not r.get("hidden_within_allowed", False)],
+            "nominal_answers_hidden_outside_beside": [r["trial"] for r in nominal_answers
+                                                      if not r.get("hidden_within_allowed_beside", r.get("hidden_within_allowed", False))],
             "cannot_tell_hidden_value_outside_stated_interval": [r["trial"] for r in known if holds[id(r)] and not r.get("hidden_within_allowed", False)],
             "explained_rate_known": rate(known, "explained"),
             "n_touchdown_detectable": len(detect),
@@ -892,6 +919,7 @@ def main(argv=None) -> int:
                 honest_undetected = bool(ct) and len(ct) < len(registry) and all(e in ct for e in hidden)
                 hidden_within_allowed = bool(ct) and all(e in ct for e in hidden) and all(
                     ct[e].allowed[k][0] - 1e-9 <= v <= ct[e].allowed[k][1] + 1e-9 for e, vals in hidden.items() for k, v in vals.items() if k in ct[e].allowed)
+                within_beside = _within_beside(hidden, {a.effect: a for a in list(d.cannot_tell) + list(d.excluded)}) if ct else False
                 row = {
                     "trial": i, "mode": mode, "hidden": hidden, "unknown": unknown,
                     "best": list(best), "explained": d.explained, "confidence": d.confidence, "verdict": d.verdict,
@@ -899,7 +927,7 @@ def main(argv=None) -> int:
                     "correct_structural": equivalent_answer(best, d.refined_effects(), hidden, d.structural),
                     "structural_arises": any(set(c["members"]) & {f"{e}.{k}" for e, v in hidden.items() for k in v} for c in d.structural),
                     "structural_in_verdict": "structurally identical" in d.verdict,
-                    "honest_undetected": honest_undetected, "hidden_within_allowed": hidden_within_allowed,
+                    "honest_undetected": honest_undetected, "hidden_within_allowed": hidden_within_allowed, "hidden_within_allowed_beside": within_beside,
                     "alternatives": [list(a) for a in alt],
                     "cannot_tell": sorted(ct), "cannot_tell_size": len(ct),
                     "cannot_tell_unconstrained": sorted(e for e, a in ct.items() if a.unconstrained),

@@ -82,7 +82,9 @@ class AllowedEffect:
     anywhere in its realistic range (the logged signals say nothing about this effect; otherwise they bound at least one of its
     parameters and a larger deviation would have been seen); ``trials_needed``: about how many trials like the logged ones
     would exclude it (None: the logged signals do not respond to it at all); ``recommendation``: the recording or
-    experiment that would show it.
+    experiment that would show it; ``beside``: per parameter, the wider intervals the log allows it where one other
+    parameter (key ``effect.parameter``) moves with it to compensate (:func:`~besdrake.diagnosis.allowed._hiding_pairs`:
+    two deviations that hide each other), only those at least :data:`~besdrake.diagnosis.settings.HIDE_WIDENING` times as wide.
     """
 
     effect: str
@@ -94,11 +96,13 @@ class AllowedEffect:
     trials_needed: int | None
     recommendation: str
     unconstrained: bool = False
+    beside: dict[str, dict[str, tuple[float, float]]] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         return {"effect": self.effect, "allowed": {k: [float(a), float(b)] for k, (a, b) in self.allowed.items()}, "nominal": dict(self.nominal),
                 "units": dict(self.units), "max_allowed_fraction_of_range": self.max_fraction, "excluded": self.excluded,
-                "unconstrained": self.unconstrained, "trials_needed": self.trials_needed, "recommendation": self.recommendation}
+                "unconstrained": self.unconstrained, "trials_needed": self.trials_needed, "recommendation": self.recommendation,
+                "beside": {k: {o: [float(a), float(b)] for o, (a, b) in v.items()} for k, v in self.beside.items()}}
 
     def describe(self) -> str:
         """``effect (p in [lo, hi] unit, ...)`` for the allowed parameters that reach the exclusion threshold."""

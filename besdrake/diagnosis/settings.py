@@ -49,6 +49,12 @@ CONFIDENT_P = 0.05
 EXCLUDE_FRACTION = 0.1
 #: An effect the log does not constrain: every parameter's allowed interval covers at least this share of its range.
 UNCONSTRAINED_COVER = 0.9
+#: Two parameters "hide each other" where the log allows one of them, with the other moved to compensate, an interval
+#: at least this many times as wide as it allows it alone (linearised profile likelihood; :func:`~besdrake.diagnosis.allowed._hiding_pairs`):
+#: the answer's "larger deviations would have been seen" then holds for each alone only, and says so.
+HIDE_WIDENING = 1.1
+#: At most this many such pairs are named in the answer's text (all of them in ``cannot_tell[].beside``).
+HIDE_LISTED = 4
 #: Rounds of rollouts that check (and widen) the ends of the allowed intervals (:func:`_verify_interval_ends`).
 VERIFY_ROUNDS = 5
 #: More trials than this to exclude an effect is reported as "no practical number of such trials" (None).

@@ -15,7 +15,8 @@ from besdrake.diagnosis.additions import additions_beside, aliases as alias_effe
 from besdrake.diagnosis.allowed import _allowed_effects, _recommendation
 from besdrake.diagnosis.results import AllowedEffect, Cause
 from besdrake.diagnosis import settings
-from besdrake.diagnosis.settings import ALPHA, CONFIDENT_P, EXCLUDE_FRACTION, HIGH_EXTRA_P, HIGH_MARGIN_DBIC, HIGH_MAX_MOVED, MOVED_FRACTION, INDISTINGUISHABLE_DBIC
+from besdrake.diagnosis.settings import (ALPHA, CONFIDENT_P, EXCLUDE_FRACTION, HIDE_LISTED, HIGH_EXTRA_P, HIGH_MARGIN_DBIC, HIGH_MAX_MOVED,
+                                        MOVED_FRACTION, INDISTINGUISHABLE_DBIC)
 from besdrake.diagnosis.stats import _lack_of_fit_p
 from besdrake.sim.effects import get_effect
 
@@ -355,7 +356,7 @@ def judge(prob: fitting.Problem, sens: fitting.Sensitivity, fits: list[fitting.C
     confidence = "high" if is_high(basis) else "low"
     v = Verdict(explained, confidence, "", causes, fits, best, best_fit, indist, basis=basis)
     if not best.effects or (none_c.p_value >= ALPHA and none_c.delta_bic < INDISTINGUISHABLE_DBIC):
-        _nothing_wrong(v, prob, sens, none_c, ev, cands)
+        _nothing_wrong(v, prob, sens, none_c, ev, cands, ident)
     elif not explained:
         v.text = (f"not explained: the best candidate ({fits[0].name}) leaves a residual above the noise "
                   f"(lack-of-fit p = {best.p_value:.2g} < {ALPHA}); an effect the registry does not know is likely")
@@ -479,16 +480,18 @@ def _list_aliases(v: Verdict, ev: Any, named: set) -> None:
                    f"(to tell: {adv.get('recommendation', '')})")
 
 
-def _nothing_wrong(v: Verdict, prob: fitting.Problem, sens: fitting.Sensitivity, none_c: Cause, ev: Any, cands: list[str]) -> None:
+def _nothing_wrong(v: Verdict, prob: fitting.Problem, sens: fitting.Sensitivity, none_c: Cause, ev: Any, cands: list[str],
+                   ident: Identifiability | None = None) -> None:
     """No candidate improves significantly on the nominal simulation. That is NOT evidence that the nominal model is
-    right: say which effects (and how large) the data still allow; the nominal model is put first."""
+    right: say which effects (and how large) the data still allow, each alone and two that hide each other (structurally
+    identical pairs, ``ident``, are stated as such elsewhere); the nominal model is put first."""
     v.basis = {}  # the confidence below is that of "nothing wrong", not of a named cause
     allowed = _allowed_effects(prob, sens, cands, ev.sim, ev.measured_groups, len(ev.used))
     v.cannot_tell = sorted([a for a in allowed if not a.excluded], key=lambda a: -a.max_fraction)
     v.excluded = [a for a in allowed if a.excluded]
     v.explained = True
     v.confidence = "high" if none_c.p_value >= CONFIDENT_P and not v.cannot_tell else "low"
-    v.text = _cannot_tell_text(v.cannot_tell, v.excluded)
+    v.text = _cannot_tell_text(v.cannot_tell, v.excluded, ident)
     if v.best.effects and none_c.p_value >= ALPHA:
         # The BIC-best candidate is not significantly better than nominal: it is named, not claimed (the refined
         # scenario stays nominal and the ranked causes start with the nominal model).
@@ -505,16 +508,43 @@ def _nothing_wrong(v: Verdict, prob: fitting.Problem, sens: fitting.Sensitivity,
                   "predicted outcomes materially")
 
 
-def _cannot_tell_text(cannot_tell: list[AllowedEffect], excluded: list[AllowedEffect]) -> str:
+def _cannot_tell_text(cannot_tell: list[AllowedEffect], excluded: list[AllowedEffect], ident: Identifiability | None = None) -> str:
     """"no discrepancy beyond the noise, but the log cannot tell the nominal simulation from ..." (or all excluded)."""
     if not cannot_tell:
         return (f"the nominal simulation agrees with the lab within the measurement noise; every candidate effect is excluded "
                 f"beyond {EXCLUDE_FRACTION:.0%} of its realistic range")
     bounded = [a for a in cannot_tell if not a.unconstrained]
     free = [a for a in cannot_tell if a.unconstrained]
+    hiding = _hiding_text(cannot_tell + excluded, ident)
+    alone = ", each alone" if hiding else ""
     return ("no discrepancy beyond the measurement noise, but the log cannot tell the nominal simulation from "
-            + (", ".join(a.describe() for a in bounded) + " (larger deviations would have been seen)" if bounded else "")
+            + (", ".join(a.describe() for a in bounded) + f" (larger deviations would have been seen{alone})" if bounded else "")
             + ("; " if bounded and free else "")
             + ("nor from " if bounded and free else "")
             + (", ".join(a.effect for a in free) + " at (nearly) any realistic magnitude (the logged signals do not constrain them)" if free else "")
-            + (f"; excluded beyond {EXCLUDE_FRACTION:.0%} of their range: " + ", ".join(a.effect for a in excluded) if excluded else ""))
+            + (f"; excluded beyond {EXCLUDE_FRACTION:.0%} of their range{' (each alone)' if hiding else ''}: " + ", ".join(a.effect for a in excluded) if excluded else "")
+            + hiding)
+
+
+def _hiding_text(allowed: list[AllowedEffect], ident: Identifiability | None = None) -> str:
+    """"; two deviations can hide each other beyond that: p lo..hi with q, ..." for the pairs of parameters the log
+    allows farther together than alone (:attr:`AllowedEffect.beside`), the most widened first (each pair once,
+    HIDE_LISTED of them, structurally identical ones left to their own statement); "" where there are none."""
+    pairs = {}
+    for a in allowed:
+        for name, partners in a.beside.items():
+            lo0, hi0 = a.allowed[name]
+            key = f"{a.effect}.{name}"
+            cls = ident.class_of(key) if ident is not None else None
+            for other, (lo, hi) in partners.items():
+                if cls is not None and other in cls.members:
+                    continue
+                widening = (hi - lo) / max(hi0 - lo0, 1e-12)
+                pair = frozenset((key, other))
+                if pair not in pairs or widening > pairs[pair][0]:
+                    pairs[pair] = (widening, f"{key} {lo:.3g}..{hi:.3g} {a.units.get(name, '')}".rstrip() + f" with {other}")
+    if not pairs:
+        return ""
+    ranked = [t for _w, t in sorted(pairs.values(), key=lambda x: -x[0])]
+    more = f" and {len(ranked) - HIDE_LISTED} more pairs (cannot_tell[].beside)" if len(ranked) > HIDE_LISTED else ""
+    return "; two deviations can hide each other beyond that: " + ", ".join(ranked[:HIDE_LISTED]) + more
