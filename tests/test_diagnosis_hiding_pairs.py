@@ -67,3 +67,13 @@ def test_the_answer_says_each_alone_and_names_the_pairs_that_hide_each_other():
     ident = SimpleNamespace(class_of=lambda key: SimpleNamespace(members=["base_offset.pitch", "base_offset.yaw"]) if key == "base_offset.pitch" else None)
     text = _cannot_tell_text(hiding, [], ident)
     assert "base_offset.yaw" not in text and "base_offset.pitch -0.04..0.045 rad with joint_offset.joint3" in text
+
+
+def test_the_report_tables_the_pairs_that_hide_each_other():
+    from besdrake.diagnosis.report import _md_hiding
+
+    a = AllowedEffect("base_offset", {"pitch": (-0.01, 0.01)}, {"pitch": 0.0}, {"pitch": "rad"}, 0.2, False, None, "",
+                      beside={"pitch": {"joint_offset.joint3": (-0.04, 0.045)}})
+    lines = _md_hiding([a])
+    assert "| base_offset.pitch | -0.01..0.01 | joint_offset.joint3 | -0.04..0.045 rad |" in lines
+    assert _md_hiding([AllowedEffect("air_drag", {"cd": (0.0, 0.2)}, {"cd": 0.0}, {"cd": "1"}, 0.2, False, None, "")]) == []

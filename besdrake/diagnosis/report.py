@@ -204,7 +204,8 @@ def _md_cannot_tell(diag: Diagnosis) -> list[str]:
         L.append("### No discrepancy beyond the noise: what the log cannot exclude")
         L.append("")
         L.append("The nominal simulation passes the lack-of-fit test, but that does not show it is right: these effects are still allowed "
-                 "(99% likelihood-ratio intervals of each parameter on its own, on the linearised model, within the realistic bounds):")
+                 "(99% likelihood-ratio intervals of each parameter on its own, on the linearised model, within the realistic bounds; "
+                 "pairs that hide each other below the table):")
         L.append("")
         L.append(f"| effect | allowed values | largest allowed deviation (share of the range) | constrained by the log | {_model(diag).noun}s to exclude it | what would show it |")
         L.append("|---|---|---|---|---|---|")
@@ -214,8 +215,10 @@ def _md_cannot_tell(diag: Diagnosis) -> list[str]:
             L.append(f"| {a.effect} | {vals} | {a.max_fraction:.0%} | {con} | {a.trials_needed if a.trials_needed is not None else 'no number'} | {a.recommendation} |")
         L.append("")
         if diag.excluded:
-            L.append(f"Excluded (every deviation of {EXCLUDE_FRACTION:.0%} of the realistic range or more is ruled out): " + ", ".join(a.effect for a in diag.excluded) + ".")
+            L.append(f"Excluded (every deviation of {EXCLUDE_FRACTION:.0%} of the realistic range or more is ruled out, each alone): "
+                     + ", ".join(a.effect for a in diag.excluded) + ".")
             L.append("")
+        L += _md_hiding(list(diag.cannot_tell) + list(diag.excluded))
     unobs = diag.best.unobservable if diag.best else []
     if unobs:
         L.append(f"Parameters of the best candidate the data do not constrain (left at nominal): {', '.join(unobs)}.")
@@ -223,6 +226,24 @@ def _md_cannot_tell(diag: Diagnosis) -> list[str]:
         L.append("**Not explained**: no candidate brings the residual down to the noise level. An effect outside the registry "
                  "(or a combination of more than two) is at work; the refined scenario below is only the best available approximation.")
     return L
+
+
+def _md_hiding(allowed: list) -> list[str]:
+    """The pairs of deviations that hide each other (``AllowedEffect.beside``): each parameter's wider interval and the
+    partner that compensates, the most widened first; nothing where there are none."""
+    rows = []
+    for a in allowed:
+        for name, partners in a.beside.items():
+            lo0, hi0 = a.allowed[name]
+            for other, (lo, hi) in partners.items():
+                rows.append(((hi - lo) / max(hi0 - lo0, 1e-12), f"| {a.effect}.{name} | {lo0:.3g}..{hi0:.3g} | {other} | {lo:.3g}..{hi:.3g} {a.units.get(name, '')} |"))
+    if not rows:
+        return []
+    L = ["Two deviations can hide each other: the intervals above hold for each parameter alone; with a second one "
+         "moving to compensate (within its realistic bounds, linearised) the log allows these:", "",
+         "| parameter | alone | with | allowed together |", "|---|---|---|---|"]
+    L += [r for _w, r in sorted(rows, key=lambda x: -x[0])]
+    return L + [""]
 
 
 def _md_refined(diag: Diagnosis, scenario_path: Path | None) -> list[str]:
