@@ -167,7 +167,7 @@ def _profile_grid(i: int, k: int | None, G: np.ndarray, g: np.ndarray, curv: np.
             a, b = min(a, c_p - 1.5 * h_p), max(b, c_p + 1.5 * h_p)
         else:  # the two move every feature alike: anything within the bounds
             a, b = lo[i], hi[i]
-    return np.linspace(max(a, lo[i]), min(b, hi[i]), HIDE_GRID)
+    return np.linspace(np.clip(a, lo[i], hi[i]), np.clip(b, lo[i], hi[i]), HIDE_GRID)
 
 
 def _span(d: np.ndarray, G: np.ndarray, g: np.ndarray, curv: np.ndarray, lo: np.ndarray, hi: np.ndarray, i: int, k: int | None,
