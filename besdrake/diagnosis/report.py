@@ -231,12 +231,8 @@ def _md_cannot_tell(diag: Diagnosis) -> list[str]:
 def _md_hiding(allowed: list) -> list[str]:
     """The pairs of deviations that hide each other (``AllowedEffect.beside``): each parameter's wider interval and the
     partner that compensates, the most widened first; nothing where there are none."""
-    rows = []
-    for a in allowed:
-        for name, partners in a.beside.items():
-            lo0, hi0 = a.allowed[name]
-            for other, (lo, hi) in partners.items():
-                rows.append(((hi - lo) / max(hi0 - lo0, 1e-12), f"| {a.effect}.{name} | {lo0:.3g}..{hi0:.3g} | {other} | {lo:.3g}..{hi:.3g} {a.units.get(name, '')} |"))
+    rows = [(w, f"| {a.effect}.{name} | {a.allowed[name][0]:.3g}..{a.allowed[name][1]:.3g} | {other} | {lo:.3g}..{hi:.3g} {a.units.get(name, '')} |")
+            for a in allowed for w, name, other, (lo, hi) in a.hiding_pairs()]
     if not rows:
         return []
     L = ["Two deviations can hide each other: the intervals above hold for each parameter alone; with a second one "

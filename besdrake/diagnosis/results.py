@@ -104,6 +104,15 @@ class AllowedEffect:
                 "unconstrained": self.unconstrained, "trials_needed": self.trials_needed, "recommendation": self.recommendation,
                 "beside": {k: {o: [float(a), float(b)] for o, (a, b) in v.items()} for k, v in self.beside.items()}}
 
+    def hiding_pairs(self) -> list[tuple[float, str, str, tuple[float, float]]]:
+        """``(widening, parameter, other, (lo, hi))`` per entry of :attr:`beside`: how many times wider the interval the
+        log allows ``parameter`` beside ``other`` is than alone."""
+        out = []
+        for name, partners in self.beside.items():
+            lo0, hi0 = self.allowed[name]
+            out += [((hi - lo) / max(hi0 - lo0, 1e-12), name, other, (lo, hi)) for other, (lo, hi) in partners.items()]
+        return out
+
     def describe(self) -> str:
         """``effect (p in [lo, hi] unit, ...)`` for the allowed parameters that reach the exclusion threshold."""
         parts = []

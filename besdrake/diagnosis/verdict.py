@@ -532,17 +532,12 @@ def _hiding_text(allowed: list[AllowedEffect], ident: Identifiability | None = N
     HIDE_LISTED of them, structurally identical ones left to their own statement); "" where there are none."""
     pairs = {}
     for a in allowed:
-        for name, partners in a.beside.items():
-            lo0, hi0 = a.allowed[name]
+        for widening, name, other, (lo, hi) in a.hiding_pairs():
             key = f"{a.effect}.{name}"
             cls = ident.class_of(key) if ident is not None else None
-            for other, (lo, hi) in partners.items():
-                if cls is not None and other in cls.members:
-                    continue
-                widening = (hi - lo) / max(hi0 - lo0, 1e-12)
-                pair = frozenset((key, other))
-                if pair not in pairs or widening > pairs[pair][0]:
-                    pairs[pair] = (widening, f"{key} {lo:.3g}..{hi:.3g} {a.units.get(name, '')}".rstrip() + f" with {other}")
+            pair = frozenset((key, other))
+            if (cls is None or other not in cls.members) and (pair not in pairs or widening > pairs[pair][0]):
+                pairs[pair] = (widening, f"{key} {lo:.3g}..{hi:.3g} {a.units.get(name, '')}".rstrip() + f" with {other}")
     if not pairs:
         return ""
     ranked = [t for _w, t in sorted(pairs.values(), key=lambda x: -x[0])]

@@ -736,8 +736,7 @@ def _template_base(ctx: Context, scenario: str, out: Path) -> tuple[Path, dict[s
     if settings["target"] is None:
         return base_file, {}
     result = _reach_refinement(ctx, [load_dmp(base_file)], scenario, out, settings["evaluations"], settings, "template reach")
-    record = {"target_m": list(settings["target"]), "objective": settings["objective"], "start_distance_m": result["start_distance_m"],
-              "best_distance_m": result["best_distance_within_limits_m"], "episodes": int(sum(r["n_episodes"] for r in result["runs"]))}
+    record = {"target_m": list(settings["target"]), "objective": settings["objective"]} | _reach_summary(result)
     if result["runs"][0].get("stop_reason") == "start" or result["best_distance_within_limits_m"] is None:
         return base_file, record | {"kept": False}
     candidates, kinds = [base_file, out / result["best_dmp"]], ["refined throw", "reach refinement"]
@@ -800,10 +799,14 @@ def _other_runs_reach(ctx: Context, base_file: Path, scenario: str, out: Path, s
         result = _reach_refinement(ctx, [load_dmp(f)], scenario, out / name, settings["evaluations"], settings,
                                    f"template reach (from {f.name})")
         if result["best_distance_within_limits_m"] is not None:
-            found.append((f.name, {"start_distance_m": result["start_distance_m"], "best_distance_m": result["best_distance_within_limits_m"],
-                                   "episodes": int(sum(r.get("n_episodes", 0) for r in result["runs"])),
-                                   "best_file": out / name / result["best_dmp"]}))
+            found.append((f.name, _reach_summary(result) | {"best_file": out / name / result["best_dmp"]}))
     return found
+
+
+def _reach_summary(result: dict[str, Any]) -> dict[str, Any]:
+    """A reach refinement's start and best distance (m) and its episodes, as the template stage records them."""
+    return {"start_distance_m": result["start_distance_m"], "best_distance_m": result["best_distance_within_limits_m"],
+            "episodes": int(sum(r.get("n_episodes", 0) for r in result["runs"]))}
 
 
 def _other_family(ctx: Context, scenario: str, out: Path, settings: dict[str, Any], reached: float) -> dict[str, Any] | None:
@@ -816,8 +819,7 @@ def _other_family(ctx: Context, scenario: str, out: Path, settings: dict[str, An
         return None
     result = _reach_refinement(ctx, _imitated(ctx), scenario, out, settings["other_evaluations"], settings,
                                "template reach (other throws)", start_group=1)
-    return {"start_distance_m": result["start_distance_m"], "best_distance_m": result["best_distance_within_limits_m"],
-            "episodes": int(sum(r.get("n_episodes", 0) for r in result["runs"])), "best_dmp": result["best_dmp"]}
+    return _reach_summary(result) | {"best_dmp": result["best_dmp"]}
 
 
 def stage_template(ctx: Context, out: Path) -> dict[str, Any]:
