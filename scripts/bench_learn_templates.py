@@ -4,7 +4,7 @@ and JSON figures (stdout, and ``--json``).
 
 Each ``--run`` is a ``besdrake learn`` run folder whose stages up to ``transfer_refined`` are done (one subject each,
 e.g. ``besdrake learn --out RUN --set demonstrations.subjects=[S] --stage label ... --stage transfer_refined``). For
-each run and method this script calls learn's own template stage (:func:`besdrake.tasks.throwing.learn.stage_template`)
+each run and method this script calls learn's own template stage (:func:`besdrake.tasks.throwing.learn.template.stage_template`)
 on a copy of the run's configuration with the ``--set`` overrides (``templates.*`` only; the run's saved settings win
 over today's defaults, so a default changed since the run needs its ``--set``: session 35's
 ``templates.reach_robust=true`` on session 34's runs), writing into
@@ -72,7 +72,7 @@ def _context(run_root: Path, overrides: list[str], workers: int):
 def _one(run_root: Path, method: str, args) -> dict:
     """learn's template stage for ``run_root`` with ``method``; its summary and the bench's figures."""
     from besdrake.pipeline.learn import executor_stats
-    from besdrake.tasks.throwing.learn import stage_template
+    from besdrake.tasks.throwing.learn.template import stage_template
 
     ctx = _context(run_root, args.set + [f"templates.acquisition={METHOD_NAMES[method]}"], args.workers)
     out = Path(args.out) / run_root.name / method

@@ -395,7 +395,7 @@ def test_corrupt_optimizer_state_on_resume_says_how_to_recover(tmp_path):
 def test_copied_run_folder_uses_its_own_refined_scenario(tmp_path):
     from besdrake.pipeline.config import load_config
     from besdrake.pipeline.learn import Context
-    from besdrake.tasks.throwing.learn import _refined_scenario
+    from besdrake.tasks.throwing.learn.transfer import refined_scenario as _refined_scenario
     from besdrake.pipeline.run import RunFolder
 
     config = load_config(None, quick=True)

@@ -160,7 +160,7 @@ def test_a_second_refinement_run_scouts_from_other_imitated_throws():
     from types import SimpleNamespace
 
     from besdrake.pipeline.config import ConfigError
-    from besdrake.tasks.throwing.learn import _run_starts, refinement_settings
+    from besdrake.tasks.throwing.learn.refinement import _run_starts, refinement_settings
 
     ranking = [(i, SimpleNamespace(reward=-0.1 * r)) for r, i in enumerate([5, 2, 7, 0, 3, 6, 1, 4])]
     ranking.append((8, SimpleNamespace(reward=float("nan"))))  # a throw that failed in simulation is never a start
@@ -188,7 +188,7 @@ def test_learn_refines_with_the_family_switch_where_it_scouts():
 def test_learn_checks_only_the_throws_that_could_become_a_runs_best_by_default():
     """refinement.robust_frontier (session 38; the default, 0.01 m, since session 39) reaches the robust check; null and
     absent (a run folder of before): every throw within the radius is checked."""
-    from besdrake.tasks.throwing.learn import _robust_check, refinement_settings
+    from besdrake.tasks.throwing.learn.refinement import _robust_check, refinement_settings
 
     on = refinement_settings(load_config())
     assert on["robust_frontier"] == 0.01 and _robust_check("throwing", "nominal", on).frontier == 0.01
@@ -200,7 +200,7 @@ def test_learn_checks_only_the_throws_that_could_become_a_runs_best_by_default()
 def test_a_reach_refinement_that_stalls_looks_in_another_throw_family(monkeypatch, tmp_path):
     """templates.reach_other_evaluations: only where the reach refinement ended beyond the goal, a second one from the
     imitated throws ranked 5-8 (start group 1, with scouts), on its own budget; none where the budget is 0."""
-    from besdrake.tasks.throwing import learn as L
+    from besdrake.tasks.throwing.learn import template as L
 
     calls = []
 
@@ -209,7 +209,7 @@ def test_a_reach_refinement_that_stalls_looks_in_another_throw_family(monkeypatc
         return {"start_distance_m": 1.2, "best_distance_within_limits_m": 0.16, "runs": [{"n_episodes": budget}], "best_dmp": "refined0.dmp.json"}
 
     monkeypatch.setattr(L, "_reach_refinement", fake)
-    monkeypatch.setattr(L, "_imitated", lambda ctx: ["imitated"])
+    monkeypatch.setattr(L, "imitated_dmps", lambda ctx: ["imitated"])
     settings = {"other_evaluations": 600}
     assert L._other_family(None, "nominal", tmp_path, settings, 0.08) is None and not calls  # the first reached the goal
     assert L._other_family(None, "nominal", tmp_path, {"other_evaluations": 0}, 0.3) is None and not calls
@@ -224,7 +224,7 @@ def test_a_reach_refinement_that_stalls_goes_on_from_the_other_refinement_runs_t
     from types import SimpleNamespace
 
     from besdrake.sim.scenario import load_scenario
-    from besdrake.tasks.throwing import learn as L
+    from besdrake.tasks.throwing.learn import template as L
     from besdrake.tasks.throwing.template_base import fitted_default_throw
 
     refine = tmp_path / "04_refine"
@@ -260,7 +260,7 @@ def test_refinement_runs_in_turn_stop_at_the_first_that_succeeds():
     from types import SimpleNamespace
 
     from besdrake.search.refinement.run import RefinementResult
-    from besdrake.tasks.throwing.learn import _runs_in_turn
+    from besdrake.tasks.throwing.learn.refinement import _runs_in_turn
 
     def run(distances, robust=None):
         d = np.array(distances, dtype=float)
@@ -295,7 +295,7 @@ def test_the_turn_distance_defaults_to_the_stop_distance_and_is_checked():
 
 def test_the_transfer_is_seeded_with_the_refinements_best_throw_first(tmp_path):
     """The first seed is the Transferability search's template (its goal velocity): the refinement's best throw."""
-    from besdrake.tasks.throwing.learn import _seed_files
+    from besdrake.tasks.throwing.learn.transfer import _seed_files
 
     for name in ("refined0.dmp.json", "refined1.dmp.json", "refined2.dmp.json", "other.json"):
         (tmp_path / name).write_text("{}")

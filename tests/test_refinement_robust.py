@@ -188,7 +188,7 @@ def test_learn_keeps_a_start_throw_within_the_stop_distance_and_refines_one_beyo
     from besdrake.pipeline.config import load_config
     from besdrake.pipeline.learn import Context
     from besdrake.sim import make_executor
-    from besdrake.tasks.throwing.learn import _refine_from
+    from besdrake.tasks.throwing.learn.refinement import refine_from as _refine_from
 
     with make_executor("serial") as ex:
         td = RefinementProblem(COMPI, base).evaluate(np.zeros((1, 49)), ex)[0].touchdown

@@ -194,7 +194,7 @@ def test_rank_starts_simulates_every_imitated_movement_in_one_batch():
 
 def test_learn_prints_and_reports_the_workers_figures():
     from besdrake.pipeline.learn import busy_line as _busy_line
-    from besdrake.tasks.throwing.learn import _workers_table
+    from besdrake.tasks.throwing.learn.report import _workers_table
 
     stats = ExecutorStats(rollouts=40, wall_s=10.0, busy_s=16.0, workers=2, widths=[20, 20]).to_dict() | {"stage_busy_share": 0.5}
     line = _busy_line(stats)
