@@ -52,7 +52,7 @@ from besdrake.diagnosis.settings import ALPHA, EXCLUDE_FRACTION, INDISTINGUISHAB
 from besdrake.diagnosis.simulate import _placement_correction, _Sim  # noqa: F401
 from besdrake.diagnosis.trials import TrialModel, model_for
 from besdrake.diagnosis.stats import _bootstrap_median_ci, _extra_effect_significant, _lack_of_fit_p, _material_change  # noqa: F401
-from besdrake.diagnosis.verdict import Verdict, judge, rank_causes, rivals_beating
+from besdrake.diagnosis.verdict import Verdict, judge, name_second_effect_shift, rank_causes, rivals_beating
 from besdrake.sim.effects import list_effects
 from besdrake.sim.scenario import Scenario, load_scenario
 
@@ -182,6 +182,7 @@ def _diagnose_evidence(ev: Evidence, cands: list[str], pairs: bool, folds: int, 
     v = judge(prob, sens, fits, causes, ev, cands, ident, local_sens=local)
     _name_needed_parameters(v, prob, sens, ev, best_shift, iterations, notes)
     _list_rivals_beating_the_named(v, ev, ident, notes)
+    name_second_effect_shift(v)
     t0 = time.perf_counter()
     gain, per_trial_after = heldout_gain(ev, sens, v.best_fit, best_shift, folds, iterations, rng)
     timings["heldout"] = time.perf_counter() - t0

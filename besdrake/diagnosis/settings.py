@@ -55,6 +55,11 @@ UNCONSTRAINED_COVER = 0.9
 HIDE_WIDENING = 1.1
 #: At most this many such pairs are named in the answer's text (all of them in ``cannot_tell[].beside``).
 HIDE_LISTED = 4
+#: Where a second effect fits better but is not claimed, the named cause's parameters whose deviation from nominal the
+#: pair's fit changes by at least this share of it are named as what the second effect could account for instead
+#: (:func:`~besdrake.diagnosis.verdict.second_effect_shift`; benchmark seed 5, full logs, trial 41: a joint-5 offset of
+#: 0.032 rad beside the hidden joint-3 offset is 0.010 rad once a smaller ball is fitted beside it).
+SECOND_SHIFT = 0.5
 #: Rounds of rollouts that check (and widen) the ends of the allowed intervals (:func:`_verify_interval_ends`).
 VERIFY_ROUNDS = 5
 #: More trials than this to exclude an effect is reported as "no practical number of such trials" (None).

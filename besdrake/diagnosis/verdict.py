@@ -16,7 +16,7 @@ from besdrake.diagnosis.allowed import _allowed_effects, _recommendation
 from besdrake.diagnosis.results import AllowedEffect, Cause
 from besdrake.diagnosis import settings
 from besdrake.diagnosis.settings import (ALPHA, CONFIDENT_P, EXCLUDE_FRACTION, HIDE_LISTED, HIGH_EXTRA_P, HIGH_MARGIN_DBIC, HIGH_MAX_MOVED,
-                                        MOVED_FRACTION, INDISTINGUISHABLE_DBIC)
+                                        MOVED_FRACTION, INDISTINGUISHABLE_DBIC, SECOND_SHIFT)
 from besdrake.diagnosis.stats import _lack_of_fit_p
 from besdrake.sim.effects import get_effect
 
@@ -37,6 +37,8 @@ class Verdict:
     excluded: list[AllowedEffect] = field(default_factory=list)
     #: What the confidence of a named cause rests on (:func:`confidence_basis`).
     basis: dict = field(default_factory=dict)
+    #: The cause plus a second effect that fits better than chance allows but is not claimed (:func:`name_second_effect_shift`).
+    second: Cause | None = None
 
 
 def rank_causes(prob: fitting.Problem, fits: list[fitting.CandidateFit], best_fit: fitting.CandidateFit, nm: noise.NoiseModel,
@@ -157,6 +159,35 @@ def strongest_extra(causes: list[Cause], nu: float = 0, scale: float = 1.0) -> t
         if p < p_min:
             p_min, which = p, c
     return p_min, which
+
+
+def second_effect_shift(single: fitting.CandidateFit, pair: fitting.CandidateFit) -> dict[str, dict]:
+    """What a second effect that is not claimed would change, from the refined fits of the named cause alone (``single``)
+    and with it (``pair``): ``added``, the pair's values of the parameters it adds that it moves from nominal, and
+    ``moved``, the named cause's parameters whose deviation from nominal the pair changes by at least SECOND_SHIFT of
+    it, as ``{"named": value, "with_second": the pair's value}`` (nominal where the pair leaves the parameter out).
+    ``moved`` is what a user should not recalibrate on the strength of this log alone: the second effect may account
+    for it."""
+    mine = {s_.key: (s_, float(v)) for s_, v in zip(single.specs, single.theta)}
+    theirs = {s_.key: (s_, float(v)) for s_, v in zip(pair.specs, pair.theta)}
+    added = {k: v for k, (s_, v) in theirs.items() if s_.effect not in single.effects and not np.isclose(v, s_.nominal)}
+    moved = {}
+    for k, (s_, v) in mine.items():
+        d_single = v - s_.nominal
+        d_pair = theirs[k][1] - s_.nominal if k in theirs else 0.0
+        if abs(d_single) > 0 and abs(d_pair - d_single) >= SECOND_SHIFT * abs(d_single):
+            moved[k] = {"named": v, "with_second": d_pair + s_.nominal}
+    return {"added": added, "moved": moved}
+
+
+def _second_effect_text(shift: dict[str, dict], effects: tuple[str, ...]) -> str:
+    """The verdict's words for :func:`second_effect_shift` ("" when it moves none of the named cause's parameters)."""
+    if not shift["moved"]:
+        return ""
+    added = ", ".join(f"{k} {v:.4g}" for k, v in shift["added"].items())
+    moved = ", ".join(f"{k} {m['named']:.4g} -> {m['with_second']:.4g}" for k, m in shift["moved"].items())
+    return (f"; fitted as {' + '.join(effects)} ({added}) the named values move ({moved}): this log does not tell them "
+            f"from the second effect, so do not recalibrate on them alone")
 
 
 def extra_effect_p_plans(prob: fitting.Problem, fits: list[fitting.CandidateFit], causes: list[Cause], keys: list[str]) -> float | None:
@@ -376,6 +407,7 @@ def judge(prob: fitting.Problem, sens: fitting.Sensitivity, fits: list[fitting.C
         elif extra is not None and p_extra < HIGH_EXTRA_P:
             v.text += (f"; {' + '.join(extra.effects)} fits better than chance allows (p = {p_extra:.2g}"
                        + (f", over the plans p = {p_plans:.2g}" if p_plans is not None else "") + ") but not enough to be claimed: a second effect may be present")
+            v.second = extra
     twins = structural_notes(v, ident, cands)
     if twins:
         v.text += "; " + "; ".join(twins)
@@ -386,6 +418,20 @@ def judge(prob: fitting.Problem, sens: fitting.Sensitivity, fits: list[fitting.C
     if not v.explained and separable:
         v.text += "; candidates that fit about equally: " + ", ".join(a["b"] for a in separable)
     return v
+
+
+def name_second_effect_shift(v: Verdict) -> None:
+    """Beside "a second effect may be present" (``v.second``): which of the named cause's values, as named (with only
+    the parameters it needs), that effect could account for (:func:`second_effect_shift`; in the text and
+    ``basis["second_effect"]``)."""
+    if v.second is None:
+        return
+    pair = next((f for f, c in zip(v.fits, v.causes) if c is v.second), None)
+    if pair is None or not pair.refined or not v.best_fit.refined:
+        return
+    shift = second_effect_shift(v.best_fit, pair)
+    v.basis["second_effect"] = {"effects": list(v.second.effects)} | shift
+    v.text += _second_effect_text(shift, v.second.effects)
 
 
 def possible_seconds(v: Verdict, prob: fitting.Problem, sens: fitting.Sensitivity, ev: Any, cands: list[str]) -> None:
