@@ -165,7 +165,7 @@ def second_effect_shift(single: fitting.CandidateFit, pair: fitting.CandidateFit
     """What a second effect that is not claimed would change, from the refined fits of the named cause alone (``single``)
     and with it (``pair``): ``added``, the pair's values of the parameters it adds that it moves from nominal, and
     ``moved``, the named cause's parameters whose deviation from nominal the pair changes by at least SECOND_SHIFT of
-    it, as ``{"named": value, "with_second": the pair's value}`` (nominal where the pair leaves the parameter out).
+    it, as ``{"named": value, "with_second": the pair's value}`` (nominal where either leaves the parameter out).
     ``moved`` is what a user should not recalibrate on the strength of this log alone: the second effect may account
     for it."""
     mine = {s_.key: (s_, float(v)) for s_, v in zip(single.specs, single.theta)}
@@ -177,6 +177,9 @@ def second_effect_shift(single: fitting.CandidateFit, pair: fitting.CandidateFit
         d_pair = theirs[k][1] - s_.nominal if k in theirs else 0.0
         if abs(d_single) > 0 and abs(d_pair - d_single) >= SECOND_SHIFT * abs(d_single):
             moved[k] = {"named": v, "with_second": d_pair + s_.nominal}
+    for k, (s_, v) in theirs.items():  # a parameter of the named effects that only the pair moves
+        if k not in mine and s_.effect in single.effects and not np.isclose(v, s_.nominal):
+            moved[k] = {"named": s_.nominal, "with_second": v}
     return {"added": added, "moved": moved}
 
 
