@@ -26,9 +26,10 @@ def _fit(effects, specs, theta, refined=True) -> fitting.CandidateFit:
 def test_the_named_values_a_second_effect_moves_are_found():
     single = _fit(("joint_offset",), [J2, J3, J5], [-0.0092, -0.0743, 0.0319])
     J4 = fitting.ParamSpec("joint_offset", "joint4", 0.0, -0.1, 0.1, 0.01, "rad")
-    pair = _fit(("joint_offset", "ball"), [J3, J4, J5, MASS, RADIUS], [-0.0716, 0.02, 0.0101, 0.05, 0.0316])
+    J6 = fitting.ParamSpec("joint_offset", "joint6", 0.0, -0.1, 0.1, 0.01, "rad")
+    pair = _fit(("joint_offset", "ball"), [J3, J4, J5, J6, MASS, RADIUS], [-0.0716, 0.02, 0.0101, 0.0003, 0.0503, 0.0316])
     shift = second_effect_shift(single, pair)
-    assert shift["added"] == {"ball.radius": 0.0316}  # the mass stays nominal: not added
+    assert shift["added"] == {"ball.radius": 0.0316}  # the mass (0.3 g off) and joint 6 (0.3 mrad) hardly move: left out
     # joint 5 loses two thirds of its deviation, joint 2 all of it (the pair leaves it out), joint 4 only the pair
     # moves; joint 3 hardly moves
     assert set(shift["moved"]) == {"joint_offset.joint2", "joint_offset.joint4", "joint_offset.joint5"}

@@ -60,6 +60,9 @@ HIDE_LISTED = 4
 #: (:func:`~besdrake.diagnosis.verdict.second_effect_shift`; benchmark seed 5, full logs, trial 41: a joint-5 offset of
 #: 0.032 rad beside the hidden joint-3 offset is 0.010 rad once a smaller ball is fitted beside it).
 SECOND_SHIFT = 0.5
+#: ... and a parameter that only the pair moves (of the second effect, or of the named effects but left at nominal by the
+#: named cause) counts where it deviates from nominal by at least this share of its realistic range.
+SECOND_SHIFT_RANGE = 0.05
 #: Rounds of rollouts that check (and widen) the ends of the allowed intervals (:func:`_verify_interval_ends`).
 VERIFY_ROUNDS = 5
 #: More trials than this to exclude an effect is reported as "no practical number of such trials" (None).

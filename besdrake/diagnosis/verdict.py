@@ -16,7 +16,7 @@ from besdrake.diagnosis.allowed import _allowed_effects, _recommendation
 from besdrake.diagnosis.results import AllowedEffect, Cause
 from besdrake.diagnosis import settings
 from besdrake.diagnosis.settings import (ALPHA, CONFIDENT_P, EXCLUDE_FRACTION, HIDE_LISTED, HIGH_EXTRA_P, HIGH_MARGIN_DBIC, HIGH_MAX_MOVED,
-                                        MOVED_FRACTION, INDISTINGUISHABLE_DBIC, SECOND_SHIFT)
+                                        MOVED_FRACTION, INDISTINGUISHABLE_DBIC, SECOND_SHIFT, SECOND_SHIFT_RANGE)
 from besdrake.diagnosis.stats import _lack_of_fit_p
 from besdrake.sim.effects import get_effect
 
@@ -163,14 +163,19 @@ def strongest_extra(causes: list[Cause], nu: float = 0, scale: float = 1.0) -> t
 
 def second_effect_shift(single: fitting.CandidateFit, pair: fitting.CandidateFit) -> dict[str, dict]:
     """What a second effect that is not claimed would change, from the refined fits of the named cause alone (``single``)
-    and with it (``pair``): ``added``, the pair's values of the parameters it adds that it moves from nominal, and
+    and with it (``pair``): ``added``, the pair's values of the parameters it adds that it moves from nominal (by
+    SECOND_SHIFT_RANGE of their realistic range or more), and
     ``moved``, the named cause's parameters whose deviation from nominal the pair changes by at least SECOND_SHIFT of
-    it, as ``{"named": value, "with_second": the pair's value}`` (nominal where either leaves the parameter out).
+    it, as ``{"named": value, "with_second": the pair's value}`` (nominal where either leaves the parameter out; one
+    only the pair moves counts as ``added`` does).
     ``moved`` is what a user should not recalibrate on the strength of this log alone: the second effect may account
     for it."""
+    def material(s_: fitting.ParamSpec, v: float) -> bool:  # off nominal by SECOND_SHIFT_RANGE of the realistic range
+        return abs(v - s_.nominal) >= SECOND_SHIFT_RANGE * (s_.high - s_.low)
+
     mine = {s_.key: (s_, float(v)) for s_, v in zip(single.specs, single.theta)}
     theirs = {s_.key: (s_, float(v)) for s_, v in zip(pair.specs, pair.theta)}
-    added = {k: v for k, (s_, v) in theirs.items() if s_.effect not in single.effects and not np.isclose(v, s_.nominal)}
+    added = {k: v for k, (s_, v) in theirs.items() if s_.effect not in single.effects and material(s_, v)}
     moved = {}
     for k, (s_, v) in mine.items():
         d_single = v - s_.nominal
@@ -178,7 +183,7 @@ def second_effect_shift(single: fitting.CandidateFit, pair: fitting.CandidateFit
         if abs(d_single) > 0 and abs(d_pair - d_single) >= SECOND_SHIFT * abs(d_single):
             moved[k] = {"named": v, "with_second": d_pair + s_.nominal}
     for k, (s_, v) in theirs.items():  # a parameter of the named effects that only the pair moves
-        if k not in mine and s_.effect in single.effects and not np.isclose(v, s_.nominal):
+        if k not in mine and s_.effect in single.effects and material(s_, v):
             moved[k] = {"named": s_.nominal, "with_second": v}
     return {"added": added, "moved": moved}
 
