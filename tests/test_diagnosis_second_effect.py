@@ -49,6 +49,11 @@ def test_the_answer_says_it_only_where_the_second_effect_moves_a_named_value():
         assert ("joint_offset.joint5 0.0319 -> 0.0101" in v.text) is says
         assert ("ball.radius 0.0316" in v.text) is says
         assert v.basis["second_effect"]["effects"] == ["joint_offset", "ball"]
+    # a second effect whose own values stay near nominal, moving a named value all the same: no empty list
+    quiet = _fit(("joint_offset", "ball"), [J3, J5, RADIUS], [-0.0716, 0.0101, 0.0351])
+    v = SimpleNamespace(second=causes[1], fits=[single, quiet], causes=causes, best_fit=single, basis={}, text="x")
+    name_second_effect_shift(v)
+    assert "fitted as joint_offset + ball the named values move (joint_offset.joint5 0.0319 -> 0.0101)" in v.text
     # no second effect, or one never refined: nothing said
     for second, refined in ((None, True), (causes[1], False)):
         pair = _fit(("joint_offset", "ball"), [J3, J5, RADIUS], [-0.0716, 0.0101, 0.0316], refined=refined)

@@ -194,7 +194,7 @@ def _second_effect_text(shift: dict[str, dict], effects: tuple[str, ...]) -> str
         return ""
     added = ", ".join(f"{k} {v:.4g}" for k, v in shift["added"].items())
     moved = ", ".join(f"{k} {m['named']:.4g} -> {m['with_second']:.4g}" for k, m in shift["moved"].items())
-    return (f"; fitted as {' + '.join(effects)} ({added}) the named values move ({moved}): this log does not tell them "
+    return (f"; fitted as {' + '.join(effects)}{f' ({added})' if added else ''} the named values move ({moved}): this log does not tell them "
             f"from the second effect, so do not recalibrate on them alone")
 
 
