@@ -58,7 +58,7 @@ HIDE_LISTED = 4
 #: Where a second effect fits better but is not claimed, the named cause's parameters whose deviation from nominal the
 #: pair's fit changes by at least this share of it are named as what the second effect could account for instead
 #: (:func:`~besdrake.diagnosis.verdict.second_effect_shift`; benchmark seed 5, full logs, trial 41: a joint-5 offset of
-#: 0.032 rad beside the hidden joint-3 offset is 0.010 rad once a smaller ball is fitted beside it).
+#: 0.032 rad beside the hidden joint-3 offset is 0.010 rad once the hidden second effect is fitted beside it).
 SECOND_SHIFT = 0.5
 #: ... and a parameter that only the pair moves (of the second effect, or of the named effects but left at nominal by the
 #: named cause) counts where it deviates from nominal by at least this share of its realistic range.
