@@ -1,5 +1,5 @@
 """The throwing task's ``besdrake learn`` stages (:func:`besdrake.pipeline.learn.learn` runs them; configuration:
-``learn.yaml`` beside this module), from demonstrations to a template pool (paper Table 1 and Figure 1):
+``learn.yaml`` beside this package), from demonstrations to a template pool (paper Table 1 and Figure 1):
 
  1. ``label``      automatic marker labeling (unnamed trajectories -> named markers), gap filling
  2. ``segment``    vMCI segmentation and 1-NN classification: the throw segments
