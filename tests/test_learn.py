@@ -185,14 +185,15 @@ def test_learn_refines_with_the_family_switch_where_it_scouts():
     assert refinement_settings({"refinement": {}})["switch_distance"] is None
 
 
-def test_learn_checks_only_the_throws_that_could_become_a_runs_best_by_default():
-    """refinement.robust_frontier (session 38; the default, 0.01 m, since session 39) reaches the robust check; null and
-    absent (a run folder of before): every throw within the radius is checked."""
+def test_learn_checks_every_throw_by_default_and_only_those_that_could_become_a_runs_best_where_asked():
+    """refinement.robust_frontier (session 38; learn's default only in session 39: a held-out subject's template lost
+    its far contexts) reaches the robust check where set; null (the default) and absent (a run folder of before): every
+    throw within the radius is checked."""
     from besdrake.tasks.throwing.learn.refinement import _robust_check, refinement_settings
 
-    on = refinement_settings(load_config())
+    on = refinement_settings(load_config(overrides=["refinement.robust_frontier=0.01"]))
     assert on["robust_frontier"] == 0.01 and _robust_check("throwing", "nominal", on).frontier == 0.01
-    for cfg in (load_config(overrides=["refinement.robust_frontier=null"]), {"refinement": {"robust_sd": 0.002}}):
+    for cfg in (load_config(), {"refinement": {"robust_sd": 0.002}}):
         off = refinement_settings(cfg)
         assert off["robust_frontier"] is None and _robust_check("throwing", "nominal", off).frontier is None
 

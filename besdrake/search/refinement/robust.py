@@ -14,7 +14,7 @@ landing where the nominal does). Optionally a check is spent only where it can m
 e.g. :data:`FRONTIER_MARGIN`): on a candidate whose nominal distance could make it the run's best so far (within the
 frontier margin of the best objective of the episodes before its batch); the others are rewarded by their nominal
 distance (no robust distance recorded). The run's best, the plan it returns and the stop on success are then still
-judged over the scatter, at about half the check rollouts (learn's default since session 39: see the task's notes). Measured on a
+judged over the scatter, at about half the check rollouts (learn's default in session 39 only, an option since: see the task's notes). Measured on a
 task: the notes beside it (``besdrake/tasks/<name>/REFINEMENT.md``).
 """
 
