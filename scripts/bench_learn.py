@@ -29,8 +29,14 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-STAGE_FOLDERS = ("01_label", "02_segment", "03_imitate", "04_refine", "05_transfer", "06_diagnose", "07_transfer_refined",
-                 "08_template", "09_pool", "10_report")
+sys.path.insert(0, str(ROOT))  # this checkout's besdrake, not another worktree's installed copy
+
+
+def _stage_folders() -> list[str]:
+    """The run folder's stage folders in order, as :class:`besdrake.pipeline.run.RunFolder` names them."""
+    from besdrake.tasks.throwing.learn import STAGES
+
+    return [f"{i:02d}_{name}" for i, (name, _) in enumerate(STAGES, 1)]
 
 
 def _children_cpu() -> float:
@@ -42,7 +48,7 @@ def _run_subject(subject: int, out: Path, overrides: list[str], workers: int, qu
     """Run learn for ``subject`` into ``out / learn_sS`` (unless done and timed) and return its measured times."""
     run = out / f"learn_s{subject}"
     timing = out / f"learn_s{subject}.time.json"
-    if timing.is_file() and (run / "10_report" / "stage.json").is_file():
+    if timing.is_file() and (run / _stage_folders()[-1] / "stage.json").is_file():
         return json.loads(timing.read_text())
     if run.exists():  # not timed by this benchmark, or killed: a fresh folder (the old one is kept aside)
         run.rename(out / f"learn_s{subject}.untimed.{int(time.time())}")
@@ -67,7 +73,7 @@ def _stage(run: Path, folder: str) -> dict:
 
 def _row(subject: int, run: Path, measured: dict) -> dict:
     """The figures of one subject's run folder."""
-    stages = {folder[3:]: _stage(run, folder) for folder in STAGE_FOLDERS}
+    stages = {folder[3:]: _stage(run, folder) for folder in _stage_folders()}
     refine = stages["refine"].get("summary", {})
     template = stages["template"].get("summary", {})
     reach = template.get("reach_refinement") or {}

@@ -175,16 +175,18 @@ def second_effect_shift(single: fitting.CandidateFit, pair: fitting.CandidateFit
 
     mine = {s_.key: (s_, float(v)) for s_, v in zip(single.specs, single.theta)}
     theirs = {s_.key: (s_, float(v)) for s_, v in zip(pair.specs, pair.theta)}
-    added = {k: v for k, (s_, v) in theirs.items() if s_.effect not in single.effects and material(s_, v)}
-    moved = {}
+    added, moved = {}, {}
     for k, (s_, v) in mine.items():
         d_single = v - s_.nominal
         d_pair = theirs[k][1] - s_.nominal if k in theirs else 0.0
         if abs(d_single) > 0 and abs(d_pair - d_single) >= SECOND_SHIFT * abs(d_single):
             moved[k] = {"named": v, "with_second": d_pair + s_.nominal}
-    for k, (s_, v) in theirs.items():  # a parameter of the named effects that only the pair moves
-        if k not in mine and s_.effect in single.effects and material(s_, v):
-            moved[k] = {"named": s_.nominal, "with_second": v}
+    for k, (s_, v) in theirs.items():  # what only the pair moves: the second effect's, or a named effect's left at nominal
+        if k not in mine and material(s_, v):
+            if s_.effect in single.effects:
+                moved[k] = {"named": s_.nominal, "with_second": v}
+            else:
+                added[k] = v
     return {"added": added, "moved": moved}
 
 

@@ -89,8 +89,9 @@ def _template_base(ctx: Context, scenario: str, out: Path) -> tuple[Path, dict[s
     only where the template's reach probes of both throws leave it the smaller floor (the test contexts' mean distance
     that no meta-parameters avoid, :func:`~besdrake.search.templates.reach_floor`): a throw family may not reach the
     target, and one that lands a little farther may turn less far (joint 1's limits). Where that refinement ends short
-    of the goal (0.1 m), a second one from other imitated throws (ranked 5-8, ``templates.reach_other_evaluations``)
-    looks in another throw family, and the floor rule picks among the three."""
+    of the goal (0.1 m), more reach refinements look in other throw families: from each other refinement run's throw
+    of another family (:func:`_other_runs_reach`, ``templates.reach_other_runs``) and from the imitated throws ranked
+    5-8 (:func:`_other_family`, ``templates.reach_other_evaluations``); the floor rule picks among all the bases."""
     from besdrake.imitation import load_dmp
     from besdrake.search.templates import reach_floor
     from besdrake.tasks.throwing.template_base import follow_through_phase
