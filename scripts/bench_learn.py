@@ -91,17 +91,15 @@ def _row(subject: int, run: Path, measured: dict) -> dict:
     }
 
 
-def _fmt(seconds: float | None) -> str:
-    return "-" if seconds is None else f"{int(seconds // 60)}:{seconds % 60:04.1f}"
-
-
 def _table(rows: list[dict]) -> str:
-    lines = ["subject  wall     cpu s  refine   template  refine runs (episodes, best m)          template sim / lab cm"]
+    from besdrake.pipeline.learn import fmt_time as _fmt
+
+    lines = ["subject  wall        cpu s  refine      template    refine runs (episodes, best m)          template sim / lab cm"]
     for r in rows:
         runs = ", ".join(f"{x['episodes']} {x['best_distance_m']:.3f}" for x in r["refine_runs"] if x["best_distance_m"] is not None)
         sim, lab = r["template_sim_cm"], r["template_lab_cm"]
-        lines.append(f"{r['subject']:>7}  {_fmt(r['wall_s']):>7}  {r['cpu_s'] or 0:>5.0f}  {_fmt(r['stage_s'].get('refine')):>7}  "
-                     f"{_fmt(r['stage_s'].get('template')):>8}  {runs:<40} {sim if sim is None else round(sim, 2)} / {lab if lab is None else round(lab, 2)}")
+        lines.append(f"{r['subject']:>7}  {_fmt(r['wall_s']):>10}  {r['cpu_s'] or 0:>5.0f}  {_fmt(r['stage_s'].get('refine')):>10}  "
+                     f"{_fmt(r['stage_s'].get('template')):>10}  {runs:<40} {sim if sim is None else round(sim, 2)} / {lab if lab is None else round(lab, 2)}")
     return "\n".join(lines)
 
 
