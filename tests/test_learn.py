@@ -27,6 +27,8 @@ def test_quick_profile_user_file_and_overrides_layer_in_order(tmp_path):
     assert cfg["refinement"]["plans"] == 1  # from the quick profile
     assert cfg["workers"] == 1 and cfg["lab"] == "other.yaml"
     assert load_config()["refinement"]["evaluations"] == 1000  # the packaged default
+    # the smoke run's 20-episode reach refinement never reaches its goal: no 800-episode search in other throws after it
+    assert load_config(quick=True)["templates"]["reach_other_evaluations"] == 0 < load_config()["templates"]["reach_other_evaluations"]
 
 
 def test_unknown_keys_and_bad_overrides_are_clear_errors(tmp_path):
@@ -211,12 +213,31 @@ def test_a_reach_refinement_that_stalls_looks_in_another_throw_family(monkeypatc
 
     monkeypatch.setattr(L, "_reach_refinement", fake)
     monkeypatch.setattr(L, "imitated_dmps", lambda ctx: ["imitated"])
+    ctx = _refined_ctx(runs=1)
     settings = {"other_evaluations": 600}
-    assert L._other_family(None, "nominal", tmp_path, settings, 0.08) is None and not calls  # the first reached the goal
-    assert L._other_family(None, "nominal", tmp_path, {"other_evaluations": 0}, 0.3) is None and not calls
-    other = L._other_family(None, "nominal", tmp_path, settings, 0.36)
+    assert L._other_family(ctx, "nominal", tmp_path, settings, 0.08) is None and not calls  # the first reached the goal
+    assert L._other_family(ctx, "nominal", tmp_path, {"other_evaluations": 0}, 0.3) is None and not calls
+    other = L._other_family(ctx, "nominal", tmp_path, settings, 0.36)
     assert calls == [(["imitated"], 600, 1)]
-    assert other == {"start_distance_m": 1.2, "best_distance_m": 0.16, "episodes": 600, "best_dmp": "refined0.dmp.json"}
+    assert other == {"start_distance_m": 1.2, "best_distance_m": 0.16, "episodes": 600, "best_dmp": "refined0.dmp.json", "start_group": 1}
+    L._other_family(_refined_ctx(runs=2), "nominal", tmp_path, settings, 0.36)  # runs 0 and 1 started from groups 0 and 1
+    assert calls[-1] == (["imitated"], 600, 2)
+
+
+def _refined_ctx(runs: int, run_starts: str = "diverse"):
+    """A stand-in learn Context whose refinement stage ran ``runs`` CMA-ES runs."""
+    from types import SimpleNamespace
+
+    summary = {"runs": [{"dmp": f"refined{k}.dmp.json"} for k in range(runs)]}
+    return SimpleNamespace(run=SimpleNamespace(done=lambda i, name: {"summary": summary}),
+                           config={"refinement": {"run_starts": run_starts}})
+
+
+def test_the_other_family_starts_after_the_groups_the_refinement_searched():
+    from besdrake.tasks.throwing.learn import template as L
+
+    assert [L._unsearched_group(_refined_ctx(n)) for n in (1, 2, 3)] == [1, 2, 3]
+    assert L._unsearched_group(_refined_ctx(2, run_starts="same")) == 1  # every run started from the best four
 
 
 def test_a_reach_refinement_that_stalls_goes_on_from_the_other_refinement_runs_throws(monkeypatch, tmp_path):
@@ -302,3 +323,45 @@ def test_the_transfer_is_seeded_with_the_refinements_best_throw_first(tmp_path):
         (tmp_path / name).write_text("{}")
     assert [f.name for f in _seed_files(tmp_path, "refined1.dmp.json")] == ["refined1.dmp.json", "refined0.dmp.json", "refined2.dmp.json"]
     assert [f.name for f in _seed_files(tmp_path, None)] == ["refined0.dmp.json", "refined1.dmp.json", "refined2.dmp.json"]
+
+
+def test_the_template_base_looks_in_another_family_only_where_no_reach_refinement_reached_the_goal(monkeypatch, tmp_path):
+    """_template_base: the imitated throws' family is searched with what the closest reach refinement so far reached
+    (another refinement run's included), and the floor rule picks among every base found."""
+    import contextlib
+    from types import SimpleNamespace
+
+    import besdrake.imitation as imitation
+    import besdrake.search.templates as templates
+    import besdrake.tasks.throwing.template_base as template_base
+    from besdrake.tasks.throwing.learn import template as L
+
+    settings = {"target": (2.35, 0.0), "evaluations": 800, "slowest": 2.0, "follow_through": 0.05, "objective": "point"}
+    first = {"runs": [{"stop_reason": "stall", "n_episodes": 400}], "start_distance_m": 0.4, "best_distance_within_limits_m": 0.35,
+             "best_dmp": "refined0.dmp.json"}
+    monkeypatch.setattr(L, "_best_throw", lambda ctx: tmp_path / "best.dmp.json")
+    monkeypatch.setattr(L, "template_reach_settings", lambda config: settings)
+    monkeypatch.setattr(L, "_reach_refinement", lambda *a, **k: first)
+    monkeypatch.setattr(L, "_executor", lambda ctx, scenario: contextlib.nullcontext("ex"))
+    monkeypatch.setattr(imitation, "load_dmp", lambda f: str(f))
+    monkeypatch.setattr(template_base, "follow_through_phase", lambda *a: None)
+    floors = {"best.dmp.json": 0.12, "refined0.dmp.json": 0.08, "run1.dmp.json": 0.05, "other.dmp.json": 0.03}
+    monkeypatch.setattr(templates, "reach_floor", lambda d, *a, **k: floors[d.split("/")[-1]])
+    ctx = SimpleNamespace(config={}, robot=lambda scenario: None)
+    seen = []
+
+    def other_family(ctx, scenario, out, settings, reached):
+        seen.append(reached)
+        return None if reached <= 0.1 else {"start_distance_m": 1.6, "best_distance_m": 0.03, "episodes": 510, "start_group": 1,
+                                            "best_dmp": "other.dmp.json"}
+
+    monkeypatch.setattr(L, "_other_family", other_family)
+    run1 = {"start_distance_m": 0.3, "best_distance_m": 0.07, "episodes": 300, "best_file": tmp_path / "run1.dmp.json"}
+    monkeypatch.setattr(L, "_other_runs_reach", lambda *a: [("refined1.dmp.json", run1)])
+    base, record = L._template_base(ctx, "nominal", tmp_path / "reach")
+    assert seen == [0.07] and "other_family" not in record  # the other run's reach refinement reached the goal
+    assert base == tmp_path / "run1.dmp.json" and record["kept_from"] == "reach refinement from refined1.dmp.json"
+    monkeypatch.setattr(L, "_other_runs_reach", lambda *a: [])
+    base, record = L._template_base(ctx, "nominal", tmp_path / "reach")
+    assert seen[-1] == 0.35 and record["other_family"]["start_group"] == 1
+    assert base == tmp_path / "reach" / "other" / "other.dmp.json" and record["kept_from"] == "other throws"

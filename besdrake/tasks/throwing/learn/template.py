@@ -105,13 +105,15 @@ def _template_base(ctx: Context, scenario: str, out: Path) -> tuple[Path, dict[s
     if result["runs"][0].get("stop_reason") == "start" or result["best_distance_within_limits_m"] is None:
         return base_file, record | {"kept": False}
     candidates, kinds = [base_file, out / result["best_dmp"]], ["refined throw", "reach refinement"]
-    for name, run in _other_runs_reach(ctx, base_file, scenario, out, settings, result["best_distance_within_limits_m"]):
+    reached = [result["best_distance_within_limits_m"]]
+    for name, run in _other_runs_reach(ctx, base_file, scenario, out, settings, reached[0]):
         record.setdefault("other_runs", []).append({"from": name} | {k: run[k] for k in ("start_distance_m", "best_distance_m", "episodes")})
         candidates.append(run["best_file"])
         kinds.append(f"reach refinement from {name}")
-    other = _other_family(ctx, scenario, out / "other", settings, result["best_distance_within_limits_m"])
+        reached.append(run["best_distance_m"])
+    other = _other_family(ctx, scenario, out / "other", settings, min(reached))
     if other is not None:
-        record["other_family"] = {k: other[k] for k in ("start_distance_m", "best_distance_m", "episodes")}
+        record["other_family"] = {k: other[k] for k in ("start_distance_m", "best_distance_m", "episodes", "start_group")}
         candidates.append(out / "other" / other["best_dmp"])
         kinds.append("other throws")
     with _executor(ctx, scenario) as executor:
@@ -175,16 +177,27 @@ def _reach_summary(result: dict[str, Any]) -> dict[str, Any]:
 
 
 def _other_family(ctx: Context, scenario: str, out: Path, settings: dict[str, Any], reached: float) -> dict[str, Any] | None:
-    """Where the reach refinement ended ``reached`` m from its target, beyond the goal: a reach refinement from the
-    imitated throws ranked 5-8 (scouts from them: another throw family than the refined throw's); None where the first
-    reached the goal or ``other_evaluations`` is 0."""
+    """Where every reach refinement so far ended beyond the goal (the closest ``reached`` m from its target): a reach
+    refinement from the imitated throws of the start group after the refinement's runs' (:func:`_unsearched_group`; its
+    scouts start from them: another throw family than the refined throws'); None where one reached the goal or
+    ``other_evaluations`` is 0."""
     from besdrake.search.refinement import SUCCESS_DISTANCE
 
     if reached <= SUCCESS_DISTANCE or settings["other_evaluations"] <= 0:
         return None
+    group = _unsearched_group(ctx)
     result = _reach_refinement(ctx, imitated_dmps(ctx), scenario, out, settings["other_evaluations"], settings,
-                               "template reach (other throws)", start_group=1)
-    return _reach_summary(result) | {"best_dmp": result["best_dmp"]}
+                               "template reach (other throws)", start_group=group)
+    return _reach_summary(result) | {"best_dmp": result["best_dmp"], "start_group": group}
+
+
+def _unsearched_group(ctx: Context) -> int:
+    """The start group (imitated throws 4k+1 to 4k+4 by distance to the target) after those the refinement's runs
+    started from: with ``refinement.run_starts`` diverse run k started from group k, so the group after the last run,
+    otherwise group 1. The reach refinement ranks the throws towards its own target, so its groups are mostly, not
+    exactly, the refinement's."""
+    runs = ctx.run.done(4, "refine")["summary"].get("runs", [])
+    return max(len(runs), 1) if ctx.config["refinement"].get("run_starts", "diverse") == "diverse" else 1
 
 
 def stage_template(ctx: Context, out: Path) -> dict[str, Any]:
