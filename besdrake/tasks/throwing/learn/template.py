@@ -90,8 +90,9 @@ def _template_base(ctx: Context, scenario: str, out: Path) -> tuple[Path, dict[s
     that no meta-parameters avoid, :func:`~besdrake.search.templates.reach_floor`): a throw family may not reach the
     target, and one that lands a little farther may turn less far (joint 1's limits). Where that refinement ends short
     of the goal (0.1 m), more reach refinements look in other throw families: from each other refinement run's throw
-    of another family (:func:`_other_runs_reach`, ``templates.reach_other_runs``) and from the imitated throws ranked
-    5-8 (:func:`_other_family`, ``templates.reach_other_evaluations``); the floor rule picks among all the bases."""
+    of another family (:func:`_other_runs_reach`, ``templates.reach_other_runs``) and, where none of those reaches the
+    goal either, from the imitated throws of the start group after the refinement runs' (:func:`_other_family`,
+    ``templates.reach_other_evaluations``); the floor rule picks among all the bases."""
     from besdrake.imitation import load_dmp
     from besdrake.search.templates import reach_floor
     from besdrake.tasks.throwing.template_base import follow_through_phase
