@@ -11,7 +11,7 @@ import numpy as np
 from besdrake._io import save_figure as _save_figure
 from besdrake.pipeline.learn import Context
 from besdrake.pipeline.learn import stage_executor as _executor
-from besdrake.tasks.throwing.learn.refinement import imitated_dmps, refine_from
+from besdrake.tasks.throwing.learn.refinement import imitated_dmps, refine_from, refinement_settings
 from besdrake.tasks.throwing.learn.transfer import lab_of, open_log, refined_scenario
 
 
@@ -198,7 +198,7 @@ def _unsearched_group(ctx: Context) -> int:
     otherwise group 1. The reach refinement ranks the throws towards its own target, so its groups are mostly, not
     exactly, the refinement's."""
     runs = ctx.run.done(4, "refine")["summary"].get("runs", [])
-    return max(len(runs), 1) if ctx.config["refinement"].get("run_starts", "diverse") == "diverse" else 1
+    return max(len(runs), 1) if refinement_settings(ctx.config)["run_starts"] == "diverse" else 1
 
 
 def stage_template(ctx: Context, out: Path) -> dict[str, Any]:
