@@ -105,7 +105,8 @@ def test_unknown_stage_is_refused(tmp_path, capsys):
                                       "templates.follow_through=-0.1", "templates.follow_through=late",
                                       "templates.reach_robust=sometimes", "refinement.switch_distance=0",
                                       "refinement.switch_distance=far", "refinement.turn_distance=0.5",
-                                      "templates.robust_sd=-0.001", "templates.robust_sd=lots"])
+                                      "templates.robust_sd=-0.001", "templates.robust_sd=lots", "templates.reach_stall_beyond=-1",
+                                      "templates.reach_stall_beyond=far"])
 def test_a_bad_refinement_transfer_or_diagnosis_setting_is_refused_before_any_stage_runs(tmp_path, capsys, override):
     code = main(["learn", "--quick", "--set", override, "--out", str(tmp_path / "run")])
     err = capsys.readouterr().err
@@ -365,3 +366,29 @@ def test_the_template_base_looks_in_another_family_only_where_no_reach_refinemen
     base, record = L._template_base(ctx, "nominal", tmp_path / "reach")
     assert seen[-1] == 0.35 and record["other_family"]["start_group"] == 1
     assert base == tmp_path / "reach" / "other" / "other.dmp.json" and record["kept_from"] == "other throws"
+
+
+def test_reach_refinements_from_refined_throws_also_end_by_the_far_stall_rule(monkeypatch):
+    """templates.reach_stall_beyond: the reach refinements from refined throws (start group 0) end by the far stall rule
+    as well as the refinement's own; the search in other throws (scouts) by the refinement's only; null: off; the
+    setting is checked."""
+    from besdrake.pipeline.config import ConfigError, load_config
+    from besdrake.search.refinement import AnyStall, StallRule
+    from besdrake.tasks.throwing.learn import template as L
+    from besdrake.tasks.throwing.learn.refinement import _stall_with
+
+    settings = L.template_reach_settings(load_config())
+    far = settings["far_stall"]
+    assert far == StallRule(L.REACH_FAR_STALL_EPISODES, L.REACH_FAR_STALL_TOL, L.REACH_FAR_STALL_AFTER, 0.25)
+    assert L.template_reach_settings(load_config(overrides=["templates.reach_stall_beyond=null"]))["far_stall"] is None
+    for bad in ("-0.1", "3", "far"):
+        with pytest.raises(ConfigError, match="reach_stall_beyond"):
+            L.template_reach_settings(load_config(overrides=[f"templates.reach_stall_beyond={bad}"]))
+    seen = []
+    monkeypatch.setattr(L, "refine_from", lambda *a, **k: seen.append(k["far_stall"]))
+    L._reach_refinement(None, [], "nominal", None, 800, settings, "template reach")
+    L._reach_refinement(None, [], "nominal", None, 800, settings, "template reach (other throws)", start_group=1)
+    assert seen == [far, None]
+    usual = StallRule()
+    assert _stall_with(usual, far) == AnyStall((usual, far)) and _stall_with(usual, None) is usual
+    assert _stall_with(None, far) is far and _stall_with(None, None) is None

@@ -286,6 +286,23 @@ def test_episode_bench_splits_the_episodes_time(base):
     assert isinstance(problem.reward, ThrowReward)
 
 
+def test_a_far_stall_rule_holds_only_beyond_its_distance_and_any_rule_ends_a_run(base):
+    """StallRule(beyond=...): stalled only while the best is still farther than that; AnyStall: by any of its rules (a
+    run ends by the quicker far rule while the usual one would still wait)."""
+    from besdrake.search.refinement import AnyStall, StallRule
+
+    far = StallRule(episodes=4, tol=0.01, after=0, beyond=0.25)
+    assert far.stalled([0.4] * 5) and not far.stalled([0.2] * 5) and not far.stalled([0.5, 0.45, 0.4, 0.35, 0.3])
+    with pytest.raises(RefinementError):
+        StallRule(beyond=-0.1)
+    usual = StallRule(episodes=16, tol=0.01, after=40)
+    either = AnyStall((usual, far))
+    assert either.stalled([0.4] * 5) and not usual.stalled([0.4] * 5) and not either.stalled([0.2] * 20)
+    run = refine(RefinementProblem(COMPI, base), StandIn(), n_episodes=80, seed=3, popsize=8, stop_on_success=False,
+                 stall=AnyStall((usual, StallRule(episodes=16, tol=10.0, after=24, beyond=0.0))))
+    assert run.n_episodes == 24 and run.stop_reason == "stalled"
+
+
 def test_a_stall_rule_ends_a_run_that_gained_too_little_and_a_resumed_run_ends_alike(base, tmp_path):
     from besdrake.search.refinement import StallRule
 

@@ -27,17 +27,21 @@ class StallRule:
     checked, plus limit penalties) gained less than ``tol`` over its last ``episodes`` episodes. Measured on 20
     benchmark runs (REFINEMENT.md, "A stall rule"): 200 / 1 cm / 400 stops 6, saves 1,260 of 13,090 episodes, and no run
     that reaches 0.1 m loses it; two failed runs end farther off than they would have (0.246 / 0.207 m instead of
-    0.152 / 0.155 m)."""
+    0.152 / 0.155 m). ``beyond`` (m): only while the best is still farther than this (0: always), a rule for runs that
+    stall far from their goal."""
 
     episodes: int = 200
     tol: float = 0.01
     after: int = 400
+    beyond: float = 0.0
 
     def __post_init__(self) -> None:
         if int(self.episodes) != self.episodes or self.episodes < 1 or int(self.after) != self.after or self.after < 0:
             raise RefinementError(f"stall episodes must be >= 1 and after >= 0 (whole numbers), got {self.episodes!r}, {self.after!r}")
         if not (np.isfinite(self.tol) and self.tol >= 0):
             raise RefinementError(f"stall tol must be a distance >= 0 (m), got {self.tol!r}")
+        if not (np.isfinite(self.beyond) and self.beyond >= 0):
+            raise RefinementError(f"stall beyond must be a distance >= 0 (m), got {self.beyond!r}")
 
     def stalled(self, objectives: Sequence[float]) -> bool:
         """Whether a run whose episodes scored ``objectives`` (m, in order; NaN: failed) has stalled."""
@@ -46,7 +50,19 @@ class StallRule:
         if n < max(int(self.after), int(self.episodes) + 1):
             return False
         best = np.minimum.accumulate(np.where(np.isfinite(o), o, np.inf))
-        return bool(best[n - 1 - int(self.episodes)] - best[-1] < self.tol)
+        return bool(best[n - 1 - int(self.episodes)] - best[-1] < self.tol and best[-1] > self.beyond)
+
+
+@dataclass(frozen=True)
+class AnyStall:
+    """Stalled as soon as one of ``rules`` (:class:`StallRule`) says so: e.g. the usual rule and a quicker one for a run
+    that stays far from its goal."""
+
+    rules: tuple[StallRule, ...]
+
+    def stalled(self, objectives: Sequence[float]) -> bool:
+        """Whether a run whose episodes scored ``objectives`` (m, in order; NaN: failed) has stalled by any rule."""
+        return any(rule.stalled(objectives) for rule in self.rules)
 
 
 @dataclass
@@ -143,7 +159,7 @@ def refine(
     scout_generations: int | None = None,
     scout_halving: bool | None = None,
     stop_distance: float | None = None,
-    stall: StallRule | None = None,
+    stall: StallRule | AnyStall | None = None,
     switch_distance: float | None = None,
     next_starts: np.ndarray | None = None,
 ) -> RefinementResult:
@@ -154,8 +170,8 @@ def refine(
     ``meta_episodes``/``meta_sigma``: the meta-parameter stage of :func:`make_optimizer` (0: none).
     ``stop_distance`` (m, default :data:`SUCCESS_DISTANCE`): with ``stop_on_success``, stop only at a success whose
     distance (its robust distance where a robust check ran) is below it: a margin inside the goal. ``stall``: end the
-    run early once it has stalled (:class:`StallRule`; decided from the episode log, so a resumed run decides the same);
-    its result's ``stop_reason`` is then ``"stalled"``. ``switch_distance`` (m): a raced scout that went on and stalled
+    run early once it has stalled (:class:`StallRule` or :class:`AnyStall`; decided from the episode log, so a resumed
+    run decides the same); its result's ``stop_reason`` is then ``"stalled"``. ``switch_distance`` (m): a raced scout that went on and stalled
     farther than this hands over to the next scout the race eliminated (:func:`make_optimizer`); ``next_starts``: start
     points of further races, one raced where the race's winner ends farther than that (:func:`make_optimizer`). ``scout_generations``
     None: the rung length the run in ``out_dir`` began with, else :data:`DEFAULT_SCOUT_GENERATIONS` (a killed run resumes
@@ -299,7 +315,7 @@ def stops_at(r, stop_distance: float = SUCCESS_DISTANCE) -> bool:
 
 
 def _generation_callback(problem: RefinementProblem, progress, stop_on_success: bool, t0: float, stop_distance: float = SUCCESS_DISTANCE,
-                         stall: StallRule | None = None, objectives: list[float] | None = None):
+                         stall: StallRule | AnyStall | None = None, objectives: list[float] | None = None):
     """The search loop's callback: reports ``progress`` after each generation and stops at a success when asked, or
     once the run has stalled (``stall``; ``objectives``: the episodes logged before a resume)."""
     best = [np.inf]

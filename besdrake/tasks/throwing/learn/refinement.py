@@ -15,7 +15,7 @@ from besdrake.pipeline.learn import stage_executor as _executor
 def refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int, tag: str, scouting: bool = True,
                 target: tuple[float, float] | None = None, plans: int | None = None,
                 reward_settings: dict[str, Any] | None = None, sigma0: float | None = None, start_group: int = 0,
-                follow_through: float | None = None, robust: bool = True) -> dict[str, Any]:
+                follow_through: float | None = None, robust: bool = True, far_stall=None) -> dict[str, Any]:
     """CMA-ES from the best of ``dmps`` (the paper uses all available plans) in ``scenario``. The default search's scouts
     (short first attempts from the best throws) run only with ``scouting`` and where they take at most half of
     ``budget``: a re-refinement from throws refined already goes straight to CMA-ES from the best of them.
@@ -24,7 +24,9 @@ def refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int,
     refinement's default); ``start_group``: the first run starts from the throws ranked ``4 * start_group`` on (later
     runs from the next groups where ``refinement.run_starts`` is diverse); ``follow_through``: s after each start throw's
     release from which its plans are slowed where they break a limit, as a template plays them (None: off); ``robust``:
-    the refinement's robust check (``refinement.robust_sd``) where it is on (False: every throw scored as thrown)."""
+    the refinement's robust check (``refinement.robust_sd``) where it is on (False: every throw scored as thrown);
+    ``far_stall``: a :class:`~besdrake.search.refinement.StallRule` that ends a run as well as the refinement's own
+    (e.g. one for runs that stall far from their goal; None: the refinement's only)."""
     from besdrake.search.refinement import (DEFAULT_SCOUTS, DEFAULT_SIGMA0, SUCCESS_DISTANCE, RefinementProblem, plot_learning_curves, rank_starts,
                                             refine, scouting_episodes)
     from besdrake.search.refinement.run import stops_at
@@ -60,7 +62,7 @@ def refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int,
                 return refine(problems[i], ex, n_episodes=int(budget), seed=int(cfg["seed"]) + k, out_dir=out / f"run{k}",
                               sigma0=DEFAULT_SIGMA0 if sigma0 is None else sigma0,
                               popsize=int(cfg["population"]), stop_on_success=settings["stop_on_success"],
-                              stop_distance=settings["stop_distance"], starts=starts, scouts=scouts, stall=settings["stall"],
+                              stop_distance=settings["stop_distance"], starts=starts, scouts=scouts, stall=_stall_with(settings["stall"], far_stall),
                               switch_distance=settings["switch_distance"] if scouts else None)
             return job
 
@@ -84,6 +86,15 @@ def refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int,
         "best_distance_within_limits_m": best["best_distance_within_limits_m"],
         "best_dmp": best["dmp"],
     }
+
+
+def _stall_with(rule, far_stall):
+    """The refinement's stall ``rule`` (or None) together with ``far_stall`` (or None): a run stalls by either."""
+    from besdrake.search.refinement import AnyStall
+
+    if far_stall is None or rule is None:
+        return rule if far_stall is None else far_stall
+    return AnyStall((rule, far_stall))
 
 
 def _runs_in_turn(jobs: list, executor, turn_distance: float) -> list:
