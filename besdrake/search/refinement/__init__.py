@@ -56,7 +56,8 @@ from besdrake.search.refinement.starts import (best_start, race_points, rank_sta
 __all__ = [
     "SUCCESS_DISTANCE", "DEFAULT_POPSIZE", "DEFAULT_SIGMA0", "MIN_EXECUTION_TIME", "MAX_EXECUTION_TIME", "PAPER_POPSIZE",
     "RefinementError", "RewardBreakdown", "ParameterScaling", "RefinementProblem",
-    "RefinementResult", "StallRule", "AnyStall", "best_start", "race_points", "rank_starts", "restart_points", "run_start", "run_start_order", "scout_start_points", "scout_points",
+    "RefinementResult", "StallRule", "AnyStall", "best_start", "race_points", "rank_starts", "restart_points", "run_start",
+    "run_start_order", "scout_start_points", "scout_points",
     "scout_starts_checked", "simulated_order", "scouting_episodes", "make_optimizer", "refine", "read_details", "params_key",
     "failed_breakdown", "meta_basis", "plot_learning_curves",
 ]

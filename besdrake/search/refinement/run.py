@@ -171,8 +171,8 @@ def refine(
     ``stop_distance`` (m, default :data:`SUCCESS_DISTANCE`): with ``stop_on_success``, stop only at a success whose
     distance (its robust distance where a robust check ran) is below it: a margin inside the goal. ``stall``: end the
     run early once it has stalled (:class:`StallRule` or :class:`AnyStall`; decided from the episode log, so a resumed
-    run decides the same); its result's ``stop_reason`` is then ``"stalled"``. ``switch_distance`` (m): a raced scout that went on and stalled
-    farther than this hands over to the next scout the race eliminated (:func:`make_optimizer`); ``next_starts``: start
+    run decides the same); its result's ``stop_reason`` is then ``"stalled"``. ``switch_distance`` (m): a raced scout
+    that went on and stalled farther than this hands over to the next scout the race eliminated (:func:`make_optimizer`); ``next_starts``: start
     points of further races, one raced where the race's winner ends farther than that (:func:`make_optimizer`). ``scout_generations``
     None: the rung length the run in ``out_dir`` began with, else :data:`DEFAULT_SCOUT_GENERATIONS` (a killed run resumes
     with its own race after the default changed)."""

@@ -4,18 +4,21 @@ the imitated throws; its runs, starts, stall rule and robust check from the conf
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from besdrake.pipeline.learn import Context
 from besdrake.pipeline.learn import stage_executor as _executor
 
+if TYPE_CHECKING:
+    from besdrake.search.refinement import AnyStall, StallRule
+
 
 def refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int, tag: str, scouting: bool = True,
                 target: tuple[float, float] | None = None, plans: int | None = None,
                 reward_settings: dict[str, Any] | None = None, sigma0: float | None = None, start_group: int = 0,
-                follow_through: float | None = None, robust: bool = True, far_stall=None) -> dict[str, Any]:
+                follow_through: float | None = None, robust: bool = True, far_stall: StallRule | None = None) -> dict[str, Any]:
     """CMA-ES from the best of ``dmps`` (the paper uses all available plans) in ``scenario``. The default search's scouts
     (short first attempts from the best throws) run only with ``scouting`` and where they take at most half of
     ``budget``: a re-refinement from throws refined already goes straight to CMA-ES from the best of them.
@@ -62,7 +65,8 @@ def refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int,
                 return refine(problems[i], ex, n_episodes=int(budget), seed=int(cfg["seed"]) + k, out_dir=out / f"run{k}",
                               sigma0=DEFAULT_SIGMA0 if sigma0 is None else sigma0,
                               popsize=int(cfg["population"]), stop_on_success=settings["stop_on_success"],
-                              stop_distance=settings["stop_distance"], starts=starts, scouts=scouts, stall=_stall_with(settings["stall"], far_stall),
+                              stop_distance=settings["stop_distance"], starts=starts, scouts=scouts,
+                              stall=_stall_with(settings["stall"], far_stall),
                               switch_distance=settings["switch_distance"] if scouts else None)
             return job
 
@@ -88,7 +92,7 @@ def refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int,
     }
 
 
-def _stall_with(rule, far_stall):
+def _stall_with(rule: StallRule | None, far_stall: StallRule | None) -> StallRule | AnyStall | None:
     """The refinement's stall ``rule`` (or None) together with ``far_stall`` (or None): a run stalls by either."""
     from besdrake.search.refinement import AnyStall
 
