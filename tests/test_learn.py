@@ -392,3 +392,18 @@ def test_reach_refinements_from_refined_throws_also_end_by_the_far_stall_rule(mo
     usual = StallRule()
     assert _stall_with(usual, far) == AnyStall((usual, far)) and _stall_with(usual, None) is usual
     assert _stall_with(None, far) is far and _stall_with(None, None) is None
+
+
+def test_the_report_tells_where_the_template_base_came_from():
+    """report.md's template section: each reach refinement (from where, start -> best, episodes), the floors and the kept
+    base; nothing without a reach target."""
+    from besdrake.tasks.throwing.learn.report import _reach_lines
+
+    reach = {"target_m": [2.35, 0.0], "start_distance_m": 0.397, "best_distance_m": 0.355, "episodes": 150,
+             "other_family": {"start_distance_m": 1.606, "best_distance_m": 0.030, "episodes": 510, "start_group": 1},
+             "floor_m": [0.1197, 0.0829, 0.0295], "kept": True, "kept_from": "other throws"}
+    text = "\n".join(_reach_lines(reach))
+    assert "(2.35, 0) m" in text and "from the refined throw: 0.397 -> 0.355 m in 150 episodes" in text
+    assert "start group 1: 1.606 -> 0.030 m in 510 episodes" in text
+    assert "Template base kept: other throws" in text and "12.0 / 8.3 / 2.9 cm" in text
+    assert _reach_lines({}) == []

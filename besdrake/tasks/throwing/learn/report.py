@@ -81,6 +81,8 @@ def stage_report(ctx: Context, out: Path) -> dict[str, Any]:
             continue
         summary = {k: v for k, v in rec["summary"].items() if not isinstance(v, (list, dict)) or k in ("gain",)}
         lines += ["| key | value |", "|---|---|"] + [f"| {k} | {_short(v)} |" for k, v in summary.items()] + [""]
+        if name == "template":
+            lines += _reach_lines(rec["summary"].get("reach_refinement") or {})
         for png in sorted((root / folder).glob("*.png"))[:2] + sorted((root / folder).glob("*/*.png"))[:3]:
             lines.append(f"![{png.stem}]({png.relative_to(root).as_posix()})")
         lines.append("")
@@ -89,6 +91,25 @@ def stage_report(ctx: Context, out: Path) -> dict[str, Any]:
         lines += ["## Replays", ""] + [f"- [{r}](10_report/{r}) (meshcat, self-contained HTML)" for r in replays] + [""]
     _atomic_write_text(root / "report.md", "\n".join(lines))
     return {"report": str(root / "report.md"), "replays": replays}
+
+
+def _reach_lines(reach: dict[str, Any]) -> list[str]:
+    """report.md's account of the template's base: each reach refinement towards the far target (from where, how close,
+    in how many episodes), each candidate base's reach floor over the test contexts, and which base was kept."""
+    if not reach.get("target_m"):
+        return []
+    target = ", ".join(f"{v:g}" for v in reach["target_m"])
+    runs = [("the refined throw", reach)] + [(f"{r['from']} (another refinement run)", r) for r in reach.get("other_runs") or []]
+    if reach.get("other_family"):
+        runs.append((f"the imitated throws of start group {reach['other_family']['start_group']}", reach["other_family"]))
+    lines = [f"Reach refinements towards ({target}) m:", ""]
+    for where, r in runs:
+        if r.get("best_distance_m") is not None:
+            lines.append(f"- from {where}: {r['start_distance_m']:.3f} -> {r['best_distance_m']:.3f} m in {r['episodes']} episodes")
+    floors = " / ".join(f"{100 * f:.1f}" for f in reach.get("floor_m") or [])
+    kept = reach.get("kept_from") or "refined throw"
+    lines += ["", f"Template base kept: {kept}" + (f" (reach floors over the test contexts, refined throw first: {floors} cm)" if floors else "") + ".", ""]
+    return lines
 
 
 def _workers_table(done: dict[str, Any]) -> list[str]:
