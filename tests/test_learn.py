@@ -375,7 +375,6 @@ def test_reach_refinements_from_refined_throws_also_end_by_the_far_stall_rule(mo
     from besdrake.pipeline.config import ConfigError, load_config
     from besdrake.search.refinement import AnyStall, StallRule
     from besdrake.tasks.throwing.learn import template as L
-    from besdrake.tasks.throwing.learn.refinement import _stall_with
 
     settings = L.template_reach_settings(load_config())
     far = settings["far_stall"]
@@ -390,8 +389,8 @@ def test_reach_refinements_from_refined_throws_also_end_by_the_far_stall_rule(mo
     L._reach_refinement(None, [], "nominal", None, 800, settings, "template reach (other throws)", start_group=1)
     assert seen == [far, None]
     usual = StallRule()
-    assert _stall_with(usual, far) == AnyStall((usual, far)) and _stall_with(usual, None) is usual
-    assert _stall_with(None, far) is far and _stall_with(None, None) is None
+    assert AnyStall.of(usual, far) == AnyStall((usual, far)) and AnyStall.of(usual, None) is usual
+    assert AnyStall.of(None, far) is far and AnyStall.of(None, None) is None
 
 
 def test_the_report_tells_where_the_template_base_came_from():

@@ -60,6 +60,12 @@ class AnyStall:
 
     rules: tuple[StallRule, ...]
 
+    @classmethod
+    def of(cls, *rules: StallRule | None) -> StallRule | AnyStall | None:
+        """The given rules (None: left out) as one: None, the only rule, or an :class:`AnyStall` of them."""
+        given = tuple(rule for rule in rules if rule is not None)
+        return cls(given) if len(given) > 1 else (given[0] if given else None)
+
     def stalled(self, objectives: Sequence[float]) -> bool:
         """Whether a run whose episodes scored ``objectives`` (m, in order; NaN: failed) has stalled by any rule."""
         return any(rule.stalled(objectives) for rule in self.rules)

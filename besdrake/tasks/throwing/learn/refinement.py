@@ -12,7 +12,7 @@ from besdrake.pipeline.learn import Context
 from besdrake.pipeline.learn import stage_executor as _executor
 
 if TYPE_CHECKING:
-    from besdrake.search.refinement import AnyStall, StallRule
+    from besdrake.search.refinement import StallRule
 
 
 def refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int, tag: str, scouting: bool = True,
@@ -30,8 +30,8 @@ def refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int,
     the refinement's robust check (``refinement.robust_sd``) where it is on (False: every throw scored as thrown);
     ``far_stall``: a :class:`~besdrake.search.refinement.StallRule` that ends a run as well as the refinement's own
     (e.g. one for runs that stall far from their goal; None: the refinement's only)."""
-    from besdrake.search.refinement import (DEFAULT_SCOUTS, DEFAULT_SIGMA0, SUCCESS_DISTANCE, RefinementProblem, plot_learning_curves, rank_starts,
-                                            refine, scouting_episodes)
+    from besdrake.search.refinement import (DEFAULT_SCOUTS, DEFAULT_SIGMA0, SUCCESS_DISTANCE, AnyStall, RefinementProblem, plot_learning_curves,
+                                            rank_starts, refine, scouting_episodes)
     from besdrake.search.refinement.run import stops_at
     from besdrake.sim.scheduler import run_concurrently
     from besdrake.task import DEFAULT_TASK, get_task
@@ -66,7 +66,7 @@ def refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int,
                               sigma0=DEFAULT_SIGMA0 if sigma0 is None else sigma0,
                               popsize=int(cfg["population"]), stop_on_success=settings["stop_on_success"],
                               stop_distance=settings["stop_distance"], starts=starts, scouts=scouts,
-                              stall=_stall_with(settings["stall"], far_stall),
+                              stall=AnyStall.of(settings["stall"], far_stall),
                               switch_distance=settings["switch_distance"] if scouts else None)
             return job
 
@@ -90,15 +90,6 @@ def refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int,
         "best_distance_within_limits_m": best["best_distance_within_limits_m"],
         "best_dmp": best["dmp"],
     }
-
-
-def _stall_with(rule: StallRule | None, far_stall: StallRule | None) -> StallRule | AnyStall | None:
-    """The refinement's stall ``rule`` (or None) together with ``far_stall`` (or None): a run stalls by either."""
-    from besdrake.search.refinement import AnyStall
-
-    if far_stall is None or rule is None:
-        return rule if far_stall is None else far_stall
-    return AnyStall((rule, far_stall))
 
 
 def _runs_in_turn(jobs: list, executor, turn_distance: float) -> list:
