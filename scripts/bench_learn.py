@@ -10,7 +10,10 @@ the benchmark did not time is run again in a fresh folder). Subject 0 is learn's
 
 Targets (issue 27): ``besdrake learn`` on the defaults <= 4 min on 2 quiet cores; the template after 80 episodes <= 5
 cm in simulation and <= 7 cm in the lab (mean over the 16 test contexts) on bases refined from at least 5 subjects;
-every refinement run reaches 0.1 m. Printed: per subject and the median / mean over the subjects.
+every refinement run reaches 0.1 m. Printed: per subject and the median / mean over the subjects. Seconds depend on
+the machine: before and after the subjects the benchmark times ``besdrake bench rollout``'s reference throw on one core
+(:func:`besdrake.tasks.throwing.bench.reference_rollout_ms`) and prints the wall times in those reference rollouts too,
+figures that compare between machines (the CPU model is recorded).
 
     python3 scripts/bench_learn.py --subjects 0 1 2 3 4 --out /tmp/bench_learn --json /tmp/bench_learn.json
 """
@@ -123,6 +126,22 @@ def summarize(rows: list[dict]) -> dict:
     }
 
 
+def _reference() -> dict:
+    """The machine's reference speed, measured here (:func:`besdrake.tasks.throwing.bench.reference_rollout_ms`)."""
+    from besdrake.tasks.throwing.bench import reference_rollout_ms
+
+    return reference_rollout_ms()
+
+
+def _in_reference(summary: dict, reference: dict) -> dict:
+    """The wall times in reference rollouts (the mean of the references before and after the subjects): figures that
+    compare between machines, where the seconds do not."""
+    ms = float(np.mean([reference["before"]["ms_per_rollout"], reference["after"]["ms_per_rollout"]]))
+    per = {k: None if summary[k] is None else summary[k] * 1000.0 / ms for k in ("default_subject_wall_s", "median_wall_s")}
+    return {"ms_per_rollout": ms, "default_wall_rollouts": per["default_subject_wall_s"], "median_wall_rollouts": per["median_wall_s"],
+            "target_default_wall_rollouts": summary["targets"]["default_wall_s"] * 1000.0 / ms}
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--subjects", type=int, nargs="+", default=[0, 1, 2, 3, 4], help="demonstrator subjects, one learn run each")
@@ -134,6 +153,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    reference = {"before": _reference()}
     rows = []
     for s in args.subjects:
         print(f"subject {s} ...", file=sys.stderr, flush=True)
@@ -142,9 +162,16 @@ def main(argv: list[str] | None = None) -> int:
         print(_table(rows[-1:]).splitlines()[1], file=sys.stderr, flush=True)
         if measured.get("returncode"):
             print(f"    learn failed (exit {measured['returncode']}): see {out / f'learn_s{s}.log'}", file=sys.stderr, flush=True)
-    result = {"settings": args.set, "workers": args.workers, "quick": args.quick, "rows": rows, "summary": summarize(rows),
-              "machine_note": f"{os.cpu_count()} CPU cores; wall times need quiet cores"}
+    reference["after"] = _reference()
+    summary = summarize(rows)
+    summary["reference"] = _in_reference(summary, reference)
+    result = {"settings": args.set, "workers": args.workers, "quick": args.quick, "rows": rows, "summary": summary,
+              "reference": reference, "machine_note": f"{os.cpu_count()} CPU cores ({reference['before']['cpu_model']}); wall times need quiet cores"}
     print(_table(rows), file=sys.stderr, flush=True)
+    ref = summary["reference"]
+    print(f"reference rollout (bench rollout's default throw, one core): {ref['ms_per_rollout']:.2f} ms (before {reference['before']['ms_per_rollout']:.2f}, "
+          f"after {reference['after']['ms_per_rollout']:.2f}); default subject's wall = {ref['default_wall_rollouts'] or float('nan'):,.0f} reference rollouts, "
+          f"median {ref['median_wall_rollouts'] or float('nan'):,.0f}", file=sys.stderr, flush=True)
     text = json.dumps(result, indent=1, default=str)
     if args.json:
         Path(args.json).write_text(text)

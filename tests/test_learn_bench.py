@@ -61,3 +61,23 @@ def test_a_timed_complete_run_is_not_run_again_and_an_untimed_one_is_set_aside(t
     assert len(aside) == 1 and (aside[0] / "note.txt").read_text() == "kept"  # never deleted
     again = bench._run_subject(4, tmp_path, ["templates.episodes=5"], workers=1)
     assert len(calls) == 1 and again == first  # resumed: the measured times, not a second run
+
+
+def test_wall_times_in_reference_rollouts_compare_between_machines(script):
+    bench = script("bench_learn")
+    summary = {"default_subject_wall_s": 180.0, "median_wall_s": 150.0, "targets": {"default_wall_s": 240.0}}
+    reference = {"before": {"ms_per_rollout": 5.0}, "after": {"ms_per_rollout": 7.0}}
+    ref = bench._in_reference(summary, reference)
+    assert ref["ms_per_rollout"] == 6.0  # the mean of the two references
+    assert abs(ref["default_wall_rollouts"] - 30000.0) < 1e-6 and abs(ref["median_wall_rollouts"] - 25000.0) < 1e-6
+    assert abs(ref["target_default_wall_rollouts"] - 40000.0) < 1e-6
+    none = bench._in_reference({"default_subject_wall_s": None, "median_wall_s": None, "targets": {"default_wall_s": 240.0}}, reference)
+    assert none["default_wall_rollouts"] is None
+
+
+def test_the_reference_rollout_times_the_default_throw_on_this_machine():
+    from besdrake.tasks.throwing.bench import cpu_model, reference_rollout_ms
+
+    ref = reference_rollout_ms(n=3, reps=1)
+    assert ref["throws"] == 3 and 0.0 < ref["ms_per_rollout"] < 1000.0 and 0.0 < ref["cpu_ms_per_rollout"] < 1000.0
+    assert ref["cpu_model"] == cpu_model() and isinstance(ref["cpu_model"], str)

@@ -115,6 +115,41 @@ def _fidelity(sim, ref, n_fid: int, say) -> dict[str, Any]:
             "flagged": sum(not o.ok for o in default_out + ref_out), "n": n_fid}
 
 
+def cpu_model() -> str:
+    """The CPU's model name (and family / model numbers) from ``/proc/cpuinfo``; "" where it cannot be read."""
+    fields: dict[str, str] = {}
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            key, _, value = line.partition(":")
+            key = key.strip()
+            if key in ("model name", "cpu family", "model") and key not in fields:
+                fields[key] = value.strip()
+    except OSError:
+        return ""
+    return f"{fields.get('model name', '?')} (family {fields.get('cpu family', '?')}, model {fields.get('model', '?')})"
+
+
+def reference_rollout_ms(n: int = 24, reps: int = 3, scenario: str = "nominal") -> dict[str, Any]:
+    """The machine's speed as ``ms_per_rollout`` measures it: the default throw over the benchmark's amplitudes, ``n``
+    throws ``reps`` times in this process (one core, after a warm-up); median wall and CPU ms per throw. A reference
+    that other timings (a whole ``besdrake learn``) are divided by, so that figures from different machines compare."""
+    from besdrake.tasks.throwing.rollout import ThrowRollout
+    from besdrake.tasks.throwing.throws import default_throw
+
+    sim = ThrowRollout(scenario)
+    plans = [default_throw(amplitude=float(a)) for a in np.linspace(*AMPLITUDE_RANGE, n)]
+    sim.rollout(plans[0])
+    wall, cpu = [], []
+    for _ in range(reps):
+        for p in plans:
+            w0, c0 = time.perf_counter(), time.process_time()
+            sim.rollout(p)
+            cpu.append(time.process_time() - c0)
+            wall.append(time.perf_counter() - w0)
+    return {"ms_per_rollout": float(np.median(wall) * 1000.0), "cpu_ms_per_rollout": float(np.median(cpu) * 1000.0),
+            "throws": n * reps, "cpu_model": cpu_model()}
+
+
 def _smoothness(sim, n_dense: int, say) -> dict[str, Any]:
     """2. A dense sweep: is the landing monotonic in the amplitude, and how uneven are its steps?"""
     from besdrake.tasks.throwing.throws import default_throw
@@ -181,7 +216,7 @@ def _bench_result(fid: dict, smooth: dict, speed: dict, time_step: float, plot: 
         t_batch_1_worker_s=speed["t1"],
         t_batch_2_workers_s=speed["t2"],
         plot=str(plot),
-        machine={"cpu_count": os.cpu_count(), "loadavg_1_5_15": list(load), "quick": quick},
+        machine={"cpu_count": os.cpu_count(), "cpu_model": cpu_model(), "loadavg_1_5_15": list(load), "quick": quick},
         flagged_throws=int(fid["flagged"]),
     )
     res.passed = {
