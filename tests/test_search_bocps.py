@@ -153,3 +153,17 @@ def test_bocps_runs_and_resumes_in_the_search_loop(tmp_path):
     restored = BOCPS.from_state(load_state(tmp_path / "run" / "optimizer")["optimizer"])
     assert restored.failed.tolist() == [i == 5 for i in range(10)]
     np.testing.assert_allclose(restored.policy(TEST_CONTEXTS[0]), full.optimizer.policy(TEST_CONTEXTS[0]))
+
+
+def test_length_scale_min_bounds_the_fit_and_is_kept_in_the_state(tmp_path):
+    opt = train(BOCPS(CONTEXT_BOUNDS, PARAM_BOUNDS, "ucb", rng=np.random.default_rng(4), length_scale_min=0.2), 12)
+    opt.policy(TEST_CONTEXTS[0])  # fits the GP
+    assert np.all(opt.gp.length_scales >= 0.2 - 1e-9)
+    save_state(opt.state_dict(), tmp_path / "opt")
+    state = load_state(tmp_path / "opt")
+    assert BOCPS.from_state(state).length_scale_min == 0.2
+    del state["settings"]["length_scale_min"]  # a state written before the setting existed
+    assert BOCPS.from_state(state).length_scale_min == 0.01
+    for bad in (0.0, -1.0, np.nan, 10.0):
+        with pytest.raises(ValueError, match="length_scale_min"):
+            BOCPS(CONTEXT_BOUNDS, PARAM_BOUNDS, length_scale_min=bad)

@@ -556,3 +556,56 @@ def test_a_template_brakes_a_follow_through_that_would_leave_joint_1s_limits():
     with make_executor("serial", scenario="nominal") as ex:
         a, b = ex.evaluate([free, free.stopped_after(0.55 * free.duration, COMPI.limits)])
     assert a.touchdown is not None and np.allclose(a.touchdown, b.touchdown, atol=1e-9)
+
+
+def test_a_far_miss_no_longer_becomes_every_policy():
+    """Real episodes of a learn run's template (subject 2, session 43): with the reward model before (the GP's default
+    lower bound 0.01, the reward unsaturated) the fit chose 0.018 for the execution time, and one far miss that the
+    probes' prior modelled slightly worse than it was became the posterior mean's maximum for many test contexts
+    (modelled touchdowns up to 0.27 m off); with the templates' model every policy lands where the prior says it should."""
+    from pathlib import Path
+
+    from besdrake.search.bocps import BOCPS
+    from besdrake.search.template_reach import ReachProbe
+    from besdrake.search.templates import CONTEXT_BOUNDS, GP_LENGTH_SCALE_MIN, PRIOR_SATURATION, TEST_CONTEXTS
+
+    d = np.load(Path(__file__).parent / "data" / "template_episodes_short_length_scale.npz")
+    probe = ReachProbe(d["taus"], d["touchdowns"], float(d["goal1"]), d["within_limits"])
+    misses = {}
+    for name, lsm, prior in (("before", 0.01, {"type": "reach", "probe": probe.to_dict()}),
+                             ("now", GP_LENGTH_SCALE_MIN, {"type": "reach", "probe": probe.to_dict(), "saturation": PRIOR_SATURATION})):
+        opt = BOCPS(CONTEXT_BOUNDS, d["meta_bounds"], "es", rng=np.random.default_rng(0), length_scale_min=lsm, prior_mean=prior)
+        for x, y in zip(d["X"], d["y"]):
+            opt.tell(x[:2], x[2:], float(y))
+        theta = np.array([opt.policy(c) for c in TEST_CONTEXTS])
+        misses[name] = np.linalg.norm(probe.predict(theta) - TEST_CONTEXTS, axis=1)
+    assert misses["before"].max() > 0.2  # the failure this guards against
+    assert misses["now"].max() < 0.08
+
+
+def test_the_saturated_prior_keeps_the_reward_near_a_target_and_compresses_far_misses():
+    from besdrake.search.template_reach import ReachPrior, ReachProbe, prior_from_dict, saturate
+
+    r = -np.array([0.0, 0.01, 0.3, 2.0]) ** 2
+    s = saturate(r, 0.1)
+    assert s[0] == 0.0 and abs(s[1] - r[1]) < 1e-5 and np.all(np.diff(s) < 0)  # the same order, the reward near 0
+    assert abs(s[3] + 0.1 * np.log(41.0)) < 1e-12 and r[3] == -4.0  # a 2 m miss: -0.37 instead of -4
+    np.testing.assert_array_equal(saturate(r, None), r)
+    probe = ReachProbe(np.array([1.0, 2.0]), np.array([[2.0, 0.0], [1.0, 0.0]]), 0.0, np.array([True, True]))
+    X = np.array([[1.5, 0.0, 1.5, 0.0], [2.5, 0.5, 1.0, 0.2]])
+    old = prior_from_dict({"type": "reach", "probe": probe.to_dict()}, 2)  # a state written before the saturation
+    assert old.saturation is None and np.allclose(old.transform(r), r)
+    new = prior_from_dict({"type": "reach", "probe": probe.to_dict(), "saturation": 0.1}, 2)
+    np.testing.assert_allclose(new(X), saturate(old(X), 0.1))
+    for bad in (0.0, -1.0, np.nan):
+        with pytest.raises(ValueError, match="saturation"):
+            ReachPrior(probe, 2, bad)
+
+
+@pytest.mark.parametrize("method", ["es", "ucb", "aces"])
+def test_template_gp_methods_use_the_templates_length_scale_bound(method):
+    from besdrake.search.templates import GP_LENGTH_SCALE_MIN, _template_optimizer
+
+    opt = _template_optimizer(method, np.array([[1.0, 3.0], [-0.5, 0.5]]), 0, None, None)
+    assert opt.length_scale_min == GP_LENGTH_SCALE_MIN and opt.gp.length_scale_bounds[0] == GP_LENGTH_SCALE_MIN
+    assert _template_optimizer(method, np.array([[1.0, 3.0], [-0.5, 0.5]]), 0, None, {"length_scale_min": 0.2}).length_scale_min == 0.2

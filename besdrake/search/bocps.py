@@ -26,11 +26,12 @@ from scipy.stats import qmc
 from .acquisition import maximize_on_box, upper_confidence_bound
 from .base import ContextualOptimizer
 from .entropy_search import RepresenterModel, select_representers
-from .gp import GaussianProcess, GPEpisodes, check_bounds, single_threaded
+from .gp import DEFAULT_LENGTH_SCALE_BOUNDS, GaussianProcess, GPEpisodes, check_bounds, single_threaded
 
 __all__ = ["BOCPS", "CONTEXTUAL_ACQUISITIONS"]
 
 CONTEXTUAL_ACQUISITIONS = ("ucb", "es")
+DEFAULT_LENGTH_SCALE_MIN = DEFAULT_LENGTH_SCALE_BOUNDS[0]
 
 
 class BOCPS(GPEpisodes, ContextualOptimizer):
@@ -58,6 +59,9 @@ class BOCPS(GPEpisodes, ContextualOptimizer):
         Optional prior knowledge of the reward: ``{"type": "reach", "probe": ...}`` (a
         :class:`~besdrake.search.template_reach.ReachProbe` as a dict); the GP then models the reward minus
         the prior (:class:`~besdrake.search.template_reach.PriorMeanGP`). Kept in the state.
+    length_scale_min:
+        Lower bound of the GP's length scales on the unit box (default: :class:`~besdrake.search.gp.GaussianProcess`'s,
+        0.01). Kept in the state (a state without it restores the default).
     """
 
     def __init__(
@@ -76,6 +80,7 @@ class BOCPS(GPEpisodes, ContextualOptimizer):
         nu: float = 2.5,
         n_restarts: int = 1,
         prior_mean: dict[str, Any] | None = None,
+        length_scale_min: float = DEFAULT_LENGTH_SCALE_MIN,
     ) -> None:
         self.context_bounds = check_bounds(context_bounds, "context_bounds")
         self.param_bounds = check_bounds(param_bounds, "param_bounds")
@@ -90,8 +95,11 @@ class BOCPS(GPEpisodes, ContextualOptimizer):
         self.kappa = float(kappa)
         self.n_rep_contexts, self.n_representers = int(n_rep_contexts), int(n_representers)
         self.n_samples, self.n_fantasies, self.pool_size = int(n_samples), int(n_fantasies), int(pool_size)
-        self.gp = GaussianProcess(np.vstack([self.context_bounds, self.param_bounds]), nu=nu,
-                                  n_restarts=n_restarts, seed=int(self.rng.integers(2**31 - 1)))
+        self.length_scale_min = float(length_scale_min)
+        if not 0.0 < self.length_scale_min < DEFAULT_LENGTH_SCALE_BOUNDS[1]:
+            raise ValueError(f"length_scale_min must be within (0, {DEFAULT_LENGTH_SCALE_BOUNDS[1]:g}) on the unit box, got {length_scale_min!r}")
+        self.gp = GaussianProcess(np.vstack([self.context_bounds, self.param_bounds]), nu=nu, n_restarts=n_restarts,
+                                  length_scale_bounds=(self.length_scale_min, DEFAULT_LENGTH_SCALE_BOUNDS[1]), seed=int(self.rng.integers(2**31 - 1)))
         self.prior_mean = prior_mean
         self._wrap_prior()
         self.rep_contexts = self._scale(self.context_bounds,
@@ -212,6 +220,7 @@ class BOCPS(GPEpisodes, ContextualOptimizer):
             "n_rep_contexts": self.n_rep_contexts, "n_representers": self.n_representers,
             "n_samples": self.n_samples, "n_fantasies": self.n_fantasies, "pool_size": self.pool_size,
             "nu": self.gp.nu, "n_restarts": self.gp.n_restarts, "prior_mean": self.prior_mean,
+            "length_scale_min": self.length_scale_min,
         }
 
     def state_dict(self) -> dict[str, Any]:

@@ -27,7 +27,10 @@ from sklearn.gaussian_process.kernels import ConstantKernel, Kernel, Matern, Whi
 
 from .base import rng_from_state, rng_state, sanitize_rewards
 
-__all__ = ["GaussianProcess", "GPEpisodes", "check_bounds", "single_threaded"]
+__all__ = ["GaussianProcess", "GPEpisodes", "check_bounds", "single_threaded", "DEFAULT_LENGTH_SCALE_BOUNDS"]
+
+#: Length scales (on the unit box) the marginal likelihood may choose from, unless a caller narrows them.
+DEFAULT_LENGTH_SCALE_BOUNDS = (1e-2, 1e1)
 
 _F = TypeVar("_F", bound=Callable[..., Any])
 _THREADPOOLS: Any = None
@@ -90,7 +93,7 @@ class GaussianProcess:
         nu: float = 2.5,
         n_restarts: int = 1,
         noise_bounds: tuple[float, float] = (1e-6, 1e-1),
-        length_scale_bounds: tuple[float, float] = (1e-2, 1e1),
+        length_scale_bounds: tuple[float, float] = DEFAULT_LENGTH_SCALE_BOUNDS,
         seed: int = 0,
     ) -> None:
         self.bounds = check_bounds(bounds)

@@ -160,18 +160,40 @@ def model_floor(probe: ReachProbe, bounds: np.ndarray, contexts: np.ndarray, n: 
     return np.min(np.linalg.norm(td[None, :, :] - contexts[:, None, :], axis=2), axis=1)
 
 
-class ReachPrior:
-    """Prior reward of BO-CPS inputs ``(context, theta)``: minus the squared distance (m^2) from the probes' modelled
-    touchdown of ``theta`` to the target ``context``."""
+def saturate(reward: np.ndarray, scale: float | None) -> np.ndarray:
+    """``-scale * log(1 + d^2 / scale)`` of a reward ``-d^2`` (m^2): the reward itself for ``d^2`` well below ``scale``,
+    growing only logarithmically beyond; ``scale`` None: the reward unchanged."""
+    reward = np.asarray(reward, dtype=float)
+    if scale is None:
+        return reward
+    return -scale * np.log1p(-np.minimum(reward, 0.0) / scale)
 
-    def __init__(self, probe: ReachProbe, n_context: int = 2) -> None:
+
+class ReachPrior:
+    """Prior of BO-CPS inputs ``(context, theta)``: minus the squared distance (m^2) from the probes' modelled
+    touchdown of ``theta`` to the target ``context``, saturated (:func:`saturate`) where ``saturation`` (m^2) is given.
+
+    The GP then models the observed reward, saturated alike (:meth:`transform`), minus this prior. The probes' model
+    misses a touchdown by a few centimetres anywhere, and a reward ``-d^2`` turns that into a residual of about
+    ``2 d`` times the model's error: tens of times larger at a 2 m miss than near a target, which the GP's one
+    noise level and amplitude cannot describe. Saturated, the residual stays within ``sqrt(saturation)`` times the
+    model's error everywhere and is still the reward's own near the targets, where the policy is decided."""
+
+    def __init__(self, probe: ReachProbe, n_context: int = 2, saturation: float | None = None) -> None:
         self.probe = probe
         self.n_context = int(n_context)
+        if saturation is not None and not (np.isfinite(saturation) and saturation > 0):
+            raise ValueError(f"saturation must be a positive number of m^2 or None, got {saturation!r}")
+        self.saturation = None if saturation is None else float(saturation)
 
     def __call__(self, X: np.ndarray) -> np.ndarray:
         X = np.atleast_2d(np.asarray(X, dtype=float))
         td = self.probe.predict(X[:, self.n_context:])
-        return -np.sum((td - X[:, : self.n_context]) ** 2, axis=1)
+        return saturate(-np.sum((td - X[:, : self.n_context]) ** 2, axis=1), self.saturation)
+
+    def transform(self, reward: np.ndarray) -> np.ndarray:
+        """Observed rewards (m^2) on the scale this prior and the GP model."""
+        return saturate(reward, self.saturation)
 
 
 def prior_policy(probe: ReachProbe, bounds: np.ndarray, contexts: np.ndarray) -> np.ndarray:
@@ -190,14 +212,16 @@ def prior_policy(probe: ReachProbe, bounds: np.ndarray, contexts: np.ndarray) ->
 
 
 def prior_from_dict(data: dict[str, Any], n_context: int) -> ReachPrior:
-    """The prior a BO-CPS state names (``{"type": "reach", "probe": ReachProbe.to_dict()}``)."""
+    """The prior a BO-CPS state names (``{"type": "reach", "probe": ReachProbe.to_dict(), "saturation": m^2}``; a state
+    without ``saturation``, written before it existed, models the reward unsaturated)."""
     if not isinstance(data, dict) or data.get("type") != "reach" or "probe" not in data:
         raise ValueError(f"unknown prior mean {data!r}: expected {{'type': 'reach', 'probe': ...}}")
-    return ReachPrior(ReachProbe.from_dict(data["probe"]), n_context)
+    return ReachPrior(ReachProbe.from_dict(data["probe"]), n_context, data.get("saturation"))
 
 
 class PriorMeanGP(GaussianProcess):
-    """A :class:`GaussianProcess` of the residual ``y - prior(X)``: it predicts ``prior(X) +`` the residual's posterior.
+    """A :class:`GaussianProcess` of the residual ``prior.transform(y) - prior(X)``: it predicts ``prior(X) +`` the
+    residual's posterior (the reward itself, or saturated where the prior saturates it: the same maximisers).
 
     Built from a (fitted or empty) GP by :meth:`wrap`; its state is the residual GP's (the prior is kept by whoever
     owns it, e.g. the template record, and wrapped again on load)."""
@@ -213,7 +237,7 @@ class PriorMeanGP(GaussianProcess):
 
     def fit(self, X: np.ndarray, y: np.ndarray, optimize: bool = True) -> "PriorMeanGP":
         X = np.atleast_2d(np.asarray(X, dtype=float))
-        return super().fit(X, np.asarray(y, dtype=float).ravel() - self.prior(X), optimize)
+        return super().fit(X, self.prior.transform(np.asarray(y, dtype=float).ravel()) - self.prior(X), optimize)
 
     def predict(self, X: np.ndarray, return_std: bool = False):
         out = super().predict(X, return_std)
@@ -225,5 +249,5 @@ class PriorMeanGP(GaussianProcess):
         return mean + self.prior(X), cov
 
 
-__all__ = ["ReachProbe", "extend_probe", "ReachPrior", "PriorMeanGP", "prior_from_dict", "model_floor", "probe_reach", "reach_meta_bounds", "prior_policy",
+__all__ = ["ReachProbe", "extend_probe", "ReachPrior", "saturate", "PriorMeanGP", "prior_from_dict", "model_floor", "probe_reach", "reach_meta_bounds", "prior_policy",
            "context_polar_box", "RANGE_MARGIN", "YAW_MARGIN"]
