@@ -165,12 +165,13 @@ def main(argv: list[str] | None = None) -> int:
     reference["after"] = _reference()
     summary = summarize(rows)
     summary["reference"] = _in_reference(summary, reference)
+    note = f"{os.cpu_count()} CPU cores ({reference['before']['cpu_model']}); wall times need quiet cores"
     result = {"settings": args.set, "workers": args.workers, "quick": args.quick, "rows": rows, "summary": summary,
-              "reference": reference, "machine_note": f"{os.cpu_count()} CPU cores ({reference['before']['cpu_model']}); wall times need quiet cores"}
+              "reference": reference, "machine_note": note}
     print(_table(rows), file=sys.stderr, flush=True)
-    ref = summary["reference"]
-    print(f"reference rollout (bench rollout's default throw, one core): {ref['ms_per_rollout']:.2f} ms (before {reference['before']['ms_per_rollout']:.2f}, "
-          f"after {reference['after']['ms_per_rollout']:.2f}); default subject's wall = {ref['default_wall_rollouts'] or float('nan'):,.0f} reference rollouts, "
+    ref, before, after = summary["reference"], reference["before"]["ms_per_rollout"], reference["after"]["ms_per_rollout"]
+    print(f"reference rollout (bench rollout's default throw, one core): {ref['ms_per_rollout']:.2f} ms (before {before:.2f}, "
+          f"after {after:.2f}); default subject's wall = {ref['default_wall_rollouts'] or float('nan'):,.0f} reference rollouts, "
           f"median {ref['median_wall_rollouts'] or float('nan'):,.0f}", file=sys.stderr, flush=True)
     text = json.dumps(result, indent=1, default=str)
     if args.json:

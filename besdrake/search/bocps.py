@@ -97,9 +97,11 @@ class BOCPS(GPEpisodes, ContextualOptimizer):
         self.n_samples, self.n_fantasies, self.pool_size = int(n_samples), int(n_fantasies), int(pool_size)
         self.length_scale_min = float(length_scale_min)
         if not 0.0 < self.length_scale_min < DEFAULT_LENGTH_SCALE_BOUNDS[1]:
-            raise ValueError(f"length_scale_min must be within (0, {DEFAULT_LENGTH_SCALE_BOUNDS[1]:g}) on the unit box, got {length_scale_min!r}")
+            raise ValueError(f"length_scale_min must be within (0, {DEFAULT_LENGTH_SCALE_BOUNDS[1]:g}) on the unit box, "
+                             f"got {length_scale_min!r}")
         self.gp = GaussianProcess(np.vstack([self.context_bounds, self.param_bounds]), nu=nu, n_restarts=n_restarts,
-                                  length_scale_bounds=(self.length_scale_min, DEFAULT_LENGTH_SCALE_BOUNDS[1]), seed=int(self.rng.integers(2**31 - 1)))
+                                  length_scale_bounds=(self.length_scale_min, DEFAULT_LENGTH_SCALE_BOUNDS[1]),
+                                  seed=int(self.rng.integers(2**31 - 1)))
         self.prior_mean = prior_mean
         self._wrap_prior()
         self.rep_contexts = self._scale(self.context_bounds,

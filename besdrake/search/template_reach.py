@@ -249,5 +249,6 @@ class PriorMeanGP(GaussianProcess):
         return mean + self.prior(X), cov
 
 
-__all__ = ["ReachProbe", "extend_probe", "ReachPrior", "saturate", "PriorMeanGP", "prior_from_dict", "model_floor", "probe_reach", "reach_meta_bounds", "prior_policy",
+__all__ = ["ReachProbe", "extend_probe", "ReachPrior", "saturate", "PriorMeanGP", "prior_from_dict", "model_floor", "probe_reach",
+           "reach_meta_bounds", "prior_policy",
            "context_polar_box", "RANGE_MARGIN", "YAW_MARGIN"]

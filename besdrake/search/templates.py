@@ -808,5 +808,6 @@ __all__ = [
     "CONTEXT_BOUNDS", "TEST_CONTEXTS", "METHODS", "JOINT1_MODES", "META_NAMES", "PAPER_MEAN_CM",
     "TemplateError", "MetaDMP", "BehaviorTemplate", "TemplatePool", "TemplateEvaluation", "TemplateTraining",
     "default_meta_bounds", "limit_safe_execution_times", "evaluate_template", "train_template", "touchdowns",
-    "TIME_MODES", "DEFAULT_PROBES", "reach_floor", "SCALE_SLOWEST", "EXTEND_PROBES", "EXTEND_FACTOR", "GP_LENGTH_SCALE_MIN", "PRIOR_SATURATION",
+    "TIME_MODES", "DEFAULT_PROBES", "reach_floor", "SCALE_SLOWEST", "EXTEND_PROBES", "EXTEND_FACTOR", "GP_LENGTH_SCALE_MIN",
+    "PRIOR_SATURATION",
 ]
