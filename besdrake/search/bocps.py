@@ -207,7 +207,8 @@ class BOCPS(GPEpisodes, ContextualOptimizer):
         return theta
 
     def expected_reward(self, context: np.ndarray, params: np.ndarray) -> tuple[float, float]:
-        """Posterior mean and standard deviation of the reward of ``params`` in ``context``."""
+        """Posterior mean and standard deviation of the reward of ``params`` in ``context`` (on the GP's scale: saturated
+        where a reach prior saturates it, :class:`~besdrake.search.template_reach.ReachPrior`)."""
         context = self._check_context(context)
         if not self.y.size:
             raise RuntimeError("no episodes yet")
