@@ -126,13 +126,6 @@ def summarize(rows: list[dict]) -> dict:
     }
 
 
-def _reference() -> dict:
-    """The machine's reference speed, measured here (:func:`besdrake.tasks.throwing.bench.reference_rollout_ms`)."""
-    from besdrake.tasks.throwing.bench import reference_rollout_ms
-
-    return reference_rollout_ms()
-
-
 def _in_reference(summary: dict, reference: dict) -> dict:
     """The wall times in reference rollouts (the mean of the references before and after the subjects): figures that
     compare between machines, where the seconds do not."""
@@ -153,7 +146,9 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    reference = {"before": _reference()}
+    from besdrake.tasks.throwing.bench import reference_rollout_ms
+
+    reference = {"before": reference_rollout_ms()}
     rows = []
     for s in args.subjects:
         print(f"subject {s} ...", file=sys.stderr, flush=True)
@@ -162,7 +157,7 @@ def main(argv: list[str] | None = None) -> int:
         print(_table(rows[-1:]).splitlines()[1], file=sys.stderr, flush=True)
         if measured.get("returncode"):
             print(f"    learn failed (exit {measured['returncode']}): see {out / f'learn_s{s}.log'}", file=sys.stderr, flush=True)
-    reference["after"] = _reference()
+    reference["after"] = reference_rollout_ms()
     summary = summarize(rows)
     summary["reference"] = _in_reference(summary, reference)
     note = f"{os.cpu_count()} CPU cores ({reference['before']['cpu_model']}); wall times need quiet cores"

@@ -769,8 +769,7 @@ def _n_probes(probes: int, n_episodes: int, joint1_mode: str, time_mode: str) ->
 
 def _template_optimizer(method: str, bounds: np.ndarray, seed: int, probe, optimizer_kwargs: dict[str, Any] | None):
     """The upper-level search of ``method``, with the reach ``probe``'s model as prior knowledge where given."""
-    gp = {} if method == "creps" else {"length_scale_min": GP_LENGTH_SCALE_MIN}
-    kwargs = gp | _prior_kwargs(method, probe) | dict(optimizer_kwargs or {})
+    kwargs = _gp_kwargs(method, probe) | dict(optimizer_kwargs or {})
     if probe is not None and method == "creps":
         kwargs.setdefault("creps_spread", CREPS_PRIOR_SPREAD)
     optimizer = _make_optimizer(method, bounds, seed, **kwargs)
@@ -786,11 +785,13 @@ def _check_meta_bounds(bounds: np.ndarray) -> None:
         raise TemplateError("the execution-time bound must be > 0 s")
 
 
-def _prior_kwargs(method: str, probe) -> dict[str, Any]:
-    """The GP prior mean of BO-CPS and ACES from a reach probe (none for C-REPS or without a probe)."""
-    if probe is None or method == "creps":
+def _gp_kwargs(method: str, probe) -> dict[str, Any]:
+    """The reward model of BO-CPS and ACES (none for C-REPS): the templates' length-scale bound and, from a reach probe,
+    the saturated prior mean."""
+    if method == "creps":
         return {}
-    return {"prior_mean": {"type": "reach", "probe": probe.to_dict(), "saturation": PRIOR_SATURATION}}
+    prior = {} if probe is None else {"prior_mean": {"type": "reach", "probe": probe.to_dict(), "saturation": PRIOR_SATURATION}}
+    return {"length_scale_min": GP_LENGTH_SCALE_MIN} | prior
 
 
 def _creps_prior_policy(optimizer, probe, bounds: np.ndarray, n: int = 9) -> None:

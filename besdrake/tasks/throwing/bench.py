@@ -96,13 +96,8 @@ def _fidelity(sim, ref, n_fid: int, say) -> dict[str, Any]:
     amps = np.linspace(*AMPLITUDE_RANGE, n_fid)
     plans = [default_throw(amplitude=float(a)) for a in amps]
     sim.rollout(plans[0])  # warm-up
-    wall, cpu, default_out = [], [], []
     say(f"timing {n_fid} throws at the default step")
-    for p in plans:
-        w0, c0 = time.perf_counter(), time.process_time()
-        default_out.append(sim.rollout(p))
-        cpu.append(time.process_time() - c0)
-        wall.append(time.perf_counter() - w0)
+    default_out, wall, cpu = _timed_rollouts(sim, plans)
     say("1 ms reference throws")
     ref_out = [ref.rollout(p) for p in plans]
     land = np.array([_landing(o) for o in default_out])
@@ -113,6 +108,17 @@ def _fidelity(sim, ref, n_fid: int, say) -> dict[str, Any]:
         max_err = float("inf")
     return {"amps": amps, "land": land, "land_ref": land_ref, "wall": wall, "cpu": cpu, "max_err": max_err,
             "flagged": sum(not o.ok for o in default_out + ref_out), "n": n_fid}
+
+
+def _timed_rollouts(sim, plans: list) -> tuple[list, list[float], list[float]]:
+    """The outcomes of ``plans`` on ``sim`` and each rollout's wall and CPU time (s)."""
+    outs, wall, cpu = [], [], []
+    for p in plans:
+        w0, c0 = time.perf_counter(), time.process_time()
+        outs.append(sim.rollout(p))
+        cpu.append(time.process_time() - c0)
+        wall.append(time.perf_counter() - w0)
+    return outs, wall, cpu
 
 
 def cpu_model() -> str:
@@ -138,14 +144,8 @@ def reference_rollout_ms(n: int = 24, reps: int = 3, scenario: str = "nominal") 
 
     sim = ThrowRollout(scenario)
     plans = [default_throw(amplitude=float(a)) for a in np.linspace(*AMPLITUDE_RANGE, n)]
-    sim.rollout(plans[0])
-    wall, cpu = [], []
-    for _ in range(reps):
-        for p in plans:
-            w0, c0 = time.perf_counter(), time.process_time()
-            sim.rollout(p)
-            cpu.append(time.process_time() - c0)
-            wall.append(time.perf_counter() - w0)
+    sim.rollout(plans[0])  # warm-up
+    _, wall, cpu = _timed_rollouts(sim, plans * reps)
     return {"ms_per_rollout": float(np.median(wall) * 1000.0), "cpu_ms_per_rollout": float(np.median(cpu) * 1000.0),
             "throws": n * reps, "cpu_model": cpu_model()}
 
