@@ -765,4 +765,107 @@ def test_refine_command_gives_each_run_its_further_races(base, tmp_path):
     ranking = json.loads((out / "start.json").read_text())["ranking"]
     assert summary["start"]["run_start_throws"] == [ranking[0], ranking[2]]
     record = json.loads((out / "run0" / "problem.json").read_text())
-    assert len(record["next_starts"]) == 4 and record["switch_distance"] == 0.3
+    assert len(record["next_starts"]) == 4 and record["switch_distance"] == 0.3 and "race_stall" not in record
+    assert main(argv[:-2] + ["--switch-distance", "0.3", "--race-stall-episodes", "200"]) == 2  # refused: one race only
+    stalls = tmp_path / "stalls"
+    assert main([*argv[:3], str(stalls), *argv[4:], "--switch-distance", "0.3", "--race-stall-episodes", "200"]) == 0
+    record = json.loads((stalls / "run0" / "problem.json").read_text())
+    assert record["race_stall"] == {"episodes": 200, "tol": 0.01, "after": 400, "beyond": 0.1}
+
+
+def near_miss(X: np.ndarray) -> np.ndarray:
+    """A local optimum at -3 that stops 0.15 short of the goal (closer than a 0.3 switch: its winner never ends far) and
+    the global one (0) at +3."""
+    X = np.atleast_2d(X)
+    return -np.minimum(np.sum((X - 3.0) ** 2, axis=1), 0.15 + 0.1 * np.sum((X + 3.0) ** 2, axis=1))
+
+
+def _near_racing(race_stall, seed: int = 0):
+    """Two raced scouts in the near miss's local optimum, a second group of start points (one of them at the global one)
+    and, with ``race_stall``, the next race where the current one stalls short of -0.1."""
+    from besdrake.search.cmaes import RaceStall
+
+    n = 3
+    rule = None if race_stall is None else RaceStall(*race_stall)
+    return StagnationRestartCMAES(np.array([[-3.0] * n, [-3.5] * n]), 0.5, np.random.default_rng(seed), popsize=6,
+                                  bounds=np.tile([-10.0, 10.0], (n, 1)), stagnation_generations=5, tol=0.01, restart_from_best=True,
+                                  regimes="bipop", scouts=2, scout_generations=3, scout_halving=True, switch_below=-0.3,
+                                  next_starts=np.array([[2.5] * n, [-1.0] * n]), race_stall=rule)
+
+
+def run_near(opt, generations: int) -> None:
+    for _ in range(generations):
+        X = opt.ask()
+        opt.tell(X, near_miss(X))
+
+
+def test_a_race_that_stalls_short_of_the_goal_races_the_next_start_points():
+    """The winner stalls at -0.15, inside the switch distance: without ``race_stall`` the run creeps there for good;
+    with it (8 generations, 0.01, below -0.1) the second race runs and finds the goal."""
+    on, off = _near_racing((8, 0.01, -0.1)), _near_racing(None)
+    run_near(on, 80)
+    run_near(off, 80)
+    assert off.race == 0 and -0.2 < off._best_reward < -0.14  # stuck short of the goal (and never far enough to switch)
+    assert on.race == 1 and on._best_reward > -0.1
+    stalled = next(i for i, h in enumerate(on.attempt_history) if h["end"] == "race_stall")
+    assert [h.get("scout") for h in on.attempt_history[stalled + 1:stalled + 3]] == [2, 3]  # the next race's scouts
+    assert on.attempt_history[:stalled] == off.attempt_history[:stalled]  # the same run up to the stall
+    assert on.race_start_episode() == on.race_episode > 0 and off.race_start_episode() == 0
+
+
+def test_a_race_stall_waits_for_its_goal_its_window_and_its_start():
+    from besdrake.search.cmaes import RaceStall
+
+    rule = RaceStall(generations=3, tol=0.01, below=-0.1, after=5)
+    assert not rule.stalled([-0.2] * 4) and rule.stalled([-0.2] * 5) and not rule.stalled([-0.3, -0.3, -0.25, -0.2, -0.2])
+    reached = _near_racing((2, 10.0, -0.5))  # the run's best passes -0.5 within the first race: never races on
+    run_near(reached, 60)
+    assert reached.race == 0
+    for bad in ({"generations": 0}, {"after": -1}, {"tol": -0.1}, {"below": float("nan")}):
+        with pytest.raises(ValueError, match="race_stall"):
+            RaceStall(**({"generations": 3, "tol": 0.01, "below": -0.1} | bad))
+    with pytest.raises(ValueError, match="race_stall needs next_starts"):
+        StagnationRestartCMAES(np.zeros((2, 3)), 0.5, np.random.default_rng(0), scouts=2, scout_halving=True, switch_below=-0.3,
+                               race_stall=RaceStall(3, 0.01, -0.1))
+
+
+def test_a_run_racing_on_stalls_resumes_anywhere(tmp_path):
+    for told in (5, 20, 30, 45):  # first race, about its stall, the second race, after it
+        a = _near_racing((8, 0.01, -0.1))
+        run_near(a, told)
+        b = restored(a, tmp_path)
+        assert b.race_stall == a.race_stall and b.race_best == a.race_best and b.race_episode == a.race_episode
+        for _ in range(30):
+            Xa, Xb = a.ask(), b.ask()
+            assert np.array_equal(Xa, Xb)
+            a.tell(Xa, near_miss(Xa))
+            b.tell(Xb, near_miss(Xb))
+        assert a.attempt_history == b.attempt_history
+
+
+def test_refine_races_on_a_stall_and_its_stall_rule_judges_the_race_alone(base, tmp_path):
+    """refine(race_stall=): a run that stalls races its next group; the run's own stall rule then counts from that race's
+    start (it ends the run 24 episodes into the second race, not at once), and a killed run resumes to the same end."""
+    from besdrake.search.refinement import StallRule
+    from tests.test_refinement import StandIn
+
+    problem = RefinementProblem(COMPI, base)
+    always = StallRule(episodes=16, tol=10.0, after=24)  # stalled as soon as 24 episodes are judged
+    kw = dict(seed=3, popsize=8, stop_on_success=False, scouts=2, scout_generations=1, starts=np.zeros((2, problem.n_params)),
+              switch_distance=0.3, next_starts=np.zeros((2, problem.n_params)), stall=always)
+    plain = refine(RefinementProblem(COMPI, base), StandIn(), n_episodes=200, **kw)
+    assert plain.n_episodes == 24 and plain.stop_reason == "stalled"
+    rule = StallRule(episodes=16, tol=10.0, after=0, beyond=0.0)
+    raced = refine(RefinementProblem(COMPI, base), StandIn(), n_episodes=200, race_stall=rule, **kw)
+    assert [a["end"] for a in raced.attempts][:3] == ["scout", "scout", "race_stall"]  # the winner's third generation
+    assert raced.n_episodes == 24 + 24 and raced.stop_reason == "stalled"
+    refine(RefinementProblem(COMPI, base), StandIn(), n_episodes=32, out_dir=tmp_path, race_stall=rule, **kw)
+    ex = StandIn()
+    resumed = refine(RefinementProblem(COMPI, base), ex, n_episodes=200, out_dir=tmp_path, race_stall=rule, **kw)
+    assert resumed.resumed and np.array_equal(resumed.rewards, raced.rewards) and resumed.stop_reason == "stalled"
+    ex = StandIn()
+    again = refine(RefinementProblem(COMPI, base), ex, n_episodes=200, out_dir=tmp_path, race_stall=rule, **kw)
+    assert again.n_episodes == 48 and ex.calls == 0  # a stalled run stays stopped, judged from its last race
+    with pytest.raises(RefinementError, match="race_stall"):
+        refine(RefinementProblem(COMPI, base), StandIn(), n_episodes=50, race_stall=rule, **{**kw, "next_starts": None})
+

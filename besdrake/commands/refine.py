@@ -81,6 +81,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="with --switch-distance: where the race's winner stalls farther than it, race the next four "
                              "imitated throws within the run's budget, up to R races per run (run k then starts from the "
                              "throws ranked 4kR+1 on); default: 1")
+    parser.add_argument("--race-stall-episodes", type=int, default=None, metavar="N",
+                        help="with --races: race the next four imitated throws also where the current race's best gained less "
+                             "than 1 cm over its last N episodes (not before episode 400 of the race) while the run is still "
+                             "farther than 0.1 m from the target; --stall-episodes then judges the current race alone; default: never")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--continue-after-success", action="store_true", help="use the whole budget instead of stopping at the first success")
     from besdrake.sim.cliutil import add_backend_arguments
@@ -196,6 +200,9 @@ def _check_args(args: argparse.Namespace) -> None:
         raise UserError(f"--target must be finite, got {args.target}")
     if args.races < 1 or (args.races > 1 and (args.switch_distance is None or args.plain or args.scouts in (0, 1))):
         raise UserError(f"--races must be >= 1, and more than 1 needs --switch-distance and scouting; got {args.races}")
+    if args.race_stall_episodes is not None and (args.races < 2 or args.race_stall_episodes < 1):
+        raise UserError(f"--race-stall-episodes must be >= 1 and needs --races 2 or more; "
+                        f"got {args.race_stall_episodes} with --races {args.races}")
 
 
 def _problems(args: argparse.Namespace, files: list[Path]):
@@ -241,6 +248,16 @@ def _start(args: argparse.Namespace, files: list[Path], problems: list, executor
     return start
 
 
+def _race_stall(args: argparse.Namespace, next_starts):
+    """``--race-stall-episodes`` as :func:`refine`'s ``race_stall`` (1 cm, from episode 400 of a race, while farther than
+    the success distance); None without it or where the run has no further race."""
+    from besdrake.search.refinement import SUCCESS_DISTANCE, StallRule
+
+    if args.race_stall_episodes is None or next_starts is None:
+        return None
+    return StallRule(args.race_stall_episodes, 0.01, 400, SUCCESS_DISTANCE)
+
+
 def _refine_run(k: int, args: argparse.Namespace, problem, executor, *, search: dict, starts, show: bool, next_starts=None):
     """Run ``k`` of the refinement into ``OUT/run{k}`` (resumable), its refined DMP saved beside it."""
     from besdrake.cli import UserError
@@ -266,7 +283,7 @@ def _refine_run(k: int, args: argparse.Namespace, problem, executor, *, search: 
                         meta_episodes=args.meta_episodes, meta_sigma=args.meta_sigma, **search,
                         **({} if starts is None else {"starts": starts}),
                         stall=None if args.stall_episodes is None else StallRule(args.stall_episodes),
-                        switch_distance=args.switch_distance, next_starts=next_starts)
+                        switch_distance=args.switch_distance, next_starts=next_starts, race_stall=_race_stall(args, next_starts))
     except (RefinementError, ResumeError) as err:
         raise UserError(str(err)) from None
     finally:

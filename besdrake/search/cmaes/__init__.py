@@ -34,8 +34,8 @@ Modules: :mod:`~besdrake.search.cmaes.core` (:class:`CMAES`), :mod:`~besdrake.se
 """
 
 from besdrake.search.cmaes.core import _RESTART_STRATEGIES, CMAES, _Run
-from besdrake.search.cmaes.restarts import _STAGNATION_REGIMES, StagnationRestartCMAES
+from besdrake.search.cmaes.restarts import _STAGNATION_REGIMES, RaceStall, StagnationRestartCMAES
 from besdrake.search.cmaes.staged import StagedCMAES
 from besdrake.search.cmaes.state import _ARRAY_ATTRS, _LIST_ATTRS, _SCALAR_ATTRS, _get, _has, _set
 
-__all__ = ["CMAES", "StagedCMAES", "StagnationRestartCMAES"]
+__all__ = ["CMAES", "RaceStall", "StagedCMAES", "StagnationRestartCMAES"]

@@ -3,6 +3,7 @@ scouts by successive halving."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -12,6 +13,33 @@ from besdrake.search.cmaes.core import CMAES
 
 #: Restart regimes of :class:`StagnationRestartCMAES`.
 _STAGNATION_REGIMES = ("large", "bipop", "local")
+
+
+@dataclass(frozen=True)
+class RaceStall:
+    """When a run races its next group of start points because it stalls (:class:`StagnationRestartCMAES`'s
+    ``race_stall``): the best reward since the current race began gained less than ``tol`` over the last
+    ``generations`` generations, at least ``after`` generations into the race (its scouting is never cut short), and the
+    run's best reward is still below ``below`` (e.g. minus the goal distance)."""
+
+    generations: int
+    tol: float
+    below: float
+    after: int = 0
+
+    def __post_init__(self) -> None:
+        if int(self.generations) != self.generations or self.generations < 1 or int(self.after) != self.after or self.after < 0:
+            raise ValueError(f"race_stall generations must be a whole number >= 1 and after >= 0, got {self.generations!r}, {self.after!r}")
+        if not (np.isfinite(self.tol) and self.tol >= 0 and np.isfinite(self.below)):
+            raise ValueError(f"race_stall tol must be finite and >= 0 and below a finite reward, got {self.tol!r}, {self.below!r}")
+
+    def stalled(self, race_best: list[float]) -> bool:
+        """Whether a race whose best reward after each of its generations is ``race_best`` has stalled."""
+        g = int(self.generations)
+        return len(race_best) > g and len(race_best) >= self.after and race_best[-1] - race_best[-1 - g] < self.tol
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"generations": int(self.generations), "tol": float(self.tol), "below": float(self.below), "after": int(self.after)}
 
 
 class StagnationRestartCMAES(BestAndWorst, Optimizer):
@@ -60,6 +88,12 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
     scout that went on ends with the run's best reward still below ``switch_below``, the next group is raced the same
     way before any eliminated scout is switched to (its eliminated scouts go first in the reserve): a run whose raced
     families fall short tries other start points within its budget.
+    With ``race_stall`` (a :class:`RaceStall`; ``next_starts`` only) the next group is raced also where the run stalls
+    short of a goal without its winner ending far: the best reward since the current race began gained less than
+    ``race_stall.tol`` over its last ``race_stall.generations`` generations (scouting over) while the run's best is still
+    below ``race_stall.below``. A family that creeps towards the goal without reaching it hands over to other starts;
+    the rule then alone decides when the next group races (a winner that ends far hands over to the eliminated scouts,
+    and the restarts from the run's best creep on, until the rule says the race has stalled).
 
     Budget and stop belong to the caller (the loop): :meth:`stop` is never true. One Generator drives
     every attempt; :meth:`state_dict` saves the attempt counter and regime bookkeeping, the per-generation
@@ -90,9 +124,12 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
         scout_halving: bool = False,
         switch_below: float | None = None,
         next_starts: np.ndarray | None = None,
+        race_stall: RaceStall | None = None,
     ) -> None:
         starts = np.atleast_2d(np.asarray(starts, dtype=float))
         next_starts = _checked_next_starts(next_starts, starts, scouts, scout_halving, switch_below)
+        if race_stall is not None and next_starts is None:
+            raise ValueError("race_stall needs next_starts (further groups of start points to race)")
         _check_settings(starts, sigma0, stagnation_generations, max_generations, tol, popsize_growth, regimes, small_decades,
                         small_share, patience, scouts, scout_generations)
         if switch_below is not None and not np.isfinite(switch_below):
@@ -104,7 +141,7 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
                 CMAES._check_bounds(bounds, s)
         self._configure(starts, sigma0, popsize, bounds, stagnation_generations, tol, max_generations, restart_from_best,
                         cma_options, popsize_growth, regimes, small_decades, small_share, patience, scouts, scout_generations,
-                        scout_halving, switch_below, next_starts)
+                        scout_halving, switch_below, next_starts, race_stall)
         self.rng = rng
         self._start_bookkeeping()
         self._init_best(starts[0])
@@ -114,7 +151,8 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
                    stagnation_generations: int, tol: float, max_generations: int, restart_from_best: bool,
                    cma_options: dict[str, Any] | None, popsize_growth: float, regimes: str, small_decades: float,
                    small_share: float, patience: int, scouts: int, scout_generations: int, scout_halving: bool,
-                   switch_below: float | None = None, next_starts: np.ndarray | None = None) -> None:
+                   switch_below: float | None = None, next_starts: np.ndarray | None = None,
+                   race_stall: RaceStall | None = None) -> None:
         """Set the settings (checked already)."""
         self.starts = starts
         self.sigma0 = float(sigma0)
@@ -135,6 +173,7 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
         self.scout_halving = bool(scout_halving)
         self.switch_below = None if switch_below is None else float(switch_below)
         self.next_starts = next_starts
+        self.race_stall = race_stall
 
     def _start_bookkeeping(self) -> None:
         """The attempt, scouting and regime bookkeeping of a fresh run."""
@@ -150,6 +189,11 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
         self.switched_at: int | None = None
         #: the race now running or decided: 0 the first (``starts``), g the g-th group of ``next_starts``
         self.race = 0
+        #: episodes told so far, those told when the current race began, and the best reward since then after each
+        #: generation (``race_stall``)
+        self.told = 0
+        self.race_episode = 0
+        self.race_best: list[float] = []
         #: scouting: the best scout so far (its CMA-ES, and its per-generation best), kept to go on after the last scout
         self.kept: CMAES | None = None
         self.kept_best: list[float] = []
@@ -229,6 +273,8 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
     def stalled(self) -> str | None:
         """Why the current attempt should end now (``None``: it goes on)."""
         g = len(self.attempt_best)
+        if self._race_stalled():
+            return "race_stall"
         if self.inner.stop():
             return "cma"
         if self.max_generations and g >= self.max_generations:
@@ -241,6 +287,18 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
         if self.switched_at is not None and self._behind(g - self.switched_at):
             return "behind"
         return None
+
+    def _race_stalled(self) -> bool:
+        """Whether the run races its next group now because it stalls short of the goal (``race_stall``)."""
+        rs = self.race_stall
+        if rs is None or self.scouting() or self.race + 1 >= self.n_races() or not self._best_reward < rs.below:
+            return False
+        return rs.stalled(self.race_best)
+
+    def race_start_episode(self) -> int:
+        """The episodes told before the current race began where the run races when it stalls (``race_stall``), else
+        0: a caller's own stall rule judges the current race from there."""
+        return self.race_episode if self.race_stall is not None else 0
 
     def _behind(self, generations: int) -> bool:
         """Whether a scout switched to ``generations`` ago is too far behind the run's best to go on."""
@@ -258,6 +316,7 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
         prev = self.attempt_best[-1] if self.attempt_best else -np.inf
         ok = clean[~failed]
         self.attempt_best.append(max(prev, float(ok.max())) if ok.size else prev)
+        self._count_race(rewards.size, float(ok.max()) if ok.size else -np.inf)
         why = self.stalled()
         if why is not None:
             halving = self.scout_halving and self.scouting()
@@ -279,7 +338,7 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
                 return
             if why == "scout" and (not self.kept_best or self.attempt_best[-1] > self.kept_best[-1]):
                 self.kept, self.kept_best, self.kept_scout = self.inner, list(self.attempt_best), self.attempt
-            rerace = self._reraces(why)
+            rerace = why == "race_stall" or self._reraces(why)
             switch = not rerace and self._switches(why)
             self.attempt += 1
             self.attempt_best = []
@@ -302,6 +361,12 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
                 self.inner = self._new_attempt(self._next_regime())
             self.attempt_start_best = float(self._best_reward)
 
+    def _count_race(self, episodes: int, batch_best: float) -> None:
+        """Count a told batch of ``episodes`` (best clean reward ``batch_best``) towards the current race."""
+        self.told += int(episodes)
+        if self.race_stall is not None:
+            self.race_best.append(max(self.race_best[-1], batch_best) if self.race_best else batch_best)
+
     def _switches(self, why: str) -> bool:
         """Whether the attempt that just ended (``why``) hands over to the next eliminated scout (``switch_below``)."""
         return (self.switch_below is not None and self.continued_scout is not None and why != "scout" and bool(self.reserve)
@@ -315,13 +380,15 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
 
     def _reraces(self, why: str) -> bool:
         """Whether the run races its next group of start points now (``next_starts``): a raced scout that went on has
-        just ended (``why``) with the run's best still below ``switch_below``, and a group is left."""
-        return (self.next_starts is not None and self.race + 1 < self.n_races() and self.continued_scout is not None
-                and why != "scout" and self._best_reward < self.switch_below)
+        just ended (``why``) with the run's best still below ``switch_below``, and a group is left (never with
+        ``race_stall``: that rule alone decides then)."""
+        return (self.next_starts is not None and self.race_stall is None and self.race + 1 < self.n_races()
+                and self.continued_scout is not None and why != "scout" and self._best_reward < self.switch_below)
 
     def _start_race(self) -> None:
         """Begin the next race: its first scout runs, the others queue for the first rung."""
         self.race += 1
+        self.race_episode, self.race_best = self.told, []
         first = self.race * self.scouts
         self.rung, self.current_scout, self.rung_done = 0, first, []
         self.rung_queue = [(k, None, []) for k in range(first + 1, first + self.scouts)]
@@ -382,6 +449,8 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
             extra_cfg["switch_below"] = self.switch_below
         if self.next_starts is not None:
             extra_cfg["next_starts"] = self.next_starts
+        if self.race_stall is not None:
+            extra_cfg["race_stall"] = self.race_stall.to_dict()
         halving_state: dict[str, Any] = {}
         if self.scouts > 1 and self.scout_halving:
             halving_state = {"halving": {
@@ -394,6 +463,9 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
                 halving_state["halving"]["switched_at"] = self.switched_at
             if self.next_starts is not None:
                 halving_state["halving"]["race"] = self.race
+            if self.race_stall is not None:
+                halving_state["halving"] |= {"told": self.told, "race_episode": self.race_episode,
+                                             "race_best": [float(v) for v in self.race_best]}
         return {
             "type": "StagnationRestartCMAES",
             "config": {
@@ -436,7 +508,8 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
                        float(cfg.get("small_share", 1.0)), int(cfg.get("patience", 2)), int(cfg.get("scouts", 0)),
                        int(cfg.get("scout_generations", 10)), bool(cfg.get("scout_halving", False)),
                        None if cfg.get("switch_below") is None else float(cfg["switch_below"]),
-                       None if cfg.get("next_starts") is None else np.atleast_2d(np.asarray(cfg["next_starts"], dtype=float)))
+                       None if cfg.get("next_starts") is None else np.atleast_2d(np.asarray(cfg["next_starts"], dtype=float)),
+                       None if cfg.get("race_stall") is None else RaceStall(**cfg["race_stall"]))
         hv = state.get("halving", {})
 
         def _cma(d):
@@ -453,6 +526,8 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
         opt.reserve = [(int(e["scout"]), _cma(e["cma"]), [float(v) for v in e["best"]]) for e in hv.get("reserve", [])]
         opt.switched_at = None if hv.get("switched_at") is None else int(hv["switched_at"])
         opt.race = int(hv.get("race", 0))
+        opt.told, opt.race_episode = int(hv.get("told", 0)), int(hv.get("race_episode", 0))
+        opt.race_best = [float(v) for v in hv.get("race_best", [])]
         opt.kept = None if state.get("kept") is None else CMAES.from_state(state["kept"])
         if opt.kept is not None:
             opt.kept.rng = inner.rng  # one Generator drives every attempt

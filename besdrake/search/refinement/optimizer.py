@@ -111,6 +111,7 @@ def make_optimizer(
     scout_halving: bool | None = None,
     switch_distance: float | None = None,
     next_starts: np.ndarray | None = None,
+    race_stall=None,
 ):
     """CMA-ES on the normalised space, started at the imitated movement (``x0 = 0``) unless ``x0`` is given.
 
@@ -129,7 +130,9 @@ def make_optimizer(
     reward) above it hands over to the next scout the race eliminated (``StagnationRestartCMAES``'s ``switch_below``).
     ``next_starts`` (rows, groups of ``scouts``; needs ``switch_distance``): where the race's winner ends with the run
     still farther than the switch distance, the next group of start points is raced before any eliminated scout goes
-    on (e.g. the next imitated movements: :func:`~besdrake.search.refinement.starts.race_points`)."""
+    on (e.g. the next imitated movements: :func:`~besdrake.search.refinement.starts.race_points`). ``race_stall`` (a
+    :class:`~besdrake.search.cmaes.RaceStall`; needs ``next_starts``): the next group is raced also where the current
+    race stalls short of the goal."""
     from besdrake.search.cmaes import CMAES, StagedCMAES
 
     x0 = np.zeros(problem.n_params) if x0 is None else np.asarray(x0, dtype=float)
@@ -143,6 +146,8 @@ def make_optimizer(
         raise RefinementError("stagnation restarts and the meta-parameter stage do not combine; give one of them")
     if next_starts is not None and (stagnation_generations == 0 or switch_distance is None):
         raise RefinementError("next_starts (further races) need the stagnation restarts, raced scouts and a switch_distance")
+    if race_stall is not None and next_starts is None:
+        raise RefinementError("race_stall (racing on when a race stalls) needs next_starts: further start points to race")
     if stagnation_generations > 0:
         from besdrake.search.cmaes import StagnationRestartCMAES
 
@@ -153,7 +158,8 @@ def make_optimizer(
                                       small_share=small_share, patience=patience, scouts=scouts,
                                       scout_generations=scout_generations, scout_halving=scout_halving,
                                       switch_below=_switch_below(switch_distance, scouts, scout_halving),
-                                      next_starts=None if next_starts is None else _start_points(x0, next_starts, bounds))
+                                      next_starts=None if next_starts is None else _start_points(x0, next_starts, bounds),
+                                      race_stall=race_stall)
     if meta_episodes > 0:
         return StagedCMAES(x0, meta_basis(problem), meta_sigma, sigma0, rng, subspace_evaluations=meta_episodes,
                            popsize_subspace=popsize, popsize=popsize, bounds=bounds, cma_options=cma_options)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import time
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Sequence
@@ -168,6 +169,7 @@ def refine(
     stall: StallRule | AnyStall | None = None,
     switch_distance: float | None = None,
     next_starts: np.ndarray | None = None,
+    race_stall: StallRule | None = None,
 ) -> RefinementResult:
     """Refine ``problem`` with CMA-ES for at most ``n_episodes`` episodes (stops at the first
     generation with a success when ``stop_on_success``). With ``out_dir`` the run is resumable:
@@ -179,7 +181,10 @@ def refine(
     run early once it has stalled (:class:`StallRule` or :class:`AnyStall`; decided from the episode log, so a resumed
     run decides the same); its result's ``stop_reason`` is then ``"stalled"``. ``switch_distance`` (m): a raced scout
     that went on and stalled farther than this hands over to the next scout the race eliminated (:func:`make_optimizer`); ``next_starts``: start
-    points of further races, one raced where the race's winner ends farther than that (:func:`make_optimizer`). ``scout_generations``
+    points of further races, one raced where the race's winner ends farther than that (:func:`make_optimizer`);
+    ``race_stall`` (a :class:`StallRule`; needs ``next_starts``): the next group is raced also where the current race has
+    stalled by that rule (its ``after`` counted from the race's start, its ``beyond`` the distance the run's best must
+    still be off), and ``stall`` then judges the current race alone (from where it began). ``scout_generations``
     None: the rung length the run in ``out_dir`` began with, else :data:`DEFAULT_SCOUT_GENERATIONS` (a killed run resumes
     with its own race after the default changed)."""
     from besdrake.search.loop import run_search
@@ -194,8 +199,9 @@ def refine(
     out = None if out_dir is None else Path(out_dir)
     details_path = None
     if out is not None:
-        details_path = _open_run_folder(out, _run_record(problem, seed, sigma0, popsize, **search), problem)
-    opt = optimizer if optimizer is not None else make_optimizer(problem, seed, sigma0, popsize, **search)
+        details_path = _open_run_folder(out, _run_record(problem, seed, sigma0, popsize, race_stall=race_stall, **search), problem)
+    if optimizer is None:
+        optimizer = make_optimizer(problem, seed, sigma0, popsize, race_stall=_race_stall(race_stall, popsize), **search)
     stop = SUCCESS_DISTANCE if stop_distance is None else float(stop_distance)
     if not (np.isfinite(stop) and 0 < stop <= SUCCESS_DISTANCE):
         raise RefinementError(f"stop_distance must be within (0, {SUCCESS_DISTANCE}] m, got {stop_distance!r}")
@@ -203,16 +209,49 @@ def refine(
     if stop_on_success and any(stops_at(r, stop) for r in own.values()):
         n_episodes = min(n_episodes, len(own))  # a resumed run that had stopped stays stopped
     logged = _logged_objectives(out) if stall is not None else []
-    if stall is not None and stall.stalled(logged):
+    if stall is not None and stall.stalled(logged[_saved_race_start(out):]):
         n_episodes = min(n_episodes, len(logged))  # ... and one that had stalled too
     t0 = time.perf_counter()
     callback = _generation_callback(problem, progress, stop_on_success, t0, stop, stall, logged)
-    loop = run_search(opt, problem.batch_evaluator(executor, details_path), n_evaluations=n_episodes, out_dir=out, callback=callback)
+    loop = run_search(optimizer, problem.batch_evaluator(executor, details_path), n_evaluations=n_episodes, out_dir=out, callback=callback)
     wall = time.perf_counter() - t0
     result = _result(problem, loop, wall)
-    if stall is not None and result.stop_reason != "optimizer" and not result.reached(stop) and stall.stalled(-result.rewards):
+    judged = -result.rewards[_race_start(loop.optimizer):]
+    if stall is not None and result.stop_reason != "optimizer" and not result.reached(stop) and stall.stalled(judged):
         result.stop_reason = "stalled"
     return result
+
+
+def _race_stall(rule: StallRule | None, popsize: int):
+    """``refine``'s ``race_stall`` as the optimizer's :class:`~besdrake.search.cmaes.RaceStall` (episodes to
+    generations of ``popsize``), None where not given."""
+    from besdrake.search.cmaes import RaceStall
+
+    if rule is None:
+        return None
+    generations = -(-int(rule.episodes) // int(popsize))
+    return RaceStall(generations, float(rule.tol), -float(rule.beyond), -(-int(rule.after) // int(popsize)))
+
+
+def _race_start(optimizer) -> int:
+    """The episodes before ``optimizer``'s current race where it races on stalls (0 for any other optimizer)."""
+    start = getattr(optimizer, "race_start_episode", None)
+    return int(start()) if callable(start) else 0
+
+
+def _saved_race_start(out: Path | None) -> int:
+    """:func:`_race_start` of the optimizer saved in ``out`` (0 where there is none or it cannot be read: the loop
+    reports a damaged state itself)."""
+    from besdrake.search.loop import STATE_FILE, load_state
+
+    if out is None or not (out / f"{STATE_FILE}.json").is_file():
+        return 0
+    try:
+        state = load_state(out / STATE_FILE)["optimizer"]
+    except (OSError, ValueError, KeyError, TypeError, zipfile.BadZipFile):  # a damaged state is the loop's to report
+        return 0
+    has_rule = isinstance(state, dict) and state.get("config", {}).get("race_stall") is not None
+    return int(state.get("halving", {}).get("race_episode", 0)) if has_rule else 0
 
 
 def _saved_scout_generations(out: Path | None) -> int | None:
@@ -263,7 +302,7 @@ def _run_record(problem: RefinementProblem, seed: int, sigma0: float, popsize: i
                 stagnation_generations: int, starts, restart_from_best: bool, stagnation_tol: float,
                 max_attempt_generations: int, cma_options: dict[str, Any], popsize_growth: float, restart_regimes: str,
                 small_share: float, patience: int, scouts: int, scout_generations: int, scout_halving: bool,
-                switch_distance: float | None = None, next_starts=None) -> dict[str, Any]:
+                switch_distance: float | None = None, next_starts=None, race_stall: StallRule | None = None) -> dict[str, Any]:
     """The run's ``problem.json``: the problem and every setting that differs from the plain search (what a resumed
     run must match)."""
     desc = problem.describe() | {"seed": int(seed), "sigma0": float(sigma0), "popsize": int(popsize)}
@@ -289,6 +328,9 @@ def _run_record(problem: RefinementProblem, seed: int, sigma0: float, popsize: i
                 desc["switch_distance"] = float(switch_distance)
             if next_starts is not None:
                 desc["next_starts"] = np.atleast_2d(np.asarray(next_starts, dtype=float)).tolist()
+            if race_stall is not None:
+                desc["race_stall"] = {"episodes": int(race_stall.episodes), "tol": float(race_stall.tol),
+                                      "after": int(race_stall.after), "beyond": float(race_stall.beyond)}
     if cma_options:
         desc |= {"cma_options": dict(cma_options)}
     return desc
@@ -340,7 +382,7 @@ def _generation_callback(problem: RefinementProblem, progress, stop_on_success: 
         history.extend(np.where(info.failed, np.nan, -np.asarray(info.rewards, dtype=float)).tolist())
         if stop_on_success and any(stops_at(r, stop_distance) for r in recs):
             return True
-        return bool(stall is not None and stall.stalled(history))
+        return bool(stall is not None and stall.stalled(history[_race_start(info.optimizer):]))
 
     return callback
 
