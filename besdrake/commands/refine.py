@@ -83,8 +83,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "throws ranked 4kR+1 on); default: 1")
     parser.add_argument("--race-stall-episodes", type=int, default=None, metavar="N",
                         help="with --races: race the next four imitated throws also where the current race's best gained less "
-                             "than 1 cm over its last N episodes (not before episode 400 of the race) while the run is still "
-                             "farther than 0.1 m from the target; --stall-episodes then judges the current race alone; default: never")
+                             "than 1 cm over its last N episodes (not before episode 2N of the race) while the run is still "
+                             "farther than 0.1 m from the target; --stall-episodes then judges the current race alone (session 44's "
+                             "benchmark: 200 or 150); default: never")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--continue-after-success", action="store_true", help="use the whole budget instead of stopping at the first success")
     from besdrake.sim.cliutil import add_backend_arguments
@@ -249,13 +250,13 @@ def _start(args: argparse.Namespace, files: list[Path], problems: list, executor
 
 
 def _race_stall(args: argparse.Namespace, next_starts):
-    """``--race-stall-episodes`` as :func:`refine`'s ``race_stall`` (1 cm, from episode 400 of a race, while farther than
-    the success distance); None without it or where the run has no further race."""
+    """``--race-stall-episodes N`` as :func:`refine`'s ``race_stall`` (1 cm over N episodes, from episode 2N of a race,
+    while farther than the success distance); None without it or where the run has no further race."""
     from besdrake.search.refinement import SUCCESS_DISTANCE, StallRule
 
     if args.race_stall_episodes is None or next_starts is None:
         return None
-    return StallRule(args.race_stall_episodes, 0.01, 400, SUCCESS_DISTANCE)
+    return StallRule(args.race_stall_episodes, 0.01, 2 * args.race_stall_episodes, SUCCESS_DISTANCE)
 
 
 def _refine_run(k: int, args: argparse.Namespace, problem, executor, *, search: dict, starts, show: bool, next_starts=None):
