@@ -88,7 +88,12 @@ def _race_stall(args, next_starts):
 
     if args.race_stall_episodes is None or next_starts is None:
         return None
-    return StallRule(args.race_stall_episodes, args.race_stall_tol, args.race_stall_after, args.race_stall_beyond)
+    return StallRule(args.race_stall_episodes, args.race_stall_tol, _race_stall_after(args), args.race_stall_beyond)
+
+
+def _race_stall_after(args) -> int:
+    """``--race-stall-after``, by default twice ``--race-stall-episodes`` (as ``besdrake refine``)."""
+    return 2 * args.race_stall_episodes if args.race_stall_after is None else args.race_stall_after
 
 
 def _races_run(result, scouts: int) -> int:
@@ -185,10 +190,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--stall-after", type=int, default=400)
     parser.add_argument("--race-stall-episodes", type=int, default=None, metavar="N",
                         help="with --races: race the next group also where the current race's best gained less than "
-                             "--race-stall-tol over its last N episodes (after --race-stall-after episodes of the race) while "
-                             "the run's best is farther than --race-stall-beyond (refine(race_stall=)); default: never")
+                             "--race-stall-tol over its last N episodes (after --race-stall-after episodes of the race, default "
+                             "2N as besdrake refine) while the run's best is farther than --race-stall-beyond (refine(race_stall=)); "
+                             "default: never")
     parser.add_argument("--race-stall-tol", type=float, default=0.01)
-    parser.add_argument("--race-stall-after", type=int, default=0)
+    parser.add_argument("--race-stall-after", type=int, default=None)
     parser.add_argument("--race-stall-beyond", type=float, default=0.1)
     parser.add_argument("--lab-repeats", type=int, default=0,
                         help="throw each run's best plan this often in the virtual lab and in its noise floor (the same lab "
@@ -288,8 +294,8 @@ def main(argv: list[str] | None = None) -> int:
         "robust_frontier_m": args.robust_frontier, "stop_distance_m": args.stop_distance, "follow_through_s": args.follow_through, "lab_repeats": args.lab_repeats,
         "stall": None if args.stall_episodes is None else [args.stall_episodes, args.stall_tol, args.stall_after],
         "switch_distance_m": args.switch_distance, "races": args.races,
-        "race_stall": None if args.race_stall_episodes is None else [args.race_stall_episodes, args.race_stall_tol, args.race_stall_after,
-                                                                     args.race_stall_beyond],
+        "race_stall": None if args.race_stall_episodes is None else [args.race_stall_episodes, args.race_stall_tol,
+                                                                     _race_stall_after(args), args.race_stall_beyond],
         "success_rate": float(np.mean([r["success"] for r in all_runs])),
         "subjects_with_success_in_every_run": sum(v["success_rate"] == 1.0 for v in subjects.values()),
         "subjects_with_success_in_some_run": sum(v["success_rate"] > 0.0 for v in subjects.values()),
