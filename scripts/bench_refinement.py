@@ -82,18 +82,13 @@ def _run_starts(problems, ranked, k: int, args):
     return index, starts, race_points(problems, order, group, args.races, args.scout_starts)  # None for one race
 
 
-def _race_stall(args, next_starts):
-    """``--race-stall-*`` as :func:`refine`'s ``race_stall`` (a :class:`StallRule`); None without further races."""
-    from besdrake.search.refinement import StallRule
+def _race_stall_rule(args):
+    """``--race-stall-*`` as :func:`refine`'s ``race_stall`` (a :class:`StallRule`), None without ``--race-stall-episodes``."""
+    from besdrake.search.refinement import race_stall_rule
 
-    if args.race_stall_episodes is None or next_starts is None:
+    if args.race_stall_episodes is None:
         return None
-    return StallRule(args.race_stall_episodes, args.race_stall_tol, _race_stall_after(args), args.race_stall_beyond)
-
-
-def _race_stall_after(args) -> int:
-    """``--race-stall-after``, by default twice ``--race-stall-episodes`` (as ``besdrake refine``)."""
-    return 2 * args.race_stall_episodes if args.race_stall_after is None else args.race_stall_after
+    return race_stall_rule(args.race_stall_episodes, args.race_stall_tol, args.race_stall_after, args.race_stall_beyond)
 
 
 def _races_run(result, scouts: int) -> int:
@@ -206,6 +201,7 @@ def main(argv: list[str] | None = None) -> int:
 
     subjects = {}
     all_runs = []
+    race_rule = _race_stall_rule(args)
     with make_executor(args.backend, workers=args.workers) if args.backend == "process" else make_executor("serial") as ex:
         for s in args.subjects:
             folder = args.imitated / f"imit_s{s}"
@@ -263,7 +259,8 @@ def main(argv: list[str] | None = None) -> int:
                            scouts=args.scouts, scout_generations=args.scout_generations, scout_halving=args.scout_halving,
                            stop_distance=args.stop_distance,
                            stall=None if args.stall_episodes is None else StallRule(args.stall_episodes, args.stall_tol, args.stall_after),
-                           switch_distance=args.switch_distance, next_starts=next_starts, race_stall=_race_stall(args, next_starts))
+                           switch_distance=args.switch_distance, next_starts=next_starts,
+                           race_stall=None if next_starts is None else race_rule)
                 runs.append({"seed": args.first_seed + k, "start_throw": index, "success": r.success, "episodes_to_success": r.episodes_to_success,
                              "best_distance_within_limits_m": r.summary()["best_distance_within_limits_m"],
                              "best_distance_m": r.summary()["best_distance_m"], "n_episodes": r.n_episodes, "n_failed": r.n_failed,
@@ -294,8 +291,7 @@ def main(argv: list[str] | None = None) -> int:
         "robust_frontier_m": args.robust_frontier, "stop_distance_m": args.stop_distance, "follow_through_s": args.follow_through, "lab_repeats": args.lab_repeats,
         "stall": None if args.stall_episodes is None else [args.stall_episodes, args.stall_tol, args.stall_after],
         "switch_distance_m": args.switch_distance, "races": args.races,
-        "race_stall": None if args.race_stall_episodes is None else [args.race_stall_episodes, args.race_stall_tol,
-                                                                     _race_stall_after(args), args.race_stall_beyond],
+        "race_stall": None if race_rule is None else [race_rule.episodes, race_rule.tol, race_rule.after, race_rule.beyond],
         "success_rate": float(np.mean([r["success"] for r in all_runs])),
         "subjects_with_success_in_every_run": sum(v["success_rate"] == 1.0 for v in subjects.values()),
         "subjects_with_success_in_some_run": sum(v["success_rate"] > 0.0 for v in subjects.values()),

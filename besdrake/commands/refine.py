@@ -250,13 +250,13 @@ def _start(args: argparse.Namespace, files: list[Path], problems: list, executor
 
 
 def _race_stall(args: argparse.Namespace, next_starts):
-    """``--race-stall-episodes N`` as :func:`refine`'s ``race_stall`` (1 cm over N episodes, from episode 2N of a race,
-    while farther than the success distance); None without it or where the run has no further race."""
-    from besdrake.search.refinement import SUCCESS_DISTANCE, StallRule
+    """``--race-stall-episodes N`` as :func:`refine`'s ``race_stall`` (:func:`race_stall_rule`'s defaults); None without
+    it or where the run has no further race."""
+    from besdrake.search.refinement import race_stall_rule
 
     if args.race_stall_episodes is None or next_starts is None:
         return None
-    return StallRule(args.race_stall_episodes, 0.01, 2 * args.race_stall_episodes, SUCCESS_DISTANCE)
+    return race_stall_rule(args.race_stall_episodes)
 
 
 def _refine_run(k: int, args: argparse.Namespace, problem, executor, *, search: dict, starts, show: bool, next_starts=None):

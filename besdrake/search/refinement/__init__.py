@@ -40,7 +40,7 @@ the notes beside the task that was measured (``besdrake/tasks/<name>/REFINEMENT.
 from besdrake.search.refinement.optimizer import make_optimizer, meta_basis, scouting_episodes
 from besdrake.search.refinement.problem import RefinementProblem
 from besdrake.search.refinement.records import RewardBreakdown, failed_breakdown, params_key, read_details
-from besdrake.search.refinement.run import AnyStall, RefinementResult, StallRule, plot_learning_curves, refine
+from besdrake.search.refinement.run import AnyStall, RefinementResult, StallRule, plot_learning_curves, race_stall_rule, refine
 from besdrake.search.refinement.scaling import ParameterScaling
 from besdrake.search.refinement.settings import (ACCELERATION_UNIT, DEFAULT_CMA_OPTIONS, DEFAULT_PATIENCE, DEFAULT_POPSIZE,
                                                  DEFAULT_POPSIZE_GROWTH, DEFAULT_RESTART_REGIMES, DEFAULT_RETIME,
@@ -56,7 +56,8 @@ from besdrake.search.refinement.starts import (best_start, race_points, rank_sta
 __all__ = [
     "SUCCESS_DISTANCE", "DEFAULT_POPSIZE", "DEFAULT_SIGMA0", "MIN_EXECUTION_TIME", "MAX_EXECUTION_TIME", "PAPER_POPSIZE",
     "RefinementError", "RewardBreakdown", "ParameterScaling", "RefinementProblem",
-    "RefinementResult", "StallRule", "AnyStall", "best_start", "race_points", "rank_starts", "restart_points", "run_start",
+    "RefinementResult", "StallRule", "AnyStall", "race_stall_rule",
+    "best_start", "race_points", "rank_starts", "restart_points", "run_start",
     "run_start_order", "scout_start_points", "scout_points",
     "scout_starts_checked", "simulated_order", "scouting_episodes", "make_optimizer", "refine", "read_details", "params_key",
     "failed_breakdown", "meta_basis", "plot_learning_curves",

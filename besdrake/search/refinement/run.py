@@ -202,15 +202,8 @@ def refine(
         details_path = _open_run_folder(out, _run_record(problem, seed, sigma0, popsize, race_stall=race_stall, **search), problem)
     if optimizer is None:
         optimizer = make_optimizer(problem, seed, sigma0, popsize, race_stall=_race_stall(race_stall, popsize), **search)
-    stop = SUCCESS_DISTANCE if stop_distance is None else float(stop_distance)
-    if not (np.isfinite(stop) and 0 < stop <= SUCCESS_DISTANCE):
-        raise RefinementError(f"stop_distance must be within (0, {SUCCESS_DISTANCE}] m, got {stop_distance!r}")
-    own = read_details(details_path) if details_path is not None else {}
-    if stop_on_success and any(stops_at(r, stop) for r in own.values()):
-        n_episodes = min(n_episodes, len(own))  # a resumed run that had stopped stays stopped
-    logged = _logged_objectives(out) if stall is not None else []
-    if stall is not None and stall.stalled(logged[_saved_race_start(out):]):
-        n_episodes = min(n_episodes, len(logged))  # ... and one that had stalled too
+    stop = _checked_stop_distance(stop_distance)
+    n_episodes, logged = _resumed_budget(n_episodes, out, details_path, stop if stop_on_success else None, stall)
     t0 = time.perf_counter()
     callback = _generation_callback(problem, progress, stop_on_success, t0, stop, stall, logged)
     loop = run_search(optimizer, problem.batch_evaluator(executor, details_path), n_evaluations=n_episodes, out_dir=out, callback=callback)
@@ -220,6 +213,34 @@ def refine(
     if stall is not None and result.stop_reason != "optimizer" and not result.reached(stop) and stall.stalled(judged):
         result.stop_reason = "stalled"
     return result
+
+
+def _checked_stop_distance(stop_distance: float | None) -> float:
+    """``refine``'s ``stop_distance`` (m; :data:`SUCCESS_DISTANCE` where None), within (0, SUCCESS_DISTANCE]."""
+    stop = SUCCESS_DISTANCE if stop_distance is None else float(stop_distance)
+    if not (np.isfinite(stop) and 0 < stop <= SUCCESS_DISTANCE):
+        raise RefinementError(f"stop_distance must be within (0, {SUCCESS_DISTANCE}] m, got {stop_distance!r}")
+    return stop
+
+
+def _resumed_budget(n_episodes: int, out: Path | None, details_path: Path | None, stop: float | None,
+                    stall: StallRule | AnyStall | None) -> tuple[int, list[float]]:
+    """The budget of a run in ``out`` (a resumed run that had stopped at a success within ``stop``, or had stalled by
+    ``stall`` in its current race, stays stopped) and the objectives its log already holds (for ``stall``)."""
+    own = read_details(details_path) if details_path is not None else {}
+    if stop is not None and any(stops_at(r, stop) for r in own.values()):
+        n_episodes = min(n_episodes, len(own))
+    logged = _logged_objectives(out) if stall is not None else []
+    if stall is not None and stall.stalled(logged[_saved_race_start(out):]):
+        n_episodes = min(n_episodes, len(logged))
+    return n_episodes, logged
+
+
+def race_stall_rule(episodes: int, tol: float = 0.01, after: int | None = None, beyond: float = SUCCESS_DISTANCE) -> StallRule:
+    """The rule of ``refine(race_stall=)``: a race has stalled where its best gained less than ``tol`` (m) over its last
+    ``episodes`` episodes, not before episode ``after`` of the race (default ``2 * episodes``), while the run is farther
+    than ``beyond`` (m) from its target (``besdrake refine --race-stall-episodes``; session 44's benchmark: 200)."""
+    return StallRule(episodes, tol, 2 * int(episodes) if after is None else after, beyond)
 
 
 def _race_stall(rule: StallRule | None, popsize: int):
