@@ -55,7 +55,8 @@ def _lab_repeats(problem, result, args) -> dict:
     """The best plan of ``result`` thrown ``args.lab_repeats`` times in the lab and in its noise floor."""
     from besdrake.tasks.throwing.repeatability import DEFAULT_LAB, lab_repeatability
 
-    plan = problem.parameterization.motion_plan(result.best_theta, dt=problem.dt)
+    param = type(problem.parameterization)(result.best_dmp, problem.parameterization.joint_names)  # the best's own movement
+    plan = param.motion_plan(param.to_vector(), dt=problem.dt)
     rep = lab_repeatability(plan, args.lab or DEFAULT_LAB, args.lab_repeats)
     return rep.summary()
 
@@ -68,18 +69,22 @@ def _lab_line(lab: dict | None) -> str:
 
 
 def _run_starts(problems, ranked, k: int, args):
-    """Run ``k``'s start throw, the start points of its restarts or scouts (``--restart-from``, ``--run-starts``,
-    ``--start-group``) and those of its further races (``--races``; None for one)."""
-    from besdrake.search.refinement import race_points, restart_points, run_start, run_start_order, simulated_order
+    """Run ``k``'s start throw, its problem, the start points of its restarts or scouts (``--restart-from``,
+    ``--run-starts``, ``--start-group``) and those of its further races (``--races``; None for one): each start point the
+    imitated movement itself (:func:`family_run`), or with ``--hybrid-starts`` its parameters in the start throw's DMP."""
+    from besdrake.search.refinement import family_run, race_points, restart_points, run_start, run_start_order, simulated_order
 
     order = simulated_order(ranked)
     diverse = args.run_starts == "diverse" and args.scouts != 0 and not args.plain  # as besdrake learn: only where it scouts
     group = args.start_group + (k * args.races if diverse else 0)
     if args.restart_from == "ranked":
         order = run_start_order(order, group, args.scout_starts)
-        return order[0], restart_points(problems[order[0]], [problems[i] for i in order[: args.n_starts]]), None
-    index, starts = run_start(problems, order, group, args.scout_starts)
-    return index, starts, race_points(problems, order, group, args.races, args.scout_starts)  # None for one race
+        return order[0], problems[order[0]], restart_points(problems[order[0]], [problems[i] for i in order[: args.n_starts]]), None
+    if args.hybrid_starts:
+        index, starts = run_start(problems, order, group, args.scout_starts)
+        return index, problems[index], starts, race_points(problems, order, group, args.races, args.scout_starts)  # None for one race
+    run = family_run(problems, order, group, args.races, args.scout_starts)
+    return run.index, run.problem, run.starts, run.next_starts
 
 
 def _race_stall_rule(args):
@@ -153,6 +158,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--position-step", type=float, default=None, help="initial step of start/goal parameters, in multiples of --sigma0 (cma's CMA_stds; default: the module's)")
     parser.add_argument("--time-step", type=float, default=None, help="initial step of the execution time, in multiples of --sigma0 (default: as --position-step)")
     parser.add_argument("--plain", action="store_true", help="the search before issue 5 (plain CMA-ES, no restarts): overrides --diagonal --elitist --stagnation")
+    parser.add_argument("--hybrid-starts", action="store_true",
+                        help="scouts and races start from the other imitated throws' parameters in the start throw's DMP (its goal "
+                             "velocity and acceleration, its weight bounds), as before session 45; default: from the throws themselves")
     parser.add_argument("--run-starts", choices=("same", "diverse"), default="diverse",
                         help="'diverse' (default, as besdrake learn's refinement.run_starts): run k scouts from the imitated throws ranked 4(G+k) on; 'same': every run from the best (the tables before session 23)")
     parser.add_argument("--start-group", type=int, default=0, metavar="G",
@@ -248,9 +256,9 @@ def main(argv: list[str] | None = None) -> int:
             start = ranked[0][1]
             runs = []
             for k in range(args.runs):
-                index, starts, next_starts = _run_starts(problems, ranked, k, args)
+                index, problem, starts, next_starts = _run_starts(problems, ranked, k, args)
                 out_dir = None if args.out is None else args.out / f"s{s}_run{k}"
-                r = refine(problems[index], ex, args.episodes, seed=args.first_seed + k, popsize=args.popsize, sigma0=args.sigma0,
+                r = refine(problem, ex, args.episodes, seed=args.first_seed + k, popsize=args.popsize, sigma0=args.sigma0,
                            out_dir=out_dir, meta_episodes=args.meta_episodes, meta_sigma=args.meta_sigma,
                            stagnation_generations=stagnation, stagnation_tol=STAGNATION_TOL if args.stagnation_tol is None else args.stagnation_tol, starts=starts,
                            restart_from_best=args.restart_from == "best", max_attempt_generations=args.max_attempt_generations,
@@ -268,7 +276,7 @@ def main(argv: list[str] | None = None) -> int:
                              "robust_rollouts": r.n_robust_rollouts, "best_robust_distance_m": r.summary().get("best_robust_distance_m"),
                              "races_run": _races_run(r, DEFAULT_SCOUTS if args.scouts is None else args.scouts)})
                 if args.lab_repeats:
-                    runs[-1]["lab"] = _lab_repeats(problems[index], r, args)
+                    runs[-1]["lab"] = _lab_repeats(problem, r, args)
                 print(f"subject {s} run {k}: {'success after %d episodes' % r.episodes_to_success if r.success else 'no success'}; "
                       f"best {runs[-1]['best_distance_within_limits_m']} m; {r.n_episodes} episodes, {r.n_robust_rollouts} robust rollouts; "
                       f"{r.wall_time:.0f} s{_lab_line(runs[-1].get('lab'))}", file=sys.stderr, flush=True)
@@ -282,7 +290,7 @@ def main(argv: list[str] | None = None) -> int:
         "subjects_run": args.subjects, "runs_per_subject": args.runs, "episode_budget": args.episodes,
         "population": args.popsize, "sigma0": args.sigma0, "penalty_scale": args.penalty_scale, "violation_offset_m": reward.violation_offset,
         "dropped_penalty_m": reward.dropped_penalty, "meta_episodes": args.meta_episodes, "meta_sigma": args.meta_sigma, "position_unit_rad": args.position_unit, "acceleration_unit": args.acceleration_unit, "time_unit_s": args.time_unit, "no_slower": args.no_slower, "stagnation_generations": stagnation, "stagnation_tol_m": STAGNATION_TOL if args.stagnation_tol is None else args.stagnation_tol,
-        "max_attempt_generations": args.max_attempt_generations, "restart_from": args.restart_from, "run_starts": args.run_starts, "start_group": args.start_group, "n_starts": args.n_starts, "scout_starts": DEFAULT_SCOUT_STARTS if args.scout_starts is None else args.scout_starts,
+        "max_attempt_generations": args.max_attempt_generations, "restart_from": args.restart_from, "run_starts": args.run_starts, "hybrid_starts": args.hybrid_starts, "start_group": args.start_group, "n_starts": args.n_starts, "scout_starts": DEFAULT_SCOUT_STARTS if args.scout_starts is None else args.scout_starts,
         "retime": DEFAULT_RETIME if args.retime is None else args.retime, "cma_options": cma_options, "popsize_growth": DEFAULT_POPSIZE_GROWTH if args.popsize_growth is None else args.popsize_growth,
         "restart_regimes": DEFAULT_RESTART_REGIMES if args.regimes is None else args.regimes, "small_share": args.small_share, "patience": args.patience, "scouts": DEFAULT_SCOUTS if args.scouts is None else args.scouts,
         "scout_generations": DEFAULT_SCOUT_GENERATIONS if args.scout_generations is None else args.scout_generations,

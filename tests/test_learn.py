@@ -165,14 +165,29 @@ def test_a_second_refinement_run_scouts_from_other_imitated_throws():
     from besdrake.pipeline.config import ConfigError
     from besdrake.tasks.throwing.learn.refinement import _run_starts, refinement_settings
 
+    from besdrake.robot import load_robot
+    from besdrake.search.refinement import RefinementProblem
+    from besdrake.tasks.throwing.template_base import fitted_default_throw
+
     ranking = [(i, SimpleNamespace(reward=-0.1 * r)) for r, i in enumerate([5, 2, 7, 0, 3, 6, 1, 4])]
     ranking.append((8, SimpleNamespace(reward=float("nan"))))  # a throw that failed in simulation is never a start
-    problems = [SimpleNamespace(n_params=2, scaling=SimpleNamespace(theta0=np.array([i, 0.0]), to_x=lambda t: t)) for i in range(9)]
-    index, starts = _run_starts(problems, ranking, 0)
-    assert index == 5 and starts[:, 0].tolist() == [5, 2, 7, 0]
-    index, starts = _run_starts(problems, ranking, 1)
-    assert index == 3 and starts[:, 0].tolist() == [3, 6, 1, 4]
-    assert _run_starts(problems, ranking, 2)[0] == 5  # eight usable throws: group 2 is group 0 again
+    base, robot = fitted_default_throw(), load_robot("compi")
+    throws = [base.copy() for _ in range(9)]
+    for i, d in enumerate(throws):  # nine imitated throws, told apart by their goal velocity
+        d.goal_velocity = d.goal_velocity + 0.01 * i
+    problems = [RefinementProblem(robot, d) for d in throws]
+
+    def throws_of(run) -> list[int]:  # the imitated throw of each scout's start point (its family's goal velocity)
+        fams = run.problem.families
+        return [int(round(fams[int(x[-1])].template.goal_velocity[0] / 0.01)) for x in run.starts]
+
+    run = _run_starts(problems, ranking, 0)
+    assert run.index == 5 and throws_of(run) == [5, 2, 7, 0]
+    run = _run_starts(problems, ranking, 1)
+    assert run.index == 3 and throws_of(run) == [3, 6, 1, 4]
+    assert _run_starts(problems, ranking, 2).index == 5  # eight usable throws: group 2 is group 0 again
+    alone = _run_starts(problems, ranking, 0, scouting=False)  # no scouts: the start throw's own problem, as before
+    assert alone.index == 5 and alone.problem is problems[5] and alone.starts.shape == (4, 49)
     config = {"refinement": {"run_starts": "diverse"}}
     assert refinement_settings(config)["run_starts"] == "diverse"
     with pytest.raises(ConfigError, match="run_starts"):

@@ -290,7 +290,7 @@ def _refine_run(k: int, args: argparse.Namespace, problem, executor, *, search: 
     finally:
         if bar is not None:
             bar.close()
-    save_dmp(problem.parameterization.from_vector(result.best_theta), run_dir / "refined.dmp.json")
+    save_dmp(result.best_dmp, run_dir / "refined.dmp.json")
     return result
 
 
@@ -319,7 +319,7 @@ def run(args: argparse.Namespace) -> int:
     import logging
 
     from besdrake.cli import UserError
-    from besdrake.search.refinement import race_points, run_start
+    from besdrake.search.refinement import family_run, race_points, run_start
     from besdrake.sim.cliutil import executor_from_args
     from besdrake.sim.executors import ExecutorError
     from besdrake.sim.scenario import ScenarioError
@@ -345,12 +345,16 @@ def run(args: argparse.Namespace) -> int:
         diverse = args.run_starts == "diverse" and search.get("scouts") != 0 and not args.plain
         # Each run from its start throw, its scouts from the next ones (None with one start point).
         groups = [k * args.races if diverse else 0 for k in range(args.runs)]
-        starts = [run_start(problems, order, g, scout_starts) for g in groups]
-        later = [race_points(problems, order, g, args.races, scout_starts) for g in groups]  # None for one race
-        start["run_start_throws"] = [int(i) for i, _ in starts]
+        if args.meta_episodes > 0 or args.plain or search.get("scouts") == 0:  # one throw searched: its own problem
+            runs_at = [(i, problems[i], points, race_points(problems, order, g, args.races, scout_starts))
+                       for g, (i, points) in zip(groups, [run_start(problems, order, g, scout_starts) for g in groups])]
+        else:  # each scout and race from its imitated throw itself (family_run)
+            runs_at = [(r.index, r.problem, r.starts, r.next_starts) for r in (family_run(problems, order, g, args.races, scout_starts)
+                                                                               for g in groups)]
+        start["run_start_throws"] = [int(i) for i, *_ in runs_at]
         # The runs are independent: run_concurrently merges their generations into one batch per round (same results).
-        runs = run_concurrently(executor, [partial(_refine_run, k, args, problems[i], search=search, starts=points, show=show,
-                                                   next_starts=later[k]) for k, (i, points) in enumerate(starts)])
+        runs = run_concurrently(executor, [partial(_refine_run, k, args, problem, search=search, starts=points, show=show,
+                                                   next_starts=later) for k, (_, problem, points, later) in enumerate(runs_at)])
     summary = _summary(args, files, start, runs, t_start)
     if args.json:
         print(json.dumps(summary, default=float))

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Sequence
 
 import cma
 import numpy as np
@@ -24,6 +24,16 @@ class _Run:
     popsize: int
     sigma0: float
     regime: str  # "large" or "small"
+
+
+def _checked_fixed(fixed: Sequence[int], n: int) -> np.ndarray:
+    """Sorted unique indices of fixed coordinates of an ``n``-vector, at least one left free; else ValueError."""
+    idx = np.unique(np.asarray(list(fixed), dtype=int)) if len(fixed) else np.zeros(0, dtype=int)
+    if idx.size and (idx[0] < 0 or idx[-1] >= n):
+        raise ValueError(f"fixed coordinates must index the {n} parameters, got {list(fixed)!r}")
+    if idx.size >= n:
+        raise ValueError("at least one coordinate must be free")
+    return idx
 
 
 class CMAES(BestAndWorst, Optimizer):
@@ -47,6 +57,10 @@ class CMAES(BestAndWorst, Optimizer):
         ``cma`` termination tolerances of one run (on reward range and step length).
     cma_options:
         Further ``cma`` options (JSON-compatible values only, so the state can be saved).
+    fixed:
+        Indices of coordinates held at ``x0``'s values: ``cma`` searches the others only (its dimension, population
+        default and random draws are those of the free coordinates), and every candidate carries the fixed values
+        (e.g. which imitated movement a candidate varies: :class:`~besdrake.search.refinement.RefinementProblem`).
     """
 
     def __init__(
@@ -62,6 +76,7 @@ class CMAES(BestAndWorst, Optimizer):
         tolfun: float = 1e-11,
         tolx: float = 1e-11,
         cma_options: dict[str, Any] | None = None,
+        fixed: Sequence[int] = (),
     ) -> None:
         x0 = np.asarray(x0, dtype=float).ravel()
         if x0.size == 0 or not np.isfinite(x0).all():
@@ -76,6 +91,8 @@ class CMAES(BestAndWorst, Optimizer):
             raise ValueError(f"popsize must be >= 2, got {popsize}")
         self.n_params = x0.size
         self.x0 = x0
+        self.fixed = _checked_fixed(fixed, x0.size)
+        self._free = np.setdiff1d(np.arange(x0.size), self.fixed)
         self.sigma0 = float(sigma0)
         self.rng = rng
         self.bounds = None if bounds is None else self._check_bounds(bounds, x0)
@@ -84,7 +101,7 @@ class CMAES(BestAndWorst, Optimizer):
         self.tolfun = float(tolfun)
         self.tolx = float(tolx)
         self.cma_options = dict(cma_options or {})
-        self.popsize0 = int(popsize) if popsize is not None else 4 + int(3 * math.log(self.n_params))
+        self.popsize0 = int(popsize) if popsize is not None else 4 + int(3 * math.log(self._free.size))
         # restart bookkeeping
         self.n_restarts_done = 0
         self.n_large_restarts = 0
@@ -129,16 +146,26 @@ class CMAES(BestAndWorst, Optimizer):
             "tolx": self.tolx,
         }
         if self.bounds is not None:
-            options["bounds"] = [list(self.bounds[:, 0]), list(self.bounds[:, 1])]
+            options["bounds"] = [list(self.bounds[self._free, 0]), list(self.bounds[self._free, 1])]
         options.update(self.cma_options)
-        return cma.CMAEvolutionStrategy(self.x0.copy(), run.sigma0, options)
+        stds = options.get("CMA_stds")
+        if stds is not None and np.size(stds) == self.n_params:  # given for every coordinate: the free ones'
+            options["CMA_stds"] = list(np.asarray(stds, dtype=float)[self._free])
+        return cma.CMAEvolutionStrategy(self.x0[self._free].copy(), run.sigma0, options)
+
+    def _full(self, free: np.ndarray) -> np.ndarray:
+        """Candidates of the free coordinates (rows) with the fixed coordinates at ``x0``'s values."""
+        free = np.atleast_2d(np.asarray(free, dtype=float))
+        out = np.repeat(self.x0[None, :], free.shape[0], axis=0)
+        out[:, self._free] = free
+        return out
 
     # -- ask / tell ------------------------------------------------------------------------------
     def ask(self) -> np.ndarray:
         if self._pending is not None:
             return self._pending.copy()
         self._rng_before_ask = rng_state(self.rng)
-        self._pending = np.array(self.es.ask(), dtype=float)
+        self._pending = self._full(np.array(self.es.ask(), dtype=float))
         return self._pending.copy()
 
     def tell(self, candidates: np.ndarray, rewards: np.ndarray) -> None:
@@ -146,7 +173,7 @@ class CMAES(BestAndWorst, Optimizer):
         if self._pending is None or candidates.shape != self._pending.shape:
             raise ValueError("tell() needs the candidates returned by the last ask()")
         rewards, _ = self._record_batch(candidates, rewards)
-        self.es.tell(list(candidates), list(-rewards))
+        self.es.tell(list(candidates[:, self._free]), list(-rewards))
         self._pending = None
         self._rng_before_ask = None
         self.n_evaluations += rewards.size
@@ -189,7 +216,7 @@ class CMAES(BestAndWorst, Optimizer):
     @property
     def mean(self) -> np.ndarray:
         """Mean of the current search distribution."""
-        return np.array(self.es.mean, dtype=float)
+        return self._full(np.array(self.es.mean, dtype=float))[0]
 
     def stop(self) -> bool:
         return self._finished
@@ -209,6 +236,7 @@ class CMAES(BestAndWorst, Optimizer):
                 "tolfun": self.tolfun,
                 "tolx": self.tolx,
                 "cma_options": self.cma_options,
+                "fixed": [int(i) for i in self.fixed],
             },
             "run": {"popsize": self.run.popsize, "sigma0": self.run.sigma0, "regime": self.run.regime},
             "counters": {
@@ -244,6 +272,7 @@ class CMAES(BestAndWorst, Optimizer):
             tolfun=cfg["tolfun"],
             tolx=cfg["tolx"],
             cma_options=cfg["cma_options"],
+            fixed=cfg.get("fixed", ()),
         )
         counters = state["counters"]
         opt.n_restarts_done = int(counters["n_restarts_done"])

@@ -4,7 +4,7 @@ scouts by successive halving."""
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -95,6 +95,10 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
     the rule then alone decides when the next group races (a winner that ends far hands over to the eliminated scouts,
     and the restarts from the run's best creep on, until the rule says the race has stalled).
 
+    ``fixed``: coordinates every attempt holds at its start point's values (:class:`CMAES`'s ``fixed``), so a start
+    point's fixed values (e.g. which imitated movement it is) stay with every candidate of the attempts that begin there,
+    a restart from the best included.
+
     Budget and stop belong to the caller (the loop): :meth:`stop` is never true. One Generator drives
     every attempt; :meth:`state_dict` saves the attempt counter and regime bookkeeping, the per-generation
     best of the current attempt and the inner CMA-ES, so a resumed run asks the same candidates as an
@@ -125,6 +129,7 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
         switch_below: float | None = None,
         next_starts: np.ndarray | None = None,
         race_stall: RaceStall | None = None,
+        fixed: Sequence[int] = (),
     ) -> None:
         starts = np.atleast_2d(np.asarray(starts, dtype=float))
         next_starts = _checked_next_starts(next_starts, starts, scouts, scout_halving, switch_below)
@@ -142,6 +147,7 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
         self._configure(starts, sigma0, popsize, bounds, stagnation_generations, tol, max_generations, restart_from_best,
                         cma_options, popsize_growth, regimes, small_decades, small_share, patience, scouts, scout_generations,
                         scout_halving, switch_below, next_starts, race_stall)
+        self.fixed = tuple(int(i) for i in fixed)
         self.rng = rng
         self._start_bookkeeping()
         self._init_best(starts[0])
@@ -241,7 +247,8 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
         if self.bounds is not None:
             span = self.bounds[:, 1] - self.bounds[:, 0]
             x = np.clip(x, self.bounds[:, 0] + 1e-9 * span, self.bounds[:, 1] - 1e-9 * span)
-        return CMAES(x, sigma, self.rng, popsize=self.attempt_popsize(), bounds=self.bounds, cma_options=self.cma_options)
+        return CMAES(x, sigma, self.rng, popsize=self.attempt_popsize(), bounds=self.bounds, cma_options=self.cma_options,
+                     fixed=self.fixed)
 
     def attempt_popsize(self) -> int | None:
         """Population of the current attempt (``None``: ``cma``'s default, not grown)."""
@@ -451,6 +458,8 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
             extra_cfg["next_starts"] = self.next_starts
         if self.race_stall is not None:
             extra_cfg["race_stall"] = self.race_stall.to_dict()
+        if self.fixed:
+            extra_cfg["fixed"] = list(self.fixed)
         halving_state: dict[str, Any] = {}
         if self.scouts > 1 and self.scout_halving:
             halving_state = {"halving": {
@@ -510,6 +519,7 @@ class StagnationRestartCMAES(BestAndWorst, Optimizer):
                        None if cfg.get("switch_below") is None else float(cfg["switch_below"]),
                        None if cfg.get("next_starts") is None else np.atleast_2d(np.asarray(cfg["next_starts"], dtype=float)),
                        None if cfg.get("race_stall") is None else RaceStall(**cfg["race_stall"]))
+        opt.fixed = tuple(int(i) for i in cfg.get("fixed", ()))
         hv = state.get("halving", {})
 
         def _cma(d):

@@ -136,7 +136,7 @@ def make_optimizer(
     from besdrake.search.cmaes import CMAES, StagedCMAES
 
     x0 = np.zeros(problem.n_params) if x0 is None else np.asarray(x0, dtype=float)
-    bounds = problem.scaling.x_bounds
+    bounds = problem.x_bounds
     x0 = np.clip(x0, bounds[:, 0] + 1e-9, bounds[:, 1] - 1e-9)
     rng = np.random.default_rng(seed)
     cma_options, stagnation_generations, restart_regimes, popsize_growth = _search_defaults(
@@ -144,6 +144,8 @@ def make_optimizer(
     scouts, scout_generations, scout_halving = _scouting_defaults(scouts, scout_generations, scout_halving)
     if stagnation_generations > 0 and meta_episodes > 0:
         raise RefinementError("stagnation restarts and the meta-parameter stage do not combine; give one of them")
+    if problem.fixed and meta_episodes > 0:
+        raise RefinementError("the meta-parameter stage searches one imitated movement: a problem with families needs restarts")
     if next_starts is not None and (stagnation_generations == 0 or switch_distance is None):
         raise RefinementError("next_starts (further races) need the stagnation restarts, raced scouts and a switch_distance")
     if race_stall is not None and next_starts is None:
@@ -159,11 +161,11 @@ def make_optimizer(
                                       scout_generations=scout_generations, scout_halving=scout_halving,
                                       switch_below=_switch_below(switch_distance, scouts, scout_halving),
                                       next_starts=None if next_starts is None else _start_points(x0, next_starts, bounds),
-                                      race_stall=race_stall)
+                                      race_stall=race_stall, fixed=problem.fixed)
     if meta_episodes > 0:
         return StagedCMAES(x0, meta_basis(problem), meta_sigma, sigma0, rng, subspace_evaluations=meta_episodes,
                            popsize_subspace=popsize, popsize=popsize, bounds=bounds, cma_options=cma_options)
-    return CMAES(x0, sigma0, rng, popsize=popsize, bounds=bounds, cma_options=cma_options)
+    return CMAES(x0, sigma0, rng, popsize=popsize, bounds=bounds, cma_options=cma_options, fixed=problem.fixed)
 
 
 def checked_switch_distance(switch_distance) -> float | None:

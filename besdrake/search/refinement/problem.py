@@ -8,7 +8,7 @@ records every episode (:mod:`besdrake.search.refinement.records`).
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -33,6 +33,14 @@ def _phase(value: Any) -> float:
     return phase
 
 
+def _families(d: dict[str, Any]) -> list[DMP]:
+    """The further movements of a problem record (:meth:`RefinementProblem.describe`)."""
+    try:
+        return [DMP.from_dict(f) for f in d.get("families", [])]
+    except (KeyError, TypeError, ValueError) as err:
+        raise RefinementError(f"bad problem record: {err}") from err
+
+
 class RefinementProblem:
     """Refinement of a template DMP towards a target, in the normalised space of :class:`ParameterScaling`.
 
@@ -48,6 +56,12 @@ class RefinementProblem:
     the movement after it no longer changes the outcome, so only the part before it sets the retiming and the rest is
     slowed where it breaks a limit (:meth:`retimed`); the plans are then what a behaviour template with that phase
     plays (:class:`~besdrake.search.templates.MetaDMP`).
+
+    ``families`` (further imitated movements, :meth:`with_families`): a DMP's goal velocity and acceleration are no
+    parameters, so one imitated movement cannot stand for another in the template's space (their weights differ by more
+    than its bounds too). With families a candidate's last coordinate says which movement's DMP it varies (0: the
+    template, k: ``families[k - 1]``) and the optimizer holds it fixed (:attr:`fixed`): a scout or race from another
+    imitated movement searches around that movement itself.
     """
 
     def __init__(
@@ -61,6 +75,7 @@ class RefinementProblem:
         task: str | None = None,
         robust: RobustCheck | None = None,
         follow_through: float | None = None,
+        families: Sequence[DMP] = (),
     ) -> None:
         if not isinstance(robot, Robot):
             raise RefinementError(f"robot must be a besdrake.robot.Robot, got {type(robot).__name__}")
@@ -70,6 +85,11 @@ class RefinementProblem:
             raise RefinementError(f"the DMP has {template.n_dims} dimensions, the robot {robot.name!r} {robot.n_joints} joints")
         self.robot = robot
         self.parameterization = DMPParameterization(template, robot.joint_names)
+        for d in families:
+            if not isinstance(d, DMP) or d.n_dims != template.n_dims or d.n_weights_per_dim != template.n_weights_per_dim:
+                raise RefinementError("every family must be a DMP with the template's dimensions and weights")
+        #: the parameterization of each movement a candidate may vary: the template's first
+        self.families = [self.parameterization] + [DMPParameterization(d, robot.joint_names) for d in families]
         self.task = DEFAULT_TASK if task is None else str(task)
         self.reward = reward if reward is not None else get_task(self.task).reward()
         self.scaling = scaling if scaling is not None else ParameterScaling.for_dmp(template, robot.position_limits)
@@ -87,14 +107,58 @@ class RefinementProblem:
 
     @property
     def n_params(self) -> int:
-        return self.parameterization.n_params
+        """Length of a candidate: the DMP's parameters, and the family coordinate where there are families."""
+        return self.parameterization.n_params + (1 if len(self.families) > 1 else 0)
+
+    @property
+    def fixed(self) -> tuple[int, ...]:
+        """Coordinates the optimizer holds at a start point's values: the family coordinate (none without families)."""
+        return (self.n_params - 1,) if len(self.families) > 1 else ()
+
+    @property
+    def x_bounds(self) -> np.ndarray:
+        """Bounds of a candidate (:attr:`ParameterScaling.x_bounds`, and the family coordinate's)."""
+        b = self.scaling.x_bounds
+        return np.vstack([b, [[-0.5, len(self.families) - 0.5]]]) if len(self.families) > 1 else b
+
+    def _split(self, x: np.ndarray) -> tuple[np.ndarray, DMPParameterization]:
+        """The normalised DMP parameters of candidate ``x`` and the parameterization of the movement it varies."""
+        x = np.asarray(x, dtype=float)
+        if len(self.families) == 1:
+            return x, self.parameterization
+        k = int(np.rint(x[-1])) if np.isfinite(x[-1]) else -1
+        if not 0 <= k < len(self.families):
+            raise DMPParameterError(f"family coordinate {x[-1]!r} names none of the {len(self.families)} movements")
+        return x[:-1], self.families[k]
+
+    def with_families(self, others: Sequence["RefinementProblem"]) -> "RefinementProblem":
+        """This problem over its own imitated movement and those of ``others`` (families 1, 2, ...): the same robot,
+        reward and settings, the bounds widened to hold each movement's own (:meth:`ParameterScaling.covering`)."""
+        if not others:
+            return self
+        return RefinementProblem(self.robot, self.parameterization.template, self.reward,
+                                 self.scaling.covering([o.scaling for o in others]), self.dt, retime=self.retime,
+                                 task=self.task, robust=self.robust, follow_through=self.follow_through,
+                                 families=[o.parameterization.template for o in others])
+
+    def family_start(self, k: int, other: "RefinementProblem | None" = None) -> np.ndarray:
+        """The candidate of family ``k``'s imitated movement (``other``: the problem it came from, whose ``theta0``
+        it is; default this problem's own, family 0)."""
+        theta0 = self.scaling.theta0 if other is None else other.scaling.theta0
+        x = (np.clip(theta0, self.scaling.bounds[:, 0], self.scaling.bounds[:, 1]) - self.scaling.theta0) / self.scaling.scale
+        return np.append(x, float(k)) if len(self.families) > 1 else x
+
+    def dmp(self, x: np.ndarray) -> DMP:
+        """The DMP candidate ``x`` plays (retimed where the problem retimes, as evaluated)."""
+        return self._split(x)[1].from_vector(self.theta(x))
 
     @property
     def target(self) -> tuple[float, float]:
         return self.reward.target
 
     def theta(self, x: np.ndarray) -> np.ndarray:
-        """DMP parameters of normalised candidate ``x`` (retimed when the problem retimes, see :meth:`retimed`)."""
+        """DMP parameters of normalised candidate ``x`` (retimed when the problem retimes, see :meth:`retimed`), in the
+        parameterization of the movement it varies (:meth:`dmp` gives its DMP)."""
         return self._theta_and_plan(x)[0]
 
     def retimed(self, theta: np.ndarray) -> np.ndarray:
@@ -107,9 +171,9 @@ class RefinementProblem:
         (its evaluation fails as before). With ``follow_through`` only the movement up to that phase sets the stretch,
         and the rest of the plan is slowed where it breaks a limit (:meth:`~besdrake.plan.MotionPlan.with_follow_through_within`,
         as a behaviour template with the same phase plays it)."""
-        return self._retime(theta)[0]
+        return self._retime(theta, self.parameterization)[0]
 
-    def _retime(self, theta: np.ndarray) -> tuple[np.ndarray, MotionPlan | None]:
+    def _retime(self, theta: np.ndarray, param: DMPParameterization) -> tuple[np.ndarray, MotionPlan | None]:
         """:meth:`retimed`, and the motion plan of the returned parameters where it was rolled out on the way (None
         where not: a ``theta`` without a valid rollout), so that a candidate's DMP is rolled out once more at most."""
         theta = np.array(theta, dtype=float)
@@ -118,7 +182,7 @@ class RefinementProblem:
         first: MotionPlan | None = None  # the plan of theta itself (round 0)
         for round_ in range(RETIME_ROUNDS + 1):
             try:
-                plan = self.parameterization.motion_plan(stretched, dt=self.dt)
+                plan = param.motion_plan(stretched, dt=self.dt)
                 until = None if self.follow_through is None else self.follow_through * plan.duration
                 vel, acc = plan.peak_limit_ratios(self.robot.limits, until=until)
             except (DMPParameterError, PlanError, ValueError):
@@ -140,14 +204,15 @@ class RefinementProblem:
 
     def _theta_and_plan(self, x: np.ndarray) -> tuple[np.ndarray, MotionPlan | None]:
         """DMP parameters of ``x`` and their motion plan where retiming rolled it out already (else None)."""
+        x, param = self._split(x)
         theta = self.scaling.to_theta(x)
-        return self._retime(theta) if self.retime else (theta, None)
+        return self._retime(theta, param) if self.retime else (theta, None)
 
     def plan(self, x: np.ndarray) -> MotionPlan:
         """Motion plan of normalised candidate ``x`` (raises DMPParameterError/PlanError for a bad one)."""
         theta, plan = self._theta_and_plan(x)
         if plan is None:
-            plan = self._with_follow_through(self.parameterization.motion_plan(theta, dt=self.dt))
+            plan = self._with_follow_through(self._split(x)[1].motion_plan(theta, dt=self.dt))
         return plan.validate()
 
     def evaluate(self, X: np.ndarray, executor) -> list[RewardBreakdown]:
@@ -237,7 +302,8 @@ class RefinementProblem:
             "names": list(self.parameterization.names),
         } | ({"retime": True} if self.retime else {}) | ({"task": self.task} if self.task != DEFAULT_TASK else {}) | (
             {"robust": self.robust.to_dict()} if self.robust is not None else {}) | (
-            {"follow_through": self.follow_through} if self.follow_through is not None else {})
+            {"follow_through": self.follow_through} if self.follow_through is not None else {}) | (
+            {"families": [p.template.to_dict() for p in self.families[1:]]} if len(self.families) > 1 else {})
 
     @classmethod
     def from_description(cls, d: dict[str, Any]) -> "RefinementProblem":
@@ -252,4 +318,4 @@ class RefinementProblem:
         return cls(robot, template, get_task(task).reward_from_dict(d["reward"]), ParameterScaling.from_dict(d["scaling"]),
                    float(d["dt"]), retime=bool(d.get("retime", False)), task=task,
                    robust=RobustCheck.from_dict(d["robust"]) if d.get("robust") is not None else None,
-                   follow_through=d.get("follow_through"))
+                   follow_through=d.get("follow_through"), families=_families(d))

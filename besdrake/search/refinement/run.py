@@ -15,6 +15,7 @@ import numpy as np
 
 from besdrake._io import save_figure as _save_figure
 from besdrake._io import write_json
+from besdrake.imitation import DMP
 from besdrake.search.refinement.optimizer import _scouting_defaults, _search_defaults, make_optimizer
 from besdrake.search.refinement.problem import RefinementProblem
 from besdrake.search.refinement.records import params_key, read_details
@@ -98,6 +99,8 @@ class RefinementResult:
     robust_rollouts: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
     best_robust_distance: float = float("nan")
     robust: bool = False
+    #: the DMP of the best episode (of the imitated movement it varies: :class:`RefinementProblem`'s families)
+    best_dmp: DMP | None = None
 
     @property
     def n_robust_rollouts(self) -> int:
@@ -425,11 +428,12 @@ def _result(problem: RefinementProblem, loop, wall: float) -> RefinementResult:
         i = -1
     if i >= 0:
         r = recs[i]
-        best_theta = problem.theta(loop.params[i])
+        best_theta, best_dmp = problem.theta(loop.params[i]), problem.dmp(loop.params[i])
         best_reward, best_distance = float(rewards[i]), float(distances[i])
         best_td = None if r is None else r.touchdown
     else:
         best_theta, best_reward, best_distance, best_td = problem.scaling.theta0.copy(), -np.inf, np.inf, None
+        best_dmp = problem.parameterization.from_vector(best_theta)
     first = int(np.argmax(successes)) + 1 if successes.any() else None
     robust = np.array([np.nan if r is None else r.robust_distance for r in recs], dtype=float)
     return RefinementResult(
@@ -439,7 +443,7 @@ def _result(problem: RefinementProblem, loop, wall: float) -> RefinementResult:
         penalties=penalties, resumed=bool(loop.resumed), stop_reason=loop.stop_reason,
         attempts=[dict(a) for a in getattr(loop.optimizer, "attempt_history", [])], robust_distances=robust,
         robust_rollouts=np.array([0 if r is None else r.robust_rollouts for r in recs], dtype=int), robust=problem.robust is not None,
-        best_robust_distance=float(robust[i]) if i >= 0 else float("nan"),
+        best_robust_distance=float(robust[i]) if i >= 0 else float("nan"), best_dmp=best_dmp,
     )
 
 

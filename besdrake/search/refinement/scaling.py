@@ -84,6 +84,17 @@ class ParameterScaling:
         theta0[: 2 * n] = np.clip(theta0[: 2 * n], np.tile(limits[:, 0], 2), np.tile(limits[:, 1], 2))
         return cls(theta0, scale, bounds)
 
+    def covering(self, others: "list[ParameterScaling]") -> "ParameterScaling":
+        """This scaling with bounds that hold every one of ``others``' bounds too (the same ``theta0`` and units): one
+        space for several imitated movements, each searched within its own bounds."""
+        bounds = self.bounds.copy()
+        for o in others:
+            if o.bounds.shape != bounds.shape:
+                raise RefinementError(f"cannot cover bounds of shape {o.bounds.shape} with {bounds.shape}")
+            bounds[:, 0] = np.minimum(bounds[:, 0], o.bounds[:, 0])
+            bounds[:, 1] = np.maximum(bounds[:, 1], o.bounds[:, 1])
+        return ParameterScaling(self.theta0.copy(), self.scale.copy(), bounds)
+
     @property
     def x_bounds(self) -> np.ndarray:
         """Bounds in the normalised space."""

@@ -55,14 +55,14 @@ def refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int,
             return _keep_start(ctx, problem, robot, index, start, out, tag)
         scouts = DEFAULT_SCOUTS if scouting and 2 * scouting_episodes(int(cfg["population"])) <= int(budget) else 0
         diverse = bool(scouts) and settings["run_starts"] == "diverse"
-        run_starts = [_run_starts(problems, ranking, start_group + (k if diverse else 0)) for k in range(n_runs)]
+        run_starts = [_run_starts(problems, ranking, start_group + (k if diverse else 0), bool(scouts)) for k in range(n_runs)]
 
         def run_job(k: int):
             """CMA-ES run ``k`` (its own seed, start throws and resumable folder) on the shared executor ``ex``."""
             def job(ex):
-                i, starts = run_starts[k]
+                i, starts = run_starts[k].index, run_starts[k].starts
                 ctx.progress(f"{tag}: CMA-ES run {k + 1}/{n_runs} from throw {i} ({records[i].distance:.2f} m from the target)")
-                return refine(problems[i], ex, n_episodes=int(budget), seed=int(cfg["seed"]) + k, out_dir=out / f"run{k}",
+                return refine(run_starts[k].problem, ex, n_episodes=int(budget), seed=int(cfg["seed"]) + k, out_dir=out / f"run{k}",
                               sigma0=DEFAULT_SIGMA0 if sigma0 is None else sigma0,
                               popsize=int(cfg["population"]), stop_on_success=settings["stop_on_success"],
                               stop_distance=settings["stop_distance"], starts=starts, scouts=scouts,
@@ -75,9 +75,9 @@ def refine_from(ctx: Context, dmps: list, scenario: str, out: Path, budget: int,
             results = _runs_in_turn(jobs, executor, settings["turn_distance"] or settings["stop_distance"] or SUCCESS_DISTANCE)
         else:  # independent runs: their generations share the pool, one wider batch per round (same results)
             results = run_concurrently(executor, jobs)
-    runs = _save_refined([problems[run_starts[k][0]] for k in range(len(results))], robot, results, out)
+    runs = _save_refined(robot, results, out)
     for k, run in enumerate(runs):
-        run["start_throw"] = int(run_starts[k][0])
+        run["start_throw"] = int(run_starts[k].index)
     plot_learning_curves(results, out / "learning_curve.png")
     # The best run is judged by throws within every joint limit: a closer throw that breaks a limit is no plan.
     best = min(runs, key=lambda r: r["best_distance_within_limits_m"] if r["best_distance_within_limits_m"] is not None else np.inf)
@@ -117,19 +117,24 @@ def _keep_start(ctx: Context, problem, robot, index: int, start, out: Path, tag:
             "median_episodes_to_success": 0.0, "best_distance_within_limits_m": start.distance, "best_dmp": run["dmp"]}
 
 
-def _run_starts(problems: list, ranking: list, group: int) -> tuple[int, Any]:
-    """:func:`~besdrake.search.refinement.run_start` over the throws of ``ranking`` that could be simulated."""
-    from besdrake.search.refinement import run_start, simulated_order
+def _run_starts(problems: list, ranking: list, group: int, scouting: bool = True):
+    """:func:`~besdrake.search.refinement.family_run` over the throws of ``ranking`` that could be simulated: the run's
+    start throw, its problem and its scouts' start points (each imitated throw itself); without ``scouting`` the start
+    throw's own problem (its restarts begin at the best throw so far)."""
+    from besdrake.search.refinement import RunStart, family_run, run_start, simulated_order
 
-    return run_start(problems, simulated_order(ranking), group)
+    if scouting:
+        return family_run(problems, simulated_order(ranking), group)
+    index, starts = run_start(problems, simulated_order(ranking), group)
+    return RunStart(index, problems[index], starts, None)
 
 
-def _save_refined(problems: list, robot, results: list, out: Path) -> list[dict[str, Any]]:
-    """Each run's best throw (of ``problems[k]``, the run's problem) as ``refinedK.dmp.json`` and ``refinedK.plan.json``;
-    the runs' summaries."""
+def _save_refined(robot, results: list, out: Path) -> list[dict[str, Any]]:
+    """Each run's best throw (its own DMP: that of the imitated throw it varies) as ``refinedK.dmp.json`` and
+    ``refinedK.plan.json``; the runs' summaries."""
     runs = []
-    for k, (problem, result) in enumerate(zip(problems, results)):
-        _save_throw(problem.parameterization.from_vector(result.best_theta), robot, out, k)
+    for k, result in enumerate(results):
+        _save_throw(result.best_dmp, robot, out, k)
         runs.append(result.summary() | {"dmp": f"refined{k}.dmp.json"})
     return runs
 
