@@ -8,7 +8,7 @@ import pytest
 
 from besdrake.search.base import load_state, save_state
 from besdrake.search.cmaes import CMAES, StagnationRestartCMAES
-from besdrake.search.refinement import (ParameterScaling, RefinementProblem, family_run, rank_starts, refine, restart_points,
+from besdrake.search.refinement import (ParameterScaling, RefinementError, RefinementProblem, family_run, rank_starts, refine, restart_points,
                                         run_start_order)
 from besdrake.tasks.throwing.template_base import fitted_default_throw
 from tests.test_refinement import COMPI, outcome
@@ -55,6 +55,24 @@ def test_a_family_start_plays_the_imitated_throw_itself_where_a_hybrid_does_not(
     # the old start point: the other's parameters in the base's DMP (its goal velocity, its weight bounds)
     hybrid = p0.plan(restart_points(p0, [p1])[0])
     assert np.abs(hybrid.qd[-1] - own.qd[-1]).max() > 0.3
+
+
+def test_each_family_keeps_its_own_follow_through_and_retiming(base):
+    fast = base.copy()  # another throw, faster: its retiming and its follow-through's braking are its own
+    fast.execution_time = 0.8 * base.execution_time
+    fast.goal_velocity = fast.goal_velocity + 0.3
+    p0 = RefinementProblem(COMPI, base, follow_through=0.5)
+    p1 = RefinementProblem(COMPI, fast, follow_through=0.8)
+    fam = p0.with_families([p1])
+    assert fam.phases == [0.5, 0.8]
+    x1 = fam.family_start(1, p1)
+    own = p1.plan(np.zeros(p1.n_params))
+    assert np.allclose(fam.plan(x1).t, own.t) and np.allclose(fam.plan(x1).q, own.q)
+    assert np.allclose(fam.theta(x1), p1.theta(np.zeros(p1.n_params)))
+    again = RefinementProblem.from_description(fam.describe())
+    assert again.phases == [0.5, 0.8] and np.allclose(again.plan(x1).q, own.q)
+    with pytest.raises(RefinementError, match="one phase per family"):
+        RefinementProblem(COMPI, base, families=[fast], family_follow_through=[0.5, 0.6])
 
 
 def test_covering_bounds_hold_every_family_and_keep_the_units(base, other):

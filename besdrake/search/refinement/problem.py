@@ -76,6 +76,7 @@ class RefinementProblem:
         robust: RobustCheck | None = None,
         follow_through: float | None = None,
         families: Sequence[DMP] = (),
+        family_follow_through: Sequence[float | None] = (),
     ) -> None:
         if not isinstance(robot, Robot):
             raise RefinementError(f"robot must be a besdrake.robot.Robot, got {type(robot).__name__}")
@@ -103,6 +104,11 @@ class RefinementProblem:
             raise RefinementError(f"robust must be a RobustCheck or None, got {type(robust).__name__}")
         self.robust = robust
         self.follow_through = None if follow_through is None else _phase(follow_through)
+        if family_follow_through and len(family_follow_through) != len(families):
+            raise RefinementError(f"family_follow_through needs one phase per family ({len(families)}), got {len(family_follow_through)}")
+        #: each family's follow-through phase (the template's own for families given none)
+        self.phases = [self.follow_through] + [None if f is None else _phase(f) for f in family_follow_through or
+                                               [self.follow_through] * len(families)]
         self.records: dict[str, RewardBreakdown] = {}
 
     @property
@@ -121,25 +127,27 @@ class RefinementProblem:
         b = self.scaling.x_bounds
         return np.vstack([b, [[-0.5, len(self.families) - 0.5]]]) if len(self.families) > 1 else b
 
-    def _split(self, x: np.ndarray) -> tuple[np.ndarray, DMPParameterization]:
-        """The normalised DMP parameters of candidate ``x`` and the parameterization of the movement it varies."""
+    def _split(self, x: np.ndarray) -> tuple[np.ndarray, int]:
+        """The normalised DMP parameters of candidate ``x`` and the family of the movement it varies."""
         x = np.asarray(x, dtype=float)
         if len(self.families) == 1:
-            return x, self.parameterization
+            return x, 0
         k = int(np.rint(x[-1])) if np.isfinite(x[-1]) else -1
         if not 0 <= k < len(self.families):
             raise DMPParameterError(f"family coordinate {x[-1]!r} names none of the {len(self.families)} movements")
-        return x[:-1], self.families[k]
+        return x[:-1], k
 
     def with_families(self, others: Sequence["RefinementProblem"]) -> "RefinementProblem":
         """This problem over its own imitated movement and those of ``others`` (families 1, 2, ...): the same robot,
-        reward and settings, the bounds widened to hold each movement's own (:meth:`ParameterScaling.covering`)."""
+        reward and settings, the bounds widened to hold each movement's own (:meth:`ParameterScaling.covering`), each
+        movement with its own follow-through phase."""
         if not others:
             return self
         return RefinementProblem(self.robot, self.parameterization.template, self.reward,
                                  self.scaling.covering([o.scaling for o in others]), self.dt, retime=self.retime,
                                  task=self.task, robust=self.robust, follow_through=self.follow_through,
-                                 families=[o.parameterization.template for o in others])
+                                 families=[o.parameterization.template for o in others],
+                                 family_follow_through=[o.follow_through for o in others])
 
     def family_start(self, k: int, other: "RefinementProblem | None" = None) -> np.ndarray:
         """The candidate of family ``k``'s imitated movement (``other``: the problem it came from, whose ``theta0``
@@ -150,7 +158,7 @@ class RefinementProblem:
 
     def dmp(self, x: np.ndarray) -> DMP:
         """The DMP candidate ``x`` plays (retimed where the problem retimes, as evaluated)."""
-        return self._split(x)[1].from_vector(self.theta(x))
+        return self.families[self._split(x)[1]].from_vector(self.theta(x))
 
     @property
     def target(self) -> tuple[float, float]:
@@ -171,9 +179,9 @@ class RefinementProblem:
         (its evaluation fails as before). With ``follow_through`` only the movement up to that phase sets the stretch,
         and the rest of the plan is slowed where it breaks a limit (:meth:`~besdrake.plan.MotionPlan.with_follow_through_within`,
         as a behaviour template with the same phase plays it)."""
-        return self._retime(theta, self.parameterization)[0]
+        return self._retime(theta)[0]
 
-    def _retime(self, theta: np.ndarray, param: DMPParameterization) -> tuple[np.ndarray, MotionPlan | None]:
+    def _retime(self, theta: np.ndarray, family: int = 0) -> tuple[np.ndarray, MotionPlan | None]:
         """:meth:`retimed`, and the motion plan of the returned parameters where it was rolled out on the way (None
         where not: a ``theta`` without a valid rollout), so that a candidate's DMP is rolled out once more at most."""
         theta = np.array(theta, dtype=float)
@@ -182,37 +190,38 @@ class RefinementProblem:
         first: MotionPlan | None = None  # the plan of theta itself (round 0)
         for round_ in range(RETIME_ROUNDS + 1):
             try:
-                plan = param.motion_plan(stretched, dt=self.dt)
-                until = None if self.follow_through is None else self.follow_through * plan.duration
+                plan = self.families[family].motion_plan(stretched, dt=self.dt)
+                until = None if self.phases[family] is None else self.phases[family] * plan.duration
                 vel, acc = plan.peak_limit_ratios(self.robot.limits, until=until)
             except (DMPParameterError, PlanError, ValueError):
                 return theta, None
             first = plan if round_ == 0 else first
             k = max(float(vel.max()), float(np.sqrt(acc.max())))
             if k <= 1.0:
-                return stretched, self._with_follow_through(plan)
+                return stretched, self._with_follow_through(plan, family)
             if not np.isfinite(k) or round_ == RETIME_ROUNDS or stretched[-1] >= upper:
-                return theta, self._with_follow_through(first)
+                return theta, self._with_follow_through(first, family)
             stretched[-1] = min(upper, stretched[-1] * k * (1.0 + RETIME_MARGIN))
-        return theta, self._with_follow_through(first)
+        return theta, self._with_follow_through(first, family)
 
-    def _with_follow_through(self, plan: MotionPlan) -> MotionPlan:
-        """``plan`` with its follow-through slowed where that keeps the limits (``follow_through`` set), else ``plan``."""
-        if self.follow_through is None:
+    def _with_follow_through(self, plan: MotionPlan, k: int = 0) -> MotionPlan:
+        """``plan`` with its follow-through slowed where that keeps the limits (family ``k``'s phase set), else ``plan``."""
+        if self.phases[k] is None:
             return plan
-        return plan.with_follow_through_within(self.robot.limits, self.follow_through * plan.duration)
+        return plan.with_follow_through_within(self.robot.limits, self.phases[k] * plan.duration)
 
     def _theta_and_plan(self, x: np.ndarray) -> tuple[np.ndarray, MotionPlan | None]:
         """DMP parameters of ``x`` and their motion plan where retiming rolled it out already (else None)."""
-        x, param = self._split(x)
+        x, k = self._split(x)
         theta = self.scaling.to_theta(x)
-        return self._retime(theta, param) if self.retime else (theta, None)
+        return self._retime(theta, k) if self.retime else (theta, None)
 
     def plan(self, x: np.ndarray) -> MotionPlan:
         """Motion plan of normalised candidate ``x`` (raises DMPParameterError/PlanError for a bad one)."""
         theta, plan = self._theta_and_plan(x)
         if plan is None:
-            plan = self._with_follow_through(self._split(x)[1].motion_plan(theta, dt=self.dt))
+            k = self._split(x)[1]
+            plan = self._with_follow_through(self.families[k].motion_plan(theta, dt=self.dt), k)
         return plan.validate()
 
     def evaluate(self, X: np.ndarray, executor) -> list[RewardBreakdown]:
@@ -303,7 +312,8 @@ class RefinementProblem:
         } | ({"retime": True} if self.retime else {}) | ({"task": self.task} if self.task != DEFAULT_TASK else {}) | (
             {"robust": self.robust.to_dict()} if self.robust is not None else {}) | (
             {"follow_through": self.follow_through} if self.follow_through is not None else {}) | (
-            {"families": [p.template.to_dict() for p in self.families[1:]]} if len(self.families) > 1 else {})
+            {"families": [p.template.to_dict() for p in self.families[1:]], "family_follow_through": self.phases[1:]}
+            if len(self.families) > 1 else {})
 
     @classmethod
     def from_description(cls, d: dict[str, Any]) -> "RefinementProblem":
@@ -318,4 +328,4 @@ class RefinementProblem:
         return cls(robot, template, get_task(task).reward_from_dict(d["reward"]), ParameterScaling.from_dict(d["scaling"]),
                    float(d["dt"]), retime=bool(d.get("retime", False)), task=task,
                    robust=RobustCheck.from_dict(d["robust"]) if d.get("robust") is not None else None,
-                   follow_through=d.get("follow_through"), families=_families(d))
+                   follow_through=d.get("follow_through"), families=_families(d), family_follow_through=d.get("family_follow_through", ()))
