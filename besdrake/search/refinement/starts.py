@@ -113,7 +113,8 @@ def family_run(problems: Sequence[RefinementProblem], order: Sequence[int], grou
     holds every movement its scouts and races start from as a family (goal velocity and acceleration, and weights
     bounded around its own), and each start point names its family. Why: with :func:`restart_points` another movement
     is its theta played with the first movement's goal velocity and acceleration, its weights clipped to the first's
-    bounds; on the default task those hybrids land 0.5-1.5 m from where the movements themselves do (REFINEMENT.md)."""
+    bounds; on the default task those hybrids land a median 0.25 m and up to 1.5 m from where the movements themselves do
+    (REFINEMENT.md)."""
     n = scout_starts_checked(n)
     if int(races) != races or races < 1:
         raise RefinementError(f"races must be an integer >= 1, got {races!r}")
