@@ -158,7 +158,8 @@ class RefinementProblem:
 
     def dmp(self, x: np.ndarray) -> DMP:
         """The DMP candidate ``x`` plays (retimed where the problem retimes, as evaluated)."""
-        return self.families[self._split(x)[1]].from_vector(self.theta(x))
+        theta, _, k = self._theta_and_plan(x)
+        return self.families[k].from_vector(theta)
 
     @property
     def target(self) -> tuple[float, float]:
@@ -210,17 +211,16 @@ class RefinementProblem:
             return plan
         return plan.with_follow_through_within(self.robot.limits, self.phases[k] * plan.duration)
 
-    def _theta_and_plan(self, x: np.ndarray) -> tuple[np.ndarray, MotionPlan | None]:
-        """DMP parameters of ``x`` and their motion plan where retiming rolled it out already (else None)."""
+    def _theta_and_plan(self, x: np.ndarray) -> tuple[np.ndarray, MotionPlan | None, int]:
+        """DMP parameters of ``x``, their motion plan where retiming rolled it out already (else None) and the family."""
         x, k = self._split(x)
         theta = self.scaling.to_theta(x)
-        return self._retime(theta, k) if self.retime else (theta, None)
+        return (*self._retime(theta, k), k) if self.retime else (theta, None, k)
 
     def plan(self, x: np.ndarray) -> MotionPlan:
         """Motion plan of normalised candidate ``x`` (raises DMPParameterError/PlanError for a bad one)."""
-        theta, plan = self._theta_and_plan(x)
+        theta, plan, k = self._theta_and_plan(x)
         if plan is None:
-            k = self._split(x)[1]
             plan = self._with_follow_through(self.families[k].motion_plan(theta, dt=self.dt), k)
         return plan.validate()
 

@@ -86,13 +86,19 @@ def race_points(problems: Sequence[RefinementProblem], order: Sequence[int], gro
     n_params)`` (wrapping around the movements; :func:`refine`'s ``next_starts``); None for a single race, or where the
     movements do not fill a second group."""
     n = scout_starts_checked(n)
+    order = run_start_order(order, group, n)
+    later = _race_members(order, races, n)
+    return restart_points(problems[order[0]], [problems[i] for i in later]) if later else None
+
+
+def _race_members(order: list[int], races: int, n: int) -> list[int]:
+    """The movements the further races of a run with start order ``order`` (:func:`run_start_order`) start from: the
+    next ``races - 1`` groups of ``n``, wrapping around; none for a single race, one scout, or too few movements."""
     if int(races) != races or races < 1:
         raise RefinementError(f"races must be an integer >= 1, got {races!r}")
-    order = run_start_order(order, group, n)
     if races == 1 or n == 1 or len(order) <= n:
-        return None
-    later = [order[(n + i) % len(order)] for i in range((int(races) - 1) * n)]
-    return restart_points(problems[order[0]], [problems[i] for i in later])
+        return []
+    return [order[(n + i) % len(order)] for i in range((int(races) - 1) * n)]
 
 
 @dataclass
@@ -116,11 +122,9 @@ def family_run(problems: Sequence[RefinementProblem], order: Sequence[int], grou
     bounds; on the default task those hybrids land a median 0.25 m and up to 1.5 m from where the movements themselves do
     (REFINEMENT.md)."""
     n = scout_starts_checked(n)
-    if int(races) != races or races < 1:
-        raise RefinementError(f"races must be an integer >= 1, got {races!r}")
     order = run_start_order(order, group, n)
     scouts = order[:n] if n > 1 else []
-    later = [order[(n + i) % len(order)] for i in range((int(races) - 1) * n)] if n > 1 and len(order) > n else []
+    later = _race_members(order, races, n)
     members = list(dict.fromkeys([order[0], *scouts, *later]))
     problem = problems[order[0]].with_families([problems[i] for i in members[1:]])
 
