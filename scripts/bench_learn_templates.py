@@ -5,7 +5,8 @@ and JSON figures (stdout, and ``--json``).
 Each ``--run`` is a ``besdrake learn`` run folder whose stages up to ``transfer_refined`` are done (one subject each,
 e.g. ``besdrake learn --out RUN --set demonstrations.subjects=[S] --stage label ... --stage transfer_refined``). For
 each run and method this script calls learn's own template stage (:func:`besdrake.tasks.throwing.learn.template.stage_template`)
-on a copy of the run's configuration with the ``--set`` overrides (``templates.*`` only; the run's saved settings win
+on a copy of the run's configuration with the ``--set`` overrides (``templates.*``, and ``refinement.seed``: the reach
+refinements' seed; the run's saved settings win
 over today's defaults, so a default changed since the run needs its ``--set``: session 35's
 ``templates.reach_robust=true`` on session 34's runs), writing into
 ``OUT/<run name>/<method>/`` (the run folder itself is never written, except its ``inputs.json`` lab hash): the base
@@ -61,8 +62,10 @@ def _context(run_root: Path, overrides: list[str], workers: int):
     config = deep_merge(load_config(), saved)  # settings added since the run started take their defaults
     for text in overrides:
         extra = parse_override(text)
-        if set(extra) != {"templates"}:
-            raise ConfigError(f"--set {text!r}: only templates.* settings change the template stage")
+        reach_seed = set(extra) == {"refinement"} and set(extra["refinement"]) == {"seed"}
+        if set(extra) != {"templates"} and not reach_seed:
+            raise ConfigError(f"--set {text!r}: only templates.* settings and refinement.seed (the seed of the reach "
+                              "refinements) change the template stage")
         config = deep_merge(config, extra)
     config = dict(config, workers=workers)
     run = RunFolder(run_root, saved)

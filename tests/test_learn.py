@@ -100,7 +100,9 @@ def test_unknown_stage_is_refused(tmp_path, capsys):
                                       "refinement.robust_sd=0.01", "refinement.robust_sd=lots", "refinement.robust_radius=0",
                                       "refinement.robust_frontier=lots", "refinement.robust_frontier=0", "refinement.robust_frontier=0.5",
                                       "templates.reach_target=far", "templates.reach_target=[1]", "templates.reach_evaluations=-5",
-                                      "templates.reach_other_evaluations=-1", "refinement.run_starts=random",
+                                      "templates.reach_other_evaluations=-1", "templates.reach_other_groups=0",
+                                      "templates.reach_other_groups=9", "templates.reach_other_groups=many",
+                                      "templates.reach_floor_goal=-0.01", "templates.reach_floor_goal=far", "refinement.run_starts=random",
                                       "templates.slowest=0.5", "templates.slowest=fast", "templates.reach_objective=sideways",
                                       "templates.follow_through=-0.1", "templates.follow_through=late",
                                       "templates.reach_robust=sometimes", "refinement.switch_distance=0",
@@ -216,28 +218,40 @@ def test_learn_checks_every_throw_by_default_and_only_those_that_could_become_a_
         assert off["robust_frontier"] is None and _robust_check("throwing", "nominal", off).frontier is None
 
 
-def test_a_reach_refinement_that_stalls_looks_in_another_throw_family(monkeypatch, tmp_path):
-    """templates.reach_other_evaluations: only where the reach refinement ended beyond the goal, a second one from the
-    imitated throws ranked 5-8 (start group 1, with scouts), on its own budget; none where the budget is 0."""
+def test_a_template_base_short_of_the_floor_goal_looks_in_other_throw_families(monkeypatch, tmp_path):
+    """templates.reach_other_evaluations / reach_other_groups / reach_floor_goal: only where no base so far leaves a
+    floor within the goal, one reach refinement from the imitated throws of each start group after the refinement's
+    (with scouts), on its own budget, up to the first whose base's floor is within the goal, never a group past the
+    throws; none where the budget is 0."""
     from besdrake.tasks.throwing.learn import template as L
 
-    calls = []
+    calls, floors = [], {1: 0.06, 2: 0.02, 3: 0.01}
 
     def fake(ctx, dmps, scenario, out, budget, settings, tag, start_group=0):
-        calls.append((dmps, budget, start_group))
-        return {"start_distance_m": 1.2, "best_distance_within_limits_m": 0.16, "runs": [{"n_episodes": budget}], "best_dmp": "refined0.dmp.json"}
+        calls.append((len(dmps), budget, start_group, out.name))
+        return {"start_distance_m": 1.2, "best_distance_within_limits_m": 0.3 / start_group, "runs": [{"n_episodes": budget}],
+                "best_dmp": f"group{start_group}.dmp.json"}
+
+    def floor_of(f):
+        return floors[int(f.name[5])]
 
     monkeypatch.setattr(L, "_reach_refinement", fake)
-    monkeypatch.setattr(L, "imitated_dmps", lambda ctx: ["imitated"])
+    monkeypatch.setattr(L, "imitated_dmps", lambda ctx: ["imitated"] * 12)  # start groups 0, 1 and 2
     ctx = _refined_ctx(runs=1)
-    settings = {"other_evaluations": 600}
-    assert L._other_family(ctx, "nominal", tmp_path, settings, 0.08) is None and not calls  # the first reached the goal
-    assert L._other_family(ctx, "nominal", tmp_path, {"other_evaluations": 0}, 0.3) is None and not calls
-    other = L._other_family(ctx, "nominal", tmp_path, settings, 0.36)
-    assert calls == [(["imitated"], 600, 1)]
-    assert other == {"start_distance_m": 1.2, "best_distance_m": 0.16, "episodes": 600, "best_dmp": "refined0.dmp.json", "start_group": 1}
-    L._other_family(_refined_ctx(runs=2), "nominal", tmp_path, settings, 0.36)  # runs 0 and 1 started from groups 0 and 1
-    assert calls[-1] == (["imitated"], 600, 2)
+    settings = {"other_evaluations": 600, "other_groups": 3, "floor_goal": 0.03}
+    assert L._other_families(ctx, "nominal", tmp_path, settings, 0.03, floor_of) == [] and not calls  # within the goal
+    assert L._other_families(ctx, "nominal", tmp_path, dict(settings, other_evaluations=0), 0.3, floor_of) == [] and not calls
+    found = L._other_families(ctx, "nominal", tmp_path, settings, 0.08, floor_of)
+    assert calls == [(12, 600, 1, "other"), (12, 600, 2, "other_2")]  # group 2's floor is within the goal: no third
+    assert found[0] == {"start_distance_m": 1.2, "best_distance_m": 0.3, "episodes": 600, "start_group": 1,
+                        "best_file": tmp_path / "other" / "group1.dmp.json", "floor_m": 0.06}
+    assert [f["floor_m"] for f in found] == [0.06, 0.02] and found[1]["best_file"] == tmp_path / "other_2" / "group2.dmp.json"
+    floors[2] = 0.05
+    del calls[:]
+    assert len(L._other_families(ctx, "nominal", tmp_path, settings, 0.08, floor_of)) == 2 and calls[-1][2] == 2  # 12 throws: no group 3
+    del calls[:]
+    L._other_families(_refined_ctx(runs=2), "nominal", tmp_path, dict(settings, other_groups=1), 0.08, floor_of)  # runs 0, 1: groups 0, 1
+    assert calls == [(12, 600, 2, "other")]
 
 
 def _refined_ctx(runs: int, run_starts: str = "diverse"):
@@ -341,8 +355,8 @@ def test_the_transfer_is_seeded_with_the_refinements_best_throw_first(tmp_path):
     assert [f.name for f in _seed_files(tmp_path, None)] == ["refined0.dmp.json", "refined1.dmp.json", "refined2.dmp.json"]
 
 
-def test_the_template_base_looks_in_another_family_only_where_no_reach_refinement_reached_the_goal(monkeypatch, tmp_path):
-    """_template_base: the imitated throws' family is searched with what the closest reach refinement so far reached
+def test_the_template_base_looks_in_other_families_with_the_smallest_floor_so_far(monkeypatch, tmp_path):
+    """_template_base: the imitated throws' families are searched with the smallest reach floor of the bases so far
     (another refinement run's included), and the floor rule picks among every base found."""
     import contextlib
     from types import SimpleNamespace
@@ -361,26 +375,28 @@ def test_the_template_base_looks_in_another_family_only_where_no_reach_refinemen
     monkeypatch.setattr(L, "_executor", lambda ctx, scenario: contextlib.nullcontext("ex"))
     monkeypatch.setattr(imitation, "load_dmp", lambda f: str(f))
     monkeypatch.setattr(template_base, "follow_through_phase", lambda *a: None)
-    floors = {"best.dmp.json": 0.12, "refined0.dmp.json": 0.08, "run1.dmp.json": 0.05, "other.dmp.json": 0.03}
+    floors = {"best.dmp.json": 0.12, "refined0.dmp.json": 0.08, "run1.dmp.json": 0.05, "other.dmp.json": 0.02}
     monkeypatch.setattr(templates, "reach_floor", lambda d, *a, **k: floors[d.split("/")[-1]])
     ctx = SimpleNamespace(config={}, robot=lambda scenario: None)
     seen = []
 
-    def other_family(ctx, scenario, out, settings, reached):
-        seen.append(reached)
-        return None if reached <= 0.1 else {"start_distance_m": 1.6, "best_distance_m": 0.03, "episodes": 510, "start_group": 1,
-                                            "best_dmp": "other.dmp.json"}
+    def other_families(ctx, scenario, out, settings, floor, floor_of):
+        seen.append(floor)
+        f = out / "other" / "other.dmp.json"
+        return [{"start_distance_m": 1.6, "best_distance_m": 0.03, "episodes": 510, "start_group": 1, "best_file": f,
+                 "floor_m": floor_of(f)}]
 
-    monkeypatch.setattr(L, "_other_family", other_family)
-    run1 = {"start_distance_m": 0.3, "best_distance_m": 0.07, "episodes": 300, "best_file": tmp_path / "run1.dmp.json"}
+    monkeypatch.setattr(L, "_other_families", other_families)
+    run1 = {"start_distance_m": 0.3, "best_distance_m": 0.2, "episodes": 300, "best_file": tmp_path / "run1.dmp.json"}
     monkeypatch.setattr(L, "_other_runs_reach", lambda *a: [("refined1.dmp.json", run1)])
     base, record = L._template_base(ctx, "nominal", tmp_path / "reach")
-    assert seen == [0.07] and "other_family" not in record  # the other run's reach refinement reached the goal
-    assert base == tmp_path / "run1.dmp.json" and record["kept_from"] == "reach refinement from refined1.dmp.json"
+    assert seen == [0.05]  # the other run's base leaves the smallest floor so far
+    assert record["floor_m"] == [0.12, 0.08, 0.05, 0.02] and record["other_families"][0]["start_group"] == 1
+    assert base == tmp_path / "reach" / "other" / "other.dmp.json" and record["kept_from"] == "other throws (start group 1)"
+    floors["other.dmp.json"] = 0.09
     monkeypatch.setattr(L, "_other_runs_reach", lambda *a: [])
     base, record = L._template_base(ctx, "nominal", tmp_path / "reach")
-    assert seen[-1] == 0.35 and record["other_family"]["start_group"] == 1
-    assert base == tmp_path / "reach" / "other" / "other.dmp.json" and record["kept_from"] == "other throws"
+    assert seen[-1] == 0.08 and base == tmp_path / "reach" / "refined0.dmp.json" and record["kept_from"] == "reach refinement"
 
 
 def test_reach_refinements_from_refined_throws_also_end_by_the_far_stall_rule(monkeypatch):
@@ -420,4 +436,9 @@ def test_the_report_tells_where_the_template_base_came_from():
     assert "(2.35, 0) m" in text and "from the refined throw: 0.397 -> 0.355 m in 150 episodes" in text
     assert "start group 1: 1.606 -> 0.030 m in 510 episodes" in text
     assert "Template base kept: other throws" in text and "12.0 / 8.3 / 2.9 cm" in text
+    two = {k: v for k, v in reach.items() if k != "other_family"} | {"other_families": [
+        {"start_distance_m": 1.606, "best_distance_m": 0.310, "episodes": 800, "start_group": 1},
+        {"start_distance_m": 1.702, "best_distance_m": 0.041, "episodes": 420, "start_group": 2}]}  # since session 46
+    text = "\n".join(_reach_lines(two))
+    assert "start group 1: 1.606 -> 0.310 m in 800 episodes" in text and "start group 2: 1.702 -> 0.041 m in 420 episodes" in text
     assert _reach_lines({}) == []

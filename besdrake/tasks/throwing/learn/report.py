@@ -100,8 +100,8 @@ def _reach_lines(reach: dict[str, Any]) -> list[str]:
         return []
     target = ", ".join(f"{v:g}" for v in reach["target_m"])
     runs = [("the refined throw", reach)] + [(f"{r['from']} (another refinement run)", r) for r in reach.get("other_runs") or []]
-    if reach.get("other_family"):
-        runs.append((f"the imitated throws of start group {reach['other_family']['start_group']}", reach["other_family"]))
+    others = reach.get("other_families") or ([reach["other_family"]] if reach.get("other_family") else [])  # one: before session 46
+    runs += [(f"the imitated throws of start group {r['start_group']}", r) for r in others]
     lines = [f"Reach refinements towards ({target}) m:", ""]
     for where, r in runs:
         if r.get("best_distance_m") is not None:
