@@ -88,8 +88,8 @@ def _row(subject: int, run: Path, measured: dict) -> dict:
         "stage_rollouts": {k: v for k, v in executors.items() if v is not None},
         "refine_runs": [{"episodes": r.get("n_episodes"), "best_distance_m": r.get("best_distance_within_limits_m"),
                          "episodes_to_0.1_m": r.get("episodes_to_success"), "stop_reason": r.get("stop_reason")} for r in refine.get("runs", [])],
-        "reach_refinement": {k: reach.get(k) for k in ("start_distance_m", "best_distance_m", "episodes", "other_runs", "other_family", "other_families",
-                                                       "floor_m", "kept_from")},
+        "reach_refinement": {k: reach.get(k) for k in ("start_distance_m", "best_distance_m", "episodes", "other_runs", "other_family",
+                                                       "other_families", "floor_m", "kept_from")},
         "template_sim_cm": None if template.get("sim_mean_distance_m") is None else 100.0 * template["sim_mean_distance_m"],
         "template_lab_cm": None if template.get("lab_mean_distance_m") is None else 100.0 * template["lab_mean_distance_m"],
     }

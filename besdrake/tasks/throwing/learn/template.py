@@ -229,12 +229,15 @@ def _other_families(ctx: Context, scenario: str, out: Path, settings: dict[str, 
     ``other_groups`` at most (``templates.reach_other_groups``; never a group twice); none where ``other_evaluations``
     is 0. Each as its summary with ``start_group``, ``best_file`` (the first in ``out / "other"``, a later group g in
     ``out / "other_g"``) and ``floor_m``."""
+    from besdrake.search.refinement import DEFAULT_SCOUT_STARTS
+
     found: list[dict[str, Any]] = []
     if floor <= settings["floor_goal"] or settings["other_evaluations"] <= 0:
         return found
     dmps = imitated_dmps(ctx)
     first = _unsearched_group(ctx)
-    for group in range(first, min(first + settings["other_groups"], -(-len(dmps) // 4))):
+    n_groups = -(-len(dmps) // DEFAULT_SCOUT_STARTS)  # a start group is a run's scouts' start throws
+    for group in range(first, min(first + settings["other_groups"], n_groups)):
         where = out / ("other" if group == first else f"other_{group}")
         result = _reach_refinement(ctx, dmps, scenario, where, settings["other_evaluations"], settings,
                                    f"template reach (other throws, start group {group})", start_group=group)
