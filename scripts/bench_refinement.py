@@ -72,7 +72,7 @@ def _run_starts(problems, ranked, k: int, args):
     """Run ``k``'s start throw, its problem, the start points of its restarts or scouts (``--restart-from``,
     ``--run-starts``, ``--start-group``) and those of its further races (``--races``; None for one): each start point the
     imitated movement itself (:func:`family_run`), or with ``--hybrid-starts`` its parameters in the start throw's DMP."""
-    from besdrake.search.refinement import family_run, race_points, restart_points, run_start, run_start_order, simulated_order
+    from besdrake.search.refinement import family_run, hybrid_run, restart_points, run_start_order, simulated_order
 
     order = simulated_order(ranked)
     diverse = args.run_starts == "diverse" and args.scouts != 0 and not args.plain  # as besdrake learn: only where it scouts
@@ -80,11 +80,8 @@ def _run_starts(problems, ranked, k: int, args):
     if args.restart_from == "ranked":
         order = run_start_order(order, group, args.scout_starts)
         return order[0], problems[order[0]], restart_points(problems[order[0]], [problems[i] for i in order[: args.n_starts]]), None
-    if args.hybrid_starts:
-        index, starts = run_start(problems, order, group, args.scout_starts)
-        return index, problems[index], starts, race_points(problems, order, group, args.races, args.scout_starts)  # None for one race
-    run = family_run(problems, order, group, args.races, args.scout_starts)
-    return run.index, run.problem, run.starts, run.next_starts
+    run = (hybrid_run if args.hybrid_starts else family_run)(problems, order, group, args.races, args.scout_starts)
+    return run.index, run.problem, run.starts, run.next_starts  # next_starts None for one race
 
 
 def _race_stall_rule(args):

@@ -319,7 +319,7 @@ def run(args: argparse.Namespace) -> int:
     import logging
 
     from besdrake.cli import UserError
-    from besdrake.search.refinement import family_run, race_points, run_start
+    from besdrake.search.refinement import family_run, hybrid_run
     from besdrake.sim.cliutil import executor_from_args
     from besdrake.sim.executors import ExecutorError
     from besdrake.sim.scenario import ScenarioError
@@ -345,16 +345,13 @@ def run(args: argparse.Namespace) -> int:
         diverse = args.run_starts == "diverse" and search.get("scouts") != 0 and not args.plain
         # Each run from its start throw, its scouts from the next ones (None with one start point).
         groups = [k * args.races if diverse else 0 for k in range(args.runs)]
-        if args.meta_episodes > 0 or args.plain or search.get("scouts") == 0:  # one throw searched: its own problem
-            runs_at = [(i, problems[i], points, race_points(problems, order, g, args.races, scout_starts))
-                       for g, (i, points) in zip(groups, [run_start(problems, order, g, scout_starts) for g in groups])]
-        else:  # each scout and race from its imitated throw itself (family_run)
-            runs_at = [(r.index, r.problem, r.starts, r.next_starts) for r in (family_run(problems, order, g, args.races, scout_starts)
-                                                                               for g in groups)]
-        start["run_start_throws"] = [int(i) for i, *_ in runs_at]
+        # one throw searched (its own problem) or each scout and race from its imitated throw itself (family_run)
+        one = args.meta_episodes > 0 or args.plain or search.get("scouts") == 0
+        runs_at = [(hybrid_run if one else family_run)(problems, order, g, args.races, scout_starts) for g in groups]
+        start["run_start_throws"] = [int(r.index) for r in runs_at]
         # The runs are independent: run_concurrently merges their generations into one batch per round (same results).
-        runs = run_concurrently(executor, [partial(_refine_run, k, args, problem, search=search, starts=points, show=show,
-                                                   next_starts=later) for k, (_, problem, points, later) in enumerate(runs_at)])
+        runs = run_concurrently(executor, [partial(_refine_run, k, args, r.problem, search=search, starts=r.starts, show=show,
+                                                   next_starts=r.next_starts) for k, r in enumerate(runs_at)])
     summary = _summary(args, files, start, runs, t_start)
     if args.json:
         print(json.dumps(summary, default=float))

@@ -50,14 +50,14 @@ from besdrake.search.refinement.settings import (ACCELERATION_UNIT, DEFAULT_CMA_
                                                  PAPER_POPSIZE, PLAIN_SEARCH, PLAN_DT, POSITION_UNIT, PROBLEM_FILE,
                                                  RESTART_REGIMES, RETIME_MARGIN, RETIME_ROUNDS, STAGNATION_TOL,
                                                  SUCCESS_DISTANCE, TIME_UNIT, WEIGHT_BOUND_UNITS, RefinementError)
-from besdrake.search.refinement.starts import (RunStart, best_start, family_run, race_points, rank_starts, restart_points, run_start,
+from besdrake.search.refinement.starts import (RunStart, best_start, family_run, hybrid_run, race_points, rank_starts, restart_points, run_start,
                                                run_start_order, scout_points, scout_start_points, scout_starts_checked, simulated_order)
 
 __all__ = [
     "SUCCESS_DISTANCE", "DEFAULT_POPSIZE", "DEFAULT_SIGMA0", "MIN_EXECUTION_TIME", "MAX_EXECUTION_TIME", "PAPER_POPSIZE",
     "RefinementError", "RewardBreakdown", "ParameterScaling", "RefinementProblem",
     "RefinementResult", "StallRule", "AnyStall", "race_stall_rule",
-    "RunStart", "family_run", "best_start", "race_points", "rank_starts", "restart_points", "run_start",
+    "RunStart", "family_run", "hybrid_run", "best_start", "race_points", "rank_starts", "restart_points", "run_start",
     "run_start_order", "scout_start_points", "scout_points",
     "scout_starts_checked", "simulated_order", "scouting_episodes", "make_optimizer", "refine", "read_details", "params_key",
     "failed_breakdown", "meta_basis", "plot_learning_curves",

@@ -152,8 +152,7 @@ class RefinementProblem:
     def family_start(self, k: int, other: "RefinementProblem | None" = None) -> np.ndarray:
         """The candidate of family ``k``'s imitated movement (``other``: the problem it came from, whose ``theta0``
         it is; default this problem's own, family 0)."""
-        theta0 = self.scaling.theta0 if other is None else other.scaling.theta0
-        x = (np.clip(theta0, self.scaling.bounds[:, 0], self.scaling.bounds[:, 1]) - self.scaling.theta0) / self.scaling.scale
+        x = self.scaling.to_x(self.scaling.theta0 if other is None else other.scaling.theta0)
         return np.append(x, float(k)) if len(self.families) > 1 else x
 
     def dmp(self, x: np.ndarray) -> DMP:

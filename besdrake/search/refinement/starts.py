@@ -113,6 +113,15 @@ class RunStart:
     next_starts: np.ndarray | None
 
 
+def hybrid_run(problems: Sequence[RefinementProblem], order: Sequence[int], group: int, races: int = 1,
+               n: int | None = None) -> RunStart:
+    """:func:`run_start` and :func:`race_points` as a :class:`RunStart`: the start movement's own problem, its scouts'
+    and races' start points the other movements' parameters in its space (hybrids, :func:`restart_points`; the search
+    of one movement, e.g. without scouts, and ``--hybrid-starts``)."""
+    index, starts = run_start(problems, order, group, n)
+    return RunStart(index, problems[index], starts, race_points(problems, order, group, races, n))
+
+
 def family_run(problems: Sequence[RefinementProblem], order: Sequence[int], group: int, races: int = 1,
                n: int | None = None) -> RunStart:
     """:func:`run_start` and :func:`race_points` with each start point the imitated movement itself: the run's problem

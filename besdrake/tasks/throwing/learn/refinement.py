@@ -121,12 +121,9 @@ def _run_starts(problems: list, ranking: list, group: int, scouting: bool = True
     """:func:`~besdrake.search.refinement.family_run` over the throws of ``ranking`` that could be simulated: the run's
     start throw, its problem and its scouts' start points (each imitated throw itself); without ``scouting`` the start
     throw's own problem (its restarts begin at the best throw so far)."""
-    from besdrake.search.refinement import RunStart, family_run, run_start, simulated_order
+    from besdrake.search.refinement import family_run, hybrid_run, simulated_order
 
-    if scouting:
-        return family_run(problems, simulated_order(ranking), group)
-    index, starts = run_start(problems, simulated_order(ranking), group)
-    return RunStart(index, problems[index], starts, None)
+    return (family_run if scouting else hybrid_run)(problems, simulated_order(ranking), group)
 
 
 def _save_refined(robot, results: list, out: Path) -> list[dict[str, Any]]:
