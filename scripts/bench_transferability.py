@@ -120,7 +120,7 @@ def run_subject(
     ``refine_runs``: refinement runs with seeds ``refine_seed + k`` until one reaches the goal (the paper ran 6 per subject,
     ``besdrake learn`` runs 2); the search starts from the closest throw of all runs."""
     from besdrake.imitation import DMPParameterization, load_dmp
-    from besdrake.search.refinement import ParameterScaling, RefinementProblem, rank_starts, refine, scout_start_points
+    from besdrake.search.refinement import ParameterScaling, RefinementProblem, family_run, rank_starts, refine, simulated_order
     from besdrake.tasks.throwing.reward import ThrowReward
     from besdrake.sim import make_executor
     from besdrake.transfer.lab import SafetyGate
@@ -150,11 +150,11 @@ def run_subject(
                     problems = [RefinementProblem(robot, load_dmp(f), ThrowReward(target=TARGET)) for f in files]
                     ranking = rank_starts(problems, executor)
                     index, start = ranking[0]
-                    problem = problems[index]
-                    starts = scout_start_points(problems, ranking)
+                    run_start = family_run(problems, simulated_order(ranking), 0)  # scouts from the imitated throws themselves, as learn's
+                    problem = run_start.problem
                 ref = refine(problem, executor, n_episodes=refine_episodes, seed=refine_seed + k, out_dir=ref_dir,
-                             stop_on_success=not whole_budget, starts=starts)
-                DMPParameterization(problem.parameterization.template).from_vector(ref.best_theta).save(ref_dir / "refined.dmp.json")
+                             stop_on_success=not whole_budget, starts=run_start.starts)
+                ref.best_dmp.save(ref_dir / "refined.dmp.json")  # the best episode's own throw family
                 write_json(ref_done, {
                     "budget": refine_episodes, "whole_budget": whole_budget, "seed": refine_seed + k, "n_imitated_throws": len(files),
                     "start_throw": files[index].name, "start_sim_distance_m": start.distance, "episodes": ref.n_episodes,
