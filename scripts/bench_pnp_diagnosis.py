@@ -56,6 +56,7 @@ def run_truth(name: str, args, rollout) -> dict:
     from besdrake.transfer.lab import SafetyGate
 
     hidden, right = TRUTHS[name]
+    right_effects = sorted([right] if isinstance(right, str) else right or [])  # the effects a right answer names
     lab = PickPlaceLab({"name": f"bench_{name}", "scenario": "pick_and_place", "seed": args.seed, "effects": hidden}, rollout=rollout)
     plans = diagnosis_plans(args.trials, args.repeats, seed=args.seed, limits=lab.robot.limits, rollout=rollout)
     t0 = time.perf_counter()
@@ -65,13 +66,12 @@ def run_truth(name: str, args, rollout) -> dict:
     scen = load_scenario("pick_and_place")
     t0 = time.perf_counter()
     with make_executor(args.backend, workers=args.workers, scenario=scen, limits="flag") as ex:
-        pairs = args.pairs or not isinstance(right, (str, type(None)))  # a truth of two effects needs the pairs fitted
+        pairs = args.pairs or len(right_effects) > 1  # a truth of two effects needs the pairs fitted
         d = diagnose(log, scenario=scen, candidates=args.candidates, pairs=pairs, structural=False, executor=ex, seed=args.seed)
     wall = time.perf_counter() - t0
     named = list(d.best.effects) if d.best is not None and d.explained else []
     claimed = bool(named) and d.confidence in ("high", "medium")
-    right_set = sorted([right] if isinstance(right, str) else right) if right else []
-    correct = (sorted(named) == right_set) if right else not claimed
+    correct = (sorted(named) == right_effects) if right_effects else not claimed
     # honest: nothing claimed with confidence where the answer is not right (e.g. "cannot tell", "not explained")
     honest = correct or not claimed
     g = d.gain
