@@ -691,3 +691,34 @@ def test_a_pair_warm_started_from_a_single_is_credited_with_its_own_fit_only():
     assert pair.chi2 == pytest.approx(float(r @ r), rel=1e-9)
     r_single = prob.weighted(single.y_fit)
     assert pair.chi2 > 10 * float(r_single @ r_single)  # without joint 1 the pair cannot fit what the single does
+
+
+
+def _touchdown_repeats(rng: np.random.Generator, scale: float) -> tuple[np.ndarray, list[str], np.ndarray]:
+    """A diagnosis-sized log of touchdowns (2 axes): 8 plans thrown twice, two of them probes the placement does not
+    move, the others scattered by 1-5 cm through the placement as simulated (the lab's placement variance ``scale``
+    times the simulated one), beside 9 single throws; 5 cm of other scatter per axis."""
+    psd = np.array([0.0, 0.0, 0.01, 0.015, 0.02, 0.03, 0.04, 0.05])
+    keys = [f"p{j}" for j in range(8) for _ in range(2)] + [f"s{j}" for j in range(9)]
+    s = np.array([psd[int(k[1:])] if k[0] == "p" else 0.02 for k in keys])
+    f = rng.normal(0.0, np.sqrt(0.05**2 + scale * s**2)[:, None], (len(keys), 2))
+    return f, keys, np.repeat(s[:, None] ** 2, 2, axis=1)
+
+
+@pytest.mark.parametrize("scale", [1.0, 2.25])
+def test_the_placement_scale_prior_keeps_a_chance_pair_of_repeats_from_pinning_the_base(monkeypatch, scale):
+    """Over 200 such logs, maximum likelihood alone lets a chance pair of close probe repeats pin the base SD low while
+    the scale runs off to explain the throws; with the prior on the scale (centred on the simulated placement
+    scatter) a probe's or a 5 cm throw's SD comes out below 0.6x its true value in at most half as many logs, also
+    where the lab's placement scatter is 1.5 times the one the diagnosis was told (scale 2.25)."""
+    def too_low(prior) -> int:
+        monkeypatch.setattr(noise, "PLACEMENT_SCALE_PRIOR_SD", prior)
+        rng = np.random.default_rng(0)
+        fits = np.array([noise._class_fit(*_touchdown_repeats(rng, scale), [0, 1])[:2] for _ in range(200)])
+        probe = fits[:, 0] / 0.05
+        throw = np.sqrt(fits[:, 0] ** 2 + fits[:, 1] * 0.05**2) / np.sqrt(0.05**2 + scale * 0.05**2)
+        return int(np.sum((probe < 0.6) | (throw < 0.6)))
+
+    ml, prior = too_low(None), too_low(0.5)
+    assert ml >= 10
+    assert prior <= 0.5 * ml
