@@ -810,7 +810,7 @@ def main(argv=None) -> int:
     ap.add_argument("--only", default=None, help="comma-separated trial indices to run (the others are drawn but skipped): re-run single trials")
     ap.add_argument("--placement-sd", type=float, default=None, help="diagnose's placement_sd (m; default: diagnose's default)")
     ap.add_argument("--placement-prior", type=float, default=None, metavar="SD",
-                    help="the noise model's log-normal prior on the placement scale (noise.PLACEMENT_SCALE_PRIOR_SD; default: none)")
+                    help="the noise model's log-normal prior on the placement scale (settings.PLACEMENT_SCALE_PRIOR_SD; default: none)")
     ap.add_argument("--fresh", type=int, default=15, help="unknown-effect trials: throws of new plans in the same lab on which the residual model "
                                                           "is checked (no part of the diagnosis saw them; 0: none)")
     ap.add_argument("--progress", action="store_true", help="one line per diagnosis on stderr")
@@ -841,9 +841,9 @@ def main(argv=None) -> int:
     registry = effects_for("throwing")  # before the bench's unknown effects are registered (plugins join it)
     only = None if args.only is None else {int(x) for x in args.only.split(",") if x.strip()}
     if args.placement_prior is not None:  # diagnoses run in this process; the executor's workers only simulate
-        from besdrake.diagnosis import noise
+        from besdrake.diagnosis import settings
 
-        noise.PLACEMENT_SCALE_PRIOR_SD = args.placement_prior
+        settings.PLACEMENT_SCALE_PRIOR_SD = args.placement_prior
     dkw = {} if args.placement_sd is None else {"placement_sd": args.placement_sd}
     draw_unknown = _register_unknown()
     modes = args.modes.split(",")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from besdrake.diagnosis import fitting, noise
+from besdrake.diagnosis import fitting, noise, settings
 from besdrake.tasks.throwing.diagnosis import observables
 from besdrake.tasks.throwing.diagnosis.model import MODEL
 from besdrake.diagnosis.design import diagnosis_plans
@@ -712,7 +712,7 @@ def test_the_placement_scale_prior_keeps_a_chance_pair_of_repeats_from_pinning_t
     scatter) a probe's or a 5 cm throw's SD comes out below 0.6x its true value in at most half as many logs, also
     where the lab's placement scatter is 1.5 times the one the diagnosis was told (scale 2.25)."""
     def too_low(prior) -> int:
-        monkeypatch.setattr(noise, "PLACEMENT_SCALE_PRIOR_SD", prior)
+        monkeypatch.setattr(settings, "PLACEMENT_SCALE_PRIOR_SD", prior)
         rng = np.random.default_rng(0)
         fits = np.array([noise._class_fit(*_touchdown_repeats(rng, scale), [0, 1])[:2] for _ in range(200)])
         probe = fits[:, 0] / 0.05

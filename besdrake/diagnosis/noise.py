@@ -29,15 +29,6 @@ from besdrake.diagnosis.trials import SignalNoise, TrialModel, default_model
 MIN_DOF = 4
 #: Largest factor on the simulated placement variance (the lab's scatter measured from repeats / the simulation's).
 MAX_PLACEMENT_SCALE = 10.0
-#: SD of a log-normal prior on that factor, centred on 1 (the placement scatter the diagnosis was told); None (the
-#: default): maximum likelihood alone. A log's few repeats split a trial's scatter into base and placement parts
-#: poorly: a chance pair of close repeats of a plan the placement hardly moves can pin the base at a quarter of its
-#: value while the scale runs to its bound (the touchdown base below 0.6x the hidden one in 17 of the 132 logs of the
-#: diagnosis benchmark's seeds 4-6; with a prior of SD 0.5, in 3). Not the default: with the prior, touchdown-only
-#: answers were right or honest in 62 of 80 of those logs against 69 without: the scale the repeats show is below 0.1
-#: in 42 of the 132 logs and above 5 in 38, so the simulated placement variance is a poor guide to the lab's, and the
-#: prior's pull towards it costs more than it saves (CALIBRATION.md, "A prior on the placement scale of the noise model").
-PLACEMENT_SCALE_PRIOR_SD: float | None = None
 
 
 @dataclass
@@ -188,8 +179,8 @@ def _class_fit(features: np.ndarray, keys: list[str], place_var: np.ndarray | No
     """Base SD and placement scale of the feature columns ``cols``: the repeats' within-plan variance of each plan and
     feature is modelled as ``base^2 + scale * place_var`` (the simulated placement scatter is only approximately
     the lab's), fitted by maximum likelihood (a within-plan variance with d dof is a scaled chi-square), with a
-    log-normal prior around 1 on the scale where :data:`PLACEMENT_SCALE_PRIOR_SD` is set. A repeated plan the placement
-    hardly moves pins the base; the others, the scale. Returns (base SD, scale, dof) or None without enough repeats."""
+    log-normal prior around 1 on the scale where ``settings.PLACEMENT_SCALE_PRIOR_SD`` is set. A repeated plan the
+    placement hardly moves pins the base; the others, the scale. Returns (base SD, scale, dof) or None without enough repeats."""
     v, pv, d = [], [], []
     for idx in repeat_groups(keys):
         block = features[idx][:, cols]
@@ -214,7 +205,9 @@ def _class_fit(features: np.ndarray, keys: list[str], place_var: np.ndarray | No
     if not np.any(pv > 0):
         return float(np.sqrt(max(np.sum(d * v) / d.sum(), 0.0))), 0.0, dof
 
-    prior_sd = PLACEMENT_SCALE_PRIOR_SD
+    from besdrake.diagnosis import settings
+
+    prior_sd = settings.PLACEMENT_SCALE_PRIOR_SD
 
     def nll(x: np.ndarray) -> float:
         e = np.exp(x[0]) + np.exp(x[1]) * pv
