@@ -335,21 +335,24 @@ def additions_sweep(known: list[dict]) -> list[dict]:
 SWEEP_MARGINS = (6.0, 8.0, 10.0, 12.0, 15.0, 20.0)
 SWEEP_EXTRA_P = (0.0, 0.01, 0.05, 0.1, 0.2, 0.3)
 SWEEP_MAX_MOVED = (1, 2, 3, 99)
+#: ... and the lead the named cause must keep with any one plan left out (None: not checked; the plan jackknife).
+SWEEP_JACKKNIFE = (None, 0.0, 6.0, 10.0)
 
 
 def confidence_sweep(known: list[dict], unknown: list[dict]) -> list[dict]:
     """The "high" level re-decided from each trial's recorded confidence basis under other thresholds: per (margin,
-    extra p, moved parameters, the added effect's p with the plans as the units or the likelihood ratio's) how many
-    answers would be "high", how many of those right (up to structural identity), and how many confidently wrong
-    (an unknown effect named with "high" counts). Trials without a named cause keep their level."""
+    extra p, moved parameters, the added effect's p with the plans as the units or the likelihood ratio's, the plan
+    jackknife's lead) how many answers would be "high", how many of those right (up to structural identity), and how
+    many confidently wrong (an unknown effect named with "high" counts). Trials without a named cause keep their level."""
     from besdrake.diagnosis.verdict import is_high
 
     out = []
-    for m, ep, mm, pl in ((m, ep, mm, pl) for m in SWEEP_MARGINS for ep in SWEEP_EXTRA_P for mm in SWEEP_MAX_MOVED for pl in (False, True)):
+    grid = ((m, ep, mm, pl, jk) for m in SWEEP_MARGINS for ep in SWEEP_EXTRA_P for mm in SWEEP_MAX_MOVED for pl in (False, True) for jk in SWEEP_JACKKNIFE)
+    for m, ep, mm, pl, jk in grid:
         high = right = wrong = 0
         for r in known + unknown:
             b = _basis(r)
-            h = is_high(b, m, ep, mm, plans=pl) if b else r["confidence"] == "high"
+            h = is_high(b, m, ep, mm, plans=pl, jackknife_dbic=jk) if b else r["confidence"] == "high"
             if not h:
                 continue
             ok = (not r["unknown"]) and r.get("correct_structural", r["correct"])
@@ -358,7 +361,7 @@ def confidence_sweep(known: list[dict], unknown: list[dict]) -> list[dict]:
             high += 1
             right += ok
             wrong += not ok
-        out.append({"margin_dbic": m, "extra_p": ep, "max_moved": mm, "extra_p_plans": pl, "high": high, "high_right": right, "confident_wrong": wrong,
+        out.append({"margin_dbic": m, "extra_p": ep, "max_moved": mm, "extra_p_plans": pl, "jackknife_dbic": jk, "high": high, "high_right": right, "confident_wrong": wrong,
                     "share_right": right / high if high else None})
     return out
 

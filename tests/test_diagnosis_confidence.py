@@ -48,6 +48,7 @@ def test_moved_parameters_count_only_material_moves_against_the_realistic_range(
 @pytest.mark.parametrize("veto", [
     {"explained": False}, {"separable_rival": True}, {"p_value": 0.01}, {"outcome_only": True},
     {"rival_margin_dbic": 4.0}, {"rival_margin_chi2": 1.8}, {"extra_effect_p": 0.001}, {"moved_parameters": 4}, {"immaterial_extra": True},
+    {"jackknife_margin_dbic": 1.0},
 ])
 def test_every_part_of_the_basis_can_veto_high(veto):
     assert is_high(_basis())

@@ -147,6 +147,13 @@ HIGH_MARGIN_DBIC = 10.0
 #: over the 127 "high" answers of the benchmark's full-log rows, seeds 0-4 and both designs, no right one had a
 #: separable rival within 7.0 chi2).
 HIGH_MARGIN_CHI2: float | None = 6.0
+#: ... and that lead must stay at least this much BIC whichever plan of the log is left out (the plan jackknife,
+#: :mod:`~besdrake.diagnosis.jackknife`; None: not checked): a lead one trial makes is a lead one unlucky trial can
+#: make. Set at the "cannot tell" level (INDISTINGUISHABLE_DBIC): without any one plan the log must still tell the
+#: named cause from every rival. Issue 25, session 49: of the 52 "high" answers of the diagnosis benchmark's seeds 4-6
+#: (full logs), the one confidently wrong pair (seed 6, trial 42: a second effect that is not there, 14.5 BIC ahead,
+#: 1.0 without one trial) falls to "low", and with it two right answers that one plan carries (CALIBRATION.md).
+HIGH_JACKKNIFE_DBIC: float | None = 6.0
 #: ... and no effect added to the named cause may improve its fit at this level (likelihood ratio of the best plus that
 #: effect, :func:`~besdrake.diagnosis.verdict.extra_effect_p`): the rivals that are "the best plus an effect it does not
 #: need" are excluded from the margin above, but a second effect that the plan-level nested test could not claim may

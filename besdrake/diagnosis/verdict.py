@@ -11,7 +11,8 @@ import numpy as np
 from besdrake.diagnosis import fitting, noise
 from besdrake.diagnosis.advice import _separation_advice
 from besdrake.diagnosis.identifiability import Identifiability, StructuralClass
-from besdrake.diagnosis.additions import additions_beside, aliases as alias_effects, listed as listed_additions
+from besdrake.diagnosis.jackknife import jackknife_margin
+from besdrake.diagnosis.additions import SETTING, additions_beside, aliases as alias_effects, listed as listed_additions
 from besdrake.diagnosis.allowed import _allowed_effects, _recommendation
 from besdrake.diagnosis.results import AllowedEffect, Cause
 from besdrake.diagnosis import settings
@@ -289,6 +290,25 @@ def confidence_basis(fits: list[fitting.CandidateFit], causes: list[Cause], indi
             "moved_parameters": sum(moved_per_effect(_values(causes[0])).values())}
 
 
+def jackknife_basis(prob: fitting.Problem, fits: list[fitting.CandidateFit], causes: list[Cause], indist: list[dict], ev: Any) -> dict:
+    """The named cause's smallest BIC lead over its real rivals (:func:`_real_rivals`) with one plan of the log left
+    out (:func:`~besdrake.diagnosis.jackknife.jackknife_margin`); the left-out plan named by its trials' numbers."""
+    if prob is None or fits[0].y_fit is None:
+        return {}
+    real = {id(c) for c in _real_rivals(fits, causes, indist)}
+    rivals = [f for f, c in zip(fits, causes) if id(c) in real]
+    out = jackknife_margin(prob, fits[0], rivals, ev.keys).to_dict()
+    out["jackknife_left_out"] = [int(ev.used[i].trial) for i in out["jackknife_left_out"]]
+    return out
+
+
+def jackknife_note(basis: dict) -> str:
+    """Why a cause that would be "high" is not: one plan of the log carries its lead (:func:`jackknife_basis`)."""
+    trials = ", ".join(str(t) for t in basis.get("jackknife_left_out", []))
+    return (f"confidence low: without the plan of trials {trials} its lead over {basis.get('jackknife_rival')} falls to "
+            f"{basis['jackknife_margin_dbic']:.1f} BIC (one plan's trials carry it; repeat that plan or run others to confirm)")
+
+
 def seconds_basis(prob: fitting.Problem, sens: fitting.Sensitivity, best: fitting.CandidateFit, cands: list[str], keys: list[str]) -> dict:
     """What the log cannot exclude beside the named cause, for its confidence (:func:`~besdrake.diagnosis.additions.additions_beside`,
     linearised, no rollouts): per parameter of every other candidate effect its score z (noise model, and with the plans
@@ -322,17 +342,20 @@ def second_allowed(basis: dict, z_alpha: float | None | object = None, plans: bo
 
 
 def is_high(basis: dict, margin_dbic: float | None = None, extra_p: float | None = None, max_moved: int | None = None, second: bool = True,
-            plans: bool | None = None) -> bool:
+            plans: bool | None = None, jackknife_dbic: float | None | object = SETTING) -> bool:
     """"high" confidence for a named cause, from its :func:`confidence_basis` (the thresholds default to the settings'
-    HIGH_MARGIN_DBIC, HIGH_EXTRA_P, HIGH_MAX_MOVED and HIGH_EXTRA_P_PLANS; a benchmark passes others to calibrate them;
-    switched off with VERIFY_SINGLES)."""
+    HIGH_MARGIN_DBIC, HIGH_EXTRA_P, HIGH_MAX_MOVED, HIGH_EXTRA_P_PLANS and HIGH_JACKKNIFE_DBIC; a benchmark passes others
+    to calibrate them; switched off with VERIFY_SINGLES)."""
     margin_dbic = HIGH_MARGIN_DBIC if margin_dbic is None else margin_dbic
     extra_p = HIGH_EXTRA_P if extra_p is None else extra_p
     max_moved = HIGH_MAX_MOVED if max_moved is None else max_moved
     margin = np.inf if basis["rival_margin_dbic"] is None else basis["rival_margin_dbic"]
     fit_margin = basis.get("rival_margin_chi2")
     fit_ok = settings.HIGH_MARGIN_CHI2 is None or fit_margin is None or fit_margin >= settings.HIGH_MARGIN_CHI2
-    strict = not settings.VERIFY_SINGLES or (margin >= margin_dbic and fit_ok and added_effect_p(basis, plans) >= extra_p
+    jack = basis.get("jackknife_margin_dbic")
+    jackknife_dbic = settings.HIGH_JACKKNIFE_DBIC if jackknife_dbic is SETTING else jackknife_dbic
+    jack_ok = jackknife_dbic is None or jack is None or jack >= jackknife_dbic
+    strict = not settings.VERIFY_SINGLES or (margin >= margin_dbic and fit_ok and jack_ok and added_effect_p(basis, plans) >= extra_p
                                              and basis.get("moved_parameters", 0) <= max_moved and not basis.get("immaterial_extra", False)
                                              and not (second and second_allowed(basis)))
     return bool(basis["explained"] and not basis["separable_rival"] and basis["p_value"] >= CONFIDENT_P and not basis["outcome_only"] and strict)
@@ -389,6 +412,7 @@ def judge(prob: fitting.Problem, sens: fitting.Sensitivity, fits: list[fitting.C
     basis["extra_effect_p_plans"] = extra_effect_p_plans(prob, fits, causes, ev.keys)
     basis["extra_effect_scatter"] = extra_effect_scatter(prob, fits, causes, ev.keys)
     basis["noise_model"] = "within-trial covariance" if getattr(prob, "cov", None) is not None else "diagonal"
+    basis.update(jackknife_basis(prob, fits, causes, indist, ev))
     if explained and not outcome_only:
         basis.update(seconds_basis(prob, sens, fits[0], cands, ev.keys))
         if local_sens is not None and settings.SECONDS_LOCAL and is_high(basis, second=False):
@@ -418,6 +442,8 @@ def judge(prob: fitting.Problem, sens: fitting.Sensitivity, fits: list[fitting.C
             v.text += (f"; {' + '.join(extra.effects)} fits better than chance allows (p = {p_extra:.2g}"
                        + (f", over the plans p = {p_plans:.2g}" if p_plans is not None else "") + ") but not enough to be claimed: a second effect may be present")
             v.second = extra
+    if confidence == "low" and is_high(basis, jackknife_dbic=None):
+        v.text += "; " + jackknife_note(basis)
     twins = structural_notes(v, ident, cands)
     if twins:
         v.text += "; " + "; ".join(twins)
