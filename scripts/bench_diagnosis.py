@@ -814,6 +814,8 @@ def main(argv=None) -> int:
     ap.add_argument("--placement-sd", type=float, default=None, help="diagnose's placement_sd (m; default: diagnose's default)")
     ap.add_argument("--placement-prior", type=float, default=None, metavar="SD",
                     help="the noise model's log-normal prior on the placement scale (settings.PLACEMENT_SCALE_PRIOR_SD; default: none)")
+    ap.add_argument("--within-trial-covariance", action="store_true",
+                    help="the noise model's within-trial covariance (settings.WITHIN_TRIAL_COVARIANCE; default: the diagonal model)")
     ap.add_argument("--fresh", type=int, default=15, help="unknown-effect trials: throws of new plans in the same lab on which the residual model "
                                                           "is checked (no part of the diagnosis saw them; 0: none)")
     ap.add_argument("--progress", action="store_true", help="one line per diagnosis on stderr")
@@ -847,6 +849,10 @@ def main(argv=None) -> int:
         from besdrake.diagnosis import settings
 
         settings.PLACEMENT_SCALE_PRIOR_SD = args.placement_prior
+    if args.within_trial_covariance:
+        from besdrake.diagnosis import settings
+
+        settings.WITHIN_TRIAL_COVARIANCE = True
     dkw = {} if args.placement_sd is None else {"placement_sd": args.placement_sd}
     draw_unknown = _register_unknown()
     modes = args.modes.split(",")
