@@ -845,13 +845,11 @@ def main(argv=None) -> int:
             old_sig = {(r["trial"], r["mode"]): r for r in json.load(fh)["trials"] if "signature_over_limit_expected" in r}
     registry = effects_for("throwing")  # before the bench's unknown effects are registered (plugins join it)
     only = None if args.only is None else {int(x) for x in args.only.split(",") if x.strip()}
-    if args.placement_prior is not None:  # diagnoses run in this process; the executor's workers only simulate
-        from besdrake.diagnosis import settings
+    from besdrake.diagnosis import settings  # diagnoses run in this process; the executor's workers only simulate
 
+    if args.placement_prior is not None:
         settings.PLACEMENT_SCALE_PRIOR_SD = args.placement_prior
     if args.within_trial_covariance:
-        from besdrake.diagnosis import settings
-
         settings.WITHIN_TRIAL_COVARIANCE = True
     dkw = {} if args.placement_sd is None else {"placement_sd": args.placement_sd}
     draw_unknown = _register_unknown()

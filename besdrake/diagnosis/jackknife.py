@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from besdrake.diagnosis import fitting
+from besdrake.diagnosis.noise import plan_rows
 
 
 @dataclass
@@ -31,14 +32,6 @@ class JackknifeMargin:
     def to_dict(self) -> dict:
         return {"jackknife_margin_dbic": None if not np.isfinite(self.margin_dbic) else float(self.margin_dbic),
                 "jackknife_rival": self.rival, "jackknife_left_out": list(self.left_out)}
-
-
-def plan_rows(keys: list[str]) -> list[list[int]]:
-    """The log's trials grouped by plan (content hash), in order of first appearance."""
-    by_key: dict[str, list[int]] = {}
-    for i, k in enumerate(keys):
-        by_key.setdefault(k, []).append(i)
-    return list(by_key.values())
 
 
 def left_out_bics(prob: fitting.Problem, fit: fitting.CandidateFit, plans: list[list[int]]) -> np.ndarray | None:

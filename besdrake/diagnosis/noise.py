@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import minimize
 
+from besdrake.diagnosis import settings
 from besdrake.diagnosis.trials import SignalNoise, TrialModel, default_model
 
 #: Minimum degrees of freedom of the pure error before it is trusted.
@@ -96,8 +97,6 @@ class NoiseModel:
         the simulation floor (the floor part of every feature stays independent, so that no combination of features is
         trusted beyond what the simulation reproduces). None when the diagonal model is asked for
         (``settings.WITHIN_TRIAL_COVARIANCE``) or nothing correlates."""
-        from besdrake.diagnosis import settings
-
         have_place = self.place_cov is not None and len(self.place_cov) == n and self.feature_sd is not None
         if not settings.WITHIN_TRIAL_COVARIANCE or (self.base_corr is None and not have_place):
             return None
@@ -147,12 +146,17 @@ class NoiseModel:
                 "axis_sd_beyond_placement": self.axis_sd()}
 
 
-def repeat_groups(keys: list[str]) -> list[list[int]]:
-    """Row indices of the plans run more than once (rows sharing a key), in order of first appearance."""
+def plan_rows(keys: list[str]) -> list[list[int]]:
+    """The log's trials grouped by plan (rows sharing a key, the plan's content hash), in order of first appearance."""
     by_key: dict[str, list[int]] = {}
     for i, k in enumerate(keys):
         by_key.setdefault(k, []).append(i)
-    return [idx for idx in by_key.values() if len(idx) > 1]
+    return list(by_key.values())
+
+
+def repeat_groups(keys: list[str]) -> list[list[int]]:
+    """Row indices of the plans run more than once (rows sharing a key), in order of first appearance."""
+    return [idx for idx in plan_rows(keys) if len(idx) > 1]
 
 
 def pure_error(features: np.ndarray, keys: list[str], model: TrialModel | None = None) -> dict[str, tuple[float, int]]:
@@ -204,8 +208,6 @@ def _class_fit(features: np.ndarray, keys: list[str], place_var: np.ndarray | No
     tiny = 1e-14
     if not np.any(pv > 0):
         return float(np.sqrt(max(np.sum(d * v) / d.sum(), 0.0))), 0.0, dof
-
-    from besdrake.diagnosis import settings
 
     prior_sd = settings.PLACEMENT_SCALE_PRIOR_SD
 
@@ -298,8 +300,6 @@ def estimate_noise(features: np.ndarray, keys: list[str], signal: SignalNoise | 
                     place_scale=place_scale, model=model, place_cov=place_cov,
                     repeat_dof=sum(len(idx) - 1 for idx in repeat_groups(keys)))
     if n_rep >= 2:
-        from besdrake.diagnosis import settings
-
         nm.base_corr = base_correlation(features, keys, nm.matrix(len(features)), nm.floor_vector(), settings.ALPHA)
     return nm
 
@@ -327,4 +327,4 @@ def _axis_fits(features: np.ndarray, keys: list[str], place_var: np.ndarray | No
     return feature_sd, place_scale
 
 
-__all__ = ["NoiseModel", "estimate_noise", "pure_error", "repeat_groups"]
+__all__ = ["NoiseModel", "estimate_noise", "plan_rows", "pure_error", "repeat_groups"]
