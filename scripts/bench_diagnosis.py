@@ -814,8 +814,11 @@ def main(argv=None) -> int:
     ap.add_argument("--placement-sd", type=float, default=None, help="diagnose's placement_sd (m; default: diagnose's default)")
     ap.add_argument("--placement-prior", type=float, default=None, metavar="SD",
                     help="the noise model's log-normal prior on the placement scale (settings.PLACEMENT_SCALE_PRIOR_SD; default: none)")
-    ap.add_argument("--within-trial-covariance", action="store_true",
-                    help="the noise model's within-trial covariance (settings.WITHIN_TRIAL_COVARIANCE; default: the diagonal model)")
+    ap.add_argument("--noise-covariance", choices=("default", "diagonal", "every-log"), default="default",
+                    help="the noise model's within-trial covariance: default: as settings say (on where a log records more than the "
+                         "outcome); diagonal: off (every feature independent, as before session 50); every-log: on also for logs of outcomes alone")
+    ap.add_argument("--eigenvalue-floor", type=float, default=None, metavar="F",
+                    help="the within-trial correlation's smallest eigenvalue (settings.CORRELATION_EIGENVALUE_FLOOR; default: the setting)")
     ap.add_argument("--fresh", type=int, default=15, help="unknown-effect trials: throws of new plans in the same lab on which the residual model "
                                                           "is checked (no part of the diagnosis saw them; 0: none)")
     ap.add_argument("--progress", action="store_true", help="one line per diagnosis on stderr")
@@ -849,8 +852,11 @@ def main(argv=None) -> int:
 
     if args.placement_prior is not None:
         settings.PLACEMENT_SCALE_PRIOR_SD = args.placement_prior
-    if args.within_trial_covariance:
-        settings.WITHIN_TRIAL_COVARIANCE = True
+    if args.noise_covariance != "default":
+        settings.WITHIN_TRIAL_COVARIANCE = args.noise_covariance == "every-log"
+        settings.WITHIN_TRIAL_COVARIANCE_OUTCOME_ONLY = args.noise_covariance == "every-log"
+    if args.eigenvalue_floor is not None:
+        settings.CORRELATION_EIGENVALUE_FLOOR = args.eigenvalue_floor
     dkw = {} if args.placement_sd is None else {"placement_sd": args.placement_sd}
     draw_unknown = _register_unknown()
     modes = args.modes.split(",")

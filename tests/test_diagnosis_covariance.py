@@ -12,8 +12,10 @@ from besdrake.tasks.throwing.diagnosis.observables import N_FEATURES, group_slic
 
 @pytest.fixture(autouse=True)
 def _covariance_model_on(monkeypatch):
-    """These tests exercise the within-trial covariance model, off by default until the whole benchmark has run it."""
+    """These tests exercise the within-trial covariance model whatever the defaults say (on for logs beyond the
+    outcome since session 50)."""
     monkeypatch.setattr(settings, "WITHIN_TRIAL_COVARIANCE", True)
+    monkeypatch.setattr(settings, "WITHIN_TRIAL_COVARIANCE_OUTCOME_ONLY", False)
 
 
 def _repeats(rng: np.random.Generator, plans: int = 10, per: int = 2, shared: float = 0.05) -> tuple[np.ndarray, list[str]]:
@@ -73,6 +75,18 @@ def test_whitened_problem_is_generalised_least_squares():
     assert c2 == pytest.approx(sum(float(f[i, td] @ np.linalg.solve(cov[i][td, td], f[i, td])) for i in range(n)), rel=1e-6)
 
 
+@pytest.mark.parametrize("floor", [1e-3, 0.1])
+def test_a_near_exact_correlation_is_trusted_only_down_to_the_eigenvalue_floor(monkeypatch, floor):
+    """Two features that move together almost exactly (one perturbation, tiny independent noise) leave a contrast the
+    repeats put near nil; its weight in the whitening is bounded by the floor on the correlation's eigenvalues."""
+    monkeypatch.setattr(settings, "CORRELATION_EIGENVALUE_FLOOR", floor)
+    f, keys = _repeats(np.random.default_rng(7), plans=12, shared=0.05)
+    R = noise.estimate_noise(f, keys).base_corr
+    ev = np.linalg.eigvalsh(R)
+    assert ev.min() >= floor / (1.0 + floor) - 1e-12
+    assert ev.min() < max(1.5 * floor, 0.01)  # the contrast: near nil, or at the floor
+
+
 def test_diagonal_switch_and_floor():
     rng = np.random.default_rng(5)
     f, keys = _repeats(rng)
@@ -87,6 +101,28 @@ def test_diagonal_switch_and_floor():
     cov = nm.covariances(len(f))
     j = group_slices()["joints"].start
     assert np.allclose(np.delete(cov[:, j], j, axis=1), 0.0)
+
+
+def test_outcome_only_log_keeps_the_diagonal_model_unless_asked(monkeypatch):
+    """A log of touchdowns alone: the outcome's x and y share a perturbation, but the covariance is used only when the
+    outcome-only switch is on; a full log of the same trials uses it."""
+    rng = np.random.default_rng(6)
+    sl = group_slices()
+    keys = [f"p{j}" for j in range(10) for _ in range(2)]
+    f = np.full((len(keys), N_FEATURES), np.nan)
+    td = sl["touchdown"]
+    shared = rng.normal(0, 0.05, len(keys))
+    f[:, td] = rng.normal(0, 0.01, (len(keys), td.stop - td.start))
+    f[:, td.start] += shared
+    f[:, td.start + 1] += shared
+    nm = noise.estimate_noise(f, keys)
+    assert nm.outcome_only and nm.base_corr is not None
+    assert nm.covariances(len(f)) is None
+    monkeypatch.setattr(settings, "WITHIN_TRIAL_COVARIANCE_OUTCOME_ONLY", True)
+    cov = nm.covariances(len(f))
+    assert cov is not None and cov[0, td.start, td.start + 1] > 0
+    full, _ = _repeats(rng)
+    assert not noise.estimate_noise(full, keys).outcome_only
 
 
 def test_added_effect_judged_against_the_repeats_dof():

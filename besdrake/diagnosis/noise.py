@@ -57,6 +57,8 @@ class NoiseModel:
     #: Pure-error degrees of freedom of the repeats (one per extra trial of a repeated plan): how many independent
     #: looks at the noise along any one direction of a trial's features the log holds.
     repeat_dof: int = 0
+    #: The log holds the outcome group alone (no other group measured in two trials or more).
+    outcome_only: bool = False
 
     def __post_init__(self) -> None:
         if self.model is None:
@@ -96,9 +98,11 @@ class NoiseModel:
         (base SDs, :attr:`base_corr`) plus the scaled placement covariance, its correlation applied to what lies above
         the simulation floor (the floor part of every feature stays independent, so that no combination of features is
         trusted beyond what the simulation reproduces). None when the diagonal model is asked for
-        (``settings.WITHIN_TRIAL_COVARIANCE``) or nothing correlates."""
+        (``settings.WITHIN_TRIAL_COVARIANCE``, for a log of outcomes alone ``WITHIN_TRIAL_COVARIANCE_OUTCOME_ONLY``) or
+        nothing correlates."""
         have_place = self.place_cov is not None and len(self.place_cov) == n and self.feature_sd is not None
-        if not settings.WITHIN_TRIAL_COVARIANCE or (self.base_corr is None and not have_place):
+        wanted = settings.WITHIN_TRIAL_COVARIANCE_OUTCOME_ONLY if self.outcome_only else settings.WITHIN_TRIAL_COVARIANCE
+        if not wanted or (self.base_corr is None and not have_place):
             return None
         sd = self.matrix(n)
         base = self.vector()
@@ -236,7 +240,7 @@ def base_correlation(features: np.ndarray, keys: list[str], sd: np.ndarray, floo
     (benchmark log: intensity 0.88, a touchdown-path correlation of 1.00 kept as 0.12). So an entry is kept only
     where it is significant (t test of a correlation with the pure-error dof, at ``alpha`` Bonferroni over the pairs
     of features above the floor), else 0; features whose SD is the simulation floor (``floor``) stay independent.
-    The result is made positive definite (eigenvalues at least 1e-3, unit diagonal)."""
+    The result is made positive definite (eigenvalues at least ``settings.CORRELATION_EIGENVALUE_FLOOR``, unit diagonal)."""
     from scipy import stats as st
 
     dev = []
@@ -263,7 +267,7 @@ def base_correlation(features: np.ndarray, keys: list[str], sd: np.ndarray, floo
     r = np.where(keep, r, 0.0)
     np.fill_diagonal(r, 1.0)
     ev, V = np.linalg.eigh(r)
-    r = (V * np.clip(ev, 1e-3, None)) @ V.T
+    r = (V * np.clip(ev, settings.CORRELATION_EIGENVALUE_FLOOR, None)) @ V.T
     d = np.sqrt(np.diag(r))
     R[np.ix_(live, live)] = r / np.outer(d, d)
     return R if np.any(keep & ~np.eye(m, dtype=bool)) else None
@@ -298,10 +302,15 @@ def estimate_noise(features: np.ndarray, keys: list[str], signal: SignalNoise | 
         feature_sd, place_scale = _axis_fits(features, keys, place_var, model, source, signal)
     nm = NoiseModel(sd=sd, dof=dof, source=source, n_repeat_groups=n_rep, notes=notes, feature_sd=feature_sd, place_var=place_var,
                     place_scale=place_scale, model=model, place_cov=place_cov,
-                    repeat_dof=sum(len(idx) - 1 for idx in repeat_groups(keys)))
+                    repeat_dof=sum(len(idx) - 1 for idx in repeat_groups(keys)), outcome_only=_outcome_only(features, model))
     if n_rep >= 2:
         nm.base_corr = base_correlation(features, keys, nm.matrix(len(features)), nm.floor_vector(), settings.ALPHA)
     return nm
+
+
+def _outcome_only(features: np.ndarray, model: TrialModel) -> bool:
+    """Whether the log measured no group but the outcome (in two trials or more, as the replay counts a group)."""
+    return not any(np.isfinite(features[:, s]).all(axis=1).sum() >= 2 for g, s in model.slices().items() if g != model.outcome)
 
 
 def _axis_fits(features: np.ndarray, keys: list[str], place_var: np.ndarray | None, model: TrialModel, source: dict[str, str],
