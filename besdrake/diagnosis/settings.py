@@ -33,7 +33,9 @@ WITHIN_TRIAL_COVARIANCE = True
 #: The smallest eigenvalue of the within-trial correlation (:func:`~besdrake.diagnosis.noise.base_correlation`): features
 #: the repeats show moving together almost exactly (a throw's sideways deviation in its touchdown, path and velocity,
 #: r = 0.99) leave contrasts whose variance the repeats put near nil, and the whitening then weighs a model error along
-#: such a contrast up to 1/sqrt(floor) times.
+#: such a contrast up to 1/sqrt(floor) times. Session 50 (CALIBRATION.md, "A floor of 0.1 on the correlation's
+#: eigenvalues"): 0.1 instead of 1e-3 on the same full logs of seeds 4, 6-8: right 129 -> 134 of 160, but "high" wrong
+#: 3 -> 5 (of 65 -> 76); not switched.
 CORRELATION_EIGENVALUE_FLOOR = 1e-3
 #: The within-trial covariance also for a log of outcomes alone (a trial's outcome features, e.g. a touchdown's x and
 #: y, then correlate through the placement scatter only). Off: on seed 6's touchdown-only logs it lost more answers
