@@ -308,9 +308,14 @@ def estimate_noise(features: np.ndarray, keys: list[str], signal: SignalNoise | 
     return nm
 
 
+def measured_groups(features: np.ndarray, model: TrialModel) -> list[str]:
+    """The feature groups a log holds: those measured whole in two trials or more."""
+    return [g for g, s in model.slices().items() if np.isfinite(features[:, s]).all(axis=1).sum() >= 2]
+
+
 def _outcome_only(features: np.ndarray, model: TrialModel) -> bool:
-    """Whether the log measured no group but the outcome (in two trials or more, as the replay counts a group)."""
-    return not any(np.isfinite(features[:, s]).all(axis=1).sum() >= 2 for g, s in model.slices().items() if g != model.outcome)
+    """Whether the log measured no group but the outcome (:func:`measured_groups`)."""
+    return set(measured_groups(features, model)) <= {model.outcome}
 
 
 def _axis_fits(features: np.ndarray, keys: list[str], place_var: np.ndarray | None, model: TrialModel, source: dict[str, str],

@@ -64,7 +64,7 @@ def replay(used: list, keys: list[str], ex, cache: dict | None, scen: Scenario, 
     y_meas = np.array(meas)
     y0 = np.array([model.simulated_features(o, lay) for o, lay in zip(nominal, layouts)]) + sim.shift
     sim.full_cache[sim.key({})] = np.array([model.simulated_features(o, lay) for o, lay in zip(nominal, sim.full_layouts)]) + sim.full_shift
-    measured_groups = [g for g, s in model.slices().items() if np.isfinite(y_meas[:, s]).all(axis=1).sum() >= 2]
+    measured_groups = noise.measured_groups(y_meas, model)
     signal = model.signal_noise(used, layouts, rms)
     nm = noise.estimate_noise(y_meas, keys, signal, place_var=sim.place_var, model=model, place_cov=sim.place_cov)
     return Evidence(used, plans, keys, sim, y_meas, y0, nm, measured_groups, signal, placement_summary)

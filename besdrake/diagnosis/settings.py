@@ -31,7 +31,7 @@ from __future__ import annotations
 #: for a joint-1 offset or back, right up to structural identity; three a base offset given a partner it does not have).
 WITHIN_TRIAL_COVARIANCE = True
 #: The smallest eigenvalue of the within-trial correlation (:func:`~besdrake.diagnosis.noise.base_correlation`): features
-#: the repeats show moving together almost exactly (a throw's sideways deviation in its touchdown, path and velocity,
+#: the repeats show moving together almost exactly (one trial's sideways deviation in its outcome, path and velocity,
 #: r = 0.99) leave contrasts whose variance the repeats put near nil, and the whitening then weighs a model error along
 #: such a contrast up to 1/sqrt(floor) times. Session 50 (CALIBRATION.md, "A floor of 0.1 on the correlation's
 #: eigenvalues"): 0.1 instead of 1e-3 on the same full logs of seeds 4, 6-8: right 129 -> 134 of 160, but "high" wrong
