@@ -304,6 +304,22 @@ def test_reach_probe_models_range_and_rotation():
         ReachProbe(taus, np.full((3, 2), np.nan), 0.0, np.ones(3, bool))
 
 
+def test_a_base_that_lands_short_of_every_target_keeps_the_safe_execution_times():
+    """Even the fastest safe probe lands short of the context box's nearest target: the box's execution times are the
+    safe ones, not a single time (learn --quick crashed on [lo, lo] once the refined scenario's throws fell short)."""
+    from besdrake.search.template_reach import ReachProbe, reach_meta_bounds
+    from besdrake.search.templates import CONTEXT_BOUNDS, _check_meta_bounds
+
+    taus = np.array([1.0, 1.5, 2.0])
+    probe = ReachProbe(taus, np.column_stack([[0.9, 0.7, 0.5], [0.0, 0.0, 0.0]]), 0.0, np.ones(3, bool))
+    safe = np.array([[1.0, 2.0], [-1.0, 1.0]])
+    box = reach_meta_bounds(probe, safe, CONTEXT_BOUNDS)
+    _check_meta_bounds(box)
+    assert box[0].tolist() == [1.0, 2.0]
+    reach = ReachProbe(taus, np.column_stack([[2.6, 0.9, 0.5], [0.0, 0.0, 0.0]]), 0.0, np.ones(3, bool))
+    assert reach_meta_bounds(reach, safe, CONTEXT_BOUNDS)[0].tolist() == [1.0, 1.5]  # narrowed where a probe reaches
+
+
 def test_probes_set_the_box_and_the_prior_makes_a_template_accurate_from_few_episodes(base, tmp_path):
     """On the stand-in (range 3.3 m - duration, direction = final joint-1 angle) the probes' model is exact: the
     box stops where the nearest target is reached and 16 rollouts (4 probes) aim within 2 cm of every target within

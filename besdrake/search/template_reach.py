@@ -131,15 +131,17 @@ def reach_meta_bounds(probe: ReachProbe, safe_bounds: np.ndarray, context_bounds
     """The meta-parameter box the probes call for, inside ``safe_bounds`` (within the joint limits).
 
     Execution time: from the fastest safe one to the first probe that lands nearer than the context box's nearest
-    target (less :data:`RANGE_MARGIN`), or the slowest safe one. Joint-1 goal: the goals that turn every probe
-    within those times to every direction of the context box (plus :data:`YAW_MARGIN`), clipped to the safe range.
+    target (less :data:`RANGE_MARGIN`), or the slowest safe one; where even the fastest lands short (a base that
+    cannot reach the box: the template then misses by range, and says so in its distances) the safe range stays
+    whole. Joint-1 goal: the goals that turn every probe within those times to every direction of the context box
+    (plus :data:`YAW_MARGIN`), clipped to the safe range.
     """
     safe_bounds = np.asarray(safe_bounds, dtype=float)
     r_near, _, yaw_lo, yaw_hi = context_polar_box(np.asarray(context_bounds, dtype=float))
     lo, hi = safe_bounds[0]
     inside = (probe.taus >= lo - 1e-9) & (probe.taus <= hi + 1e-9)
     short = inside & (np.linalg.norm(probe.touchdowns, axis=1) < r_near - RANGE_MARGIN)
-    if short.any():
+    if short.any() and float(probe.taus[np.flatnonzero(short)[0]]) > lo:
         hi = min(hi, float(probe.taus[np.flatnonzero(short)[0]]))
     taus = np.linspace(lo, hi, 25)
     yaws = probe.yaw(taus)
