@@ -141,8 +141,9 @@ def reach_meta_bounds(probe: ReachProbe, safe_bounds: np.ndarray, context_bounds
     lo, hi = safe_bounds[0]
     inside = (probe.taus >= lo - 1e-9) & (probe.taus <= hi + 1e-9)
     short = inside & (np.linalg.norm(probe.touchdowns, axis=1) < r_near - RANGE_MARGIN)
-    if short.any() and float(probe.taus[np.flatnonzero(short)[0]]) > lo:
-        hi = min(hi, float(probe.taus[np.flatnonzero(short)[0]]))
+    first_short = float(probe.taus[np.flatnonzero(short)[0]]) if short.any() else np.inf
+    if first_short > lo:
+        hi = min(hi, first_short)
     taus = np.linspace(lo, hi, 25)
     yaws = probe.yaw(taus)
     g_lo = probe.goal1 + yaw_lo - YAW_MARGIN - float(yaws.max())
